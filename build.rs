@@ -1,0 +1,31 @@
+//! Generates `include/gsenc.h` from the C ABI in `capi/` with cbindgen.
+//!
+//! The header is checked in; `.ci/run` regenerates it and fails when the
+//! checked-in copy differs, so the ABI and its header never drift apart.
+use std::path::PathBuf;
+
+fn main() {
+    let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
+    println!("cargo:rerun-if-changed=capi");
+    println!("cargo:rerun-if-changed=cbindgen.toml");
+    // Programs linked against the shared library record its SONAME, not its build path.
+    println!("cargo:rustc-cdylib-link-arg=-Wl,-soname,libgsenc.so.0");
+
+    let config = cbindgen::Config::from_file(root.join("cbindgen.toml")).expect("cbindgen.toml");
+    let mut builder = cbindgen::Builder::new().with_config(config);
+    let mut sources: Vec<PathBuf> = std::fs::read_dir(root.join("capi"))
+        .expect("capi/")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "rs"))
+        .collect();
+    sources.sort();
+    for s in sources {
+        builder = builder.with_src(s);
+    }
+    match builder.generate() {
+        Ok(bindings) => {
+            bindings.write_to_file(root.join("include/gsenc.h"));
+        }
+        Err(e) => panic!("cbindgen failed: {e}"),
+    }
+}

@@ -1,0 +1,719 @@
+//! The CPU backend: spatial bricks, rayon, no locks or atomics on the hot path.
+//!
+//! Training (`point_loss_grad`, `evaluate_points`):
+//! 1. points are counting-sorted into cubic bricks (`brick` voxels a side);
+//! 2. each primitive is listed in every occupied brick that its tight 5-sigma
+//!    box overlaps (a CSR built by a stable counting sort, so every list is in
+//!    primitive order);
+//! 3. the occupied bricks are cut into a fixed number of contiguous work chunks
+//!    that depends only on the data, never on the thread count; each chunk runs
+//!    forward, point loss and backward for its points and accumulates the pair
+//!    sums into its own sparse accumulator (`ChunkScratch`);
+//! 4. the chunk accumulators are added in chunk order. Float sums therefore
+//!    happen in the same order with 1 thread or 64, and models are
+//!    byte-identical whatever the thread count.
+//!
+//! Decoding (`decode_lattice`) splats primitives brick by brick: each z-slab
+//! of bricks is one parallel task that writes its own slice of the output.
+
+use super::{Backend, Lattice, PointLoss};
+use crate::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
+use crate::loss::{point_terms, v_eval, LossWeights, PointNorm};
+use crate::points::PointBatch;
+use rayon::prelude::*;
+
+/// Work chunks per batch: enough for load balance on many cores; fixed so that
+/// the reduction order never depends on the thread count.
+const WORK_CHUNKS: usize = 64;
+/// Primitives per parallel task when building frames and bins.
+const PRIM_CHUNK: usize = 2048;
+/// Edge of a decode brick in lattice voxels.
+const DECODE_BRICK: usize = 8;
+
+/// Lanes of the structure-of-arrays blocks; loops over `[f32; LANES]` vectorise.
+const LANES: usize = 8;
+type Lane = [f32; LANES];
+
+/// What the point passes read of one primitive, computed once per iteration.
+#[derive(Clone, Copy, Default)]
+struct Hot {
+    mu: [f32; 3],
+    /// Rows of `diag(sigma)^-1 R^T`.
+    a: [f32; 9],
+    w: f32,
+    s: f32,
+}
+
+impl Hot {
+    fn new(f: &Frame) -> Hot {
+        let sa = f.scaled_axes();
+        Hot { mu: f.mu, a: [sa[0][0], sa[0][1], sa[0][2], sa[1][0], sa[1][1], sa[1][2], sa[2][0], sa[2][1], sa[2][2]], w: f.w, s: f.s }
+    }
+}
+
+/// `LANES` candidates of a brick in structure-of-arrays form. Padding lanes
+/// are inert: `a = 0` and `w = 0`, so they add exactly zero everywhere.
+#[derive(Clone, Copy)]
+struct Block {
+    mu: [Lane; 3],
+    a: [Lane; 9],
+    w: Lane,
+    s: Lane,
+    /// Union of the candidates' 5-sigma boxes (lo[3], hi[3]): points outside
+    /// it skip the block, whose kernels are all zero there.
+    bbox: [f32; 6],
+}
+
+const EMPTY_BLOCK: Block = Block {
+    mu: [[0.0; LANES]; 3],
+    a: [[0.0; LANES]; 9],
+    w: [0.0; LANES],
+    s: [0.0; LANES],
+    bbox: [f32::INFINITY, f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY],
+};
+
+/// Kernels and scaled local coordinates of a block's lanes at `x`, computed
+/// in local arrays only, so that the loop vectorises.
+#[inline(always)]
+fn block_kernels(blk: &Block, x: [f32; 3]) -> (Lane, [Lane; 3]) {
+    let mut k = [0.0f32; LANES];
+    let mut y = [[0.0f32; LANES]; 3];
+    let a = &blk.a;
+    for l in 0..LANES {
+        let dx = x[0] - blk.mu[0][l];
+        let dy = x[1] - blk.mu[1][l];
+        let dz = x[2] - blk.mu[2][l];
+        let u0 = a[0][l] * dx + a[1][l] * dy + a[2][l] * dz;
+        let u1 = a[3][l] * dx + a[4][l] * dy + a[5][l] * dz;
+        let u2 = a[6][l] * dx + a[7][l] * dy + a[8][l] * dz;
+        let d2 = u0 * u0 + u1 * u1 + u2 * u2;
+        let e = crate::kernel::exp_neg_half(d2);
+        k[l] = if d2 < CUTOFF_D2 { e } else { 0.0 };
+        y[0][l] = u0;
+        y[1][l] = u1;
+        y[2][l] = u2;
+    }
+    (k, y)
+}
+
+/// The 11 `GradAcc` pair terms (and K) of a block's lanes for one point, in
+/// local arrays; the same expressions as [`GradAcc::add_pair`].
+#[inline(always)]
+fn block_pair_terms(blk: &Block, ev: &BlockEval, g_rho: f32, g_n: f32) -> [Lane; 12] {
+    let mut t = [[0.0f32; LANES]; 12];
+    let (k, y) = (&ev.k, &ev.y);
+    for l in 0..LANES {
+        let c = -0.5 * k[l] * blk.w[l] * (g_rho + blk.s[l] * g_n);
+        t[0][l] = k[l] * g_rho;
+        t[1][l] = k[l] * g_n;
+        t[2][l] = c * y[0][l];
+        t[3][l] = c * y[1][l];
+        t[4][l] = c * y[2][l];
+        t[5][l] = c * y[0][l] * y[0][l];
+        t[6][l] = c * y[1][l] * y[1][l];
+        t[7][l] = c * y[2][l] * y[2][l];
+        t[8][l] = c * y[0][l] * y[1][l];
+        t[9][l] = c * y[0][l] * y[2][l];
+        t[10][l] = c * y[1][l] * y[2][l];
+        t[11][l] = k[l];
+    }
+    t
+}
+
+/// Kernel values and scaled local coordinates of one block at the current point.
+#[derive(Clone, Copy, Default)]
+struct BlockEval {
+    k: Lane,
+    y: [Lane; 3],
+    active: bool,
+}
+
+/// The candidates of one brick, the current point's kernels, and the brick's
+/// gradient sums (11 `GradAcc` terms and the sum of K, per candidate).
+#[derive(Default)]
+struct BrickSoa {
+    blocks: Vec<Block>,
+    eval: Vec<BlockEval>,
+    acc: Vec<[Lane; 12]>,
+}
+
+impl BrickSoa {
+    fn load(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32], with_grad: bool) {
+        let nb = cands.len().div_ceil(LANES);
+        self.blocks.clear();
+        self.blocks.resize(nb, EMPTY_BLOCK);
+        self.eval.resize(nb, BlockEval::default());
+        if with_grad {
+            self.acc.clear();
+            self.acc.resize(nb, [[0.0; LANES]; 12]);
+        }
+        for (j, &g) in cands.iter().enumerate() {
+            let (b, l) = (j / LANES, j % LANES);
+            let h = &hot[g as usize];
+            let bx = &boxes[g as usize];
+            let blk = &mut self.blocks[b];
+            for c in 0..3 {
+                blk.mu[c][l] = h.mu[c];
+                blk.bbox[c] = blk.bbox[c].min(bx[c]);
+                blk.bbox[c + 3] = blk.bbox[c + 3].max(bx[c + 3]);
+            }
+            for r in 0..9 {
+                blk.a[r][l] = h.a[r];
+            }
+            blk.w[l] = h.w;
+            blk.s[l] = h.s;
+        }
+    }
+
+    /// Kernels of every candidate at `x`; returns `(rho, n)`. Lane partial sums
+    /// are added in a fixed order, so the result depends only on the candidates.
+    #[inline(always)]
+    fn forward(&mut self, x: [f32; 3]) -> (f32, f32) {
+        let mut rho = [0.0f32; LANES];
+        let mut num = [0.0f32; LANES];
+        for (blk, ev) in self.blocks.iter().zip(self.eval.iter_mut()) {
+            let bb = &blk.bbox;
+            ev.active = !(x[0] < bb[0] || x[1] < bb[1] || x[2] < bb[2] || x[0] > bb[3] || x[1] > bb[4] || x[2] > bb[5]);
+            if !ev.active {
+                continue;
+            }
+            let (k, y) = block_kernels(blk, x);
+            for l in 0..LANES {
+                let wk = blk.w[l] * k[l];
+                rho[l] += wk;
+                num[l] += wk * blk.s[l];
+            }
+            ev.k = k;
+            ev.y = y;
+        }
+        let (mut r, mut n) = (0.0f32, 0.0f32);
+        for l in 0..LANES {
+            r += rho[l];
+            n += num[l];
+        }
+        (r, n)
+    }
+
+    /// Adds the current point's pair terms to the brick's sums.
+    #[inline(always)]
+    fn backward(&mut self, g_rho: f32, g_n: f32) {
+        for ((blk, ev), acc) in self.blocks.iter().zip(self.eval.iter()).zip(self.acc.iter_mut()) {
+            if !ev.active {
+                continue;
+            }
+            let terms = block_pair_terms(blk, ev, g_rho, g_n);
+            for t in 0..12 {
+                for l in 0..LANES {
+                    acc[t][l] += terms[t][l];
+                }
+            }
+        }
+    }
+
+    /// The brick's sums of candidate `j`, or `None` when it touched no point.
+    fn take(&self, j: usize) -> Option<GradAcc> {
+        let (b, l) = (j / LANES, j % LANES);
+        let acc = &self.acc[b];
+        if acc[11][l] == 0.0 {
+            return None;
+        }
+        let mut g = GradAcc::default();
+        for t in 0..11 {
+            g.0[t] = acc[t][l];
+        }
+        Some(g)
+    }
+}
+/// Per-chunk sparse gradient accumulator, kept between iterations.
+#[derive(Default)]
+struct ChunkScratch {
+    /// Primitive -> position in `acc`, `u32::MAX` when untouched.
+    slot: Vec<u32>,
+    touched: Vec<u32>,
+    acc: Vec<GradAcc>,
+    soa: BrickSoa,
+}
+
+pub struct CpuBackend {
+    /// Edge of a training brick in voxels.
+    pub brick: f32,
+    prep: Prepared,
+    chunks: Vec<ChunkScratch>,
+    /// Kernels evaluated by the point passes (for throughput figures).
+    evaluations: u64,
+}
+
+impl Default for CpuBackend {
+    fn default() -> Self {
+        CpuBackend { brick: 6.0, prep: Prepared::default(), chunks: vec![], evaluations: 0 }
+    }
+}
+
+/// Points sorted into bricks and primitives listed per occupied brick.
+struct PointBins {
+    /// Point indices, grouped by brick.
+    order: Vec<u32>,
+    /// Per occupied brick: range into `order`.
+    brick_points: Vec<(u32, u32)>,
+    /// Per occupied brick: range into `cand`.
+    cand_start: Vec<u32>,
+    cand: Vec<u32>,
+}
+
+/// Per-primitive data derived from the parameters once per call.
+#[derive(Default)]
+struct Prepared {
+    frames: Vec<Frame>,
+    hot: Vec<Hot>,
+    /// Tight 5-sigma boxes: lo[3], hi[3].
+    boxes: Vec<[f32; 6]>,
+}
+
+impl Prepared {
+    fn update(&mut self, params: &[Primitive]) {
+        let n = params.len();
+        self.frames.resize(n, Frame::default());
+        self.hot.resize(n, Hot::default());
+        self.boxes.resize(n, [0.0; 6]);
+        self.frames
+            .par_chunks_mut(PRIM_CHUNK)
+            .zip(self.hot.par_chunks_mut(PRIM_CHUNK))
+            .zip(self.boxes.par_chunks_mut(PRIM_CHUNK))
+            .zip(params.par_chunks(PRIM_CHUNK))
+            .for_each(|(((fs, hs), bs), ps)| {
+                for (((f, h), b), p) in fs.iter_mut().zip(hs).zip(bs).zip(ps) {
+                    *f = Frame::new(p);
+                    *h = Hot::new(f);
+                    *b = [f.mu[0] - f.ext[0], f.mu[1] - f.ext[1], f.mu[2] - f.ext[2], f.mu[0] + f.ext[0], f.mu[1] + f.ext[1], f.mu[2] + f.ext[2]];
+                }
+            });
+    }
+}
+
+/// Stable counting sort of `(key, value)` pairs, given per task in task order,
+/// into CSR form over `nkeys` keys.
+fn csr(nkeys: usize, parts: &[Vec<(u32, u32)>]) -> (Vec<u32>, Vec<u32>) {
+    let mut start = vec![0u32; nkeys + 1];
+    for part in parts {
+        for &(k, _) in part {
+            start[k as usize + 1] += 1;
+        }
+    }
+    for i in 0..nkeys {
+        start[i + 1] += start[i];
+    }
+    let mut fill = start.clone();
+    let mut vals = vec![0u32; start[nkeys] as usize];
+    for part in parts {
+        for &(k, v) in part {
+            let f = &mut fill[k as usize];
+            vals[*f as usize] = v;
+            *f += 1;
+        }
+    }
+    (start, vals)
+}
+
+impl CpuBackend {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Kernels `K(x)` evaluated by the point passes since creation: pairs of a
+    /// point and a candidate primitive of its brick.
+    pub fn kernel_evaluations(&self) -> u64 {
+        self.evaluations
+    }
+
+    #[doc(hidden)]
+    pub fn profile_bin(&mut self, params: &[Primitive], pos: &[[f32; 3]]) -> (usize, usize) {
+        self.prep.update(params);
+        let b = self.bin_points(pos);
+        (b.brick_points.len(), b.cand.len())
+    }
+
+    fn bin_points(&self, pos: &[[f32; 3]]) -> PointBins {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in pos {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        // Keep the brick grid no larger than a few bricks per point.
+        let vol: f64 = (0..3).map(|a| (hi[a] - lo[a]) as f64 + 1.0).product();
+        let b = self.brick.max((vol / (4.0 * pos.len() as f64 + 64.0)).cbrt() as f32);
+        let inv_b = 1.0 / b;
+        let mut bd = [0usize; 3];
+        for a in 0..3 {
+            bd[a] = ((hi[a] - lo[a]) * inv_b) as usize + 1;
+        }
+        let brick_of = |x: [f32; 3]| -> usize {
+            let c = |a: usize| (((x[a] - lo[a]) * inv_b) as usize).min(bd[a] - 1);
+            c(0) + bd[0] * (c(1) + bd[1] * c(2))
+        };
+        let nb = bd[0] * bd[1] * bd[2];
+        let keyed: Vec<(u32, u32)> = pos.iter().enumerate().map(|(i, &x)| (brick_of(x) as u32, i as u32)).collect();
+        let (pstart, order) = csr(nb, std::slice::from_ref(&keyed));
+        let mut occ = vec![u32::MAX; nb];
+        let mut brick_points = vec![];
+        for id in 0..nb {
+            if pstart[id + 1] > pstart[id] {
+                occ[id] = brick_points.len() as u32;
+                brick_points.push((pstart[id], pstart[id + 1]));
+            }
+        }
+        // List every primitive in the occupied bricks its box overlaps.
+        let boxes = &self.prep.boxes;
+        let parts: Vec<Vec<(u32, u32)>> = (0..boxes.len().div_ceil(PRIM_CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let mut out = vec![];
+                let end = ((c + 1) * PRIM_CHUNK).min(boxes.len());
+                for g in c * PRIM_CHUNK..end {
+                    let bx = &boxes[g];
+                    let mut r0 = [0usize; 3];
+                    let mut r1 = [0usize; 3];
+                    let mut empty = false;
+                    for a in 0..3 {
+                        let l = (bx[a] - lo[a]) * inv_b;
+                        let h = (bx[a + 3] - lo[a]) * inv_b;
+                        if h < 0.0 || l >= bd[a] as f32 || l.is_nan() || h.is_nan() {
+                            empty = true;
+                            break;
+                        }
+                        r0[a] = l.max(0.0) as usize;
+                        r1[a] = (h as usize).min(bd[a] - 1);
+                    }
+                    if empty {
+                        continue;
+                    }
+                    for z in r0[2]..=r1[2] {
+                        for y in r0[1]..=r1[1] {
+                            let row = bd[0] * (y + bd[1] * z);
+                            for x in r0[0]..=r1[0] {
+                                let o = occ[row + x];
+                                if o != u32::MAX {
+                                    out.push((o, g as u32));
+                                }
+                            }
+                        }
+                    }
+                }
+                out
+            })
+            .collect();
+        let (cand_start, cand) = csr(brick_points.len(), &parts);
+        PointBins { order, brick_points, cand_start, cand }
+    }
+
+    /// Cuts the occupied bricks into at most `WORK_CHUNKS` contiguous ranges of
+    /// similar cost (points x candidates).
+    fn work_ranges(bins: &PointBins) -> Vec<(usize, usize)> {
+        let nb = bins.brick_points.len();
+        let cost = |b: usize| {
+            let (s, e) = bins.brick_points[b];
+            (e - s) as u64 * (bins.cand_start[b + 1] - bins.cand_start[b] + 1) as u64
+        };
+        let total: u64 = (0..nb).map(cost).sum();
+        let target = total / WORK_CHUNKS as u64 + 1;
+        let mut ranges = vec![];
+        let (mut start, mut acc) = (0, 0u64);
+        for b in 0..nb {
+            acc += cost(b);
+            if acc >= target {
+                ranges.push((start, b + 1));
+                start = b + 1;
+                acc = 0;
+            }
+        }
+        if start < nb {
+            ranges.push((start, nb));
+        }
+        ranges
+    }
+}
+
+/// What a gradient work chunk reads.
+struct GradJob<'a> {
+    prep: &'a Prepared,
+    bins: &'a PointBins,
+    batch: &'a PointBatch,
+    norm: &'a PointNorm,
+    weights: &'a LossWeights,
+}
+
+/// True when the AVX2 builds of the chunk loops may run. The AVX2 and the
+/// baseline builds execute the same IEEE operations in the same order (Rust
+/// never fuses multiply-adds on its own), so they return identical bits.
+#[inline]
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn grad_chunk_avx2(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
+    grad_chunk(job, sc, range)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn eval_chunk_avx2(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
+    eval_chunk(prep, bins, pos, range)
+}
+
+fn grad_chunk_dispatch(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU supports AVX2 (checked above).
+        return unsafe { grad_chunk_avx2(job, sc, range) };
+    }
+    grad_chunk(job, sc, range)
+}
+
+fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
+    #[cfg(target_arch = "x86_64")]
+    if has_avx2() {
+        // SAFETY: the CPU supports AVX2 (checked above).
+        return unsafe { eval_chunk_avx2(prep, bins, pos, range) };
+    }
+    eval_chunk(prep, bins, pos, range)
+}
+
+/// Forward, loss and backward for the points of bricks `b0..b1`; returns the
+/// chunk's (L_val, L_cov, kernel evaluations) and leaves its gradient sums in
+/// `sc`.
+#[inline(always)]
+fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) -> (f64, f64, u64) {
+    let (mut val, mut cov, mut evals) = (0.0f64, 0.0f64, 0u64);
+    let bins = job.bins;
+    let ChunkScratch { slot, touched, acc, soa } = sc;
+    for b in b0..b1 {
+        let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
+        soa.load(&job.prep.hot, &job.prep.boxes, cands, true);
+        let (s, e) = bins.brick_points[b];
+        let mut any = false;
+        for &pi in &bins.order[s as usize..e as usize] {
+            let (rho, n) = soa.forward(job.batch.pos[pi as usize]);
+            evals += cands.len() as u64;
+            let t = point_terms(rho, n, job.batch.vref[pi as usize], job.norm, job.weights);
+            val += t.val as f64;
+            cov += t.cov as f64;
+            if t.g_rho != 0.0 || t.g_n != 0.0 {
+                soa.backward(t.g_rho, t.g_n);
+                any = true;
+            }
+        }
+        if !any {
+            continue;
+        }
+        for (j, &g) in cands.iter().enumerate() {
+            if let Some(ga) = soa.take(j) {
+                let si = &mut slot[g as usize];
+                if *si == u32::MAX {
+                    *si = acc.len() as u32;
+                    touched.push(g);
+                    acc.push(GradAcc::default());
+                }
+                acc[*si as usize].add(&ga);
+            }
+        }
+    }
+    (val, cov, evals)
+}
+
+/// `(point, rho, n)` for the points of bricks `b0..b1`, and the kernel count.
+#[inline(always)]
+fn eval_chunk(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], (b0, b1): (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
+    let mut soa = BrickSoa::default();
+    let mut out = vec![];
+    let mut evals = 0;
+    for b in b0..b1 {
+        let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
+        soa.load(&prep.hot, &prep.boxes, cands, false);
+        let (s, e) = bins.brick_points[b];
+        for &pi in &bins.order[s as usize..e as usize] {
+            let (r, nn) = soa.forward(pos[pi as usize]);
+            evals += cands.len() as u64;
+            out.push((pi, r, nn));
+        }
+    }
+    (out, evals)
+}
+
+impl Backend for CpuBackend {
+    fn name(&self) -> String {
+        "cpu".into()
+    }
+
+    fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) {
+        assert!(rho.len() == pos.len() && n.len() == pos.len());
+        if pos.is_empty() {
+            return;
+        }
+        self.prep.update(params);
+        let bins = self.bin_points(pos);
+        let ranges = Self::work_ranges(&bins);
+        let prep = &self.prep;
+        let results: Vec<(Vec<(u32, f32, f32)>, u64)> = ranges
+            .par_iter()
+            .map(|&range| eval_chunk_dispatch(prep, &bins, pos, range))
+            .collect();
+        for (part, evals) in results {
+            self.evaluations += evals;
+            for (i, r, nn) in part {
+                rho[i as usize] = r;
+                n[i as usize] = nn;
+            }
+        }
+    }
+
+    fn point_loss_grad(
+        &mut self,
+        params: &[Primitive],
+        batch: &PointBatch,
+        weights: &LossWeights,
+        acc: &mut [GradAcc],
+    ) -> PointLoss {
+        assert_eq!(acc.len(), params.len());
+        if batch.is_empty() || params.is_empty() {
+            return PointLoss::default();
+        }
+        self.prep.update(params);
+        let bins = self.bin_points(&batch.pos);
+        let ranges = Self::work_ranges(&bins);
+        let norm = PointNorm::new(&batch.vref);
+        let np = params.len();
+        if self.chunks.len() < ranges.len() {
+            self.chunks.resize_with(ranges.len(), ChunkScratch::default);
+        }
+        let CpuBackend { prep, chunks, evaluations, .. } = self;
+        let prep: &Prepared = prep;
+        let losses: Vec<(f64, f64, u64)> = chunks[..ranges.len()]
+            .par_iter_mut()
+            .zip(ranges.par_iter())
+            .map(|(sc, &range)| {
+                if sc.slot.len() != np {
+                    sc.slot.clear();
+                    sc.slot.resize(np, u32::MAX);
+                }
+                let job = GradJob { prep, bins: &bins, batch, norm: &norm, weights };
+                grad_chunk_dispatch(&job, sc, range)
+            })
+            .collect();
+        // Fixed-order reduction: chunk by chunk.
+        let mut out = PointLoss::default();
+        for (sc, (v, c, e)) in chunks.iter_mut().zip(losses) {
+            out.val += v;
+            out.cov += c;
+            *evaluations += e;
+            for (t, &g) in sc.touched.iter().enumerate() {
+                acc[g as usize].add(&sc.acc[t]);
+                sc.slot[g as usize] = u32::MAX;
+            }
+            sc.touched.clear();
+            sc.acc.clear();
+        }
+        out
+    }
+
+    fn decode_lattice(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]) {
+        assert_eq!(out.len(), lattice.len());
+        self.prep.update(params);
+        let frames = &self.prep.frames;
+        let dims = lattice.dims;
+        // Each primitive's box in lattice indices (inclusive), or None when outside.
+        let boxes: Vec<Option<[u32; 6]>> = frames
+            .par_iter()
+            .map(|f| {
+                let mut r = [0u32; 6];
+                for a in 0..3 {
+                    let l = ((f.mu[a] - f.ext[a] - lattice.origin[a]) / lattice.step[a]).ceil();
+                    let h = ((f.mu[a] + f.ext[a] - lattice.origin[a]) / lattice.step[a]).floor();
+                    if !(h >= 0.0 && l <= (dims[a] - 1) as f32) || h < l {
+                        return None;
+                    }
+                    r[a] = l.max(0.0) as u32;
+                    r[a + 3] = h.min((dims[a] - 1) as f32) as u32;
+                }
+                Some(r)
+            })
+            .collect();
+        let bs = DECODE_BRICK;
+        let nlayers = dims[2].div_ceil(bs);
+        let mut layer_pairs = vec![];
+        for (g, b) in boxes.iter().enumerate() {
+            if let Some(b) = b {
+                for layer in b[2] as usize / bs..=b[5] as usize / bs {
+                    layer_pairs.push((layer as u32, g as u32));
+                }
+            }
+        }
+        let (lstart, lcand) = csr(nlayers, std::slice::from_ref(&layer_pairs));
+        let (nbx, nby) = (dims[0].div_ceil(bs), dims[1].div_ceil(bs));
+        let slab_len = dims[0] * dims[1] * bs;
+        out.par_chunks_mut(slab_len).enumerate().for_each(|(layer, slab)| {
+            let cands = &lcand[lstart[layer] as usize..lstart[layer + 1] as usize];
+            let z0 = layer * bs;
+            let nz = slab.len() / (dims[0] * dims[1]);
+            let mut pairs = vec![];
+            for &g in cands {
+                let b = boxes[g as usize].unwrap();
+                for by in b[1] as usize / bs..=b[4] as usize / bs {
+                    for bx in b[0] as usize / bs..=b[3] as usize / bs {
+                        pairs.push(((bx + nbx * by) as u32, g));
+                    }
+                }
+            }
+            let (bstart, bcand) = csr(nbx * nby, std::slice::from_ref(&pairs));
+            let mut rho = vec![0f32; bs * bs * bs];
+            let mut num = vec![0f32; bs * bs * bs];
+            for by in 0..nby {
+                for bx in 0..nbx {
+                    let (x0, y0) = (bx * bs, by * bs);
+                    let (nx, ny) = (bs.min(dims[0] - x0), bs.min(dims[1] - y0));
+                    rho.fill(0.0);
+                    num.fill(0.0);
+                    let id = bx + nbx * by;
+                    for &g in &bcand[bstart[id] as usize..bstart[id + 1] as usize] {
+                        let f = &frames[g as usize];
+                        let b = boxes[g as usize].unwrap();
+                        let zr = (b[2] as usize).max(z0)..=(b[5] as usize).min(z0 + nz - 1);
+                        let yr = (b[1] as usize).max(y0)..=(b[4] as usize).min(y0 + ny - 1);
+                        let xr = (b[0] as usize).max(x0)..=(b[3] as usize).min(x0 + nx - 1);
+                        for k in zr {
+                            for j in yr.clone() {
+                                let base = (j - y0) * bs + (k - z0) * bs * bs;
+                                for i in xr.clone() {
+                                    if let Some((kv, _)) = f.kernel(lattice.point(i, j, k)) {
+                                        let wk = f.w * kv;
+                                        rho[base + i - x0] += wk;
+                                        num[base + i - x0] += wk * f.s;
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    for k in 0..nz {
+                        for j in 0..ny {
+                            let row = x0 + dims[0] * (y0 + j + dims[1] * k);
+                            for i in 0..nx {
+                                let l = i + j * bs + k * bs * bs;
+                                slab[row + i] = v_eval(rho[l], num[l]);
+                            }
+                        }
+                    }
+                }
+            }
+        });
+    }
+}

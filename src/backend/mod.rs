@@ -1,0 +1,90 @@
+//! Backends evaluate the mixture and the point terms of the loss.
+//!
+//! A backend receives the stored parameters, not precomputed frames, so that a
+//! GPU backend can build its frames on the device. Both backends must return
+//! the same numbers up to float rounding; they are tested against each other
+//! and against the dense reference in `tests/`.
+//!
+//! Data layout for devices without float atomics: the point pass writes each
+//! point's `(g_rho, g_n)`, and a primitive pass gathers, for each primitive,
+//! the pair sums of [`crate::kernel::GradAcc`] over the points in its box. No
+//! two threads ever add into one location.
+
+pub mod cpu;
+
+use crate::kernel::{GradAcc, Primitive};
+use crate::loss::LossWeights;
+use crate::points::PointBatch;
+
+/// The unweighted point terms of the loss over a batch.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct PointLoss {
+    pub val: f64,
+    pub cov: f64,
+}
+
+/// A regular lattice of evaluation points in the index frame:
+/// point `(i, j, k)` is at `origin + (i, j, k) * step`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lattice {
+    pub dims: [usize; 3],
+    pub origin: [f32; 3],
+    pub step: [f32; 3],
+}
+
+impl Lattice {
+    /// The voxel centres of the reference grid itself.
+    pub fn reference(dims: [usize; 3]) -> Lattice {
+        Lattice { dims, origin: [0.0; 3], step: [1.0; 3] }
+    }
+
+    /// `out_dims` voxels covering the same box as a reference grid of `dims`:
+    /// `u = (i + 0.5) * D / D' - 0.5`.
+    pub fn resampled(dims: [usize; 3], out_dims: [usize; 3]) -> Lattice {
+        let mut l = Lattice { dims: out_dims, origin: [0.0; 3], step: [1.0; 3] };
+        for a in 0..3 {
+            l.step[a] = dims[a] as f32 / out_dims[a] as f32;
+            l.origin[a] = 0.5 * l.step[a] - 0.5;
+        }
+        l
+    }
+
+    pub fn len(&self) -> usize {
+        self.dims[0] * self.dims[1] * self.dims[2]
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn point(&self, i: usize, j: usize, k: usize) -> [f32; 3] {
+        [
+            self.origin[0] + i as f32 * self.step[0],
+            self.origin[1] + j as f32 * self.step[1],
+            self.origin[2] + k as f32 * self.step[2],
+        ]
+    }
+}
+
+/// The evaluation interface every backend implements.
+pub trait Backend: Send {
+    /// A human-readable name ("cpu", "wgpu:<adapter>").
+    fn name(&self) -> String;
+
+    /// Mixture density `rho` and numerator `n` at each point.
+    fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]);
+
+    /// The point terms L_val and L_cov over `batch` and, added into `acc`
+    /// (one entry per primitive, zeroed by the caller), the pair sums of their
+    /// weighted gradient. The result must not depend on the thread count.
+    fn point_loss_grad(
+        &mut self,
+        params: &[Primitive],
+        batch: &PointBatch,
+        weights: &LossWeights,
+        acc: &mut [GradAcc],
+    ) -> PointLoss;
+
+    /// The decoded value `V_eval` at every point of `lattice`, x fastest.
+    fn decode_lattice(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]);
+}

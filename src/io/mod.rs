@@ -1,0 +1,8 @@
+//! File formats and file system access, kept out of the encoder core: the
+//! command-line tool and the C API use these; the core works on memory only.
+
+pub mod atomic;
+pub mod raw;
+pub mod vti;
+
+pub use atomic::write_atomic;

@@ -1,0 +1,453 @@
+//! VTK XML ImageData (`.vti`): the reader accepts what ParaView and VTK write
+//! (ascii, inline base64, appended raw or base64; UInt32 or UInt64 headers;
+//! zlib compression; either byte order) for one-component point or cell data;
+//! the writer produces binary appended Float32 data that ParaView opens as is.
+
+use crate::error::{Error, Result};
+use crate::field::Grid;
+use std::io::Read;
+use std::path::Path;
+
+/// A grid read from a `.vti` file with its world placement.
+#[derive(Clone, Debug)]
+pub struct VtiGrid {
+    pub grid: Grid,
+    /// World position of voxel (0, 0, 0)'s sample point.
+    pub origin: [f64; 3],
+    pub spacing: [f64; 3],
+    pub name: String,
+}
+
+fn attr(tag: &str, key: &str) -> Option<String> {
+    let mut from = 0;
+    while let Some(p) = tag[from..].find(key) {
+        let at = from + p;
+        let before_ok = at == 0 || tag.as_bytes()[at - 1].is_ascii_whitespace();
+        let rest = tag[at + key.len()..].trim_start();
+        if before_ok && rest.starts_with('=') {
+            let rest = rest[1..].trim_start();
+            let q = rest.chars().next()?;
+            if q == '"' || q == '\'' {
+                let end = rest[1..].find(q)?;
+                return Some(rest[1..1 + end].to_string());
+            }
+        }
+        from = at + key.len();
+    }
+    None
+}
+
+/// Finds `<name ...>` at or after `from`; returns (start, end after '>', attribute text).
+fn find_tag<'a>(xml: &'a str, name: &str, from: usize) -> Option<(usize, usize, &'a str)> {
+    let pat = format!("<{name}");
+    let mut at = from;
+    loop {
+        let p = at + xml[at..].find(&pat)?;
+        let after = xml.as_bytes().get(p + pat.len()).copied();
+        if matches!(after, Some(b' ' | b'\t' | b'\n' | b'\r' | b'>' | b'/')) {
+            let end = p + xml[p..].find('>')? + 1;
+            return Some((p, end, &xml[p + pat.len()..end - 1]));
+        }
+        at = p + pat.len();
+    }
+}
+
+fn numbers<T: std::str::FromStr>(s: &str, what: &str) -> Result<Vec<T>> {
+    s.split_whitespace()
+        .map(|t| t.parse::<T>().map_err(|_| Error::format(format!("vti: bad number '{t}' in {what}"))))
+        .collect()
+}
+
+fn b64_value(c: u8) -> Option<u8> {
+    match c {
+        b'A'..=b'Z' => Some(c - b'A'),
+        b'a'..=b'z' => Some(c - b'a' + 26),
+        b'0'..=b'9' => Some(c - b'0' + 52),
+        b'+' => Some(62),
+        b'/' => Some(63),
+        _ => None,
+    }
+}
+
+/// Decodes base64 in independent 4-character groups, so that separately
+/// encoded (and padded) header and data streams decode as one byte stream.
+/// Stops at the first character that is neither base64 nor white space.
+pub fn base64_decode(text: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(text.len() / 4 * 3);
+    let mut group = [0u8; 4];
+    let mut n = 0;
+    let mut pads = 0;
+    for &c in text {
+        if c.is_ascii_whitespace() {
+            continue;
+        }
+        let v = if c == b'=' {
+            pads += 1;
+            0
+        } else if let Some(v) = b64_value(c) {
+            v
+        } else {
+            break;
+        };
+        group[n] = v;
+        n += 1;
+        if n == 4 {
+            let b = [(group[0] << 2) | (group[1] >> 4), (group[1] << 4) | (group[2] >> 2), (group[2] << 6) | group[3]];
+            out.extend_from_slice(&b[..3 - pads.min(2)]);
+            n = 0;
+            pads = 0;
+        }
+    }
+    out
+}
+
+struct Layout {
+    header64: bool,
+    big_endian: bool,
+    zlib: bool,
+}
+
+impl Layout {
+    fn uint(&self, b: &[u8], at: usize) -> Result<usize> {
+        let w = if self.header64 { 8 } else { 4 };
+        let s = b.get(at..at + w).ok_or_else(|| Error::format("vti: data block header is truncated"))?;
+        let mut v = 0u64;
+        for i in 0..w {
+            let byte = if self.big_endian { s[i] } else { s[w - 1 - i] };
+            v = (v << 8) | byte as u64;
+        }
+        usize::try_from(v).map_err(|_| Error::format("vti: block size overflows"))
+    }
+
+    /// Raw bytes of one array from a stream that starts at its header.
+    fn payload(&self, b: &[u8]) -> Result<Vec<u8>> {
+        let w = if self.header64 { 8 } else { 4 };
+        if !self.zlib {
+            let n = self.uint(b, 0)?;
+            let data = b.get(w..w + n).ok_or_else(|| Error::format("vti: data array is truncated"))?;
+            return Ok(data.to_vec());
+        }
+        let nblocks = self.uint(b, 0)?;
+        let block = self.uint(b, w)?;
+        let last = self.uint(b, 2 * w)?;
+        if nblocks > b.len() {
+            return Err(Error::format("vti: compressed header is corrupted"));
+        }
+        let mut at = (3 + nblocks) * w;
+        let mut out = Vec::new();
+        for i in 0..nblocks {
+            let csize = self.uint(b, (3 + i) * w)?;
+            let comp = b.get(at..at + csize).ok_or_else(|| Error::format("vti: compressed block is truncated"))?;
+            let expect = if i + 1 == nblocks && last != 0 { last } else { block };
+            let mut dec = Vec::with_capacity(expect);
+            flate2::read::ZlibDecoder::new(comp)
+                .read_to_end(&mut dec)
+                .map_err(|e| Error::format(format!("vti: zlib block {i}: {e}")))?;
+            if dec.len() != expect {
+                return Err(Error::format(format!("vti: zlib block {i} holds {} bytes, header says {expect}", dec.len())));
+            }
+            out.extend_from_slice(&dec);
+            at += csize;
+        }
+        Ok(out)
+    }
+}
+
+fn convert(bytes: &[u8], ty: &str, big_endian: bool, n: usize) -> Result<Vec<f32>> {
+    let size = match ty {
+        "Int8" | "UInt8" => 1,
+        "Int16" | "UInt16" => 2,
+        "Int32" | "UInt32" | "Float32" => 4,
+        "Int64" | "UInt64" | "Float64" => 8,
+        _ => return Err(Error::format(format!("vti: unsupported data type {ty}"))),
+    };
+    if bytes.len() < n * size {
+        return Err(Error::format(format!("vti: array holds {} bytes, {n} values of {ty} need {}", bytes.len(), n * size)));
+    }
+    let mut out = Vec::with_capacity(n);
+    for c in bytes[..n * size].chunks_exact(size) {
+        let mut b = [0u8; 8];
+        b[..size].copy_from_slice(c);
+        if big_endian {
+            b[..size].reverse();
+        }
+        let v = match ty {
+            "Int8" => b[0] as i8 as f32,
+            "UInt8" => b[0] as f32,
+            "Int16" => i16::from_le_bytes([b[0], b[1]]) as f32,
+            "UInt16" => u16::from_le_bytes([b[0], b[1]]) as f32,
+            "Int32" => i32::from_le_bytes(b[..4].try_into().unwrap()) as f32,
+            "UInt32" => u32::from_le_bytes(b[..4].try_into().unwrap()) as f32,
+            "Float32" => f32::from_le_bytes(b[..4].try_into().unwrap()),
+            "Int64" => i64::from_le_bytes(b) as f32,
+            "UInt64" => u64::from_le_bytes(b) as f32,
+            _ => f64::from_le_bytes(b) as f32,
+        };
+        out.push(v);
+    }
+    Ok(out)
+}
+
+/// Parses a `.vti` file's bytes; `array` picks a data array by name (default:
+/// the active scalars, else the first point array, else the first cell array).
+pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
+    // The XML part ends where raw appended data begins.
+    let xml_end = find_bytes(bytes, b"<AppendedData").map(|p| {
+        find_bytes(&bytes[p..], b">").map(|q| p + q + 1).unwrap_or(bytes.len())
+    });
+    let xml = String::from_utf8_lossy(&bytes[..xml_end.unwrap_or(bytes.len())]).into_owned();
+    let (_, _, file_attrs) = find_tag(&xml, "VTKFile", 0).ok_or_else(|| Error::format("not a VTK XML file"))?;
+    if attr(file_attrs, "type").as_deref() != Some("ImageData") {
+        return Err(Error::format("vti: VTKFile type is not ImageData"));
+    }
+    let layout = Layout {
+        header64: attr(file_attrs, "header_type").as_deref() == Some("UInt64"),
+        big_endian: attr(file_attrs, "byte_order").as_deref() == Some("BigEndian"),
+        zlib: match attr(file_attrs, "compressor").as_deref() {
+            None | Some("") => false,
+            Some("vtkZLibDataCompressor") => true,
+            Some(other) => return Err(Error::format(format!("vti: compressor {other} is not supported (use zlib or none)"))),
+        },
+    };
+    let (_, img_end, img) = find_tag(&xml, "ImageData", 0).ok_or_else(|| Error::format("vti: no ImageData element"))?;
+    let extent: Vec<i64> = numbers(&attr(img, "WholeExtent").ok_or_else(|| Error::format("vti: no WholeExtent"))?, "WholeExtent")?;
+    if extent.len() != 6 || (0..3).any(|a| extent[2 * a + 1] < extent[2 * a]) {
+        return Err(Error::format("vti: WholeExtent must hold 6 ordered numbers"));
+    }
+    let origin: Vec<f64> = numbers(&attr(img, "Origin").unwrap_or_else(|| "0 0 0".into()), "Origin")?;
+    let spacing: Vec<f64> = numbers(&attr(img, "Spacing").unwrap_or_else(|| "1 1 1".into()), "Spacing")?;
+    if origin.len() != 3 || spacing.len() != 3 {
+        return Err(Error::format("vti: Origin and Spacing need 3 numbers"));
+    }
+    let point_dims = [
+        (extent[1] - extent[0] + 1) as usize,
+        (extent[3] - extent[2] + 1) as usize,
+        (extent[5] - extent[4] + 1) as usize,
+    ];
+    if find_bytes(xml.as_bytes(), b"<Piece").is_some() {
+        let pieces = xml.matches("<Piece").count();
+        if pieces > 1 {
+            return Err(Error::format("vti: files with several pieces are not supported"));
+        }
+    }
+
+    // Candidate arrays in PointData, then CellData.
+    let mut chosen: Option<(String, usize, usize, bool)> = None; // (attrs, start, end, is_cell)
+    for (section, is_cell) in [("PointData", false), ("CellData", true)] {
+        let Some((_, s_end, s_attrs)) = find_tag(&xml, section, img_end) else { continue };
+        if s_attrs.trim_end().ends_with('/') {
+            continue;
+        }
+        let close = xml[s_end..].find(&format!("</{section}>")).map(|p| s_end + p).unwrap_or(xml.len());
+        let active = attr(s_attrs, "Scalars");
+        let mut at = s_end;
+        let mut first = None;
+        while let Some((_, e, a)) = find_tag(&xml, "DataArray", at) {
+            if e > close {
+                break;
+            }
+            let name = attr(a, "Name").unwrap_or_default();
+            let data_end = if a.trim_end().ends_with('/') { e } else { e + xml[e..].find("</DataArray>").unwrap_or(0) };
+            let entry = (a.to_string(), e, data_end, is_cell);
+            let wanted = match array {
+                Some(w) => name == w,
+                None => active.as_deref() == Some(name.as_str()),
+            };
+            if wanted {
+                chosen = Some(entry);
+                break;
+            }
+            if first.is_none() {
+                first = Some(entry);
+            }
+            at = e;
+        }
+        if chosen.is_none() && array.is_none() {
+            chosen = first;
+        }
+        if chosen.is_some() {
+            break;
+        }
+    }
+    let (a, dstart, dend, is_cell) = chosen.ok_or_else(|| match array {
+        Some(w) => Error::format(format!("vti: no data array named '{w}'")),
+        None => Error::format("vti: no point or cell data array"),
+    })?;
+    let dims = if is_cell { point_dims.map(|d| d.saturating_sub(1).max(1)) } else { point_dims };
+    let n = dims[0] * dims[1] * dims[2];
+    let comps: usize = attr(&a, "NumberOfComponents").map(|c| c.parse().unwrap_or(0)).unwrap_or(1);
+    if comps != 1 {
+        return Err(Error::format(format!("vti: array has {comps} components; gsenc encodes scalars (extract one component first)")));
+    }
+    let ty = attr(&a, "type").ok_or_else(|| Error::format("vti: DataArray without type"))?;
+    let name = attr(&a, "Name").unwrap_or_else(|| "scalars".into());
+    let values = match attr(&a, "format").as_deref().unwrap_or("ascii") {
+        "ascii" => {
+            let v: Vec<f64> = numbers(&xml[dstart..dend], "ascii DataArray")?;
+            if v.len() != n {
+                return Err(Error::format(format!("vti: ascii array holds {} values, extent needs {n}", v.len())));
+            }
+            v.into_iter().map(|x| x as f32).collect()
+        }
+        "binary" => {
+            let raw = base64_decode(xml[dstart..dend].as_bytes());
+            convert(&layout.payload(&raw)?, &ty, layout.big_endian, n)?
+        }
+        "appended" => {
+            let off: usize = attr(&a, "offset").and_then(|o| o.parse().ok()).ok_or_else(|| Error::format("vti: appended array without offset"))?;
+            let p = find_bytes(bytes, b"<AppendedData").unwrap();
+            let (_, _, app) = find_tag(&xml, "AppendedData", 0).ok_or_else(|| Error::format("vti: no AppendedData"))?;
+            let base64 = attr(app, "encoding").as_deref() == Some("base64");
+            let tag_end = xml_end.unwrap();
+            let underscore = bytes[tag_end..].iter().position(|&c| c == b'_').ok_or_else(|| Error::format("vti: AppendedData without '_'"))?;
+            let start = tag_end + underscore + 1 + off;
+            let _ = p;
+            let stream = bytes.get(start..).ok_or_else(|| Error::format("vti: appended offset beyond end of file"))?;
+            let decoded;
+            let stream = if base64 {
+                decoded = base64_decode(stream);
+                &decoded[..]
+            } else {
+                stream
+            };
+            convert(&layout.payload(stream)?, &ty, layout.big_endian, n)?
+        }
+        other => return Err(Error::format(format!("vti: unknown DataArray format '{other}'"))),
+    };
+    Ok(VtiGrid {
+        grid: Grid::new(dims, values)?,
+        origin: [origin[0], origin[1], origin[2]],
+        spacing: [spacing[0], spacing[1], spacing[2]],
+        name,
+    })
+}
+
+fn find_bytes(hay: &[u8], needle: &[u8]) -> Option<usize> {
+    hay.windows(needle.len()).position(|w| w == needle)
+}
+
+pub fn read_vti(path: impl AsRef<Path>, array: Option<&str>) -> Result<VtiGrid> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_vti(&bytes, array).map_err(|e| match e {
+        Error::Format(m) => Error::Format(format!("{}: {m}", path.display())),
+        other => other,
+    })
+}
+
+/// Serialises a grid as binary appended Float32 point data (UInt64 headers).
+pub fn write_vti_bytes(grid: &Grid, origin: [f64; 3], spacing: [f64; 3], name: &str) -> Vec<u8> {
+    let d = grid.dims;
+    let xml = format!(
+        "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <ImageData WholeExtent=\"0 {} 0 {} 0 {}\" Origin=\"{} {} {}\" Spacing=\"{} {} {}\">\n    <Piece Extent=\"0 {} 0 {} 0 {}\">\n      <PointData Scalars=\"{name}\">\n        <DataArray type=\"Float32\" Name=\"{name}\" format=\"appended\" offset=\"0\"/>\n      </PointData>\n      <CellData>\n      </CellData>\n    </Piece>\n  </ImageData>\n  <AppendedData encoding=\"raw\">\n   _",
+        d[0] - 1, d[1] - 1, d[2] - 1, origin[0], origin[1], origin[2], spacing[0], spacing[1], spacing[2],
+        d[0] - 1, d[1] - 1, d[2] - 1,
+    );
+    let mut out = xml.into_bytes();
+    out.extend_from_slice(&((grid.values.len() * 4) as u64).to_le_bytes());
+    for v in &grid.values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out.extend_from_slice(b"\n  </AppendedData>\n</VTKFile>\n");
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn b64(bytes: &[u8]) -> String {
+        const T: &[u8] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+        let mut s = String::new();
+        for c in bytes.chunks(3) {
+            let b = [c[0], *c.get(1).unwrap_or(&0), *c.get(2).unwrap_or(&0)];
+            let idx = [b[0] >> 2, ((b[0] & 3) << 4) | (b[1] >> 4), ((b[1] & 15) << 2) | (b[2] >> 6), b[2] & 63];
+            for (i, &x) in idx.iter().enumerate() {
+                s.push(if i <= c.len() { T[x as usize] as char } else { '=' });
+            }
+        }
+        s
+    }
+
+    fn grid() -> Grid {
+        Grid::new([3, 2, 2], (0..12).map(|i| i as f32 * 0.5 - 1.0).collect()).unwrap()
+    }
+
+    #[test]
+    fn written_file_reads_back() {
+        let g = grid();
+        let bytes = write_vti_bytes(&g, [1.0, 2.0, 3.0], [0.5, 0.5, 0.5], "rho");
+        let r = parse_vti(&bytes, None).unwrap();
+        assert_eq!(r.grid, g);
+        assert_eq!(r.origin, [1.0, 2.0, 3.0]);
+        assert_eq!(r.spacing, [0.5; 3]);
+        assert_eq!(r.name, "rho");
+    }
+
+    fn wrap(file_attrs: &str, array: &str, appended: &str) -> Vec<u8> {
+        format!(
+            "<?xml version=\"1.0\"?><VTKFile type=\"ImageData\" version=\"0.1\" {file_attrs}><ImageData WholeExtent=\"0 2 0 1 0 1\" Origin=\"0 0 0\" Spacing=\"1 1 1\"><Piece Extent=\"0 2 0 1 0 1\"><PointData Scalars=\"b\"><DataArray type=\"Float32\" Name=\"a\" format=\"ascii\">9 9 9 9 9 9 9 9 9 9 9 9</DataArray>{array}</PointData></Piece></ImageData>{appended}</VTKFile>"
+        )
+        .into_bytes()
+    }
+
+    #[test]
+    fn ascii_base64_zlib_and_named_arrays() {
+        let g = grid();
+        let data: Vec<u8> = g.values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        // ascii, active scalars "b" chosen over the first array "a".
+        let txt: Vec<String> = g.values.iter().map(|v| v.to_string()).collect();
+        let f = wrap("", &format!("<DataArray type=\"Float32\" Name=\"b\" format=\"ascii\">{}</DataArray>", txt.join(" ")), "");
+        assert_eq!(parse_vti(&f, None).unwrap().grid, g);
+        assert_eq!(parse_vti(&f, Some("a")).unwrap().grid.values, vec![9.0; 12]);
+        assert!(parse_vti(&f, Some("zz")).is_err());
+        // inline base64, UInt32 header encoded separately from the data.
+        let f = wrap(
+            "byte_order=\"LittleEndian\"",
+            &format!("<DataArray type=\"Float32\" Name=\"b\" format=\"binary\">{}{}</DataArray>", b64(&(data.len() as u32).to_le_bytes()), b64(&data)),
+            "",
+        );
+        assert_eq!(parse_vti(&f, None).unwrap().grid, g);
+        // appended raw, zlib-compressed in two blocks, UInt64 header.
+        let mut enc = |chunk: &[u8]| {
+            use std::io::Write;
+            let mut e = flate2::write::ZlibEncoder::new(vec![], flate2::Compression::default());
+            e.write_all(chunk).unwrap();
+            e.finish().unwrap()
+        };
+        let (c1, c2) = (enc(&data[..32]), enc(&data[32..]));
+        let mut blob = vec![];
+        for v in [2u64, 32, 16, c1.len() as u64, c2.len() as u64] {
+            blob.extend_from_slice(&v.to_le_bytes());
+        }
+        blob.extend_from_slice(&c1);
+        blob.extend_from_slice(&c2);
+        let mut f = wrap(
+            "header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\"",
+            "<DataArray type=\"Float32\" Name=\"b\" format=\"appended\" offset=\"0\"/>",
+            "<AppendedData encoding=\"raw\">_",
+        );
+        let tail = f.split_off(f.len() - "</VTKFile>".len());
+        f.extend_from_slice(&blob);
+        f.extend_from_slice(b"</AppendedData>");
+        f.extend_from_slice(&tail);
+        assert_eq!(parse_vti(&f, None).unwrap().grid, g);
+        // appended base64, uncompressed.
+        let f = wrap(
+            "",
+            "<DataArray type=\"Float32\" Name=\"b\" format=\"appended\" offset=\"0\"/>",
+            &format!("<AppendedData encoding=\"base64\">_{}{}</AppendedData>", b64(&(data.len() as u32).to_le_bytes()), b64(&data)),
+        );
+        assert_eq!(parse_vti(&f, None).unwrap().grid, g);
+    }
+
+    #[test]
+    fn truncated_and_foreign_files_fail_cleanly() {
+        let bytes = write_vti_bytes(&grid(), [0.0; 3], [1.0; 3], "v");
+        for cut in [10, 200, bytes.len() - 40] {
+            assert!(parse_vti(&bytes[..cut], None).is_err(), "cut at {cut}");
+        }
+        assert!(parse_vti(b"hello", None).is_err());
+        assert!(parse_vti(b"<VTKFile type=\"PolyData\">", None).is_err());
+    }
+}
