@@ -1,0 +1,120 @@
+//! Shared helpers for the integration tests: a dense f64 transcription of
+//! SPEC.md (no binning, no SIMD, libm exp) to check the library against, and
+//! small synthetic fields.
+#![allow(dead_code)]
+
+use gsenc::field::Grid;
+use gsenc::kernel::Primitive;
+use gsenc::rng::Rng;
+
+pub fn sigmoid(x: f64) -> f64 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// `(rho, n)` of the mixture at `x`, straight from the SPEC formulas.
+pub fn dense_rho_n(params: &[[f64; 12]], x: [f64; 3]) -> (f64, f64) {
+    let (mut rho, mut n) = (0.0, 0.0);
+    for p in params {
+        let qn = (p[6] * p[6] + p[7] * p[7] + p[8] * p[8] + p[9] * p[9]).sqrt();
+        let (w, qx, qy, qz) = (p[6] / qn, p[7] / qn, p[8] / qn, p[9] / qn);
+        let r = [
+            [1.0 - 2.0 * (qy * qy + qz * qz), 2.0 * (qx * qy - w * qz), 2.0 * (qx * qz + w * qy)],
+            [2.0 * (qx * qy + w * qz), 1.0 - 2.0 * (qx * qx + qz * qz), 2.0 * (qy * qz - w * qx)],
+            [2.0 * (qx * qz - w * qy), 2.0 * (qy * qz + w * qx), 1.0 - 2.0 * (qx * qx + qy * qy)],
+        ];
+        let d = [x[0] - p[0], x[1] - p[1], x[2] - p[2]];
+        let mut d2 = 0.0;
+        for k in 0..3 {
+            let sigma = p[3 + k].exp().clamp(0.4, 8.0);
+            let yk = (r[0][k] * d[0] + r[1][k] * d[1] + r[2][k] * d[2]) / sigma;
+            d2 += yk * yk;
+        }
+        if d2 < 25.0 {
+            let kv = (-0.5 * d2).exp();
+            let wt = sigmoid(p[11]);
+            rho += wt * kv;
+            n += wt * kv * sigmoid(p[10]);
+        }
+    }
+    (rho, n)
+}
+
+fn huber(r: f64) -> f64 {
+    if r.abs() <= 0.1 {
+        0.5 * r * r
+    } else {
+        0.1 * (r.abs() - 0.05)
+    }
+}
+
+/// The four loss terms, unweighted: (val, cov, scale, aniso).
+pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32]) -> [f64; 4] {
+    let mut wsum = 0.0;
+    for &v in vref {
+        if v as f64 > 0.005 {
+            wsum += 0.5 + v as f64;
+        }
+    }
+    let (mut val, mut cov) = (0.0, 0.0);
+    for (x, &v) in pos.iter().zip(vref) {
+        let v = v as f64;
+        if v <= 0.005 {
+            continue;
+        }
+        let (rho, n) = dense_rho_n(params, [x[0] as f64, x[1] as f64, x[2] as f64]);
+        val += (0.5 + v) * huber(n / rho.max(1e-3) - v);
+        cov += (0.05 - rho).max(0.0);
+    }
+    val /= wsum.max(1e-6);
+    cov /= pos.len() as f64;
+    let (mut scale, mut aniso) = (0.0, 0.0);
+    for p in params {
+        let e = [p[3].exp(), p[4].exp(), p[5].exp()];
+        for a in 0..3 {
+            scale += (e[a] - 8.0).max(0.0) + 0.05 * (0.30 - e[a]).max(0.0);
+        }
+        let mx = e[0].max(e[1]).max(e[2]);
+        let mn = e[0].min(e[1]).min(e[2]);
+        aniso += (mx / mn.max(1e-3) - 4.0).max(0.0);
+    }
+    scale /= 3.0 * params.len() as f64;
+    aniso /= params.len() as f64;
+    [val, cov, scale, aniso]
+}
+
+pub fn to_f64(p: &[Primitive]) -> Vec<[f64; 12]> {
+    p.iter().map(|q| q.map(|v| v as f64)).collect()
+}
+
+/// A smooth field: a sum of a few anisotropic blobs, in [0, 1].
+pub fn blobs(dims: [usize; 3], seed: u64, count: usize) -> Grid {
+    let mut rng = Rng::new(seed);
+    let centres: Vec<([f64; 3], [f64; 3], f64)> = (0..count)
+        .map(|_| {
+            let c = [0, 1, 2].map(|a| rng.range(0.25, 0.75) * dims[a] as f64);
+            let s = [0, 1, 2].map(|a| rng.range(0.06, 0.15) * dims[a] as f64);
+            (c, s, rng.range(0.4, 1.0))
+        })
+        .collect();
+    let mut v = Vec::with_capacity(dims[0] * dims[1] * dims[2]);
+    for k in 0..dims[2] {
+        for j in 0..dims[1] {
+            for i in 0..dims[0] {
+                let x = [i as f64, j as f64, k as f64];
+                let mut f = 0.0;
+                for (c, s, a) in &centres {
+                    let d2: f64 = (0..3).map(|q| ((x[q] - c[q]) / s[q]).powi(2)).sum();
+                    f += a * (-0.5 * d2).exp();
+                }
+                v.push(f.min(1.0) as f32);
+            }
+        }
+    }
+    Grid::new(dims, v).unwrap()
+}
+
+pub fn shared_data(name: &str) -> std::path::PathBuf {
+    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(name);
+    assert!(p.exists(), "test data {} is missing: the project expects ../shared/data beside it", p.display());
+    p
+}
