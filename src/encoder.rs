@@ -4,14 +4,13 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::field::{check_finite, Grid};
-use crate::kernel::{Frame, GradAcc, Primitive};
+use crate::kernel::Primitive;
 use crate::loss::{regularizers, LossWeights};
 use crate::optim::{cosine_lr, Adam};
 use crate::points::PointSampler;
 use crate::relocate::{relocate, Relocation, RELOCATE_AT, RELOCATE_POINTS};
 use crate::samples::SampleSet;
 use crate::seeding::{seed, Seeding};
-use rayon::prelude::*;
 use std::time::Instant;
 
 /// Named iteration x point schedules of SPEC.md.
@@ -209,6 +208,15 @@ pub fn encode(
         }
     };
     let seed_seconds = t_seed.elapsed().as_secs_f64();
+    tracing::info!(
+        budget = cfg.budget,
+        iterations = cfg.iterations(),
+        points = cfg.points(),
+        warm_start = init.is_some(),
+        backend = %backend.name(),
+        seed_seconds,
+        "encode starts"
+    );
 
     let t_loop = Instant::now();
     let iterations = cfg.iterations();
@@ -217,7 +225,6 @@ pub fn encode(
     let n = params.len();
     let mut sampler = PointSampler::new(target.reference, cfg.seed_sample);
     let mut adam = Adam::new(n);
-    let mut acc = vec![GradAcc::default(); n];
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; n];
     let mut relocations = vec![];
     let mut last = LossTerms::default();
@@ -229,11 +236,7 @@ pub fn encode(
             relocations.push(r);
         }
         let batch = sampler.draw(points, target.reference, target.samples);
-        acc.par_iter_mut().for_each(|a| *a = GradAcc::default());
-        let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut acc);
-        grad.par_iter_mut().zip(params.par_iter()).zip(acc.par_iter()).for_each(|((g, p), a)| {
-            *g = Frame::new(p).finalize(a);
-        });
+        let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad);
         let reg = regularizers(&params, &cfg.weights, &mut grad);
         let w = &cfg.weights;
         last = LossTerms {
@@ -249,6 +252,8 @@ pub fn encode(
         adam.step(&mut params, &grad, cosine_lr(cfg.learning_rate, t, iterations));
         progress(&Progress { iteration: t + 1, iterations, loss: last.total });
     }
+    let loop_seconds = t_loop.elapsed().as_secs_f64();
+    tracing::info!(loop_seconds, loss = last.total, "encode done");
     Ok(EncodeOutput {
         params,
         iterations,
@@ -257,7 +262,7 @@ pub fn encode(
         relocations,
         last_loss: last,
         seed_seconds,
-        loop_seconds: t_loop.elapsed().as_secs_f64(),
+        loop_seconds,
     })
 }
 

@@ -156,14 +156,6 @@ impl Frame {
         }
     }
 
-    /// True when `x` lies inside the primitive's axis-aligned 5-sigma box.
-    #[inline(always)]
-    pub fn box_contains(&self, x: [f32; 3]) -> bool {
-        (x[0] - self.mu[0]).abs() <= self.ext[0]
-            && (x[1] - self.mu[1]).abs() <= self.ext[1]
-            && (x[2] - self.mu[2]).abs() <= self.ext[2]
-    }
-
     /// Scaled local coordinates `y' = diag(sigma)^-1 R^T (x - mu)` and the
     /// truncated kernel `K = exp(-|y'|^2 / 2)` for `|y'|^2 < 25`; `None` outside.
     #[inline(always)]

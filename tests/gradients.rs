@@ -4,7 +4,7 @@
 mod common;
 use common::*;
 use gsenc::backend::{cpu::CpuBackend, Backend};
-use gsenc::kernel::{Frame, GradAcc, Primitive};
+use gsenc::kernel::Primitive;
 use gsenc::loss::{regularizers, LossWeights};
 use gsenc::points::PointBatch;
 use gsenc::rng::Rng;
@@ -49,9 +49,8 @@ fn batch(rng: &mut Rng, count: usize) -> PointBatch {
 }
 
 fn analytic(params: &[Primitive], b: &PointBatch, w: &LossWeights) -> (Vec<Primitive>, [f64; 4]) {
-    let mut acc = vec![GradAcc::default(); params.len()];
-    let pl = CpuBackend::new().point_loss_grad(params, b, w, &mut acc);
-    let mut grad: Vec<Primitive> = params.iter().zip(&acc).map(|(p, a)| Frame::new(p).finalize(a)).collect();
+    let mut grad: Vec<Primitive> = vec![[0.0; 12]; params.len()];
+    let pl = CpuBackend::new().point_loss_grad(params, b, w, &mut grad);
     let reg = regularizers(params, w, &mut grad);
     (grad, [pl.val, pl.cov, reg.scale, reg.aniso])
 }

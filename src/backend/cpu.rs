@@ -239,13 +239,15 @@ pub struct CpuBackend {
     pub brick: f32,
     prep: Prepared,
     chunks: Vec<ChunkScratch>,
+    /// Reduced pair sums per primitive.
+    acc: Vec<GradAcc>,
     /// Kernels evaluated by the point passes (for throughput figures).
     evaluations: u64,
 }
 
 impl Default for CpuBackend {
     fn default() -> Self {
-        CpuBackend { brick: 6.0, prep: Prepared::default(), chunks: vec![], evaluations: 0 }
+        CpuBackend { brick: 8.0, prep: Prepared::default(), chunks: vec![], acc: vec![], evaluations: 0 }
     }
 }
 
@@ -291,28 +293,71 @@ impl Prepared {
 }
 
 /// Stable counting sort of `(key, value)` pairs, given per task in task order,
-/// into CSR form over `nkeys` keys.
+/// into CSR form over `nkeys` keys: values of key `k` are
+/// `vals[start[k]..start[k + 1]]`, in task order. Parallel over tasks, and the
+/// same output whatever the thread count.
 fn csr(nkeys: usize, parts: &[Vec<(u32, u32)>]) -> (Vec<u32>, Vec<u32>) {
+    if parts.len() <= 1 {
+        let mut start = vec![0u32; nkeys + 1];
+        for part in parts {
+            for &(k, _) in part {
+                start[k as usize + 1] += 1;
+            }
+        }
+        for i in 0..nkeys {
+            start[i + 1] += start[i];
+        }
+        let mut fill = start.clone();
+        let mut vals = vec![0u32; start[nkeys] as usize];
+        for part in parts {
+            for &(k, v) in part {
+                let f = &mut fill[k as usize];
+                vals[*f as usize] = v;
+                *f += 1;
+            }
+        }
+        return (start, vals);
+    }
+    // Per-task histograms, then per (task, key) write offsets, then a parallel fill.
+    let mut offsets: Vec<Vec<u32>> = parts
+        .par_iter()
+        .map(|part| {
+            let mut h = vec![0u32; nkeys];
+            for &(k, _) in part {
+                h[k as usize] += 1;
+            }
+            h
+        })
+        .collect();
     let mut start = vec![0u32; nkeys + 1];
-    for part in parts {
-        for &(k, _) in part {
-            start[k as usize + 1] += 1;
+    let mut run = 0u32;
+    for k in 0..nkeys {
+        start[k] = run;
+        for h in offsets.iter_mut() {
+            let c = h[k];
+            h[k] = run;
+            run += c;
         }
     }
-    for i in 0..nkeys {
-        start[i + 1] += start[i];
-    }
-    let mut fill = start.clone();
-    let mut vals = vec![0u32; start[nkeys] as usize];
-    for part in parts {
+    start[nkeys] = run;
+    let mut vals = vec![0u32; run as usize];
+    let out = SyncPtr(vals.as_mut_ptr());
+    parts.par_iter().zip(offsets.par_iter_mut()).for_each(|(part, off)| {
+        let out = &out;
         for &(k, v) in part {
-            let f = &mut fill[k as usize];
-            vals[*f as usize] = v;
-            *f += 1;
+            let o = &mut off[k as usize];
+            // SAFETY: the offsets give every (task, key) its own disjoint
+            // range inside `vals`, so no two tasks write one element.
+            unsafe { *out.0.add(*o as usize) = v };
+            *o += 1;
         }
-    }
+    });
     (start, vals)
 }
+
+/// A raw pointer that tasks writing disjoint ranges may share.
+struct SyncPtr(*mut u32);
+unsafe impl Sync for SyncPtr {}
 
 impl CpuBackend {
     pub fn new() -> Self {
@@ -365,6 +410,16 @@ impl CpuBackend {
             }
         }
         // List every primitive in the occupied bricks its box overlaps.
+        // Occupancy of each row of bricks as a bit mask (rows of up to 64 bricks).
+        let row_mask: Option<Vec<u64>> = (bd[0] <= 64).then(|| {
+            let mut m = vec![0u64; bd[1] * bd[2]];
+            for (id, &o) in occ.iter().enumerate() {
+                if o != u32::MAX {
+                    m[id / bd[0]] |= 1u64 << (id % bd[0]);
+                }
+            }
+            m
+        });
         let boxes = &self.prep.boxes;
         let parts: Vec<Vec<(u32, u32)>> = (0..boxes.len().div_ceil(PRIM_CHUNK))
             .into_par_iter()
@@ -391,11 +446,22 @@ impl CpuBackend {
                     }
                     for z in r0[2]..=r1[2] {
                         for y in r0[1]..=r1[1] {
-                            let row = bd[0] * (y + bd[1] * z);
-                            for x in r0[0]..=r1[0] {
-                                let o = occ[row + x];
-                                if o != u32::MAX {
-                                    out.push((o, g as u32));
+                            let row = y + bd[1] * z;
+                            if let Some(masks) = &row_mask {
+                                // Only the occupied bricks of this row, in x order.
+                                let span = if r1[0] - r0[0] >= 63 { u64::MAX } else { (1u64 << (r1[0] - r0[0] + 1)) - 1 };
+                                let mut m = masks[row] & (span << r0[0]);
+                                while m != 0 {
+                                    let x = m.trailing_zeros() as usize;
+                                    m &= m - 1;
+                                    out.push((occ[bd[0] * row + x], g as u32));
+                                }
+                            } else {
+                                for x in r0[0]..=r1[0] {
+                                    let o = occ[bd[0] * row + x];
+                                    if o != u32::MAX {
+                                        out.push((o, g as u32));
+                                    }
                                 }
                             }
                         }
@@ -582,10 +648,11 @@ impl Backend for CpuBackend {
         params: &[Primitive],
         batch: &PointBatch,
         weights: &LossWeights,
-        acc: &mut [GradAcc],
+        grad: &mut [Primitive],
     ) -> PointLoss {
-        assert_eq!(acc.len(), params.len());
+        assert_eq!(grad.len(), params.len());
         if batch.is_empty() || params.is_empty() {
+            grad.par_iter_mut().for_each(|g| *g = [0.0; 12]);
             return PointLoss::default();
         }
         self.prep.update(params);
@@ -596,6 +663,9 @@ impl Backend for CpuBackend {
         if self.chunks.len() < ranges.len() {
             self.chunks.resize_with(ranges.len(), ChunkScratch::default);
         }
+        let mut acc = std::mem::take(&mut self.acc);
+        acc.clear();
+        acc.resize(np, GradAcc::default());
         let CpuBackend { prep, chunks, evaluations, .. } = self;
         let prep: &Prepared = prep;
         let losses: Vec<(f64, f64, u64)> = chunks[..ranges.len()]
@@ -623,6 +693,13 @@ impl Backend for CpuBackend {
             sc.touched.clear();
             sc.acc.clear();
         }
+        let frames = &self.prep.frames;
+        grad.par_chunks_mut(PRIM_CHUNK).zip(acc.par_chunks(PRIM_CHUNK)).enumerate().for_each(|(c, (gs, accs))| {
+            for (i, (g, a)) in gs.iter_mut().zip(accs).enumerate() {
+                *g = frames[c * PRIM_CHUNK + i].finalize(a);
+            }
+        });
+        self.acc = acc;
         out
     }
 
@@ -715,5 +792,72 @@ impl Backend for CpuBackend {
                 }
             }
         });
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernel::isotropic;
+    use crate::rng::Rng;
+
+    fn random_prims(rng: &mut Rng, n: usize) -> Vec<Primitive> {
+        (0..n)
+            .map(|_| {
+                let mut p = isotropic([0, 1, 2].map(|_| rng.range(0.0, 6.0) as f32), 1.0, rng.uniform() as f32, rng.uniform() as f32);
+                for i in 3..10 {
+                    p[i] = rng.range(-1.0, 1.0) as f32;
+                }
+                p[6] += 1.0;
+                p
+            })
+            .collect()
+    }
+
+    /// The lane code is a transcription of `Frame::kernel` and
+    /// `GradAcc::add_pair`; it must agree with them.
+    #[test]
+    fn lane_code_matches_the_scalar_definitions() {
+        let mut rng = Rng::new(4);
+        let params = random_prims(&mut rng, 13); // not a multiple of LANES: padding is exercised
+        let mut prep = Prepared::default();
+        prep.update(&params);
+        let cands: Vec<u32> = (0..13).collect();
+        let mut soa = BrickSoa::default();
+        soa.load(&prep.hot, &prep.boxes, &cands, true);
+        let mut expect = vec![GradAcc::default(); 13];
+        for _ in 0..20 {
+            let x = [0, 1, 2].map(|_| rng.range(0.0, 6.0) as f32);
+            let (g_rho, g_n) = (rng.range(-1.0, 1.0) as f32, rng.range(-1.0, 1.0) as f32);
+            let (rho, n) = soa.forward(x);
+            soa.backward(g_rho, g_n);
+            let (mut r2, mut n2) = (0.0f32, 0.0f32);
+            for (g, f) in prep.frames.iter().enumerate() {
+                if let Some((k, y)) = f.kernel(x) {
+                    r2 += f.w * k;
+                    n2 += f.w * k * f.s;
+                    expect[g].add_pair(f, k, y, g_rho, g_n);
+                }
+            }
+            assert!((rho - r2).abs() <= 1e-5 * (1.0 + r2) && (n - n2).abs() <= 1e-5 * (1.0 + n2), "{rho} {r2} {n} {n2}");
+        }
+        for (g, e) in expect.iter().enumerate() {
+            let got = soa.take(g).unwrap_or_default();
+            for t in 0..11 {
+                assert!((got.0[t] - e.0[t]).abs() <= 1e-4 * (1.0 + e.0[t].abs()), "candidate {g} term {t}: {} vs {}", got.0[t], e.0[t]);
+            }
+        }
+    }
+
+    #[test]
+    fn parallel_csr_equals_the_sequential_sort() {
+        let mut rng = Rng::new(8);
+        let parts: Vec<Vec<(u32, u32)>> = (0..7)
+            .map(|p| (0..(50 + 13 * p)).map(|i| (rng.below(20) as u32, (p * 1000 + i) as u32)).collect())
+            .collect();
+        let (start, vals) = csr(20, &parts);
+        let flat: Vec<(u32, u32)> = parts.concat();
+        let (s1, v1) = csr(20, std::slice::from_ref(&flat));
+        assert_eq!((start, vals), (s1, v1));
     }
 }

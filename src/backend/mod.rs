@@ -12,7 +12,7 @@
 
 pub mod cpu;
 
-use crate::kernel::{GradAcc, Primitive};
+use crate::kernel::Primitive;
 use crate::loss::LossWeights;
 use crate::points::PointBatch;
 
@@ -74,15 +74,17 @@ pub trait Backend: Send {
     /// Mixture density `rho` and numerator `n` at each point.
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]);
 
-    /// The point terms L_val and L_cov over `batch` and, added into `acc`
-    /// (one entry per primitive, zeroed by the caller), the pair sums of their
-    /// weighted gradient. The result must not depend on the thread count.
+    /// The point terms L_val and L_cov over `batch`, and the gradient of their
+    /// weighted sum with respect to every parameter, written into `grad` (one
+    /// entry per primitive): the pair sums of [`crate::kernel::GradAcc`] turned
+    /// into parameter gradients by [`crate::kernel::Frame::finalize`]. The
+    /// result must not depend on the thread count.
     fn point_loss_grad(
         &mut self,
         params: &[Primitive],
         batch: &PointBatch,
         weights: &LossWeights,
-        acc: &mut [GradAcc],
+        grad: &mut [Primitive],
     ) -> PointLoss;
 
     /// The decoded value `V_eval` at every point of `lattice`, x fastest.

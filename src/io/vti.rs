@@ -295,13 +295,11 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
         }
         "appended" => {
             let off: usize = attr(&a, "offset").and_then(|o| o.parse().ok()).ok_or_else(|| Error::format("vti: appended array without offset"))?;
-            let p = find_bytes(bytes, b"<AppendedData").unwrap();
             let (_, _, app) = find_tag(&xml, "AppendedData", 0).ok_or_else(|| Error::format("vti: no AppendedData"))?;
             let base64 = attr(app, "encoding").as_deref() == Some("base64");
             let tag_end = xml_end.unwrap();
             let underscore = bytes[tag_end..].iter().position(|&c| c == b'_').ok_or_else(|| Error::format("vti: AppendedData without '_'"))?;
             let start = tag_end + underscore + 1 + off;
-            let _ = p;
             let stream = bytes.get(start..).ok_or_else(|| Error::format("vti: appended offset beyond end of file"))?;
             let decoded;
             let stream = if base64 {

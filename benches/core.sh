@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# Benchmarks of the encoder core (issue 2). Rerun with:
+#   bash benches/core.sh [REPEATS] [ROWS...]
+# REPEATS (default 3) runs of each row; the 256^3 row runs once unless
+# REPEATS_LARGE is set. ROWS selects rows by name (default: all).
+# Prints one JSON line per run to bench-out/core.jsonl and a Markdown table
+# of medians at the end.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repeats=${1:-3}
+shift || true
+rows=("$@")
+data=../shared/data
+out=bench-out
+mkdir -p "$out"
+cargo build --release --locked --bin gsenc >&2
+bin=target/release/gsenc
+rm -f "$out/core.jsonl"
+
+rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)
+h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
+
+want() { [ ${#rows[@]} -eq 0 ] || [[ " ${rows[*]} " == *" $1 "* ]]; }
+
+run() { # name repeats args...
+    local name=$1 n=$2; shift 2
+    want "$name" || return 0
+    for i in $(seq 1 "$n"); do
+        echo "[$name] run $i/$n" >&2
+        "$bin" encode grid "$@" -o "$out/$name.gsm" --json --quiet \
+            | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; print(json.dumps(d))" >> "$out/core.jsonl"
+    done
+}
+
+run rm128_32k_matched "$repeats" "${rm_args[@]}" --downsample 2 --budget 32000 --schedule matched
+run rm128_32k_full "$repeats" "${rm_args[@]}" --downsample 2 --budget 32000 --schedule full
+run hydrogen_4k_matched "$repeats" "${h_args[@]}" --budget 4096 --schedule matched
+run rm256_200k_full "${REPEATS_LARGE:-1}" "${rm_args[@]}" --budget 200000 --schedule full
+# Fidelity check of the issue: 300 x 3072, four seed pairs each.
+for s in 0 1 2 3; do
+    run "fidelity_hydrogen_4k_300it_seed$s" 1 "${h_args[@]}" --budget 4096 --iters 300 --points 3072 --seed "$s" --sample-seed $((s + 1))
+    run "fidelity_rm64_4k_300it_seed$s" 1 "${rm_args[@]}" --downsample 4 --budget 4096 --iters 300 --points 3072 --seed "$s" --sample-seed $((s + 1))
+done
+
+python3 - "$out/core.jsonl" <<'PY'
+import json, statistics, sys
+rows = {}
+for line in open(sys.argv[1]):
+    d = json.loads(line)
+    rows.setdefault(d["row"], []).append(d)
+print("| row | runs | voxel PSNR dB | sampled PSNR dB | bytes | loop s (median) | total s | kernel evals/s |")
+print("|---|---|---|---|---|---|---|---|")
+for name, runs in rows.items():
+    med = lambda k: statistics.median(r[k] for r in runs)
+    print(f"| {name} | {len(runs)} | {med('voxel_psnr'):.2f} | {med('sampled_psnr'):.2f} | {runs[0]['bytes']} | "
+          f"{med('seconds'):.2f} | {med('total_seconds'):.2f} | {med('kernel_evals_per_second')/1e6:.0f} M |")
+PY
