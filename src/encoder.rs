@@ -4,7 +4,7 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::field::{check_finite, Grid};
-use crate::kernel::Primitive;
+use crate::kernel::{morton_key, Primitive};
 use crate::loss::{regularizers, LossWeights};
 use crate::optim::{cosine_lr, Adam};
 use crate::points::PointSampler;
@@ -207,6 +207,16 @@ pub fn encode(
             (s.params.clone(), Some(s))
         }
     };
+    // Spatial order makes the backend's candidate blocks compact; the seeding
+    // record follows the same permutation.
+    let order = spatial_order(&params);
+    let params_sorted = permute(&params, &order);
+    params = params_sorted;
+    let seeding = seeding.map(|s| Seeding {
+        params: params.clone(),
+        stream: permute(&s.stream, &order),
+        sample: permute(&s.sample, &order),
+    });
     let seed_seconds = t_seed.elapsed().as_secs_f64();
     tracing::info!(
         budget = cfg.budget,
@@ -233,6 +243,10 @@ pub fn encode(
             let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
             let r = relocate(backend, &mut params, &mut adam, &batch);
             tracing::debug!(iteration = t, moved = r.moved.len(), "relocation");
+            let order = spatial_order(&params);
+            params = permute(&params, &order);
+            adam.m = permute(&adam.m, &order);
+            adam.v = permute(&adam.v, &order);
             relocations.push(r);
         }
         let batch = sampler.draw(points, target.reference, target.samples);
@@ -264,6 +278,18 @@ pub fn encode(
         seed_seconds,
         loop_seconds,
     })
+}
+
+/// The permutation that sorts primitives by the Morton key of their centres
+/// (ties by index, so it is deterministic).
+pub fn spatial_order(params: &[Primitive]) -> Vec<usize> {
+    let mut keyed: Vec<(u64, usize)> = params.iter().enumerate().map(|(i, p)| (morton_key(p), i)).collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}
+
+fn permute<T: Clone>(v: &[T], order: &[usize]) -> Vec<T> {
+    order.iter().map(|&i| v[i].clone()).collect()
 }
 
 /// Runs `f` on a dedicated rayon pool of `threads` threads (the global pool

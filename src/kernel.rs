@@ -286,6 +286,23 @@ impl GradAcc {
     }
 }
 
+/// Morton (z-order) key of a primitive's centre at voxel resolution. Keeping
+/// primitives sorted by it makes neighbours in memory neighbours in space, so
+/// the CPU backend's blocks of candidates are compact and can be skipped whole.
+pub fn morton_key(p: &Primitive) -> u64 {
+    fn spread(v: u64) -> u64 {
+        let mut x = v & 0x1f_ffff;
+        x = (x | x << 32) & 0x1f_0000_0000_ffff;
+        x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+        x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+        x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+        (x | x << 2) & 0x1249_2492_4924_9249
+    }
+    // Saturating float-to-int: NaN and negatives map to 0.
+    let c = |a: usize| p[layout::MU + a].clamp(0.0, 2_000_000.0) as u64;
+    spread(c(0)) | spread(c(1)) << 1 | spread(c(2)) << 2
+}
+
 /// A primitive's parameters for an isotropic, unrotated Gaussian.
 pub fn isotropic(mu: [f32; 3], sigma: f32, value: f32, weight: f32) -> Primitive {
     use layout::*;

@@ -165,18 +165,22 @@ impl BrickSoa {
         }
     }
 
-    /// Kernels of every candidate at `x`; returns `(rho, n)`. Lane partial sums
-    /// are added in a fixed order, so the result depends only on the candidates.
+    /// Kernels of every candidate at `x`; returns `(rho, n)` and adds the
+    /// number of lanes evaluated (blocks not skipped, times `LANES`) to
+    /// `evals`. Lane partial sums are added in a fixed order, so the result
+    /// depends only on the candidates.
     #[inline(always)]
-    fn forward(&mut self, x: [f32; 3]) -> (f32, f32) {
+    fn forward(&mut self, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
         let mut rho = [0.0f32; LANES];
         let mut num = [0.0f32; LANES];
+        let mut active = 0u64;
         for (blk, ev) in self.blocks.iter().zip(self.eval.iter_mut()) {
             let bb = &blk.bbox;
             ev.active = !(x[0] < bb[0] || x[1] < bb[1] || x[2] < bb[2] || x[0] > bb[3] || x[1] > bb[4] || x[2] > bb[5]);
             if !ev.active {
                 continue;
             }
+            active += 1;
             let (k, y) = block_kernels(blk, x);
             for l in 0..LANES {
                 let wk = blk.w[l] * k[l];
@@ -186,6 +190,7 @@ impl BrickSoa {
             ev.k = k;
             ev.y = y;
         }
+        *evals += active * LANES as u64;
         let (mut r, mut n) = (0.0f32, 0.0f32);
         for l in 0..LANES {
             r += rho[l];
@@ -247,7 +252,7 @@ pub struct CpuBackend {
 
 impl Default for CpuBackend {
     fn default() -> Self {
-        CpuBackend { brick: 8.0, prep: Prepared::default(), chunks: vec![], acc: vec![], evaluations: 0 }
+        CpuBackend { brick: 16.0, prep: Prepared::default(), chunks: vec![], acc: vec![], evaluations: 0 }
     }
 }
 
@@ -365,7 +370,8 @@ impl CpuBackend {
     }
 
     /// Kernels `K(x)` evaluated by the point passes since creation: pairs of a
-    /// point and a candidate primitive of its brick.
+    /// point and a candidate primitive, counted by the 8-lane blocks actually
+    /// evaluated (blocks whose box misses the point are skipped, not counted).
     pub fn kernel_evaluations(&self) -> u64 {
         self.evaluations
     }
@@ -569,8 +575,7 @@ fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) ->
         let (s, e) = bins.brick_points[b];
         let mut any = false;
         for &pi in &bins.order[s as usize..e as usize] {
-            let (rho, n) = soa.forward(job.batch.pos[pi as usize]);
-            evals += cands.len() as u64;
+            let (rho, n) = soa.forward(job.batch.pos[pi as usize], &mut evals);
             let t = point_terms(rho, n, job.batch.vref[pi as usize], job.norm, job.weights);
             val += t.val as f64;
             cov += t.cov as f64;
@@ -608,8 +613,7 @@ fn eval_chunk(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], (b0, b1): (us
         soa.load(&prep.hot, &prep.boxes, cands, false);
         let (s, e) = bins.brick_points[b];
         for &pi in &bins.order[s as usize..e as usize] {
-            let (r, nn) = soa.forward(pos[pi as usize]);
-            evals += cands.len() as u64;
+            let (r, nn) = soa.forward(pos[pi as usize], &mut evals);
             out.push((pi, r, nn));
         }
     }
@@ -829,7 +833,7 @@ mod tests {
         for _ in 0..20 {
             let x = [0, 1, 2].map(|_| rng.range(0.0, 6.0) as f32);
             let (g_rho, g_n) = (rng.range(-1.0, 1.0) as f32, rng.range(-1.0, 1.0) as f32);
-            let (rho, n) = soa.forward(x);
+            let (rho, n) = soa.forward(x, &mut 0);
             soa.backward(g_rho, g_n);
             let (mut r2, mut n2) = (0.0f32, 0.0f32);
             for (g, f) in prep.frames.iter().enumerate() {

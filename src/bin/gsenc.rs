@@ -97,6 +97,10 @@ struct EncodeGridArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+    /// CPU backend brick edge in voxels (tuning only; does not change the model
+    /// beyond float rounding).
+    #[arg(long, hide = true)]
+    brick: Option<f32>,
     /// Field name stored in the model.
     #[arg(long, default_value = "scalar")]
     field: String,
@@ -260,6 +264,9 @@ fn cmd_encode_grid(a: EncodeGridArgs) -> Result<()> {
     let pb = progress_bar(a.out.quiet, cfg.iterations() as u64);
     let (out, decoded, evals) = with_threads(a.threads, || -> Result<_> {
         let mut backend = CpuBackend::new();
+        if let Some(b) = a.brick {
+            backend.brick = b;
+        }
         let out = encode(&target, &cfg, None, &mut backend, &mut |p| {
             pb.set_position(p.iteration as u64);
             if p.iteration % 20 == 0 {

@@ -407,7 +407,7 @@ mod tests {
         );
         assert_eq!(parse_vti(&f, None).unwrap().grid, g);
         // appended raw, zlib-compressed in two blocks, UInt64 header.
-        let mut enc = |chunk: &[u8]| {
+        let enc = |chunk: &[u8]| {
             use std::io::Write;
             let mut e = flate2::write::ZlibEncoder::new(vec![], flate2::Compression::default());
             e.write_all(chunk).unwrap();
