@@ -39,6 +39,7 @@ impl Adam {
             .par_iter_mut()
             .zip(grad.par_iter())
             .zip(self.m.par_iter_mut().zip(self.v.par_iter_mut()))
+            .with_min_len(2048)
             .for_each(|((p, g), (m, v))| {
                 for i in 0..12 {
                     m[i] = BETA1 * m[i] + (1.0 - BETA1) * g[i];

@@ -767,19 +767,30 @@ impl Backend for CpuBackend {
                     let id = bx + nbx * by;
                     for &g in &bcand[bstart[id] as usize..bstart[id + 1] as usize] {
                         let f = &frames[g as usize];
+                        let a = f.scaled_axes();
                         let b = boxes[g as usize].unwrap();
                         let zr = (b[2] as usize).max(z0)..=(b[5] as usize).min(z0 + nz - 1);
                         let yr = (b[1] as usize).max(y0)..=(b[4] as usize).min(y0 + ny - 1);
-                        let xr = (b[0] as usize).max(x0)..=(b[3] as usize).min(x0 + nx - 1);
+                        let (i0, i1) = ((b[0] as usize).max(x0), (b[3] as usize).min(x0 + nx - 1));
                         for k in zr {
                             for j in yr.clone() {
                                 let base = (j - y0) * bs + (k - z0) * bs * bs;
-                                for i in xr.clone() {
-                                    if let Some((kv, _)) = f.kernel(lattice.point(i, j, k)) {
-                                        let wk = f.w * kv;
-                                        rho[base + i - x0] += wk;
-                                        num[base + i - x0] += wk * f.s;
-                                    }
+                                let p = lattice.point(i0, j, k);
+                                let (dy, dz) = (p[1] - f.mu[1], p[2] - f.mu[2]);
+                                let c = [0, 1, 2].map(|r| a[r][1] * dy + a[r][2] * dz);
+                                let dx0 = p[0] - f.mu[0];
+                                let row = base + i0 - x0..=base + i1 - x0;
+                                // Branch-free over the row, so that it vectorises.
+                                for (t, (r, n)) in rho[row.clone()].iter_mut().zip(num[row].iter_mut()).enumerate() {
+                                    let dx = dx0 + t as f32 * lattice.step[0];
+                                    let u0 = a[0][0] * dx + c[0];
+                                    let u1 = a[1][0] * dx + c[1];
+                                    let u2 = a[2][0] * dx + c[2];
+                                    let d2 = u0 * u0 + u1 * u1 + u2 * u2;
+                                    let e = crate::kernel::exp_neg_half(d2);
+                                    let wk = f.w * if d2 < CUTOFF_D2 { e } else { 0.0 };
+                                    *r += wk;
+                                    *n += wk * f.s;
                                 }
                             }
                         }
