@@ -136,11 +136,15 @@ pub struct LossTerms {
 }
 
 pub struct EncodeOutput {
+    /// The model, in spatial (Morton) order of the centres: the order of a
+    /// model's primitives carries no meaning.
     pub params: Vec<Primitive>,
     pub iterations: usize,
     pub points: usize,
     /// The seeding result, absent for a warm start.
     pub seeding: Option<Seeding>,
+    /// Each relocation pass; its indices refer to the primitive order at that
+    /// moment (the encoder re-sorts spatially after every pass).
     pub relocations: Vec<Relocation>,
     pub last_loss: LossTerms,
     /// Seconds in seeding (or copying the warm start).
@@ -200,23 +204,21 @@ pub fn encode(
 ) -> Result<EncodeOutput> {
     validate(target, cfg, init)?;
     let t_seed = Instant::now();
+    // Primitives are kept in spatial (Morton) order, which makes the backend's
+    // candidate blocks compact; the seeding record follows the same permutation.
     let (mut params, seeding) = match init {
-        Some(p) => (p.to_vec(), None),
+        Some(p) => (permute(p, &spatial_order(p)), None),
         None => {
             let s = seed(target.samples, target.reference.dims, cfg.budget, cfg.seed_init)?;
+            let order = spatial_order(&s.params);
+            let s = Seeding {
+                params: permute(&s.params, &order),
+                stream: permute(&s.stream, &order),
+                sample: permute(&s.sample, &order),
+            };
             (s.params.clone(), Some(s))
         }
     };
-    // Spatial order makes the backend's candidate blocks compact; the seeding
-    // record follows the same permutation.
-    let order = spatial_order(&params);
-    let params_sorted = permute(&params, &order);
-    params = params_sorted;
-    let seeding = seeding.map(|s| Seeding {
-        params: params.clone(),
-        stream: permute(&s.stream, &order),
-        sample: permute(&s.sample, &order),
-    });
     let seed_seconds = t_seed.elapsed().as_secs_f64();
     tracing::info!(
         budget = cfg.budget,
