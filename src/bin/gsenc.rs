@@ -225,9 +225,9 @@ fn print_result(json_out: bool, value: serde_json::Value) {
     } else if let serde_json::Value::Object(map) = value {
         for (k, v) in map {
             match v {
-                serde_json::Value::Number(n) if n.is_f64() => println!("{k:>16}: {:.4}", n.as_f64().unwrap()),
-                serde_json::Value::String(s) => println!("{k:>16}: {s}"),
-                other => println!("{k:>16}: {other}"),
+                serde_json::Value::Number(n) if n.is_f64() => println!("{k:>24}: {:.4}", n.as_f64().unwrap()),
+                serde_json::Value::String(s) => println!("{k:>24}: {s}"),
+                other => println!("{k:>24}: {other}"),
             }
         }
     }
