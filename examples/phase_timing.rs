@@ -19,8 +19,9 @@ fn main() {
     let reference = Grid::new(dims, r.normalize(&g.values).unwrap().values).unwrap();
     let samples = GridSamples { grid: &reference };
     let seeded = gsenc::seeding::seed(&samples, dims, budget, 0).unwrap();
-    let mut params: Vec<Primitive> = seeded.params;
-    if std::env::var("MORTON").is_ok() { params.sort_by_key(gsenc::kernel::morton_key); }
+    // The order the encoder trains in.
+    let order = gsenc::encoder::spatial_order(&seeded.params);
+    let params: Vec<Primitive> = order.iter().map(|&i| seeded.params[i]).collect();
     let mut sampler = PointSampler::new(&reference, 1);
     let mut be = CpuBackend::new();
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; budget];

@@ -302,27 +302,6 @@ impl Prepared {
 /// `vals[start[k]..start[k + 1]]`, in task order. Parallel over tasks, and the
 /// same output whatever the thread count.
 fn csr(nkeys: usize, parts: &[Vec<(u32, u32)>]) -> (Vec<u32>, Vec<u32>) {
-    if parts.len() <= 1 {
-        let mut start = vec![0u32; nkeys + 1];
-        for part in parts {
-            for &(k, _) in part {
-                start[k as usize + 1] += 1;
-            }
-        }
-        for i in 0..nkeys {
-            start[i + 1] += start[i];
-        }
-        let mut fill = start.clone();
-        let mut vals = vec![0u32; start[nkeys] as usize];
-        for part in parts {
-            for &(k, v) in part {
-                let f = &mut fill[k as usize];
-                vals[*f as usize] = v;
-                *f += 1;
-            }
-        }
-        return (start, vals);
-    }
     // Per-task histograms, then per (task, key) write offsets, then a parallel fill.
     let mut offsets: Vec<Vec<u32>> = parts
         .par_iter()
@@ -865,14 +844,23 @@ mod tests {
     }
 
     #[test]
-    fn parallel_csr_equals_the_sequential_sort() {
+    fn csr_is_a_stable_sort_by_key() {
         let mut rng = Rng::new(8);
         let parts: Vec<Vec<(u32, u32)>> = (0..7)
             .map(|p| (0..(50 + 13 * p)).map(|i| (rng.below(20) as u32, (p * 1000 + i) as u32)).collect())
             .collect();
         let (start, vals) = csr(20, &parts);
-        let flat: Vec<(u32, u32)> = parts.concat();
-        let (s1, v1) = csr(20, std::slice::from_ref(&flat));
-        assert_eq!((start, vals), (s1, v1));
+        // Reference: a stable sort of all pairs by key, in task order.
+        let mut flat: Vec<(u32, u32)> = parts.concat();
+        flat.sort_by_key(|&(k, _)| k);
+        assert_eq!(vals, flat.iter().map(|&(_, v)| v).collect::<Vec<_>>());
+        for k in 0..20u32 {
+            let n = flat.iter().filter(|&&(kk, _)| kk == k).count() as u32;
+            assert_eq!(start[k as usize + 1] - start[k as usize], n);
+        }
+        assert_eq!(start[0], 0);
+        // One task and no task at all go through the same path.
+        assert_eq!(csr(20, std::slice::from_ref(&parts.concat())).1, vals);
+        assert_eq!(csr(3, &[]), (vec![0; 4], vec![]));
     }
 }
