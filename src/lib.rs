@@ -6,6 +6,8 @@
 //! - [`kernel`], [`loss`]: the one mathematical definition of a primitive, its
 //!   kernel, the objective and their gradients;
 //! - [`backend`]: evaluators of that math ([`backend::cpu::CpuBackend`]);
+//! - [`particles`], [`cells`], [`deposit`], [`reference`]: particle and cell
+//!   input turned into samples and a deposited reference grid;
 //! - [`samples`], [`seeding`], [`points`], [`optim`], [`relocate`], [`encoder`]:
 //!   the encoder itself, on memory only;
 //! - [`model`], [`format`], [`metrics`]: models, their file format and scores;
@@ -25,6 +27,8 @@
 //! ```
 
 pub mod backend;
+pub mod cells;
+pub mod deposit;
 pub mod encoder;
 pub mod error;
 pub mod field;
@@ -35,7 +39,9 @@ pub mod loss;
 pub mod metrics;
 pub mod model;
 pub mod optim;
+pub mod particles;
 pub mod points;
+pub mod reference;
 pub mod relocate;
 pub mod rng;
 pub mod samples;

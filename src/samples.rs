@@ -55,6 +55,15 @@ pub struct SampleArrays {
     pub m: Vec<f32>,
 }
 
+impl SampleArrays {
+    pub fn push(&mut self, s: Sample) {
+        self.q.push(s.q);
+        self.h.push(s.h);
+        self.v.push(s.v);
+        self.m.push(s.m);
+    }
+}
+
 impl SampleSet for SampleArrays {
     fn len(&self) -> usize {
         self.q.len()

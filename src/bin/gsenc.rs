@@ -7,6 +7,9 @@ use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 use gsenc::io::{raw, vti, write_atomic};
 use gsenc::metrics::{sampled_psnr, voxel_psnr};
 use gsenc::model::{Model, ModelMeta};
+use gsenc::cells::{CellSize, Cells};
+use gsenc::particles::Particles;
+use gsenc::reference::{prepare_cells, prepare_particles, Bounds, Placement, Prepared, RangeSpec};
 use gsenc::samples::GridSamples;
 use gsenc::{format, Error, Result};
 use serde_json::json;
@@ -32,12 +35,27 @@ enum Command {
     Eval(EvalArgs),
     /// Show a model's metadata.
     Info(InfoArgs),
+    /// Write the reference grid that particles or cells are encoded against.
+    #[command(subcommand)]
+    Deposit(DepositInput),
 }
 
 #[derive(Subcommand)]
 enum EncodeInput {
     /// A regular grid: raw array or VTK ImageData (.vti).
     Grid(EncodeGridArgs),
+    /// SPH particles (raw arrays), against their particle deposit.
+    Particles(EncodeParticlesArgs),
+    /// Hexahedral cells (raw arrays), against their volume-weighted deposit.
+    Cells(EncodeCellsArgs),
+}
+
+#[derive(Subcommand)]
+enum DepositInput {
+    /// The M4-spline, Shepard-normalised, mass-weighted particle deposit.
+    Particles(DepositParticlesArgs),
+    /// The volume-weighted cell deposit (the paper's Eq. 6).
+    Cells(DepositCellsArgs),
 }
 
 /// How to read a grid from a file.
@@ -67,10 +85,31 @@ struct GridInput {
 struct EncodeGridArgs {
     #[command(flatten)]
     input: GridInput,
+    #[command(flatten)]
+    values: ValueArgs,
+    #[command(flatten)]
+    encode: EncodeOptions,
+}
+
+/// How values are normalised.
+#[derive(Args, Clone)]
+struct ValueArgs {
+    /// Value range MIN,MAX (after --log10); default: the data's range.
+    #[arg(long, value_parser = parse_range)]
+    range: Option<[f64; 2]>,
+    /// Normalise log10 of the values.
+    #[arg(long)]
+    log10: bool,
+}
+
+/// Everything about an encode but its input.
+#[derive(Args)]
+struct EncodeOptions {
     /// Number of Gaussians.
     #[arg(long)]
     budget: usize,
-    /// full (3000 x 16384), matched (1500 x 3072) or short (500 x 8192).
+    /// full (3000 x 16384; 4000 iterations for particles), matched (1500 x 3072)
+    /// or short (500 x 8192).
     #[arg(long, default_value = "matched")]
     schedule: String,
     /// Override the schedule's iterations.
@@ -88,12 +127,6 @@ struct EncodeGridArgs {
     /// Skip the relocation passes.
     #[arg(long)]
     no_relocation: bool,
-    /// Value range MIN,MAX (after --log10); default: the data's range.
-    #[arg(long, value_parser = parse_range)]
-    range: Option<[f64; 2]>,
-    /// Normalise log10 of the values.
-    #[arg(long)]
-    log10: bool,
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
@@ -112,6 +145,128 @@ struct EncodeGridArgs {
     output: PathBuf,
     #[command(flatten)]
     out: OutputFlags,
+}
+
+/// Where the reference grid of particles or cells lies.
+#[derive(Args, Clone)]
+struct PlacementArgs {
+    /// Reference grid dims X,Y,Z (or one number for a cube).
+    #[arg(long, value_parser = parse_dims)]
+    dims: [usize; 3],
+    /// World bounds XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX (default: the data's box).
+    /// Items whose centres lie outside seed nothing; their support is clipped.
+    #[arg(long, value_parser = parse_bounds)]
+    bounds: Option<Bounds>,
+}
+
+/// Raw per-item array files: little-endian, C order, one row per item.
+#[derive(Args, Clone)]
+struct ItemFiles {
+    /// Element type of every array file: f32 or f64 (also u8, u16).
+    #[arg(long, default_value = "f32")]
+    dtype: String,
+    /// Items per row, for files holding several steps (one row per step).
+    #[arg(long)]
+    count: Option<usize>,
+    /// Which row to read (0-based; needs --count).
+    #[arg(long, default_value_t = 0)]
+    row: usize,
+}
+
+#[derive(Args, Clone)]
+struct ParticleInput {
+    /// Positions, N x 3.
+    #[arg(long)]
+    positions: PathBuf,
+    /// SPH smoothing lengths hh, N (the kernel's support radius is 2 hh).
+    #[arg(long)]
+    smoothing_length: PathBuf,
+    /// Masses, N (default: equal masses).
+    #[arg(long)]
+    mass: Option<PathBuf>,
+    /// Field values, N.
+    #[arg(long)]
+    values: PathBuf,
+    #[command(flatten)]
+    files: ItemFiles,
+    #[command(flatten)]
+    placement: PlacementArgs,
+}
+
+#[derive(Args, Clone)]
+struct CellInput {
+    /// Cell centres, N x 3.
+    #[arg(long)]
+    centers: PathBuf,
+    /// Cell edge lengths, N x 3.
+    #[arg(long, required_unless_present = "volumes", conflicts_with = "volumes")]
+    sizes: Option<PathBuf>,
+    /// Cell volumes, N (instead of --sizes).
+    #[arg(long)]
+    volumes: Option<PathBuf>,
+    /// Field values, N.
+    #[arg(long)]
+    values: PathBuf,
+    #[command(flatten)]
+    files: ItemFiles,
+    #[command(flatten)]
+    placement: PlacementArgs,
+}
+
+#[derive(Args)]
+struct EncodeParticlesArgs {
+    #[command(flatten)]
+    input: ParticleInput,
+    #[command(flatten)]
+    values: ValueArgs,
+    #[command(flatten)]
+    encode: EncodeOptions,
+}
+
+#[derive(Args)]
+struct EncodeCellsArgs {
+    #[command(flatten)]
+    input: CellInput,
+    #[command(flatten)]
+    values: ValueArgs,
+    #[command(flatten)]
+    encode: EncodeOptions,
+}
+
+/// Where a deposit goes.
+#[derive(Args)]
+struct DepositOutput {
+    /// Write normalised values in [0, 1] (what the encoder is fitted to)
+    /// instead of data units.
+    #[arg(long)]
+    normalized: bool,
+    /// Output: .vti (VTK ImageData) or anything else for raw float32, x fastest.
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long)]
+    threads: Option<usize>,
+    #[command(flatten)]
+    out: OutputFlags,
+}
+
+#[derive(Args)]
+struct DepositParticlesArgs {
+    #[command(flatten)]
+    input: ParticleInput,
+    #[command(flatten)]
+    values: ValueArgs,
+    #[command(flatten)]
+    output: DepositOutput,
+}
+
+#[derive(Args)]
+struct DepositCellsArgs {
+    #[command(flatten)]
+    input: CellInput,
+    #[command(flatten)]
+    values: ValueArgs,
+    #[command(flatten)]
+    output: DepositOutput,
 }
 
 #[derive(Args, Clone, Copy)]
@@ -166,6 +321,14 @@ fn parse_dims(s: &str) -> std::result::Result<[usize; 3], String> {
         [x, y, z] if x > 0 && y > 0 && z > 0 => Ok([x, y, z]),
         [x] if x > 0 => Ok([x, x, x]),
         _ => Err(format!("dims must be X,Y,Z (positive), got '{s}'")),
+    }
+}
+
+fn parse_bounds(s: &str) -> std::result::Result<Bounds, String> {
+    let v: Vec<f64> = s.split(',').map(|x| x.trim().parse::<f64>().map_err(|_| format!("bad bounds '{s}'"))).collect::<std::result::Result<_, _>>()?;
+    match v[..] {
+        [a, b, c, d, e, f] => Ok(Bounds { min: [a, b, c], max: [d, e, f] }),
+        _ => Err(format!("bounds must be XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX, got '{s}'")),
     }
 }
 
@@ -242,32 +405,42 @@ fn read_model(path: &Path) -> Result<Model> {
     })
 }
 
-fn cmd_encode_grid(a: EncodeGridArgs) -> Result<()> {
-    let t_total = Instant::now();
-    let loaded = load_grid(&a.input)?;
-    let transform = if a.log10 { Transform::Log10 } else { Transform::Linear };
-    let range = match a.range {
-        Some([lo, hi]) => ValueRange::new(lo, hi, transform)?,
-        None => ValueRange::from_data(&loaded.grid.values, transform)?,
-    };
-    let norm = range.normalize(&loaded.grid.values)?;
-    let reference = Grid::new(loaded.grid.dims, norm.values)?;
-    let samples = GridSamples { grid: &reference };
-    let target = Target { reference: &reference, samples: &samples };
-    let mut cfg = EncodeConfig::new(a.budget, Schedule::from_name(&a.schedule)?);
-    cfg.iterations = a.iters;
-    cfg.points = a.points;
-    cfg.seed_init = a.seed;
-    cfg.seed_sample = a.sample_seed;
-    cfg.relocation = !a.no_relocation;
-    gsenc::encoder::validate(&target, &cfg, None)?;
-    let pb = progress_bar(a.out.quiet, cfg.iterations() as u64);
-    let (out, decoded, evals) = with_threads(a.threads, || -> Result<_> {
+impl ValueArgs {
+    fn spec(&self) -> Result<RangeSpec> {
+        let transform = if self.log10 { Transform::Log10 } else { Transform::Linear };
+        Ok(match self.range {
+            Some([lo, hi]) => RangeSpec::Fixed(ValueRange::new(lo, hi, transform)?),
+            None => RangeSpec::FromData(transform),
+        })
+    }
+}
+
+/// An encode's input in the index frame: the target and how to place it.
+struct EncodeInputData<'a> {
+    target: Target<'a>,
+    frame: IndexFrame,
+    range: ValueRange,
+    particles: bool,
+}
+
+/// Encodes, writes the model and returns the result keys every encode prints.
+fn run_encode(input: &EncodeInputData, o: &EncodeOptions, t_total: Instant) -> Result<serde_json::Map<String, serde_json::Value>> {
+    let reference = input.target.reference;
+    let mut cfg = EncodeConfig::new(o.budget, Schedule::from_name(&o.schedule)?);
+    cfg.iterations = o.iters;
+    cfg.points = o.points;
+    cfg.seed_init = o.seed;
+    cfg.seed_sample = o.sample_seed;
+    cfg.relocation = !o.no_relocation;
+    cfg.particles = input.particles;
+    gsenc::encoder::validate(&input.target, &cfg, None)?;
+    let pb = progress_bar(o.out.quiet, cfg.iterations() as u64);
+    let (out, decoded, evals) = with_threads(o.threads, || -> Result<_> {
         let mut backend = CpuBackend::new();
-        if let Some(b) = a.brick {
+        if let Some(b) = o.brick {
             backend.brick = b;
         }
-        let out = encode(&target, &cfg, None, &mut backend, &mut |p| {
+        let out = encode(&input.target, &cfg, None, &mut backend, &mut |p| {
             pb.set_position(p.iteration as u64);
             if p.iteration % 20 == 0 {
                 pb.set_message(format!("{:.3e}", p.loss));
@@ -284,10 +457,10 @@ fn cmd_encode_grid(a: EncodeGridArgs) -> Result<()> {
     pb.finish_and_clear();
     let model = Model {
         meta: ModelMeta {
-            frame: loaded.frame,
-            range,
-            field: a.field.clone(),
-            step: a.step,
+            frame: input.frame,
+            range: input.range,
+            field: o.field.clone(),
+            step: o.step,
             schedule: cfg.schedule.name().into(),
             iterations: out.iterations as u32,
             points: out.points as u32,
@@ -297,30 +470,176 @@ fn cmd_encode_grid(a: EncodeGridArgs) -> Result<()> {
         params: out.params,
     };
     let bytes = format::write_model(&model)?;
-    write_atomic(&a.output, &bytes)?;
+    write_atomic(&o.output, &bytes)?;
     let (decoded, decode_seconds) = decoded;
-    let vpsnr = voxel_psnr(&decoded, &reference.values);
-    let spsnr = sampled_psnr(&decoded, &reference.values);
-    print_result(
-        a.out.json,
-        json!({
-            "primitives": model.len(),
-            "bytes": bytes.len(),
-            "voxel_psnr": vpsnr,
-            "sampled_psnr": spsnr,
-            "seconds": out.loop_seconds,
-            "total_seconds": t_total.elapsed().as_secs_f64(),
-            "seed_seconds": out.seed_seconds,
-            "decode_seconds": decode_seconds,
-            "iterations": out.iterations,
-            "points": out.points,
-            "kernel_evals_per_second": evals as f64 / out.loop_seconds.max(1e-9),
-            "dims": reference.dims,
-            "clamped_values": norm.clamped,
-            "output": a.output.display().to_string(),
-        }),
-    );
+    let value = json!({
+        "primitives": model.len(),
+        "bytes": bytes.len(),
+        "voxel_psnr": voxel_psnr(&decoded, &reference.values),
+        "sampled_psnr": sampled_psnr(&decoded, &reference.values),
+        "seconds": out.loop_seconds,
+        "total_seconds": t_total.elapsed().as_secs_f64(),
+        "seed_seconds": out.seed_seconds,
+        "decode_seconds": decode_seconds,
+        "iterations": out.iterations,
+        "points": out.points,
+        "kernel_evals_per_second": evals as f64 / out.loop_seconds.max(1e-9),
+        "dims": reference.dims,
+        "output": o.output.display().to_string(),
+    });
+    match value {
+        serde_json::Value::Object(map) => Ok(map),
+        _ => unreachable!(),
+    }
+}
+
+fn cmd_encode_grid(a: EncodeGridArgs) -> Result<()> {
+    let t_total = Instant::now();
+    let loaded = load_grid(&a.input)?;
+    let range = a.values.spec()?.resolve(&loaded.grid.values)?;
+    let norm = range.normalize(&loaded.grid.values)?;
+    let reference = Grid::new(loaded.grid.dims, norm.values)?;
+    let samples = GridSamples { grid: &reference };
+    let input = EncodeInputData { target: Target { reference: &reference, samples: &samples }, frame: loaded.frame, range, particles: false };
+    let mut result = run_encode(&input, &a.encode, t_total)?;
+    result.insert("clamped_values".into(), json!(norm.clamped));
+    print_result(a.encode.out.json, serde_json::Value::Object(result));
     Ok(())
+}
+
+impl ItemFiles {
+    fn read(&self, path: &Path, comps: usize) -> Result<Vec<f64>> {
+        raw::read_items(path, raw::DType::from_name(&self.dtype)?, comps, raw::Rows { count: self.count, row: self.row })
+    }
+}
+
+fn triples(v: Vec<f64>) -> Vec<[f64; 3]> {
+    v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect()
+}
+
+fn to_f32(v: Vec<f64>) -> Vec<f32> {
+    v.into_iter().map(|x| x as f32).collect()
+}
+
+impl ParticleInput {
+    fn prepare(&self, values: &ValueArgs) -> Result<Prepared> {
+        let f = &self.files;
+        let positions = triples(f.read(&self.positions, 3)?);
+        let hh = f.read(&self.smoothing_length, 1)?;
+        let field = to_f32(f.read(&self.values, 1)?);
+        let mass = match &self.mass {
+            Some(p) => to_f32(f.read(p, 1)?),
+            None => vec![1.0; positions.len()],
+        };
+        let p = Particles { positions: &positions, smoothing_length: &hh, mass: &mass, values: &field };
+        let placement = Placement { dims: self.placement.dims, bounds: self.placement.bounds };
+        prepare_particles(&p, &placement, &values.spec()?)
+    }
+}
+
+impl CellInput {
+    fn prepare(&self, values: &ValueArgs) -> Result<Prepared> {
+        let f = &self.files;
+        let centres = triples(f.read(&self.centers, 3)?);
+        let field = to_f32(f.read(&self.values, 1)?);
+        let (edges, volumes) = match (&self.sizes, &self.volumes) {
+            (Some(p), _) => (triples(f.read(p, 3)?), vec![]),
+            (None, Some(p)) => (vec![], f.read(p, 1)?),
+            (None, None) => return Err(Error::arg("give --sizes or --volumes")),
+        };
+        let size = if self.sizes.is_some() { CellSize::Edges(&edges) } else { CellSize::Volumes(&volumes) };
+        let c = Cells { centres: &centres, size, values: &field };
+        let placement = Placement { dims: self.placement.dims, bounds: self.placement.bounds };
+        prepare_cells(&c, &placement, &values.spec()?)
+    }
+}
+
+/// The process's peak resident memory (Linux `VmHWM`), when known.
+fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// The keys particle and cell commands add: what the deposit saw and cost.
+fn deposit_keys(p: &Prepared) -> serde_json::Map<String, serde_json::Value> {
+    let d = &p.deposit;
+    let value = json!({
+        "items": d.items,
+        "samples": p.samples.q.len(),
+        "outside": d.outside,
+        "outside_dropped": d.outside_dropped,
+        "nearest_voxel": d.nearest_voxel,
+        "empty_voxels": d.empty_voxels,
+        "clamped_values": p.clamped_values,
+        "deposit_seconds": d.seconds,
+        "deposit_peak_bytes": d.peak_bytes,
+        "bounds_min": p.frame.bmin,
+        "gamma": p.frame.gamma,
+        "value_min": p.range.vmin,
+        "value_max": p.range.vmax,
+    });
+    match value {
+        serde_json::Value::Object(map) => map,
+        _ => unreachable!(),
+    }
+}
+
+fn encode_prepared(p: Prepared, particles: bool, o: &EncodeOptions, t_total: Instant) -> Result<()> {
+    let input = EncodeInputData { target: p.target(), frame: p.frame, range: p.range, particles };
+    let mut result = run_encode(&input, o, t_total)?;
+    result.extend(deposit_keys(&p));
+    result.insert("peak_rss_bytes".into(), json!(peak_rss_bytes()));
+    print_result(o.out.json, serde_json::Value::Object(result));
+    Ok(())
+}
+
+fn cmd_encode_particles(a: EncodeParticlesArgs) -> Result<()> {
+    let t_total = Instant::now();
+    let p = with_threads(a.encode.threads, || a.input.prepare(&a.values))??;
+    encode_prepared(p, true, &a.encode, t_total)
+}
+
+fn cmd_encode_cells(a: EncodeCellsArgs) -> Result<()> {
+    let t_total = Instant::now();
+    let p = with_threads(a.encode.threads, || a.input.prepare(&a.values))??;
+    encode_prepared(p, false, &a.encode, t_total)
+}
+
+fn write_deposit(p: Prepared, o: &DepositOutput, field: &str) -> Result<()> {
+    let values: Vec<f32> = if o.normalized {
+        p.reference.values.clone()
+    } else {
+        p.reference.values.iter().map(|&v| p.range.denormalize(v) as f32).collect()
+    };
+    let spacing = 1.0 / p.frame.gamma;
+    write_grid(&o.output, &Grid::new(p.reference.dims, values)?, p.frame.bmin.map(|b| b + 0.5 * spacing), [spacing; 3], field)?;
+    let mut result = serde_json::Map::new();
+    result.insert("dims".into(), json!(p.reference.dims));
+    result.insert("voxels".into(), json!(p.reference.len()));
+    result.extend(deposit_keys(&p));
+    result.insert("peak_rss_bytes".into(), json!(peak_rss_bytes()));
+    result.insert("output".into(), json!(o.output.display().to_string()));
+    print_result(o.out.json, serde_json::Value::Object(result));
+    Ok(())
+}
+
+fn cmd_deposit_particles(a: DepositParticlesArgs) -> Result<()> {
+    let p = with_threads(a.output.threads, || a.input.prepare(&a.values))??;
+    write_deposit(p, &a.output, "deposit")
+}
+
+fn cmd_deposit_cells(a: DepositCellsArgs) -> Result<()> {
+    let p = with_threads(a.output.threads, || a.input.prepare(&a.values))??;
+    write_deposit(p, &a.output, "deposit")
+}
+
+/// Writes a grid as .vti (when the name says so) or raw float32, atomically.
+fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], name: &str) -> Result<()> {
+    let is_vti = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vti"));
+    let bytes = if is_vti { vti::write_vti_bytes(grid, origin, spacing, name) } else { raw::to_f32_bytes(&grid.values) };
+    write_atomic(path, &bytes)
 }
 
 fn cmd_decode(a: DecodeArgs) -> Result<()> {
@@ -335,14 +654,8 @@ fn cmd_decode(a: DecodeArgs) -> Result<()> {
     };
     let f = &model.meta.frame;
     let spacing: Vec<f64> = (0..3).map(|i| f.dims[i] as f64 / grid.dims[i] as f64 / f.gamma).collect();
-    let is_vti = a.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("vti"));
-    let bytes = if is_vti {
-        let origin = [0, 1, 2].map(|i| f.bmin[i] + 0.5 * spacing[i]);
-        vti::write_vti_bytes(&Grid::new(grid.dims, values)?, origin, [spacing[0], spacing[1], spacing[2]], &model.meta.field)
-    } else {
-        raw::to_f32_bytes(&values)
-    };
-    write_atomic(&a.output, &bytes)?;
+    let origin = [0, 1, 2].map(|i| f.bmin[i] + 0.5 * spacing[i]);
+    write_grid(&a.output, &Grid::new(grid.dims, values)?, origin, [spacing[0], spacing[1], spacing[2]], &model.meta.field)?;
     print_result(
         a.out.json,
         json!({
@@ -410,6 +723,10 @@ fn main() {
     let cli = Cli::parse();
     let r = match cli.command {
         Command::Encode(EncodeInput::Grid(a)) => cmd_encode_grid(a),
+        Command::Encode(EncodeInput::Particles(a)) => cmd_encode_particles(a),
+        Command::Encode(EncodeInput::Cells(a)) => cmd_encode_cells(a),
+        Command::Deposit(DepositInput::Particles(a)) => cmd_deposit_particles(a),
+        Command::Deposit(DepositInput::Cells(a)) => cmd_deposit_cells(a),
         Command::Decode(a) => cmd_decode(a),
         Command::Eval(a) => cmd_eval(a),
         Command::Info(a) => cmd_info(a),

@@ -98,6 +98,57 @@ pub fn read_raw(path: impl AsRef<Path>, dims: [usize; 3], dtype: DType, order: O
     parse_raw(&bytes, dims, dtype, order)
 }
 
+/// Which rows of a per-item array file to read: `count` items starting at
+/// item `row * count` (files holding several steps, one block of `count`
+/// items per step), or the whole file when `count` is `None`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Rows {
+    pub count: Option<usize>,
+    pub row: usize,
+}
+
+/// Decodes per-item arrays of `comps` components each (e.g. 3 for positions)
+/// into f64, as selected by `rows`.
+pub fn parse_items(bytes: &[u8], dtype: DType, comps: usize, rows: Rows, what: &str) -> Result<Vec<f64>> {
+    let item_bytes = comps * dtype.size();
+    if bytes.len() % item_bytes != 0 {
+        return Err(Error::data(format!(
+            "{what}: {} bytes is not a whole number of {comps}-component {}-byte items",
+            bytes.len(),
+            dtype.size()
+        )));
+    }
+    let held = bytes.len() / item_bytes;
+    let (start, n) = match rows.count {
+        None if rows.row > 0 => return Err(Error::arg(format!("{what}: a row index needs an item count per row"))),
+        None => (0, held),
+        Some(0) => return Err(Error::arg("item count must be at least 1")),
+        Some(c) => {
+            if held % c != 0 {
+                return Err(Error::data(format!("{what}: {held} items are not whole rows of {c}")));
+            }
+            if rows.row >= held / c {
+                return Err(Error::arg(format!("{what}: row {} requested, the file holds {} rows of {c} items", rows.row, held / c)));
+            }
+            (rows.row * c, c)
+        }
+    };
+    let body = &bytes[start * item_bytes..(start + n) * item_bytes];
+    Ok(match dtype {
+        DType::U8 => body.iter().map(|&b| b as f64).collect(),
+        DType::U16 => body.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]]) as f64).collect(),
+        DType::F32 => body.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap()) as f64).collect(),
+        DType::F64 => body.chunks_exact(8).map(|c| f64::from_le_bytes(c.try_into().unwrap())).collect(),
+    })
+}
+
+/// Reads per-item arrays from a file (see [`parse_items`]).
+pub fn read_items(path: impl AsRef<Path>, dtype: DType, comps: usize, rows: Rows) -> Result<Vec<f64>> {
+    let path = path.as_ref();
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_items(&bytes, dtype, comps, rows, &path.display().to_string())
+}
+
 /// A grid as little-endian float32, x fastest.
 pub fn to_f32_bytes(values: &[f32]) -> Vec<u8> {
     values.iter().flat_map(|v| v.to_le_bytes()).collect()
@@ -117,5 +168,18 @@ mod tests {
         assert_eq!(parse_raw(&b, [2, 1, 1], DType::F64, Order::XFastest).unwrap().values, vec![1.5, -2.0]);
         let err = parse_raw(&b, [3, 1, 1], DType::F64, Order::XFastest).unwrap_err();
         assert!(err.to_string().contains("16 bytes"), "{err}");
+    }
+
+    #[test]
+    fn item_rows_select_one_step() {
+        // Two rows of two 3-component f32 items.
+        let b: Vec<u8> = (0..12).flat_map(|i| (i as f32).to_le_bytes()).collect();
+        let all = parse_items(&b, DType::F32, 3, Rows { count: None, row: 0 }, "x").unwrap();
+        assert_eq!(all.len(), 12);
+        let r1 = parse_items(&b, DType::F32, 3, Rows { count: Some(2), row: 1 }, "x").unwrap();
+        assert_eq!(r1, vec![6.0, 7.0, 8.0, 9.0, 10.0, 11.0]);
+        assert!(parse_items(&b, DType::F32, 3, Rows { count: Some(2), row: 2 }, "x").is_err());
+        assert!(parse_items(&b, DType::F32, 3, Rows { count: Some(3), row: 0 }, "x").is_err());
+        assert!(parse_items(&b[..44], DType::F32, 3, Rows { count: None, row: 0 }, "x").is_err());
     }
 }

@@ -1,0 +1,112 @@
+//! Seeding from non-grid samples: the importance stream draws without
+//! replacement proportional to m^0.6 (statistical tests with fixed seeds), and
+//! the peak stream works on sample positions.
+
+use gsenc::samples::{Sample, SampleArrays};
+use gsenc::seeding::{seed, Stream};
+
+const MASSES: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
+
+fn samples(masses: &[f32], value: f32) -> SampleArrays {
+    let mut s = SampleArrays::default();
+    for (i, &m) in masses.iter().enumerate() {
+        s.push(Sample { q: [2.0 * i as f32, 1.0, 1.0], h: 0.5, v: value, m });
+    }
+    s
+}
+
+fn probabilities(exponent: f64) -> Vec<f64> {
+    let w: Vec<f64> = MASSES.iter().map(|&m| (m as f64).powf(exponent)).collect();
+    let total: f64 = w.iter().sum();
+    w.iter().map(|x| x / total).collect()
+}
+
+fn chi_square(counts: &[usize], expected: &[f64]) -> f64 {
+    let n: usize = counts.iter().sum();
+    counts.iter().zip(expected).map(|(&c, &p)| (c as f64 - n as f64 * p).powi(2) / (n as f64 * p)).sum()
+}
+
+const DRAWS: u64 = 30_000;
+
+/// A budget of 2 has one importance seed: its sample frequencies must follow
+/// m^0.6 and must reject the neighbouring exponents 0.5 and 1.
+#[test]
+fn single_importance_draw_follows_m_to_the_0_6() {
+    let s = samples(&MASSES, 0.1);
+    let mut counts = [0usize; 6];
+    for k in 0..DRAWS {
+        let sd = seed(&s, [16, 4, 4], 2, k).unwrap();
+        let imp: Vec<usize> = (0..2).filter(|&i| sd.stream[i] == Stream::Importance).map(|i| sd.sample[i]).collect();
+        assert_eq!(imp.len(), 1);
+        counts[imp[0]] += 1;
+    }
+    // Chi-square with 5 degrees of freedom: 25.7 is its 1e-4 upper quantile.
+    let chi = chi_square(&counts, &probabilities(0.6));
+    assert!(chi < 25.7, "chi-square {chi} against m^0.6, counts {counts:?}");
+    for wrong in [0.5, 1.0] {
+        let c = chi_square(&counts, &probabilities(wrong));
+        assert!(c > 100.0, "the test cannot tell m^{wrong} from m^0.6 (chi-square {c})");
+    }
+}
+
+/// A budget of 4 has two importance seeds, distinct (without replacement):
+/// pair frequencies follow successive sampling, `P{i,j} = p_i p_j / (1 - p_i)
+/// + p_j p_i / (1 - p_j)`.
+#[test]
+fn two_importance_draws_are_without_replacement() {
+    let s = samples(&MASSES, 0.1);
+    let p = probabilities(0.6);
+    let mut pairs = vec![];
+    let mut expected = vec![];
+    for i in 0..6 {
+        for j in i + 1..6 {
+            pairs.push((i, j));
+            expected.push(p[i] * p[j] / (1.0 - p[i]) + p[j] * p[i] / (1.0 - p[j]));
+        }
+    }
+    let mut counts = vec![0usize; pairs.len()];
+    for k in 0..DRAWS {
+        let sd = seed(&s, [16, 4, 4], 4, k).unwrap();
+        let mut imp: Vec<usize> = (0..4).filter(|&i| sd.stream[i] == Stream::Importance).map(|i| sd.sample[i]).collect();
+        imp.sort();
+        assert_eq!(imp.len(), 2);
+        assert_ne!(imp[0], imp[1], "drawn twice");
+        counts[pairs.iter().position(|&x| x == (imp[0], imp[1])).unwrap()] += 1;
+    }
+    // 14 degrees of freedom: 40.0 is the 1e-4 upper quantile.
+    let chi = chi_square(&counts, &expected);
+    assert!(chi < 40.0, "chi-square {chi}, counts {counts:?}");
+    // With-replacement-style independent draws (p_i p_j twice, renormalised)
+    // would be rejected.
+    let indep: Vec<f64> = pairs.iter().map(|&(i, j)| 2.0 * p[i] * p[j]).collect();
+    let total: f64 = indep.iter().sum();
+    let c = chi_square(&counts, &indep.iter().map(|x| x / total).collect::<Vec<_>>());
+    assert!(c > 100.0, "cannot tell successive sampling from independent draws ({c})");
+}
+
+/// Peak seeds: one per 2x2x2-voxel bin of sample positions, the highest value
+/// above 0.55 wins, with the peak scale clip of [0.35, 2.5] applied to `h`.
+#[test]
+fn peak_stream_bins_sample_positions() {
+    let mut s = SampleArrays::default();
+    // Bin (0,0,0): two candidates; bin (1,0,0): one; bin (2,0,0): below threshold.
+    s.push(Sample { q: [0.2, 0.4, 1.1], h: 3.0, v: 0.7, m: 1.0 });
+    s.push(Sample { q: [1.3, 1.2, 0.0], h: 0.1, v: 0.9, m: 1.0 });
+    s.push(Sample { q: [2.6, 0.0, 0.0], h: 1.0, v: 0.8, m: 1.0 });
+    s.push(Sample { q: [4.5, 0.0, 0.0], h: 1.0, v: 0.5, m: 1.0 });
+    for i in 0..36 {
+        s.push(Sample { q: [i as f32 * 0.2, 3.0, 3.0], h: 1.0, v: 0.1, m: 1.0 });
+    }
+    // Budget 20: peak share round(3) = 3, of which two bins qualify.
+    let sd = seed(&s, [8, 4, 4], 20, 0).unwrap();
+    let peaks: Vec<usize> = (0..20).filter(|&i| sd.stream[i] == Stream::Peak).collect();
+    let mut idx: Vec<usize> = peaks.iter().map(|&i| sd.sample[i]).collect();
+    idx.sort();
+    assert_eq!(idx, vec![1, 2]);
+    for &i in &peaks {
+        let sigma = sd.params[i][3].exp();
+        let want = if sd.sample[i] == 1 { 0.35 } else { 1.0 };
+        assert!((sigma - want).abs() < 1e-5, "peak scale {sigma}, want {want}");
+    }
+    assert_eq!(sd.count(Stream::Uniform), 20 - 9 - 2);
+}
