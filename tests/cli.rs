@@ -143,3 +143,165 @@ fn bad_inputs_fail_with_codes_and_messages() {
     assert_eq!(code, 5, "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+fn write_f32(path: &Path, v: &[f32]) {
+    std::fs::write(path, gsenc::io::raw::to_f32_bytes(v)).unwrap();
+}
+
+/// Two steps of 600 particles in [0, 3] x [0, 2] x [0, 1], one file per array,
+/// one row per step (the layout of dambreak3d_particles); values in [1, 100].
+fn write_particles(dir: &Path) -> [PathBuf; 4] {
+    let mut rng = gsenc::rng::Rng::new(8);
+    let (mut pos, mut hh, mut mass, mut val) = (vec![], vec![], vec![], vec![]);
+    for _ in 0..2 * 600 {
+        let p = [rng.range(0.0, 3.0), rng.range(0.0, 2.0), rng.range(0.0, 1.0)];
+        pos.extend(p.map(|c| c as f32));
+        hh.push(rng.range(0.12, 0.25) as f32);
+        mass.push(rng.range(0.5, 1.5) as f32);
+        val.push((1.0 + 99.0 * (-(p[0] - 1.5).powi(2) - (p[1] - 1.0).powi(2)).exp()) as f32);
+    }
+    let names = ["pos.f32", "hh.f32", "mass.f32", "val.f32"].map(|n| dir.join(n));
+    for (p, v) in names.iter().zip([&pos, &hh, &mass, &val]) {
+        write_f32(p, v);
+    }
+    names
+}
+
+#[test]
+fn particles_encode_deposit_and_eval_agree() {
+    let dir = tmpdir("particles");
+    let [pos, hh, mass, val] = write_particles(&dir);
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let inputs = [
+        "--positions", &s(&pos), "--smoothing-length", &s(&hh), "--mass", &s(&mass), "--values", &s(&val),
+        "--count", "600", "--row", "1", "--dims", "24,16,8", "--log10",
+    ];
+    let m = dir.join("p.gsm");
+    let mut a = vec!["encode", "particles"];
+    a.extend_from_slice(&inputs);
+    a.extend_from_slice(&["--budget", "400", "--schedule", "short", "--iters", "100", "--points", "2048", "-o", m.to_str().unwrap(), "--json"]);
+    let (code, out, err) = gsenc(&a);
+    assert_eq!(code, 0, "{err}");
+    let e = json(&out);
+    // Every key of a grid encode, plus what the deposit did.
+    let (gcode, gout, gerr) = gsenc(&[
+        "encode", "grid", "--input", &s(&write_input(&dir).0), "--dims", "20,16,12", "--dtype", "f32", "--budget", "50",
+        "--iters", "3", "--points", "256", "-o", dir.join("g.gsm").to_str().unwrap(), "--json",
+    ]);
+    assert_eq!(gcode, 0, "{gerr}");
+    for key in json(&gout).as_object().unwrap().keys() {
+        assert!(e.get(key).is_some(), "particle encode lacks grid key {key}: {out}");
+    }
+    for key in ["items", "samples", "outside", "deposit_seconds", "deposit_peak_bytes", "peak_rss_bytes"] {
+        assert!(e.get(key).is_some(), "missing {key}: {out}");
+    }
+    assert_eq!(e["items"], 600);
+    assert_eq!(e["outside"], 0);
+    assert_eq!(e["dims"], serde_json::json!([24, 16, 8]));
+    let psnr = e["voxel_psnr"].as_f64().unwrap();
+    assert!(psnr > 25.0, "{psnr}");
+
+    // The deposit in data units, as .vti, scores the model as the encode did.
+    let dep = dir.join("dep.vti");
+    let mut a = vec!["deposit", "particles"];
+    a.extend_from_slice(&inputs);
+    a.extend_from_slice(&["-o", dep.to_str().unwrap(), "--json"]);
+    let (code, out, err) = gsenc(&a);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["voxels"], 24 * 16 * 8);
+    let parsed = vti::read_vti(&dep, None).unwrap();
+    let gamma = e["gamma"].as_f64().unwrap();
+    assert!((parsed.spacing[0] - 1.0 / gamma).abs() < 1e-9);
+    let (code, out, err) = gsenc(&["eval", m.to_str().unwrap(), "--input", dep.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let eval_psnr = json(&out)["voxel_psnr"].as_f64().unwrap();
+    assert!((eval_psnr - psnr).abs() < 0.05, "eval {eval_psnr} vs encode {psnr}");
+
+    // The value range is that of row 1 of the two-step files.
+    let (code, out, _) = gsenc(&["info", m.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0);
+    let vmax = json(&out)["value_max"].as_f64().unwrap();
+    let vals = gsenc::io::raw::read_items(&val, gsenc::io::raw::DType::F32, 1, gsenc::io::raw::Rows { count: Some(600), row: 1 }).unwrap();
+    // (serde_json's default float parsing may be one ulp off)
+    assert!((vmax - vals.iter().fold(f64::MIN, |a, &b| a.max(b.log10()))).abs() < 1e-12);
+
+    // Errors: mismatched arrays, a row past the end, zero smoothing length.
+    let short_hh = dir.join("hh_short.f32");
+    write_f32(&short_hh, &[0.1; 599]);
+    let (code, _, err) = gsenc(&[
+        "deposit", "particles", "--positions", &s(&pos), "--smoothing-length", &s(&short_hh), "--values", &s(&val),
+        "--count", "600", "--dims", "8", "-o", dir.join("x.raw").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("not whole rows of 600"), "{err}");
+    let (code, _, err) = gsenc(&[
+        "deposit", "particles", "--positions", &s(&pos), "--smoothing-length", &s(&hh), "--values", &s(&val),
+        "--count", "600", "--row", "2", "--dims", "8", "-o", dir.join("x.raw").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("row 2"), "{err}");
+    let zero_hh = dir.join("hh_zero.f32");
+    write_f32(&zero_hh, &[0.0; 1200]);
+    let (code, _, err) = gsenc(&[
+        "encode", "particles", "--positions", &s(&pos), "--smoothing-length", &s(&zero_hh), "--values", &s(&val),
+        "--count", "600", "--dims", "8", "--budget", "10", "-o", dir.join("z.gsm").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("smoothing length 0"), "{err}");
+    assert!(!dir.join("z.gsm").exists() && !dir.join("x.raw").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn cells_encode_and_deposit() {
+    let dir = tmpdir("cells");
+    // A 2-level AMR-like tiling of [0, 1]^3: 8 coarse cells, one of them split.
+    let (mut c, mut e, mut v) = (vec![], vec![], vec![]);
+    for k in 0..2 {
+        for j in 0..2 {
+            for i in 0..2 {
+                let centre = [0.25 + 0.5 * i as f32, 0.25 + 0.5 * j as f32, 0.25 + 0.5 * k as f32];
+                if (i, j, k) == (1, 1, 0) {
+                    for s in 0..8 {
+                        let o = [(s & 1) as f32, ((s >> 1) & 1) as f32, ((s >> 2) & 1) as f32];
+                        c.extend([0, 1, 2].map(|a| centre[a] - 0.125 + 0.25 * o[a]));
+                        e.extend([0.25f32; 3]);
+                        v.push(10.0 + s as f32);
+                    }
+                } else {
+                    c.extend(centre);
+                    e.extend([0.5f32; 3]);
+                    v.push(1.0 + (i + 2 * j + 4 * k) as f32);
+                }
+            }
+        }
+    }
+    let files = ["c.f32", "e.f32", "v.f32"].map(|n| dir.join(n));
+    for (p, x) in files.iter().zip([&c, &e, &v]) {
+        write_f32(p, x);
+    }
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let m = dir.join("c.gsm");
+    let (code, out, err) = gsenc(&[
+        "encode", "cells", "--centers", &s(&files[0]), "--sizes", &s(&files[1]), "--values", &s(&files[2]), "--dims", "16",
+        "--budget", "12", "--iters", "60", "--points", "1024", "-o", m.to_str().unwrap(), "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let r = json(&out);
+    assert_eq!(r["items"], 15);
+    assert_eq!(r["empty_voxels"], 0);
+    assert_eq!(r["gamma"].as_f64().unwrap(), 16.0);
+    let dep = dir.join("dep.raw");
+    let (code, _, err) = gsenc(&[
+        "deposit", "cells", "--centers", &s(&files[0]), "--sizes", &s(&files[1]), "--values", &s(&files[2]), "--dims", "16",
+        "-o", dep.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let d = gsenc::io::raw::read_raw(&dep, [16; 3], gsenc::io::raw::DType::F32, gsenc::io::raw::Order::XFastest).unwrap();
+    // Voxel (0,0,0) lies only in the first coarse cell's stamp: its value, 1.
+    assert!((d.values[0] - 1.0).abs() < 1e-5, "{}", d.values[0]);
+    let (code, _, err) = gsenc(&["deposit", "cells", "--centers", &s(&files[0]), "--values", &s(&files[2]), "--dims", "16", "-o", dep.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--sizes") || err.contains("--volumes"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

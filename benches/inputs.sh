@@ -1,0 +1,95 @@
+#!/usr/bin/env bash
+# Benchmarks of particle and cell input (issue 3). Rerun with:
+#   bash benches/inputs.sh [REPEATS] [ROWS...]
+# REPEATS (default 3) runs of each row; ROWS selects rows by name (default all).
+# Each row encodes the native samples against their deposit ("samples"), then
+# the same deposit as a grid, voxel-seeded, at the same budget, schedule and
+# iterations ("grid"), and scores both against the deposit.
+# One JSON line per run goes to bench-out/inputs.jsonl; a Markdown table of
+# medians is printed at the end.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+repeats=${1:-3}
+shift || true
+rows=("$@")
+data=../shared/data
+out=bench-out
+mkdir -p "$out"
+cargo build --release --locked --bin gsenc >&2
+bin=target/release/gsenc
+rm -f "$out/inputs.jsonl"
+schedule=${SCHEDULE:-matched}
+
+halo=(particles --positions "$data/dm_halo_particles.positions.float32"
+      --smoothing-length "$data/dm_halo_particles.smoothing_length.float32"
+      --mass "$data/dm_halo_particles.mass.float32"
+      --values "$data/dm_halo_particles.density.float32" --log10)
+enzo=(cells --centers "$data/enzo_amr_cells.centers.float32" --sizes "$data/enzo_amr_cells.sizes.float32"
+      --values "$data/enzo_amr_cells.density.float32" --log10)
+# The last of the 22 stored steps.
+dam=(particles --positions "$data/dambreak3d_particles.positions.float32"
+     --smoothing-length "$data/dambreak3d_particles.smoothing_length.float32"
+     --mass "$data/dambreak3d_particles.mass.float32"
+     --values "$data/dambreak3d_particles.speed.float32" --count 42042 --row 21)
+
+want() { [ ${#rows[@]} -eq 0 ] || [[ " ${rows[*]} " == *" $1 "* ]]; }
+
+tag() { python3 -c "import json,sys; d=json.load(sys.stdin); d.update(row='$1', seeding='$2'); print(json.dumps(d))"; }
+
+run() { # name dims budget input...
+    local name=$1 dims=$2 budget=$3; shift 3
+    want "$name" || return 0
+    local kind=$1; shift
+    "$bin" deposit "$kind" "$@" --dims "$dims" --normalized -o "$out/$name.deposit.raw" --json --quiet \
+        | tag "$name" deposit >> "$out/inputs.jsonl"
+    # The grid encode runs the samples encode's iterations (particles: 4000 in full).
+    local iters
+    case "$schedule" in
+        full) if [ "$kind" = particles ]; then iters=4000; else iters=3000; fi ;;
+        matched) iters=1500 ;;
+        short) iters=500 ;;
+    esac
+    for i in $(seq 1 "$repeats"); do
+        echo "[$name] run $i/$repeats" >&2
+        "$bin" encode "$kind" "$@" --dims "$dims" --budget "$budget" --schedule "$schedule" \
+            -o "$out/$name.gsm" --json --quiet | tag "$name" samples >> "$out/inputs.jsonl"
+        "$bin" encode grid --input "$out/$name.deposit.raw" --dims "$dims" --dtype f32 --range 0,1 \
+            --budget "$budget" --schedule "$schedule" --iters "$iters" \
+            -o "$out/$name.grid.gsm" --json --quiet | tag "$name" grid >> "$out/inputs.jsonl"
+    done
+}
+
+run halo128_50k 128 50000 "${halo[@]}"
+run halo128_200k 128 200000 "${halo[@]}"
+run halo256_50k 256 50000 "${halo[@]}"
+run halo256_200k 256 200000 "${halo[@]}"
+run enzo128_20k 128 20000 "${enzo[@]}"
+run dambreak128_10k 128 10000 "${dam[@]}"
+
+python3 - "$out/inputs.jsonl" <<'PY'
+import json, statistics, sys
+rows, deposits = {}, {}
+for line in open(sys.argv[1]):
+    d = json.loads(line)
+    if d["seeding"] == "deposit":
+        deposits[d["row"]] = d
+    else:
+        rows.setdefault(d["row"], {}).setdefault(d["seeding"], []).append(d)
+print("| row | seeding | runs | voxel PSNR dB (median; min-max) | bytes | deposit s | deposit peak MB | loop s (median) |")
+print("|---|---|---|---|---|---|---|---|")
+for name, kinds in rows.items():
+    dep = deposits[name]
+    for kind, runs in kinds.items():
+        med = lambda k: statistics.median(r[k] for r in runs)
+        lo, hi = min(r["voxel_psnr"] for r in runs), max(r["voxel_psnr"] for r in runs)
+        spread = f" ({lo:.2f}-{hi:.2f})" if len(runs) > 1 else ""
+        print(f"| {name} | {kind} | {len(runs)} | {med('voxel_psnr'):.2f}{spread} | {runs[0]['bytes']} | "
+              f"{dep['deposit_seconds']:.2f} | {dep['deposit_peak_bytes']/1e6:.0f} | {med('seconds'):.1f} |")
+print()
+print("| row | samples - grid PSNR dB | samples / grid loop time |")
+print("|---|---|---|")
+for name, kinds in rows.items():
+    if "samples" in kinds and "grid" in kinds:
+        m = lambda kind, k: statistics.median(r[k] for r in kinds[kind])
+        print(f"| {name} | {m('samples','voxel_psnr') - m('grid','voxel_psnr'):+.2f} | {m('samples','seconds') / m('grid','seconds'):.2f} |")
+PY
