@@ -36,12 +36,16 @@ want() { [ ${#rows[@]} -eq 0 ] || [[ " ${rows[*]} " == *" $1 "* ]]; }
 
 tag() { python3 -c "import json,sys; d=json.load(sys.stdin); d.update(row='$1', seeding='$2'); print(json.dumps(d))"; }
 
-run() { # name dims budget input...
+run() { # name dims budget input...   (dims: N for N^3, or fitN for --fit-dims N)
     local name=$1 dims=$2 budget=$3; shift 3
     want "$name" || return 0
     local kind=$1; shift
-    "$bin" deposit "$kind" "$@" --dims "$dims" --normalized -o "$out/$name.deposit.raw" --json --quiet \
+    local place=(--dims "$dims")
+    [[ "$dims" == fit* ]] && place=(--fit-dims "${dims#fit}")
+    "$bin" deposit "$kind" "$@" "${place[@]}" --normalized -o "$out/$name.deposit.raw" --json --quiet \
         | tag "$name" deposit >> "$out/inputs.jsonl"
+    local grid_dims
+    grid_dims=$(tail -n 1 "$out/inputs.jsonl" | python3 -c "import json,sys; print(','.join(map(str, json.load(sys.stdin)['dims'])))")
     # The grid encode runs the samples encode's iterations (particles: 4000 in full).
     local iters
     case "$schedule" in
@@ -51,9 +55,9 @@ run() { # name dims budget input...
     esac
     for i in $(seq 1 "$repeats"); do
         echo "[$name] run $i/$repeats" >&2
-        "$bin" encode "$kind" "$@" --dims "$dims" --budget "$budget" --schedule "$schedule" \
+        "$bin" encode "$kind" "$@" "${place[@]}" --budget "$budget" --schedule "$schedule" \
             -o "$out/$name.gsm" --json --quiet | tag "$name" samples >> "$out/inputs.jsonl"
-        "$bin" encode grid --input "$out/$name.deposit.raw" --dims "$dims" --dtype f32 --range 0,1 \
+        "$bin" encode grid --input "$out/$name.deposit.raw" --dims "$grid_dims" --dtype f32 --range 0,1 \
             --budget "$budget" --schedule "$schedule" --iters "$iters" \
             -o "$out/$name.grid.gsm" --json --quiet | tag "$name" grid >> "$out/inputs.jsonl"
     done
@@ -65,6 +69,8 @@ run halo256_50k 256 50000 "${halo[@]}"
 run halo256_200k 256 200000 "${halo[@]}"
 run enzo128_20k 128 20000 "${enzo[@]}"
 run dambreak128_10k 128 10000 "${dam[@]}"
+# The same on a lattice fitted to the water's box (128 x 38 x 22).
+run dambreak_fit128_10k fit128 10000 "${dam[@]}"
 
 python3 - "$out/inputs.jsonl" <<'PY'
 import json, statistics, sys

@@ -27,6 +27,20 @@ impl Bounds {
         boxes.fold(empty, |b, (lo, hi)| b.union(lo, hi)).reduce(empty, |a, b| a.union(b.min, b.max))
     }
 
+    /// Dims with `longest` voxels along the box's longest axis and cubic
+    /// voxels, so that an elongated box is not padded to a cube of empty space.
+    pub fn fitted_dims(&self, longest: usize) -> Result<[usize; 3]> {
+        let ext = [0, 1, 2].map(|a| self.max[a] - self.min[a]);
+        if longest == 0 || ext.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
+            return Err(Error::arg(format!("cannot fit {longest} voxels to the box {:?} .. {:?}", self.min, self.max)));
+        }
+        let emax = ext.iter().cloned().fold(0.0, f64::max);
+        if emax <= 0.0 {
+            return Err(Error::arg("the box is a single point; give bounds explicitly"));
+        }
+        Ok(ext.map(|e| ((e / emax * longest as f64).round() as usize).max(1)))
+    }
+
     fn union(self, lo: [f64; 3], hi: [f64; 3]) -> Bounds {
         Bounds { min: [0, 1, 2].map(|a| self.min[a].min(lo[a])), max: [0, 1, 2].map(|a| self.max[a].max(hi[a])) }
     }

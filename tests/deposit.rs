@@ -182,6 +182,16 @@ fn computed_bounds_enclose_the_data() {
     assert!((prep.frame.gamma - gamma).abs() < 1e-12);
 }
 
+#[test]
+fn fitted_dims_follow_the_box() {
+    let b = Bounds { min: [0.0, -0.5, 0.0], max: [3.2, 0.5, 0.55] };
+    assert_eq!(b.fitted_dims(128).unwrap(), [128, 40, 22]);
+    let flat = Bounds { min: [0.0; 3], max: [1.0, 1.0, 0.0] };
+    assert_eq!(flat.fitted_dims(10).unwrap(), [10, 10, 1]);
+    assert!(Bounds { min: [1.0; 3], max: [1.0; 3] }.fitted_dims(10).is_err());
+    assert!(b.fitted_dims(0).is_err());
+}
+
 /// A box [0, 16]^3 on 16^3 voxels: gamma = 1, u = x - 0.5.
 fn cell_placement() -> Placement {
     Placement { dims: [16, 16, 16], bounds: Some(Bounds { min: [0.0; 3], max: [16.0; 3] }) }

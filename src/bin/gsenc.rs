@@ -151,8 +151,12 @@ struct EncodeOptions {
 #[derive(Args, Clone)]
 struct PlacementArgs {
     /// Reference grid dims X,Y,Z (or one number for a cube).
-    #[arg(long, value_parser = parse_dims)]
-    dims: [usize; 3],
+    #[arg(long, value_parser = parse_dims, required_unless_present = "fit_dims", conflicts_with = "fit_dims")]
+    dims: Option<[usize; 3]>,
+    /// Instead of --dims: this many voxels along the bounds' longest axis, and
+    /// as many as fit along the others (cubic voxels).
+    #[arg(long)]
+    fit_dims: Option<usize>,
     /// World bounds XMIN,YMIN,ZMIN,XMAX,YMAX,ZMAX (default: the data's box).
     /// Items whose centres lie outside seed nothing; their support is clipped.
     #[arg(long, value_parser = parse_bounds)]
@@ -521,6 +525,18 @@ fn to_f32(v: Vec<f64>) -> Vec<f32> {
     v.into_iter().map(|x| x as f32).collect()
 }
 
+impl PlacementArgs {
+    /// The placement, with --fit-dims resolved against the given or the data's bounds.
+    fn resolve(&self, data_bounds: impl FnOnce() -> Bounds) -> Result<Placement> {
+        let dims = match (self.dims, self.fit_dims) {
+            (Some(d), _) => d,
+            (None, Some(n)) => self.bounds.unwrap_or_else(data_bounds).fitted_dims(n)?,
+            (None, None) => return Err(Error::arg("give --dims or --fit-dims")),
+        };
+        Ok(Placement { dims, bounds: self.bounds })
+    }
+}
+
 impl ParticleInput {
     fn prepare(&self, values: &ValueArgs) -> Result<Prepared> {
         let f = &self.files;
@@ -532,7 +548,7 @@ impl ParticleInput {
             None => vec![1.0; positions.len()],
         };
         let p = Particles { positions: &positions, smoothing_length: &hh, mass: &mass, values: &field };
-        let placement = Placement { dims: self.placement.dims, bounds: self.placement.bounds };
+        let placement = self.placement.resolve(|| p.bounds())?;
         prepare_particles(&p, &placement, &values.spec()?)
     }
 }
@@ -549,7 +565,7 @@ impl CellInput {
         };
         let size = if self.sizes.is_some() { CellSize::Edges(&edges) } else { CellSize::Volumes(&volumes) };
         let c = Cells { centres: &centres, size, values: &field };
-        let placement = Placement { dims: self.placement.dims, bounds: self.placement.bounds };
+        let placement = self.placement.resolve(|| c.bounds())?;
         prepare_cells(&c, &placement, &values.spec()?)
     }
 }
