@@ -231,7 +231,7 @@ mod tests {
     /// The spline integrates to 1 over space (midpoint rule on a fine lattice).
     #[test]
     fn m4_spline_is_normalised() {
-        let h = 1.3;
+        let h: f64 = 1.3;
         let step = 0.05;
         let n = (2.0 * h / step).ceil() as i64 + 1;
         let mut sum = 0.0;

@@ -5,7 +5,7 @@ use gsenc::backend::cpu::CpuBackend;
 use gsenc::encoder::{encode, with_threads, EncodeConfig, Schedule, Target};
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 use gsenc::io::{raw, vti, write_atomic};
-use gsenc::metrics::{sampled_psnr, voxel_psnr};
+use gsenc::metrics::{occupied_psnr, sampled_psnr, voxel_psnr};
 use gsenc::model::{Model, ModelMeta};
 use gsenc::cells::{CellSize, Cells};
 use gsenc::particles::Particles;
@@ -237,9 +237,9 @@ struct EncodeCellsArgs {
     encode: EncodeOptions,
 }
 
-/// Where a deposit goes.
+/// Where a decoded or deposited grid goes.
 #[derive(Args)]
-struct DepositOutput {
+struct GridOutput {
     /// Write normalised values in [0, 1] (what the encoder is fitted to)
     /// instead of data units.
     #[arg(long)]
@@ -260,7 +260,7 @@ struct DepositParticlesArgs {
     #[command(flatten)]
     values: ValueArgs,
     #[command(flatten)]
-    output: DepositOutput,
+    output: GridOutput,
 }
 
 #[derive(Args)]
@@ -270,7 +270,7 @@ struct DepositCellsArgs {
     #[command(flatten)]
     values: ValueArgs,
     #[command(flatten)]
-    output: DepositOutput,
+    output: GridOutput,
 }
 
 #[derive(Args, Clone, Copy)]
@@ -289,16 +289,8 @@ struct DecodeArgs {
     /// Lattice dims X,Y,Z covering the model's box (default: its reference dims).
     #[arg(long, value_parser = parse_dims)]
     dims: Option<[usize; 3]>,
-    /// Write normalised values in [0, 1] instead of data units.
-    #[arg(long)]
-    normalized: bool,
-    /// Output: .vti (VTK ImageData) or anything else for raw float32, x fastest.
-    #[arg(short, long)]
-    output: PathBuf,
-    #[arg(long)]
-    threads: Option<usize>,
     #[command(flatten)]
-    out: OutputFlags,
+    output: GridOutput,
 }
 
 #[derive(Args)]
@@ -481,6 +473,7 @@ fn run_encode(input: &EncodeInputData, o: &EncodeOptions, t_total: Instant) -> R
         "bytes": bytes.len(),
         "voxel_psnr": voxel_psnr(&decoded, &reference.values),
         "sampled_psnr": sampled_psnr(&decoded, &reference.values),
+        "occupied_psnr": occupied_psnr(&decoded, &reference.values),
         "seconds": out.loop_seconds,
         "total_seconds": t_total.elapsed().as_secs_f64(),
         "seed_seconds": out.seed_seconds,
@@ -623,12 +616,8 @@ fn cmd_encode_cells(a: EncodeCellsArgs) -> Result<()> {
     encode_prepared(p, false, &a.encode, t_total)
 }
 
-fn write_deposit(p: Prepared, o: &DepositOutput, field: &str) -> Result<()> {
-    let values: Vec<f32> = if o.normalized {
-        p.reference.values.clone()
-    } else {
-        p.reference.values.iter().map(|&v| p.range.denormalize(v) as f32).collect()
-    };
+fn write_deposit(p: Prepared, o: &GridOutput, field: &str) -> Result<()> {
+    let values = output_units(&p.reference.values, &p.range, o.normalized);
     let spacing = 1.0 / p.frame.gamma;
     write_grid(&o.output, &Grid::new(p.reference.dims, values)?, p.frame.bmin.map(|b| b + 0.5 * spacing), [spacing; 3], field)?;
     let mut result = serde_json::Map::new();
@@ -651,6 +640,15 @@ fn cmd_deposit_cells(a: DepositCellsArgs) -> Result<()> {
     write_deposit(p, &a.output, "deposit")
 }
 
+/// Normalised values as written: kept, or mapped back to data units.
+fn output_units(values: &[f32], range: &ValueRange, normalized: bool) -> Vec<f32> {
+    if normalized {
+        values.to_vec()
+    } else {
+        values.iter().map(|&v| range.denormalize(v) as f32).collect()
+    }
+}
+
 /// Writes a grid as .vti (when the name says so) or raw float32, atomically.
 fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], name: &str) -> Result<()> {
     let is_vti = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vti"));
@@ -661,25 +659,21 @@ fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], nam
 fn cmd_decode(a: DecodeArgs) -> Result<()> {
     let t = Instant::now();
     let model = read_model(&a.model)?;
-    let grid = with_threads(a.threads, || model.decode(&mut CpuBackend::new(), a.dims))??;
+    let grid = with_threads(a.output.threads, || model.decode(&mut CpuBackend::new(), a.dims))??;
     let seconds = t.elapsed().as_secs_f64();
-    let values: Vec<f32> = if a.normalized {
-        grid.values.clone()
-    } else {
-        grid.values.iter().map(|&v| model.meta.range.denormalize(v) as f32).collect()
-    };
+    let values = output_units(&grid.values, &model.meta.range, a.output.normalized);
     let f = &model.meta.frame;
     let spacing: Vec<f64> = (0..3).map(|i| f.dims[i] as f64 / grid.dims[i] as f64 / f.gamma).collect();
     let origin = [0, 1, 2].map(|i| f.bmin[i] + 0.5 * spacing[i]);
-    write_grid(&a.output, &Grid::new(grid.dims, values)?, origin, [spacing[0], spacing[1], spacing[2]], &model.meta.field)?;
+    write_grid(&a.output.output, &Grid::new(grid.dims, values)?, origin, [spacing[0], spacing[1], spacing[2]], &model.meta.field)?;
     print_result(
-        a.out.json,
+        a.output.out.json,
         json!({
             "dims": grid.dims,
             "voxels": grid.len(),
             "seconds": seconds,
             "voxels_per_second": grid.len() as f64 / seconds.max(1e-9),
-            "output": a.output.display().to_string(),
+            "output": a.output.output.display().to_string(),
         }),
     );
     Ok(())
@@ -695,6 +689,7 @@ fn cmd_eval(a: EvalArgs) -> Result<()> {
         json!({
             "voxel_psnr": voxel_psnr(&decoded.values, &norm.values),
             "sampled_psnr": sampled_psnr(&decoded.values, &norm.values),
+            "occupied_psnr": occupied_psnr(&decoded.values, &norm.values),
             "dims": loaded.grid.dims,
             "clamped_values": norm.clamped,
         }),
