@@ -6,7 +6,8 @@
 # the same deposit as a grid, voxel-seeded, at the same budget, schedule and
 # iterations ("grid"), and scores both against the deposit.
 # One JSON line per run goes to bench-out/inputs.jsonl; a Markdown table of
-# medians is printed at the end.
+# medians is printed at the end. The models of the last run stay in bench-out/
+# for benches/bands.py, which tells where in the field the two differ.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repeats=${1:-3}
@@ -81,15 +82,17 @@ for line in open(sys.argv[1]):
         deposits[d["row"]] = d
     else:
         rows.setdefault(d["row"], {}).setdefault(d["seeding"], []).append(d)
-print("| row | seeding | runs | voxel PSNR dB (median; min-max) | bytes | deposit s | deposit peak MB | loop s (median) |")
-print("|---|---|---|---|---|---|---|---|")
+print("| row | seeding | runs | voxel PSNR dB (median; min-max) | occupied PSNR dB | bytes | deposit s | deposit peak MB | loop s (median) |")
+print("|---|---|---|---|---|---|---|---|---|")
 for name, kinds in rows.items():
     dep = deposits[name]
     for kind, runs in kinds.items():
         med = lambda k: statistics.median(r[k] for r in runs)
         lo, hi = min(r["voxel_psnr"] for r in runs), max(r["voxel_psnr"] for r in runs)
         spread = f" ({lo:.2f}-{hi:.2f})" if len(runs) > 1 else ""
-        print(f"| {name} | {kind} | {len(runs)} | {med('voxel_psnr'):.2f}{spread} | {runs[0]['bytes']} | "
+        occ = [r["occupied_psnr"] for r in runs if r.get("occupied_psnr") is not None]
+        occ = f"{statistics.median(occ):.2f}" if occ else "-"
+        print(f"| {name} | {kind} | {len(runs)} | {med('voxel_psnr'):.2f}{spread} | {occ} | {runs[0]['bytes']} | "
               f"{dep['deposit_seconds']:.2f} | {dep['deposit_peak_bytes']/1e6:.0f} | {med('seconds'):.1f} |")
 print()
 print("| row | samples - grid PSNR dB | samples / grid loop time |")
