@@ -41,6 +41,7 @@ pub mod model;
 pub mod optim;
 pub mod particles;
 pub mod points;
+pub mod quantize;
 pub mod reference;
 pub mod relocate;
 pub mod rng;

@@ -305,3 +305,94 @@ fn cells_encode_and_deposit() {
     assert!(err.contains("--sizes") || err.contains("--volumes"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn payloads_convert_info_and_sub_box_decode() {
+    let dir = tmpdir("payloads");
+    let (input, _) = write_input(&dir);
+    let inp = input.to_str().unwrap();
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let grid_args = ["--input", inp, "--dims", "20,16,12", "--dtype", "f32"];
+    let encode = |payload: &str, out: &str| {
+        let mut args = vec!["encode", "grid"];
+        args.extend(grid_args);
+        args.extend(["--budget", "300", "--iters", "100", "--points", "2048", "--time", "2.5", "--payload", payload, "-o", out, "--json", "--quiet"]);
+        let (code, out, err) = gsenc(&args);
+        assert_eq!(code, 0, "{err}");
+        json(&out)
+    };
+    let eval = |model: &str| {
+        let mut args = vec!["eval", model];
+        args.extend(grid_args);
+        args.push("--json");
+        let (code, out, err) = gsenc(&args);
+        assert_eq!(code, 0, "{err}");
+        json(&out)["voxel_psnr"].as_f64().unwrap()
+    };
+    let info = |model: &str| {
+        let (code, out, err) = gsenc(&["info", model, "--json"]);
+        assert_eq!(code, 0, "{err}");
+        json(&out)
+    };
+
+    // The same encode stored both ways: the 8-bit file is about 4x smaller,
+    // and the PSNR it reports (and stores) is that of the file as read back.
+    let (f32m, eightm) = (p("f32.gsm"), p("8.gsm"));
+    let e32 = encode("f32", &f32m);
+    let e8 = encode("8bit", &eightm);
+    assert_eq!(e8["payload"], "8bit");
+    assert!(e8["bytes"].as_u64().unwrap() * 3 < e32["bytes"].as_u64().unwrap(), "{e8} vs {e32}");
+    let psnr8 = eval(&eightm);
+    assert!((psnr8 - e8["voxel_psnr"].as_f64().unwrap()).abs() < 1e-9);
+    assert!((eval(&f32m) - psnr8).abs() < 0.5, "8-bit costs little PSNR");
+    let i8 = info(&eightm);
+    assert_eq!((i8["payload"].as_str(), i8["format"].as_str()), (Some("8bit"), Some("gsenc model 1.1")));
+    assert!((i8["encode_psnr"].as_f64().unwrap() - psnr8).abs() < 1e-9);
+    assert_eq!(i8["time"].as_f64(), Some(2.5));
+
+    // convert: f32 -> 8bit-u16 -> f32; the PSNR of a lossy conversion is no
+    // longer known, and going back to f32 loses nothing more.
+    let (u16m, back) = (p("u16.gsm"), p("back.gsm"));
+    let (code, out, err) = gsenc(&["convert", &f32m, "--payload", "8bit-u16", "-o", &u16m, "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["to"], "8bit-u16");
+    assert!(info(&u16m)["encode_psnr"].is_null());
+    let (code, _, err) = gsenc(&["convert", &u16m, "--payload", "f32", "-o", &back]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(eval(&back), eval(&u16m));
+    assert_eq!(info(&back)["payload"], "f32");
+    let (code, _, err) = gsenc(&["convert", &f32m, "--payload", "8bit", "-o", &f32m]);
+    assert_eq!(code, 2, "{err}");
+    let (code, _, err) = gsenc(&["convert", &f32m, "--payload", "4bit", "-o", &p("x.gsm")]);
+    assert!(code == 2 && err.contains("8bit-u16"), "{err}");
+
+    // A sub-box decode, at twice the resolution, is that part of the whole
+    // decode, and its .vti places it in the world.
+    let whole = p("whole.raw");
+    let (code, _, err) = gsenc(&["decode", &eightm, "--dims", "40,32,24", "-o", &whole, "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    let whole: Vec<f32> = std::fs::read(&whole).unwrap().chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+    let part = p("part.vti");
+    let (code, out, err) = gsenc(&["decode", &eightm, "--dims", "40,32,24", "--box", "5,6,7,25,30,19", "-o", &part, "--json", "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["voxels"], 20 * 24 * 12);
+    let v = vti::read_vti(std::path::Path::new(&part), None).unwrap();
+    assert_eq!(v.grid.dims, [20, 24, 12]);
+    assert_eq!(v.spacing, [0.5; 3]);
+    assert_eq!(v.origin, [5.0 * 0.5 - 0.25, 6.0 * 0.5 - 0.25, 7.0 * 0.5 - 0.25]);
+    let mut i = 0;
+    for z in 7..19 {
+        for y in 6..30 {
+            for x in 5..25 {
+                let w = whole[(z * 32 + y) * 40 + x];
+                assert!((v.grid.values[i] - w).abs() <= 1e-5 * w.abs().max(1.0), "({x},{y},{z}): {} vs {w}", v.grid.values[i]);
+                i += 1;
+            }
+        }
+    }
+    let (code, _, err) = gsenc(&["decode", &eightm, "--box", "0,0,0,21,16,12", "-o", &p("bad.raw")]);
+    assert!(code == 2 && err.contains("sub-box"), "{err}");
+    assert!(!dir.join("bad.raw").exists());
+    assert!(std::fs::read_dir(&dir).unwrap().all(|e| !e.unwrap().file_name().to_string_lossy().contains(".tmp-")));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

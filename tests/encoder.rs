@@ -252,6 +252,9 @@ fn small_model_bytes(threads: usize) -> Vec<u8> {
             points: 3000,
             seed_init: 0,
             seed_sample: 1,
+            time: None,
+            rank: 0,
+            encode_psnr: None,
         },
         params: out.params,
     };

@@ -1,13 +1,22 @@
 //! The model file: round trips and rejection of damaged or foreign files.
 
 use gsenc::field::{IndexFrame, Transform, ValueRange};
-use gsenc::format::{read_model, write_model, BYTES_PER_PRIMITIVE};
+use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Payload, BYTES_PER_PRIMITIVE};
+use gsenc::quantize::CentreCoding;
 use gsenc::model::{Model, ModelMeta};
 use gsenc::rng::Rng;
 use gsenc::Error;
 
 fn model(n: usize) -> Model {
     let mut rng = Rng::new(1);
+    let mut m = model_without_extras(n, &mut rng);
+    m.meta.time = Some(0.125);
+    m.meta.rank = 3;
+    m.meta.encode_psnr = Some(41.5);
+    m
+}
+
+fn model_without_extras(n: usize, rng: &mut Rng) -> Model {
     Model {
         meta: ModelMeta {
             frame: IndexFrame { dims: [128, 64, 32], bmin: [-1.5, 0.25, 3.0], gamma: 42.5 },
@@ -19,8 +28,14 @@ fn model(n: usize) -> Model {
             points: 16384,
             seed_init: 0,
             seed_sample: 1,
+            time: None,
+            rank: 0,
+            encode_psnr: None,
         },
-        params: (0..n).map(|_| std::array::from_fn(|_| rng.range(-5.0, 5.0) as f32)).collect(),
+        // Centres inside the reference box, the rest spread like trained parameters.
+        params: (0..n)
+            .map(|_| std::array::from_fn(|k| if k < 3 { rng.range(-0.5, 127.5) } else { rng.range(-5.0, 5.0) } as f32))
+            .collect(),
     }
 }
 
@@ -37,26 +52,137 @@ fn round_trip_is_exact_and_48_bytes_a_primitive() {
 
 #[test]
 fn every_truncation_is_rejected() {
-    let bytes = write_model(&model(5)).unwrap();
-    for cut in 0..bytes.len() {
-        let e = read_model(&bytes[..cut]).unwrap_err();
-        assert!(matches!(e, Error::Format(_)), "cut at {cut}: {e}");
+    for payload in Payload::ALL {
+        let bytes = write_model_as(&model(5), payload).unwrap();
+        for cut in 0..bytes.len() {
+            let e = read_model(&bytes[..cut]).unwrap_err();
+            assert!(matches!(e, Error::Format(_)), "{payload:?}, cut at {cut}: {e}");
+        }
+        let mut longer = bytes.clone();
+        longer.push(0);
+        assert!(read_model(&longer).is_err());
     }
-    let mut longer = bytes.clone();
-    longer.push(0);
-    assert!(read_model(&longer).is_err());
 }
 
 #[test]
 fn every_corrupted_byte_is_detected() {
-    let bytes = write_model(&model(3)).unwrap();
-    for i in 0..bytes.len() {
-        for flip in [0x01u8, 0x80] {
-            let mut b = bytes.clone();
-            b[i] ^= flip;
-            assert!(read_model(&b).is_err(), "flipping bit {flip:#x} of byte {i} went unnoticed");
+    for payload in Payload::ALL {
+        let bytes = write_model_as(&model(3), payload).unwrap();
+        for i in 0..bytes.len() {
+            for flip in [0x01u8, 0x80] {
+                let mut b = bytes.clone();
+                b[i] ^= flip;
+                assert!(read_model(&b).is_err(), "{payload:?}: flipping bit {flip:#x} of byte {i} went unnoticed");
+            }
         }
     }
+}
+
+/// The largest error the 8-bit export may make on each parameter, from its
+/// definition: half a code step of the array's min/max map, and for float16
+/// centres half a unit in the last place (11 significant bits).
+fn allowed_error(params: &[[f32; 12]], k: usize, centres: CentreCoding) -> Box<dyn Fn(f32) -> f32> {
+    let lo = params.iter().map(|p| p[k]).fold(f32::INFINITY, f32::min);
+    let hi = params.iter().map(|p| p[k]).fold(f32::NEG_INFINITY, f32::max);
+    let slack = 1e-6 * lo.abs().max(hi.abs());
+    match (k < 3, centres) {
+        (true, CentreCoding::Float16) => Box::new(move |v: f32| v.abs() * 2f32.powi(-11) + 1e-7),
+        (true, CentreCoding::Fixed16) => Box::new(move |_| (hi - lo) / 65535.0 * 0.5 + slack),
+        (false, _) => Box::new(move |_| (hi - lo) / 255.0 * 0.5 + slack),
+    }
+}
+
+#[test]
+fn eight_bit_payloads_keep_every_parameter_within_its_quantisation_step() {
+    let m = model(500);
+    for centres in [CentreCoding::Float16, CentreCoding::Fixed16] {
+        let payload = Payload::Bits8(centres);
+        let bytes = write_model_as(&m, payload).unwrap();
+        let file = read_model_file(&bytes).unwrap();
+        assert_eq!(file.payload, payload);
+        assert_eq!(file.version, (1, 1));
+        assert_eq!(file.model.meta, m.meta);
+        assert_eq!(file.model.params, payload.round_trip(&m.params).unwrap());
+        for k in 0..12 {
+            let allowed = allowed_error(&m.params, k, centres);
+            for (a, b) in m.params.iter().zip(&file.model.params) {
+                assert!((a[k] - b[k]).abs() <= allowed(a[k]), "{centres:?} parameter {k}: {} vs {}", a[k], b[k]);
+            }
+        }
+        // Storing what was read again does not drift (convert back and forth).
+        let again = payload.round_trip(&file.model.params).unwrap();
+        for (a, b) in again.iter().zip(&file.model.params) {
+            for k in 0..12 {
+                assert!((a[k] - b[k]).abs() <= 1e-6 * b[k].abs().max(1.0), "{centres:?} parameter {k} drifts: {} vs {}", a[k], b[k]);
+            }
+        }
+        // About 12 bytes a primitive or less (the paper's figure), far below 48.
+        let per = bytes.len() as f64 / 500.0;
+        assert!(per < 16.0, "{centres:?}: {per} bytes a primitive");
+    }
+    // Converting back to float32 is exact.
+    let eight = read_model(&write_model_as(&m, Payload::Bits8(CentreCoding::Float16)).unwrap()).unwrap();
+    assert_eq!(read_model(&write_model(&eight).unwrap()).unwrap(), eight);
+}
+
+#[test]
+fn constant_arrays_and_empty_models_survive_the_8_bit_payload() {
+    let mut m = model(7);
+    for p in &mut m.params {
+        p[5] = 1.25;
+        p[11] = -2.0;
+    }
+    for payload in Payload::ALL {
+        let back = read_model(&write_model_as(&m, payload).unwrap()).unwrap();
+        assert!(back.params.iter().all(|p| p[5] == 1.25 && p[11] == -2.0), "{payload:?}");
+        let empty = model(0);
+        assert_eq!(read_model(&write_model_as(&empty, payload).unwrap()).unwrap(), empty);
+    }
+}
+
+#[test]
+fn unstorable_parameters_are_refused_on_write() {
+    let mut m = model(3);
+    m.params[1][7] = f32::NAN;
+    for payload in Payload::ALL {
+        let e = write_model_as(&m, payload).unwrap_err();
+        assert!(matches!(e, Error::InvalidData(_)) && e.to_string().contains("non-finite"), "{e}");
+    }
+    let mut far = model(3);
+    far.params[2][0] = 70000.0;
+    let e = write_model_as(&far, Payload::Bits8(CentreCoding::Float16)).unwrap_err();
+    assert!(e.to_string().contains("8bit-u16"), "{e}");
+    let back = read_model(&write_model_as(&far, Payload::Bits8(CentreCoding::Fixed16)).unwrap()).unwrap();
+    assert!((back.params[2][0] - 70000.0).abs() < 1.0);
+}
+
+#[test]
+fn a_version_1_0_file_is_read_with_unknown_extras() {
+    // A 1.0 header is the 1.1 header without its last 20 bytes (time, rank, PSNR).
+    let m = model(4);
+    let b = write_model(&m).unwrap();
+    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let mut out = b[..16 + header_len - 20].to_vec();
+    out[10..12].copy_from_slice(&0u16.to_le_bytes());
+    out[12..16].copy_from_slice(&((header_len - 20) as u32).to_le_bytes());
+    out.extend_from_slice(&b[16 + header_len..b.len() - 4]);
+    let crc = crc32fast::hash(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    let file = read_model_file(&out).unwrap();
+    assert_eq!(file.version, (1, 0));
+    assert_eq!(file.payload, Payload::Float32);
+    assert_eq!((file.model.meta.time, file.model.meta.rank, file.model.meta.encode_psnr), (None, 0, None));
+    assert_eq!(file.model.params, m.params);
+}
+
+#[test]
+fn payload_names_round_trip_and_unknown_names_are_refused() {
+    for p in Payload::ALL {
+        assert_eq!(Payload::from_name(p.name()).unwrap(), p);
+        assert_eq!(Payload::from_code(p.code()), Some(p));
+    }
+    assert!(Payload::from_name("float8").unwrap_err().to_string().contains("8bit-u16"));
+    assert_eq!(Payload::from_code(9), None);
 }
 
 #[test]
@@ -69,7 +195,7 @@ fn foreign_and_newer_files_are_rejected_with_clear_errors() {
     let crc = crc32fast::hash(&b[..n - 4]);
     b[n - 4..].copy_from_slice(&crc.to_le_bytes());
     let e = read_model(&b).unwrap_err();
-    assert!(matches!(e, Error::Version(_)) && e.to_string().contains("2.0 is newer"), "{e}");
+    assert!(matches!(e, Error::Version(_)) && e.to_string().contains("version 2.1 is newer"), "{e}");
 }
 
 #[test]

@@ -4,9 +4,9 @@ use clap::{Args, Parser, Subcommand};
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::encoder::{encode, with_threads, EncodeConfig, Schedule, Target};
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
-use gsenc::io::{raw, vti, write_atomic};
+use gsenc::io::{raw, vti, write_atomic, AtomicFile};
 use gsenc::metrics::{occupied_psnr, sampled_psnr, voxel_psnr};
-use gsenc::model::{Model, ModelMeta};
+use gsenc::model::{IndexBox, Model, ModelMeta};
 use gsenc::cells::{CellSize, Cells};
 use gsenc::particles::Particles;
 use gsenc::reference::{prepare_cells, prepare_particles, Bounds, Placement, Prepared, RangeSpec};
@@ -35,6 +35,8 @@ enum Command {
     Eval(EvalArgs),
     /// Show a model's metadata.
     Info(InfoArgs),
+    /// Rewrite a model with another payload (float32 to 8-bit and back).
+    Convert(ConvertArgs),
     /// Write the reference grid that particles or cells are encoded against.
     #[command(subcommand)]
     Deposit(DepositInput),
@@ -140,6 +142,13 @@ struct EncodeOptions {
     /// Time step stored in the model.
     #[arg(long, default_value_t = 0)]
     step: u64,
+    /// Simulation time stored in the model.
+    #[arg(long)]
+    time: Option<f64>,
+    /// Payload: f32 (48 bytes a primitive, exact), 8bit (float16 centres,
+    /// 8-bit parameters, zstd; about 12 bytes) or 8bit-u16 (uint16 centres).
+    #[arg(long, default_value = "f32")]
+    payload: String,
     /// Output model file.
     #[arg(short, long)]
     output: PathBuf,
@@ -289,6 +298,13 @@ struct DecodeArgs {
     /// Lattice dims X,Y,Z covering the model's box (default: its reference dims).
     #[arg(long, value_parser = parse_dims)]
     dims: Option<[usize; 3]>,
+    /// Decode only the voxels X0,Y0,Z0,X1,Y1,Z1 (half-open index ranges of
+    /// that lattice); the .vti keeps their world position.
+    #[arg(long = "box", value_parser = parse_box)]
+    sub_box: Option<[usize; 6]>,
+    /// Voxels decoded at once (memory: 4 bytes each, twice).
+    #[arg(long, default_value_t = gsenc::model::DEFAULT_SLAB_VOXELS, hide = true)]
+    slab_voxels: usize,
     #[command(flatten)]
     output: GridOutput,
 }
@@ -298,6 +314,10 @@ struct EvalArgs {
     model: PathBuf,
     #[command(flatten)]
     input: GridInput,
+    /// The input holds values already normalised to [0, 1] (as written by
+    /// `gsenc deposit --normalized`); otherwise the model's range maps them.
+    #[arg(long)]
+    normalized: bool,
     #[arg(long)]
     threads: Option<usize>,
     #[command(flatten)]
@@ -309,6 +329,24 @@ struct InfoArgs {
     model: PathBuf,
     #[arg(long)]
     json: bool,
+}
+
+#[derive(Args)]
+struct ConvertArgs {
+    model: PathBuf,
+    /// Payload of the new file: f32, 8bit or 8bit-u16.
+    #[arg(long)]
+    payload: String,
+    /// Output model file (may not be the input).
+    #[arg(short, long)]
+    output: PathBuf,
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_box(s: &str) -> std::result::Result<[usize; 6], String> {
+    let v: Vec<usize> = s.split(',').map(|x| x.trim().parse::<usize>().map_err(|_| format!("bad box '{s}'"))).collect::<std::result::Result<_, _>>()?;
+    v.try_into().map_err(|_| format!("a box is X0,Y0,Z0,X1,Y1,Z1, got '{s}'"))
 }
 
 fn parse_dims(s: &str) -> std::result::Result<[usize; 3], String> {
@@ -393,8 +431,12 @@ fn print_result(json_out: bool, value: serde_json::Value) {
 }
 
 fn read_model(path: &Path) -> Result<Model> {
+    read_model_file(path).map(|f| f.model)
+}
+
+fn read_model_file(path: &Path) -> Result<format::ModelFile> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    format::read_model(&bytes).map_err(|e| match e {
+    format::read_model_file(&bytes).map_err(|e| match e {
         Error::Format(m) => Error::Format(format!("{}: {m}", path.display())),
         Error::Version(m) => Error::Version(format!("{}: {m}", path.display())),
         other => other,
@@ -430,6 +472,7 @@ fn run_encode(input: &EncodeInputData, o: &EncodeOptions, t_total: Instant) -> R
     cfg.relocation = !o.no_relocation;
     cfg.particles = input.particles;
     gsenc::encoder::validate(&input.target, &cfg, None)?;
+    let payload = format::Payload::from_name(&o.payload)?;
     let pb = progress_bar(o.out.quiet, cfg.iterations() as u64);
     let (out, decoded, evals) = with_threads(o.threads, || -> Result<_> {
         let mut backend = CpuBackend::new();
@@ -443,14 +486,18 @@ fn run_encode(input: &EncodeInputData, o: &EncodeOptions, t_total: Instant) -> R
             }
         })?;
         let evals = backend.kernel_evaluations();
+        // Score the parameters as they will be stored.
+        let stored = payload.round_trip(&out.params)?;
         let t_dec = Instant::now();
         let mut model_backend = CpuBackend::new();
         let lattice = gsenc::backend::Lattice::reference(reference.dims);
         let mut decoded = vec![0f32; reference.len()];
-        gsenc::backend::Backend::decode_lattice(&mut model_backend, &out.params, &lattice, &mut decoded);
+        gsenc::backend::Backend::decode_lattice(&mut model_backend, &stored, &lattice, &mut decoded);
         Ok((out, (decoded, t_dec.elapsed().as_secs_f64()), evals))
     })??;
     pb.finish_and_clear();
+    let (decoded, decode_seconds) = decoded;
+    let psnr = voxel_psnr(&decoded, &reference.values);
     let model = Model {
         meta: ModelMeta {
             frame: input.frame,
@@ -462,16 +509,19 @@ fn run_encode(input: &EncodeInputData, o: &EncodeOptions, t_total: Instant) -> R
             points: out.points as u32,
             seed_init: cfg.seed_init,
             seed_sample: cfg.seed_sample,
+            time: o.time,
+            rank: 0,
+            encode_psnr: Some(psnr),
         },
         params: out.params,
     };
-    let bytes = format::write_model(&model)?;
+    let bytes = format::write_model_as(&model, payload)?;
     write_atomic(&o.output, &bytes)?;
-    let (decoded, decode_seconds) = decoded;
     let value = json!({
         "primitives": model.len(),
         "bytes": bytes.len(),
-        "voxel_psnr": voxel_psnr(&decoded, &reference.values),
+        "payload": payload.name(),
+        "voxel_psnr": psnr,
         "sampled_psnr": sampled_psnr(&decoded, &reference.values),
         "occupied_psnr": occupied_psnr(&decoded, &reference.values),
         "seconds": out.loop_seconds,
@@ -659,21 +709,47 @@ fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], nam
 fn cmd_decode(a: DecodeArgs) -> Result<()> {
     let t = Instant::now();
     let model = read_model(&a.model)?;
-    let grid = with_threads(a.output.threads, || model.decode(&mut CpuBackend::new(), a.dims))??;
-    let seconds = t.elapsed().as_secs_f64();
-    let values = output_units(&grid.values, &model.meta.range, a.output.normalized);
     let f = &model.meta.frame;
-    let spacing: Vec<f64> = (0..3).map(|i| f.dims[i] as f64 / grid.dims[i] as f64 / f.gamma).collect();
-    let origin = [0, 1, 2].map(|i| f.bmin[i] + 0.5 * spacing[i]);
-    write_grid(&a.output.output, &Grid::new(grid.dims, values)?, origin, [spacing[0], spacing[1], spacing[2]], &model.meta.field)?;
+    let dims = a.dims.unwrap_or(f.dims);
+    let region = match a.sub_box {
+        Some([x0, y0, z0, x1, y1, z1]) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
+        None => IndexBox::whole(dims),
+    };
+    let spacing = [0, 1, 2].map(|i| f.dims[i] as f64 / dims[i] as f64 / f.gamma);
+    let origin = [0, 1, 2].map(|i| f.bmin[i] + (region.lo[i] as f64 + 0.5) * spacing[i]);
+    let out_path = &a.output.output;
+    let is_vti = out_path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vti"));
+    let mut file = AtomicFile::create(out_path)?;
+    if is_vti {
+        file.write(&vti::vti_prefix(region.dims(), origin, spacing, &model.meta.field))?;
+    }
+    let mut bytes = Vec::new();
+    with_threads(a.output.threads, || {
+        model.decode_streaming(&mut CpuBackend::new(), dims, region, a.slab_voxels, &mut |slab| {
+            let range = &model.meta.range;
+            let unit = |v: f32| if a.output.normalized { v } else { range.denormalize(v) as f32 };
+            bytes.clear();
+            bytes.extend(slab.iter().flat_map(|&v| unit(v).to_le_bytes()));
+            file.write(&bytes)
+        })
+    })??;
+    if is_vti {
+        file.write(vti::VTI_SUFFIX)?;
+    }
+    file.commit()?;
+    let seconds = t.elapsed().as_secs_f64();
+    let voxels: usize = region.dims().iter().product();
     print_result(
         a.output.out.json,
         json!({
-            "dims": grid.dims,
-            "voxels": grid.len(),
+            "dims": dims,
+            "box_min": region.lo,
+            "box_max": region.hi,
+            "voxels": voxels,
             "seconds": seconds,
-            "voxels_per_second": grid.len() as f64 / seconds.max(1e-9),
-            "output": a.output.output.display().to_string(),
+            "voxels_per_second": voxels as f64 / seconds.max(1e-9),
+            "peak_rss_bytes": peak_rss_bytes(),
+            "output": out_path.display().to_string(),
         }),
     );
     Ok(())
@@ -682,7 +758,11 @@ fn cmd_decode(a: DecodeArgs) -> Result<()> {
 fn cmd_eval(a: EvalArgs) -> Result<()> {
     let model = read_model(&a.model)?;
     let loaded = load_grid(&a.input)?;
-    let norm = model.meta.range.normalize(&loaded.grid.values)?;
+    let norm = if a.normalized {
+        ValueRange::new(0.0, 1.0, Transform::Linear)?.normalize(&loaded.grid.values)?
+    } else {
+        model.meta.range.normalize(&loaded.grid.values)?
+    };
     let decoded = with_threads(a.threads, || model.decode(&mut CpuBackend::new(), Some(loaded.grid.dims)))??;
     print_result(
         a.out.json,
@@ -698,18 +778,23 @@ fn cmd_eval(a: EvalArgs) -> Result<()> {
 }
 
 fn cmd_info(a: InfoArgs) -> Result<()> {
-    let m = read_model(&a.model)?;
+    let file = read_model_file(&a.model)?;
+    let m = &file.model;
     let bytes = std::fs::metadata(&a.model).map_err(|e| Error::io(&a.model, e))?.len();
     let meta = &m.meta;
     print_result(
         a.json,
         json!({
-            "format": format!("gsenc model {}.{}", format::VERSION_MAJOR, format::VERSION_MINOR),
-            "payload": "float32",
+            "format": format!("gsenc model {}.{}", file.version.0, file.version.1),
+            "payload": file.payload.name(),
             "primitives": m.len(),
             "bytes": bytes,
+            "bytes_per_primitive": bytes as f64 / m.len().max(1) as f64,
             "field": meta.field,
             "step": meta.step,
+            "time": meta.time,
+            "rank": meta.rank,
+            "encode_psnr": meta.encode_psnr,
             "dims": meta.frame.dims,
             "bounds_min": meta.frame.bmin,
             "gamma": meta.frame.gamma,
@@ -721,6 +806,39 @@ fn cmd_info(a: InfoArgs) -> Result<()> {
             "points": meta.points,
             "seed_init": meta.seed_init,
             "seed_sample": meta.seed_sample,
+        }),
+    );
+    Ok(())
+}
+
+fn cmd_convert(a: ConvertArgs) -> Result<()> {
+    let payload = format::Payload::from_name(&a.payload)?;
+    let same = match (std::fs::canonicalize(&a.model), std::fs::canonicalize(&a.output)) {
+        (Ok(x), Ok(y)) => x == y,
+        _ => false,
+    };
+    if same {
+        return Err(Error::arg("convert writes a new file; give an output other than the input"));
+    }
+    let mut file = read_model_file(&a.model)?;
+    // The stored encode PSNR stays true only when no precision is lost.
+    if payload != file.payload && payload != format::Payload::Float32 {
+        file.model.meta.encode_psnr = None;
+    }
+    let bytes = format::write_model_as(&file.model, payload)?;
+    write_atomic(&a.output, &bytes)?;
+    let n = file.model.len().max(1) as f64;
+    let before = std::fs::metadata(&a.model).map_err(|e| Error::io(&a.model, e))?.len();
+    print_result(
+        a.json,
+        json!({
+            "from": file.payload.name(),
+            "to": payload.name(),
+            "primitives": file.model.len(),
+            "bytes_before": before,
+            "bytes": bytes.len(),
+            "bytes_per_primitive": bytes.len() as f64 / n,
+            "output": a.output.display().to_string(),
         }),
     );
     Ok(())
@@ -741,6 +859,7 @@ fn main() {
         Command::Decode(a) => cmd_decode(a),
         Command::Eval(a) => cmd_eval(a),
         Command::Info(a) => cmd_info(a),
+        Command::Convert(a) => cmd_convert(a),
     };
     if let Err(e) = r {
         eprintln!("gsenc: {e}");

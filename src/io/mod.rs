@@ -5,4 +5,4 @@ pub mod atomic;
 pub mod raw;
 pub mod vti;
 
-pub use atomic::write_atomic;
+pub use atomic::{write_atomic, AtomicFile};

@@ -29,7 +29,10 @@ fn attr(tag: &str, key: &str) -> Option<String> {
             let q = rest.chars().next()?;
             if q == '"' || q == '\'' {
                 let end = rest[1..].find(q)?;
-                return Some(rest[1..1 + end].to_string());
+                let raw = &rest[1..1 + end];
+                return Some(
+                    raw.replace("&quot;", "\"").replace("&apos;", "'").replace("&lt;", "<").replace("&gt;", ">").replace("&amp;", "&"),
+                );
             }
         }
         from = at + key.len();
@@ -335,19 +338,35 @@ pub fn read_vti(path: impl AsRef<Path>, array: Option<&str>) -> Result<VtiGrid> 
 
 /// Serialises a grid as binary appended Float32 point data (UInt64 headers).
 pub fn write_vti_bytes(grid: &Grid, origin: [f64; 3], spacing: [f64; 3], name: &str) -> Vec<u8> {
-    let d = grid.dims;
+    let mut out = vti_prefix(grid.dims, origin, spacing, name);
+    for v in &grid.values {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    out.extend_from_slice(VTI_SUFFIX);
+    out
+}
+
+/// Everything of a `.vti` file before its Float32 values, x fastest: the XML
+/// and the UInt64 byte count of the appended block. Values, then
+/// [`VTI_SUFFIX`], complete it, so that a decode can stream into the file.
+pub fn vti_prefix(d: [usize; 3], origin: [f64; 3], spacing: [f64; 3], name: &str) -> Vec<u8> {
+    let name = xml_escape(name);
     let xml = format!(
         "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <ImageData WholeExtent=\"0 {} 0 {} 0 {}\" Origin=\"{} {} {}\" Spacing=\"{} {} {}\">\n    <Piece Extent=\"0 {} 0 {} 0 {}\">\n      <PointData Scalars=\"{name}\">\n        <DataArray type=\"Float32\" Name=\"{name}\" format=\"appended\" offset=\"0\"/>\n      </PointData>\n      <CellData>\n      </CellData>\n    </Piece>\n  </ImageData>\n  <AppendedData encoding=\"raw\">\n   _",
         d[0] - 1, d[1] - 1, d[2] - 1, origin[0], origin[1], origin[2], spacing[0], spacing[1], spacing[2],
         d[0] - 1, d[1] - 1, d[2] - 1,
     );
     let mut out = xml.into_bytes();
-    out.extend_from_slice(&((grid.values.len() * 4) as u64).to_le_bytes());
-    for v in &grid.values {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    out.extend_from_slice(b"\n  </AppendedData>\n</VTKFile>\n");
+    out.extend_from_slice(&((d[0] * d[1] * d[2] * 4) as u64).to_le_bytes());
     out
+}
+
+/// The end of a `.vti` file after its values.
+pub const VTI_SUFFIX: &[u8] = b"\n  </AppendedData>\n</VTKFile>\n";
+
+/// A name made safe inside an XML attribute.
+fn xml_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
 }
 
 #[cfg(test)]

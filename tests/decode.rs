@@ -1,0 +1,114 @@
+//! Decoding in slabs and sub-boxes against the one-shot decode of the whole lattice.
+
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::field::{IndexFrame, Transform, ValueRange};
+use gsenc::model::{IndexBox, Model, ModelMeta};
+use gsenc::rng::Rng;
+
+fn model() -> Model {
+    let mut rng = Rng::new(7);
+    let dims = [24, 20, 16];
+    Model {
+        meta: ModelMeta {
+            frame: IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap(),
+            range: ValueRange::new(0.0, 1.0, Transform::Linear).unwrap(),
+            field: "f".into(),
+            step: 0,
+            schedule: "short".into(),
+            iterations: 0,
+            points: 0,
+            seed_init: 0,
+            seed_sample: 0,
+            time: None,
+            rank: 0,
+            encode_psnr: None,
+        },
+        params: (0..200)
+            .map(|_| {
+                let mut p = [0f32; 12];
+                for a in 0..3 {
+                    p[a] = rng.range(-1.0, dims[a] as f64) as f32;
+                    p[3 + a] = rng.range(0.0, 1.5) as f32;
+                }
+                p[6] = 1.0;
+                for k in 7..12 {
+                    p[k] = rng.range(-1.0, 1.0) as f32;
+                }
+                p
+            })
+            .collect(),
+    }
+}
+
+fn assert_close(a: &[f32], b: &[f32]) {
+    assert_eq!(a.len(), b.len());
+    let worst = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0f32, f32::max);
+    assert!(worst < 1e-5, "largest difference {worst}");
+}
+
+#[test]
+fn slabs_of_any_size_give_the_whole_decode() {
+    let m = model();
+    let dims = [30, 25, 21];
+    let whole = m.decode(&mut CpuBackend::new(), Some(dims)).unwrap();
+    assert!(whole.values.iter().any(|&v| v > 0.1), "the test model must not decode to zero");
+    for slab_voxels in [1, 30 * 25, 30 * 25 * 4 + 7, usize::MAX] {
+        let mut got = Vec::new();
+        let mut slabs = 0;
+        m.decode_streaming(&mut CpuBackend::new(), dims, IndexBox::whole(dims), slab_voxels, &mut |s| {
+            got.extend_from_slice(s);
+            slabs += 1;
+            Ok(())
+        })
+        .unwrap();
+        assert_close(&got, &whole.values);
+        assert_eq!(slabs, 21usize.div_ceil((slab_voxels / (30 * 25)).clamp(1, 21)));
+    }
+}
+
+#[test]
+fn a_sub_box_is_that_part_of_the_whole_decode() {
+    let m = model();
+    let dims = [48, 40, 32];
+    let whole = m.decode(&mut CpuBackend::new(), Some(dims)).unwrap();
+    let b = IndexBox { lo: [3, 17, 9], hi: [40, 18, 31] };
+    let part = m.decode_box(&mut CpuBackend::new(), dims, b).unwrap();
+    assert_eq!(part.dims, [37, 1, 22]);
+    let mut expect = Vec::new();
+    for z in 9..31 {
+        for x in 3..40 {
+            expect.push(whole.values[(z * 40 + 17) * 48 + x]);
+        }
+    }
+    assert_close(&part.values, &expect);
+    // Streaming the same box in one-layer slabs agrees too.
+    let mut got = Vec::new();
+    m.decode_streaming(&mut CpuBackend::new(), dims, b, 1, &mut |s| {
+        got.extend_from_slice(s);
+        Ok(())
+    })
+    .unwrap();
+    assert_close(&got, &expect);
+}
+
+#[test]
+fn bad_boxes_and_sink_errors_are_reported() {
+    let m = model();
+    let dims = [8, 8, 8];
+    for b in [IndexBox { lo: [0, 0, 0], hi: [9, 8, 8] }, IndexBox { lo: [4, 0, 0], hi: [4, 8, 8] }] {
+        let e = m.decode_box(&mut CpuBackend::new(), dims, b).unwrap_err();
+        assert!(e.to_string().contains("sub-box"), "{e}");
+    }
+    let e = m.decode(&mut CpuBackend::new(), Some([1 << 20, 1 << 20, 1 << 20])).unwrap_err();
+    assert!(e.to_string().contains("too large"), "{e}");
+    // A failing sink (a full disk, say) stops the decode with its error.
+    let mut calls = 0;
+    let e = m
+        .decode_streaming(&mut CpuBackend::new(), dims, IndexBox::whole(dims), 64, &mut |_| {
+            calls += 1;
+            Err(gsenc::Error::arg("disk full"))
+        })
+        .unwrap_err();
+    assert_eq!(calls, 1);
+    assert!(e.to_string().contains("disk full"));
+}
