@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Every test of the project: the Rust suites (unit, integration, CLI), the
-# generated C header's freshness, and a C program linked against the library.
+# generated C header's freshness, a C program linked against the library, and
+# a bounded fuzzing run of the model reader.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -19,3 +20,6 @@ trap 'rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
 "$out/version"
 echo "c: 1 passed, 0 failed"
+
+# The model reader under libFuzzer for a bounded time.
+bash tests/fuzz.sh

@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Fuzzes the model reader (fuzz/fuzz_targets/model_reader.rs) for a bounded
+# time: FUZZ_SECONDS, default 30. Any panic, hang (10 s an input) or
+# allocation over 2 GiB fails the run and leaves the input in fuzz/artifacts/.
+# Runs on stable Rust: `--sanitizer none` keeps libFuzzer's coverage guidance
+# without the nightly-only sanitizers. Installs cargo-fuzz when it is missing.
+set -euo pipefail
+cd "$(dirname "$0")/../fuzz"
+if ! cargo fuzz --version >/dev/null 2>&1; then
+    cargo install cargo-fuzz --locked --version 0.13.2
+fi
+mkdir -p corpus/model_reader
+cargo fuzz run model_reader --sanitizer none corpus/model_reader seeds -- \
+    -max_total_time="${FUZZ_SECONDS:-30}" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 2>&1 | tail -n 12
+echo "fuzz: model_reader ran ${FUZZ_SECONDS:-30} s without a failure"
