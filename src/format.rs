@@ -36,8 +36,9 @@ const MAX_HEADER: usize = 1 << 16;
 /// Most primitives an 8-bit payload may claim (its body is decompressed into
 /// memory sized from the count, so the count is bounded before allocating).
 const MAX_8BIT_COUNT: u64 = 1 << 32;
-/// zstd level of the 8-bit payload: measured near the best ratio at a small
-/// fraction of an encode's time (docs/BENCHMARKS.md).
+/// zstd level of the 8-bit payload. A model is written once per step, and at
+/// this level a 200K-primitive body packs in under a second, a small fraction
+/// of its encode (`convert` times in docs/BENCHMARKS.md).
 const ZSTD_LEVEL: i32 = 19;
 
 /// How the primitives are stored.
