@@ -36,6 +36,10 @@ const MAX_HEADER: usize = 1 << 16;
 /// Most primitives an 8-bit payload may claim (its body is decompressed into
 /// memory sized from the count, so the count is bounded before allocating).
 const MAX_8BIT_COUNT: u64 = 1 << 32;
+/// The most a zstd frame can unpack to per stored byte: an RLE block spends
+/// 4 bytes on 128 KiB. A count the stored bytes cannot hold is refused before
+/// anything is allocated.
+const ZSTD_MAX_RATIO: usize = 1 << 15;
 /// zstd level of the 8-bit payload. A model is written once per step, and at
 /// this level a 200K-primitive body packs in under a second, a small fraction
 /// of its encode (`convert` times in docs/BENCHMARKS.md).
@@ -334,9 +338,12 @@ fn read_f32_payload(stored: &[u8]) -> Vec<Primitive> {
 
 fn read_8bit_payload(stored: &[u8], count: usize, centres: CentreCoding) -> Result<Vec<Primitive>> {
     let want = quantize::body_len(count, centres);
+    let corrupt = |why: String| Error::format(format!("8-bit payload is corrupted: {why}"));
+    if want > stored.len().saturating_mul(ZSTD_MAX_RATIO) {
+        return Err(corrupt(format!("{} stored bytes cannot hold {count} primitives", stored.len())));
+    }
     let mut body = Vec::new();
     body.try_reserve_exact(want).map_err(|_| Error::format(format!("cannot allocate the payload of {count} primitives")))?;
-    let corrupt = |why: String| Error::format(format!("8-bit payload is corrupted: {why}"));
     let mut dec = zstd::bulk::Decompressor::new().map_err(|e| corrupt(e.to_string()))?;
     let got = dec.decompress_to_buffer(stored, &mut body).map_err(|e| corrupt(e.to_string()))?;
     if got != want {

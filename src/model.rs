@@ -29,6 +29,27 @@ pub struct ModelMeta {
     pub encode_psnr: Option<f64>,
 }
 
+impl ModelMeta {
+    /// Metadata of a model over `frame` and `range`, the rest unset: field
+    /// "scalar", step 0, no schedule, rank 0, time and PSNR unknown.
+    pub fn new(frame: IndexFrame, range: ValueRange) -> ModelMeta {
+        ModelMeta {
+            frame,
+            range,
+            field: "scalar".into(),
+            step: 0,
+            schedule: String::new(),
+            iterations: 0,
+            points: 0,
+            seed_init: 0,
+            seed_sample: 0,
+            time: None,
+            rank: 0,
+            encode_psnr: None,
+        }
+    }
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct Model {
     pub meta: ModelMeta,

@@ -9,20 +9,10 @@ fn model() -> Model {
     let mut rng = Rng::new(7);
     let dims = [24, 20, 16];
     Model {
-        meta: ModelMeta {
-            frame: IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap(),
-            range: ValueRange::new(0.0, 1.0, Transform::Linear).unwrap(),
-            field: "f".into(),
-            step: 0,
-            schedule: "short".into(),
-            iterations: 0,
-            points: 0,
-            seed_init: 0,
-            seed_sample: 0,
-            time: None,
-            rank: 0,
-            encode_psnr: None,
-        },
+        meta: ModelMeta::new(
+            IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap(),
+            ValueRange::new(0.0, 1.0, Transform::Linear).unwrap(),
+        ),
         params: (0..200)
             .map(|_| {
                 let mut p = [0f32; 12];

@@ -243,18 +243,12 @@ fn small_model_bytes(threads: usize) -> Vec<u8> {
     let out = with_threads(Some(threads), || encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {})).unwrap().unwrap();
     let model = Model {
         meta: ModelMeta {
-            frame: IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap(),
-            range: ValueRange::new(0.0, 1.0, Transform::Linear).unwrap(),
             field: "f".into(),
-            step: 0,
             schedule: "short".into(),
             iterations: 60,
             points: 3000,
-            seed_init: 0,
             seed_sample: 1,
-            time: None,
-            rank: 0,
-            encode_psnr: None,
+            ..ModelMeta::new(IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap(), ValueRange::new(0.0, 1.0, Transform::Linear).unwrap())
         },
         params: out.params,
     };

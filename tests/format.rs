@@ -212,3 +212,17 @@ fn a_newer_minor_version_with_extra_header_fields_is_read() {
     out.extend_from_slice(&crc.to_le_bytes());
     assert_eq!(read_model(&out).unwrap(), m);
 }
+
+#[test]
+fn a_huge_count_behind_a_valid_checksum_is_refused_before_allocating() {
+    // The count sits after the payload code: bytes 20..28.
+    for (count, why) in [(1u64 << 31, "cannot hold"), (1 << 40, "claims")] {
+        let mut b = write_model_as(&model(3), Payload::Bits8(CentreCoding::Float16)).unwrap();
+        b[20..28].copy_from_slice(&count.to_le_bytes());
+        let n = b.len();
+        let crc = crc32fast::hash(&b[..n - 4]);
+        b[n - 4..].copy_from_slice(&crc.to_le_bytes());
+        let e = read_model(&b).unwrap_err();
+        assert!(matches!(e, Error::Format(_)) && e.to_string().contains(why), "{e}");
+    }
+}
