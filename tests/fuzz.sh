@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Fuzzes the model reader (fuzz/fuzz_targets/model_reader.rs) for a bounded
-# time: FUZZ_SECONDS, default 30. Any panic, hang (10 s an input) or
+# time: FUZZ_SECONDS, default 30, from a fixed libFuzzer seed (FUZZ_SEED,
+# default 1) so that CI explores the same inputs every run; set another seed
+# or a longer time to explore further. Any panic, hang (10 s an input) or
 # allocation over 2 GiB fails the run and leaves the input in fuzz/artifacts/.
 # Runs on stable Rust: `--sanitizer none` keeps libFuzzer's coverage guidance
 # without the nightly-only sanitizers. Installs cargo-fuzz when it is missing.
@@ -11,5 +13,5 @@ if ! cargo fuzz --version >/dev/null 2>&1; then
 fi
 mkdir -p corpus/model_reader
 cargo fuzz run model_reader --sanitizer none corpus/model_reader seeds -- \
-    -max_total_time="${FUZZ_SECONDS:-30}" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 2>&1 | tail -n 12
+    -max_total_time="${FUZZ_SECONDS:-30}" -seed="${FUZZ_SEED:-1}" -timeout=10 -rss_limit_mb=2048 -print_final_stats=1 2>&1 | tail -n 12
 echo "fuzz: model_reader ran ${FUZZ_SECONDS:-30} s without a failure"
