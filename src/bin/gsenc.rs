@@ -667,7 +667,8 @@ fn cmd_encode_cells(a: EncodeCellsArgs) -> Result<()> {
 }
 
 fn write_deposit(p: Prepared, o: &GridOutput, field: &str) -> Result<()> {
-    let values = output_units(&p.reference.values, &p.range, o.normalized);
+    let unit = output_unit(&p.range, o.normalized);
+    let values: Vec<f32> = p.reference.values.iter().map(|&v| unit(v)).collect();
     let spacing = 1.0 / p.frame.gamma;
     write_grid(&o.output, &Grid::new(p.reference.dims, values)?, p.frame.bmin.map(|b| b + 0.5 * spacing), [spacing; 3], field)?;
     let mut result = serde_json::Map::new();
@@ -690,13 +691,9 @@ fn cmd_deposit_cells(a: DepositCellsArgs) -> Result<()> {
     write_deposit(p, &a.output, "deposit")
 }
 
-/// Normalised values as written: kept, or mapped back to data units.
-fn output_units(values: &[f32], range: &ValueRange, normalized: bool) -> Vec<f32> {
-    if normalized {
-        values.to_vec()
-    } else {
-        values.iter().map(|&v| range.denormalize(v) as f32).collect()
-    }
+/// How a normalised value is written: kept, or mapped back to data units.
+fn output_unit(range: &ValueRange, normalized: bool) -> impl Fn(f32) -> f32 + '_ {
+    move |v| if normalized { v } else { range.denormalize(v) as f32 }
 }
 
 /// Writes a grid as .vti (when the name says so) or raw float32, atomically.
@@ -724,10 +721,9 @@ fn cmd_decode(a: DecodeArgs) -> Result<()> {
         file.write(&vti::vti_prefix(region.dims(), origin, spacing, &model.meta.field))?;
     }
     let mut bytes = Vec::new();
+    let unit = output_unit(&model.meta.range, a.output.normalized);
     with_threads(a.output.threads, || {
         model.decode_streaming(&mut CpuBackend::new(), dims, region, a.slab_voxels, &mut |slab| {
-            let range = &model.meta.range;
-            let unit = |v: f32| if a.output.normalized { v } else { range.denormalize(v) as f32 };
             bytes.clear();
             bytes.extend(slab.iter().flat_map(|&v| unit(v).to_le_bytes()));
             file.write(&bytes)
