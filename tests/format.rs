@@ -226,3 +226,16 @@ fn a_huge_count_behind_a_valid_checksum_is_refused_before_allocating() {
         assert!(matches!(e, Error::Format(_)) && e.to_string().contains(why), "{e}");
     }
 }
+
+#[test]
+fn non_finite_parameters_behind_a_valid_checksum_are_refused() {
+    let mut b = write_model(&model(2)).unwrap();
+    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let at = 16 + header_len + 4 * 7; // the first primitive's q[1]
+    b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    let n = b.len();
+    let crc = crc32fast::hash(&b[..n - 4]);
+    b[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    let e = read_model(&b).unwrap_err();
+    assert!(matches!(e, Error::Format(_)) && e.to_string().contains("non-finite"), "{e}");
+}
