@@ -25,6 +25,9 @@ pub enum Error {
         #[source]
         source: std::io::Error,
     },
+    /// The HDF5 library refused an operation on a store.
+    #[error("HDF5 error on {path}: {message}")]
+    Hdf5 { path: String, message: String },
 }
 
 impl Error {

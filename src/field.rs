@@ -138,6 +138,9 @@ impl Transform {
             Transform::Log10 => "log10",
         }
     }
+    pub fn from_name(name: &str) -> Option<Transform> {
+        [Transform::Linear, Transform::Log10].into_iter().find(|t| t.name() == name)
+    }
 }
 
 /// The normalisation `v = (T(x) - vmin) / (vmax - vmin)` clamped to `[0, 1]`,

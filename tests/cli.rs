@@ -7,13 +7,6 @@ use gsenc::io::vti;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn tmpdir(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("gsenc-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
-}
-
 fn gsenc(args: &[&str]) -> (i32, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_gsenc")).args(args).output().unwrap();
     (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
@@ -395,4 +388,24 @@ fn payloads_convert_info_and_sub_box_decode() {
     assert!(!dir.join("bad.raw").exists());
     assert!(std::fs::read_dir(&dir).unwrap().all(|e| !e.unwrap().file_name().to_string_lossy().contains(".tmp-")));
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A build without the `hdf5` feature keeps the store commands, which say
+/// how to get them instead of failing obscurely.
+#[cfg(not(feature = "hdf5"))]
+#[test]
+fn store_commands_without_hdf5_say_how_to_get_them() {
+    let dir = tmpdir("nohdf5");
+    let store = dir.join("s.h5");
+    let (s, m) = (store.to_str().unwrap(), dir.join("m.gsm"));
+    for args in [
+        vec!["store", "add", s, m.to_str().unwrap()],
+        vec!["store", "extract", s, "rho/1/0", "-o", "x.gsm"],
+        vec!["decode-series", s, "-o", "x.h5"],
+    ] {
+        let (code, _, err) = gsenc(&args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains("--features hdf5"), "{args:?}: {err}");
+    }
+    assert!(!store.exists());
 }

@@ -1,11 +1,15 @@
 #!/usr/bin/env bash
-# Every test of the project: the Rust suites (unit, integration, CLI), the
-# generated C header's freshness, a C program linked against the library, and
-# a bounded fuzzing run of the model reader.
+# Every test of the project: the Rust suites (unit, integration, CLI; with the
+# HDF5 store), the default build without system libraries, the generated C
+# header's freshness, a C program linked against the library, the store read
+# by h5py, and a bounded fuzzing run of the model reader.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-cargo test --release --locked
+bash tests/deps.sh
+cargo test --release --locked --features hdf5
+# A plain build needs no system library: it must still compile and pass.
+cargo test --release --locked --test cli
 
 # build.rs regenerates include/gsenc.h; the checked-in copy must match.
 if ! git diff --quiet -- include/gsenc.h; then
@@ -20,6 +24,10 @@ trap 'rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
 "$out/version"
 echo "c: 1 passed, 0 failed"
+
+# The store read with h5py alone, against the models gsenc extracts from it.
+cargo build --release --locked --features hdf5 --bin gsenc
+python3 tests/store_h5py.py target/release/gsenc
 
 # The model reader under libFuzzer for a bounded time.
 bash tests/fuzz.sh

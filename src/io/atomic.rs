@@ -13,6 +13,16 @@ pub fn write_atomic(path: impl AsRef<Path>, bytes: &[u8]) -> Result<()> {
     f.commit()
 }
 
+/// A hidden name beside `path` for a file to be renamed over it once whole.
+pub fn temporary_path(path: &Path) -> Result<PathBuf> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = path.file_name().ok_or_else(|| Error::arg(format!("'{}' is not a file path", path.display())))?;
+    Ok(dir.join(format!(".{}.tmp-{}", name.to_string_lossy(), std::process::id())))
+}
+
 /// A file written piece by piece under a temporary name and renamed over its
 /// final name by [`AtomicFile::commit`]; dropped uncommitted (an error on the
 /// way), the temporary file is removed and nothing under the final name changes.
@@ -25,12 +35,7 @@ pub struct AtomicFile {
 impl AtomicFile {
     pub fn create(path: impl AsRef<Path>) -> Result<AtomicFile> {
         let path = path.as_ref().to_path_buf();
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let name = path.file_name().ok_or_else(|| Error::arg(format!("'{}' is not a file path", path.display())))?;
-        let tmp = dir.join(format!(".{}.tmp-{}", name.to_string_lossy(), std::process::id()));
+        let tmp = temporary_path(&path)?;
         let file = File::create(&tmp).map_err(|e| Error::io(&path, e))?;
         Ok(AtomicFile { path, tmp, file: Some(BufWriter::with_capacity(1 << 20, file)) })
     }

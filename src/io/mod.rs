@@ -3,6 +3,10 @@
 
 pub mod atomic;
 pub mod raw;
+#[cfg(feature = "hdf5")]
+pub mod series;
+#[cfg(feature = "hdf5")]
+pub mod store;
 pub mod vti;
 
 pub use atomic::{write_atomic, AtomicFile};

@@ -3,7 +3,8 @@
 //! small synthetic fields.
 #![allow(dead_code)]
 
-use gsenc::field::Grid;
+use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
+use gsenc::model::{Model, ModelMeta};
 use gsenc::kernel::Primitive;
 use gsenc::rng::Rng;
 
@@ -117,4 +118,52 @@ pub fn shared_data(name: &str) -> std::path::PathBuf {
     let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(name);
     assert!(p.exists(), "test data {} is missing: the project expects ../shared/data beside it", p.display());
     p
+}
+
+/// A fresh, empty folder for one test.
+pub fn tmpdir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("gsenc-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A model for the store tests whose parameters follow from (field, step, rank): a reader can
+/// rebuild what a writer stored. `scale_hi` bounds the log standard deviations.
+pub fn store_model(field: &str, step: u64, rank: u32, n: usize, scale_hi: f64) -> Model {
+    let mut rng = Rng::new(step * 1000 + rank as u64 + field.len() as u64 * 7);
+    let dims = [24, 16, 12];
+    let mut meta = ModelMeta::new(
+        IndexFrame { dims, bmin: [rank as f64 * 2.0, -1.0, 0.5], gamma: 12.0 },
+        ValueRange::new(-2.0, 3.5, Transform::Linear).unwrap(),
+    );
+    meta.field = field.into();
+    meta.step = step;
+    meta.rank = rank;
+    meta.time = Some(step as f64 * 0.25);
+    meta.schedule = "matched".into();
+    meta.iterations = 300 + step as u32;
+    meta.points = 4096;
+    meta.seed_init = step;
+    meta.seed_sample = step + 1;
+    meta.encode_psnr = Some(30.0 + step as f64);
+    let params = (0..n)
+        .map(|_| {
+            std::array::from_fn(|k| match k {
+                0..=2 => rng.range(-0.5, dims[k] as f64 - 0.5),
+                3..=5 => rng.range(-1.5, scale_hi),
+                _ => rng.range(-3.0, 3.0),
+            } as f32)
+        })
+        .collect();
+    Model { meta, params }
+}
+
+
+/// Held by every test that opens HDF5 files or starts processes: HDF5 opens
+/// files without close-on-exec, so a process started by one test would
+/// inherit another test's open store, and its lock.
+pub fn hdf5_serial() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }

@@ -1,5 +1,7 @@
 //! `gsenc`: the command-line tool, a thin layer over the library.
 
+mod store;
+
 use clap::{Args, Parser, Subcommand};
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::encoder::{encode, with_threads, EncodeConfig, Schedule, Target};
@@ -33,13 +35,18 @@ enum Command {
     Decode(DecodeArgs),
     /// Score a model against a grid: voxel and sampled PSNR.
     Eval(EvalArgs),
-    /// Show a model's metadata.
+    /// Show the metadata of a model file or of every model of a store.
     Info(InfoArgs),
     /// Rewrite a model with another payload (float32 to 8-bit and back).
     Convert(ConvertArgs),
     /// Write the reference grid that particles or cells are encoded against.
     #[command(subcommand)]
     Deposit(DepositInput),
+    /// The HDF5 store of a time series (cargo feature `hdf5`).
+    #[command(subcommand)]
+    Store(store::StoreCommand),
+    /// Decode one field of a store to HDF5 plus XDMF, for ParaView (feature `hdf5`).
+    DecodeSeries(store::DecodeSeriesArgs),
 }
 
 #[derive(Subcommand)]
@@ -283,7 +290,7 @@ struct DepositCellsArgs {
 }
 
 #[derive(Args, Clone, Copy)]
-struct OutputFlags {
+pub struct OutputFlags {
     /// Print one JSON object instead of text.
     #[arg(long)]
     json: bool,
@@ -416,7 +423,7 @@ fn progress_bar(quiet: bool, len: u64) -> indicatif::ProgressBar {
     pb
 }
 
-fn print_result(json_out: bool, value: serde_json::Value) {
+pub fn print_result(json_out: bool, value: serde_json::Value) {
     if json_out {
         println!("{value}");
     } else if let serde_json::Value::Object(map) = value {
@@ -434,7 +441,7 @@ fn read_model(path: &Path) -> Result<Model> {
     read_model_file(path).map(|f| f.model)
 }
 
-fn read_model_file(path: &Path) -> Result<format::ModelFile> {
+pub fn read_model_file(path: &Path) -> Result<format::ModelFile> {
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     format::read_model_file(&bytes).map_err(|e| match e {
         Error::Format(m) => Error::Format(format!("{}: {m}", path.display())),
@@ -774,6 +781,9 @@ fn cmd_eval(a: EvalArgs) -> Result<()> {
 }
 
 fn cmd_info(a: InfoArgs) -> Result<()> {
+    if store::is_hdf5_file(&a.model) {
+        return store::info(&a.model, a.json);
+    }
     let file = read_model_file(&a.model)?;
     let m = &file.model;
     let bytes = std::fs::metadata(&a.model).map_err(|e| Error::io(&a.model, e))?.len();
@@ -856,6 +866,8 @@ fn main() {
         Command::Eval(a) => cmd_eval(a),
         Command::Info(a) => cmd_info(a),
         Command::Convert(a) => cmd_convert(a),
+        Command::Store(c) => store::store(c),
+        Command::DecodeSeries(a) => store::decode_series(a),
     };
     if let Err(e) = r {
         eprintln!("gsenc: {e}");
@@ -863,7 +875,7 @@ fn main() {
             Error::InvalidArgument(_) => 2,
             Error::InvalidData(_) => 3,
             Error::Format(_) | Error::Version(_) => 4,
-            Error::Io { .. } => 5,
+            Error::Io { .. } | Error::Hdf5 { .. } => 5,
         });
     }
 }

@@ -1,0 +1,436 @@
+//! The HDF5 store (cargo feature `hdf5`): one file holding a time series of
+//! models of many fields and ranks, laid out `/<field>/<step>/rank_<r>` with
+//! the decoding metadata as attributes and the parameters as plain datasets,
+//! so that h5py or h5dump read it without gsenc. `docs/FORMAT.md` ("The HDF5
+//! store") is the reference.
+//!
+//! Appends are made so that killing the writer mid-append leaves every
+//! earlier step readable:
+//! - the file is created under a temporary name and renamed, so a store
+//!   exists only once its root is complete;
+//! - file space is never reused (strategy "none"), so a new step's data never
+//!   lands on bytes that an earlier step's metadata still points to;
+//! - the metadata cache never evicts, so the in-place updates an append makes
+//!   to its parents reach the file only at the flush that ends the append,
+//!   not while its data is being written.
+//!
+//! What remains is the flush itself (a few metadata blocks, one `write` each);
+//! `tests/store.rs` kills writers at many points and checks every earlier step.
+
+use crate::error::{Error, Result};
+use crate::field::{IndexFrame, Transform, ValueRange};
+use crate::format::Payload;
+use crate::io::atomic::temporary_path;
+use crate::kernel::Primitive;
+use crate::model::{Model, ModelMeta};
+use crate::quantize::{Affine, CentreCoding, Centres, Quantized};
+use hdf5::plist::file_access::{CacheDecreaseMode, CacheIncreaseMode, FlashIncreaseMode, MetadataCacheConfig};
+use hdf5::plist::file_create::FileSpaceStrategy;
+use hdf5::types::VarLenUnicode;
+use hdf5::{Dataset, File, Group, H5Type, Location};
+use std::path::{Path, PathBuf};
+
+/// Layout version of the store, in the root attribute `gsenc_store`.
+pub const STORE_VERSION: &str = "1.0";
+/// Names of the twelve parameters, in the order of the `params` rows.
+pub const PARAMETER_NAMES: [&str; 12] =
+    ["mu_x", "mu_y", "mu_z", "l_x", "l_y", "l_z", "q_w", "q_x", "q_y", "q_z", "alpha", "beta"];
+/// Most primitives in one chunk of a parameter row (deflate works per chunk).
+const CHUNK: usize = 1 << 20;
+const DEFLATE_LEVEL: u8 = 6;
+
+/// Where one model lives in a store.
+#[derive(Clone, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub struct EntryKey {
+    pub field: String,
+    pub step: u64,
+    pub rank: u32,
+}
+
+impl EntryKey {
+    pub fn of(meta: &ModelMeta) -> EntryKey {
+        EntryKey { field: meta.field.clone(), step: meta.step, rank: meta.rank }
+    }
+
+    /// `/<field>/<step>/rank_<r>`.
+    pub fn path(&self) -> String {
+        format!("/{}/{}/rank_{}", self.field, self.step, self.rank)
+    }
+}
+
+/// One model of a store as listed by [`Store::entries`]: its key, and either
+/// its metadata or why it cannot be read (an append that was cut short).
+#[derive(Debug)]
+pub struct Entry {
+    pub key: EntryKey,
+    pub content: Result<EntryInfo>,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct EntryInfo {
+    pub meta: ModelMeta,
+    pub payload: Payload,
+    pub count: u64,
+    /// Bytes the entry's datasets take in the file.
+    pub stored_bytes: u64,
+}
+
+/// An open store. Opened for append, it holds HDF5's lock on the file: other
+/// processes can read it once the writer has dropped it (or with HDF5's file
+/// locking turned off, `HDF5_USE_FILE_LOCKING=FALSE`, as of the last append).
+pub struct Store {
+    file: File,
+    path: PathBuf,
+}
+
+fn h5(path: &Path) -> impl Fn(hdf5::Error) -> Error + '_ {
+    move |e| Error::Hdf5 { path: path.display().to_string(), message: e.to_string() }
+}
+
+/// Checks a field name: it becomes an HDF5 group name.
+pub fn check_field_name(field: &str) -> Result<()> {
+    if field.is_empty() || field == "." || field == ".." || field.contains('/') || field.contains('\0') {
+        return Err(Error::arg(format!("field name '{field}' cannot name a group of the store (empty, '.', '/' or NUL)")));
+    }
+    Ok(())
+}
+
+impl Store {
+    /// Opens a store to append to, creating it when `path` does not exist.
+    pub fn open_append(path: impl AsRef<Path>) -> Result<Store> {
+        let path = path.as_ref().to_path_buf();
+        if !path.exists() {
+            create_empty(&path)?;
+        }
+        let file = File::with_options()
+            .with_fapl(|p| p.mdc_config(&never_evict()))
+            .open_rw(&path)
+            .map_err(h5(&path))?;
+        check_root(&file, &path)?;
+        Ok(Store { file, path })
+    }
+
+    /// Opens an existing store for reading.
+    pub fn open_read(path: impl AsRef<Path>) -> Result<Store> {
+        let path = path.as_ref().to_path_buf();
+        if !path.exists() {
+            return Err(Error::io(&path, std::io::Error::from(std::io::ErrorKind::NotFound)));
+        }
+        if !has_hdf5_signature(&path)? {
+            return Err(Error::format(format!("'{}' is not an HDF5 file", path.display())));
+        }
+        let file = File::open(&path).map_err(h5(&path))?;
+        check_root(&file, &path)?;
+        Ok(Store { file, path })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Appends `model` as `/<field>/<step>/rank_<r>` with `payload`, then
+    /// flushes. Refuses an entry that already exists: earlier steps are
+    /// never rewritten.
+    pub fn append(&mut self, model: &Model, payload: Payload) -> Result<()> {
+        let key = EntryKey::of(&model.meta);
+        check_field_name(&key.field)?;
+        payload.round_trip(&model.params)?; // refuses unstorable parameters before touching the file
+        let err = h5(&self.path);
+        let field = child_group(&self.file, &key.field).map_err(&err)?;
+        let step = child_group(&field, &key.step.to_string()).map_err(&err)?;
+        let rank_name = format!("rank_{}", key.rank);
+        if step.link_exists(&rank_name) {
+            return Err(Error::arg(format!("{} already holds a model; a store never rewrites a step", key.path())));
+        }
+        if step.attr_names().map_err(&err)?.is_empty() {
+            scalar_attr(&step, "step", &key.step).map_err(&err)?;
+            scalar_attr(&step, "time", &model.meta.time.unwrap_or(f64::NAN)).map_err(&err)?;
+        }
+        let group = step.create_group(&rank_name).map_err(&err)?;
+        if let Err(e) = write_entry(&group, model, payload) {
+            // A full disk, say: take the half-written entry back out so that
+            // the key stays free; earlier entries were never touched.
+            drop(group);
+            let _ = step.unlink(&rank_name);
+            return Err(err(e));
+        }
+        self.file.flush().map_err(&err)?;
+        Ok(())
+    }
+
+    /// Every entry, sorted by field, step and rank. An entry that cannot be
+    /// read is listed with its error; the others are unaffected.
+    pub fn entries(&self) -> Result<Vec<Entry>> {
+        let err = h5(&self.path);
+        let mut out = Vec::new();
+        for field in self.file.member_names().map_err(&err)? {
+            let Ok(fg) = self.file.group(&field) else { continue };
+            for step_name in fg.member_names().map_err(&err)? {
+                let Ok(step) = step_name.parse::<u64>() else { continue };
+                let Ok(sg) = fg.group(&step_name) else { continue };
+                for rank_name in sg.member_names().map_err(&err)? {
+                    let Some(rank) = rank_name.strip_prefix("rank_").and_then(|r| r.parse::<u32>().ok()) else { continue };
+                    let key = EntryKey { field: field.clone(), step, rank };
+                    let content = sg.group(&rank_name).map_err(&err).and_then(|g| read_info(&g, &key, &self.path));
+                    out.push(Entry { key, content });
+                }
+            }
+        }
+        out.sort_by(|a, b| a.key.cmp(&b.key));
+        Ok(out)
+    }
+
+    /// Reads one model and the payload it was stored with.
+    pub fn read(&self, key: &EntryKey) -> Result<(Model, Payload)> {
+        let g = self
+            .file
+            .group(&key.path())
+            .map_err(|_| Error::arg(format!("{} holds no model {}", self.path.display(), key.path())))?;
+        let info = read_info(&g, key, &self.path)?;
+        let params = read_params(&g, &info, &self.path)?;
+        Ok((Model { meta: info.meta, params }, info.payload))
+    }
+}
+
+/// HDF5's signature at the start of the file (gsenc stores have no user block).
+fn has_hdf5_signature(path: &Path) -> Result<bool> {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let got = f.read(&mut head).map_err(|e| Error::io(path, e))?;
+    Ok(got == 8 && &head == b"\x89HDF\r\n\x1a\n")
+}
+
+/// A metadata cache that keeps every dirty entry until the next flush.
+fn never_evict() -> MetadataCacheConfig {
+    MetadataCacheConfig {
+        evictions_enabled: false,
+        incr_mode: CacheIncreaseMode::Off,
+        flash_incr_mode: FlashIncreaseMode::Off,
+        decr_mode: CacheDecreaseMode::Off,
+        ..MetadataCacheConfig::default()
+    }
+}
+
+fn create_empty(path: &Path) -> Result<()> {
+    let tmp = temporary_path(path)?;
+    let made = (|| -> hdf5::Result<()> {
+        let f = File::with_options().with_fcpl(|p| p.file_space_strategy(FileSpaceStrategy::None)).create_excl(&tmp)?;
+        scalar_str_attr(&f, "gsenc_store", STORE_VERSION)?;
+        scalar_str_attr(&f, "creator", &format!("gsenc {}", crate::VERSION))?;
+        f.close()
+    })();
+    if let Err(e) = made {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(h5(path)(e));
+    }
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+fn check_root(file: &File, path: &Path) -> Result<()> {
+    let version: String = file
+        .attr("gsenc_store")
+        .and_then(|a| a.read_scalar::<VarLenUnicode>())
+        .map(|v| v.as_str().to_owned())
+        .map_err(|_| Error::format(format!("'{}' is an HDF5 file but not a gsenc store (no gsenc_store attribute)", path.display())))?;
+    let major = version.split('.').next().and_then(|m| m.parse::<u32>().ok());
+    match major {
+        Some(1) => Ok(()),
+        Some(m) if m > 1 => Err(Error::Version(format!("store layout {version} is newer than this gsenc reads (1.x); upgrade gsenc"))),
+        _ => Err(Error::format(format!("store layout version '{version}' is not one gsenc wrote"))),
+    }
+}
+
+fn child_group(parent: &Group, name: &str) -> hdf5::Result<Group> {
+    if parent.link_exists(name) {
+        parent.group(name)
+    } else {
+        parent.create_group(name)
+    }
+}
+
+fn scalar_attr<T: H5Type>(loc: &Location, name: &str, v: &T) -> hdf5::Result<()> {
+    loc.new_attr::<T>().create(name)?.write_scalar(v)
+}
+
+fn scalar_str_attr(loc: &Location, name: &str, v: &str) -> hdf5::Result<()> {
+    let v: VarLenUnicode = v.parse().map_err(|e| hdf5::Error::from(format!("attribute {name}: {e}")))?;
+    scalar_attr(loc, name, &v)
+}
+
+fn array_attr<T: H5Type + Copy>(loc: &Location, name: &str, v: &[T]) -> hdf5::Result<()> {
+    loc.new_attr::<T>().shape(v.len()).create(name)?.write_raw(v)
+}
+
+/// A `rows x n` dataset of one parameter per row, deflated when `compress`.
+fn rows_dataset<T: H5Type + Copy>(g: &Group, name: &str, rows: usize, data: &[T], compress: bool) -> hdf5::Result<Dataset> {
+    let n = data.len() / rows;
+    let mut b = g.new_dataset::<T>().shape((rows, n));
+    if compress && n > 0 {
+        b = b.chunk((1, n.min(CHUNK))).shuffle().deflate(DEFLATE_LEVEL);
+    }
+    let ds = b.create(name)?;
+    ds.write_raw(data)?;
+    Ok(ds)
+}
+
+fn maps_attrs(ds: &Dataset, maps: &[Affine]) -> hdf5::Result<()> {
+    array_attr(ds, "lo", &maps.iter().map(|m| m.lo).collect::<Vec<_>>())?;
+    array_attr(ds, "hi", &maps.iter().map(|m| m.hi).collect::<Vec<_>>())
+}
+
+fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
+    let m = &model.meta;
+    let n = model.params.len();
+    match payload {
+        Payload::Float32 => {
+            let rows: Vec<f32> = (0..12).flat_map(|k| model.params.iter().map(move |p| p[k])).collect();
+            rows_dataset(g, "params", 12, &rows, false)?;
+        }
+        Payload::Bits8(coding) => {
+            let q = Quantized::of(&model.params, coding);
+            match &q.centres {
+                Centres::Float16(bits) => {
+                    let half: Vec<half::f16> = bits.iter().map(|&b| half::f16::from_bits(b)).collect();
+                    rows_dataset(g, "centres", 3, &half, true)?;
+                }
+                Centres::Fixed16 { maps, codes } => maps_attrs(&rows_dataset(g, "centres", 3, codes, true)?, maps)?,
+            }
+            maps_attrs(&rows_dataset(g, "codes", 9, &q.codes, true)?, &q.maps)?;
+        }
+    }
+    scalar_str_attr(g, "payload", payload.name())?;
+    scalar_attr(g, "count", &(n as u64))?;
+    scalar_str_attr(g, "field", &m.field)?;
+    scalar_attr(g, "step", &m.step)?;
+    scalar_attr(g, "time", &m.time.unwrap_or(f64::NAN))?;
+    scalar_attr(g, "rank", &m.rank)?;
+    array_attr(g, "dims", &m.frame.dims.map(|d| d as u64))?;
+    array_attr(g, "bmin", &m.frame.bmin)?;
+    scalar_attr(g, "gamma", &m.frame.gamma)?;
+    scalar_attr(g, "vmin", &m.range.vmin)?;
+    scalar_attr(g, "vmax", &m.range.vmax)?;
+    scalar_str_attr(g, "transform", m.range.transform.name())?;
+    scalar_str_attr(g, "schedule", &m.schedule)?;
+    scalar_attr(g, "iterations", &m.iterations)?;
+    scalar_attr(g, "points", &m.points)?;
+    scalar_attr(g, "seed_init", &m.seed_init)?;
+    scalar_attr(g, "seed_sample", &m.seed_sample)?;
+    scalar_attr(g, "encode_psnr", &m.encode_psnr.unwrap_or(f64::NAN))?;
+    scalar_str_attr(g, "parameters", &PARAMETER_NAMES.join(" "))
+}
+
+fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
+    let bad = |what: String| Error::format(format!("{}:{} {what} (an append cut short, or not written by gsenc)", path.display(), key.path()));
+    let scalar = |name: &str| -> Result<hdf5::Attribute> { g.attr(name).map_err(|_| bad(format!("has no attribute '{name}'"))) };
+    let f64a = |name: &str| scalar(name)?.read_scalar::<f64>().map_err(|e| bad(format!("attribute {name}: {e}")));
+    let u64a = |name: &str| scalar(name)?.read_scalar::<u64>().map_err(|e| bad(format!("attribute {name}: {e}")));
+    let u32a = |name: &str| scalar(name)?.read_scalar::<u32>().map_err(|e| bad(format!("attribute {name}: {e}")));
+    let stra = |name: &str| {
+        scalar(name)?.read_scalar::<VarLenUnicode>().map(|s| s.as_str().to_owned()).map_err(|e| bad(format!("attribute {name}: {e}")))
+    };
+    let f64s = |name: &str, len: usize| -> Result<Vec<f64>> {
+        let v = scalar(name)?.read_raw::<f64>().map_err(|e| bad(format!("attribute {name}: {e}")))?;
+        if v.len() != len {
+            return Err(bad(format!("attribute {name} holds {} values, not {len}", v.len())));
+        }
+        Ok(v)
+    };
+    let payload_name = stra("payload")?;
+    let payload = Payload::from_name(&payload_name).map_err(|_| bad(format!("has an unknown payload '{payload_name}'")))?;
+    let dims_raw = scalar("dims")?.read_raw::<u64>().map_err(|e| bad(format!("attribute dims: {e}")))?;
+    let dims: [usize; 3] = match dims_raw.as_slice() {
+        [x, y, z] if [x, y, z].iter().all(|&&d| d > 0 && d <= u32::MAX as u64) => [*x as usize, *y as usize, *z as usize],
+        _ => return Err(bad(format!("has invalid dims {dims_raw:?}"))),
+    };
+    let bmin = f64s("bmin", 3)?;
+    let gamma = f64a("gamma")?;
+    if !(gamma.is_finite() && gamma > 0.0) || bmin.iter().any(|b| !b.is_finite()) {
+        return Err(bad("holds an invalid index frame".into()));
+    }
+    let transform_name = stra("transform")?;
+    let transform = Transform::from_name(&transform_name).ok_or_else(|| bad(format!("has an unknown transform '{transform_name}'")))?;
+    let range = ValueRange::new(f64a("vmin")?, f64a("vmax")?, transform).map_err(|e| bad(e.to_string()))?;
+    let unknown_is_none = |v: f64| (!v.is_nan()).then_some(v);
+    let meta = ModelMeta {
+        frame: IndexFrame { dims, bmin: [bmin[0], bmin[1], bmin[2]], gamma },
+        range,
+        field: stra("field")?,
+        step: u64a("step")?,
+        schedule: stra("schedule")?,
+        iterations: u32a("iterations")?,
+        points: u32a("points")?,
+        seed_init: u64a("seed_init")?,
+        seed_sample: u64a("seed_sample")?,
+        time: unknown_is_none(f64a("time")?),
+        rank: u32a("rank")?,
+        encode_psnr: unknown_is_none(f64a("encode_psnr")?),
+    };
+    if EntryKey::of(&meta) != *key {
+        return Err(bad(format!("says it is /{}/{}/rank_{}", meta.field, meta.step, meta.rank)));
+    }
+    let count = u64a("count")?;
+    let names: &[&str] = if payload == Payload::Float32 { &["params"] } else { &["centres", "codes"] };
+    let mut stored_bytes = 0;
+    for name in names {
+        stored_bytes += g.dataset(name).map_err(|_| bad(format!("has no dataset '{name}'")))?.storage_size();
+    }
+    Ok(EntryInfo { meta, payload, count, stored_bytes })
+}
+
+fn read_rows<T: H5Type>(g: &Group, name: &str, rows: usize, n: usize, bad: &dyn Fn(String) -> Error) -> Result<(Dataset, Vec<T>)> {
+    let ds = g.dataset(name).map_err(|_| bad(format!("has no dataset '{name}'")))?;
+    if ds.shape() != [rows, n] {
+        return Err(bad(format!("dataset {name} has shape {:?}, not [{rows}, {n}]", ds.shape())));
+    }
+    let v = ds.read_raw::<T>().map_err(|e| bad(format!("dataset {name}: {e}")))?;
+    Ok((ds, v))
+}
+
+fn read_maps(ds: &Dataset, len: usize, bad: &dyn Fn(String) -> Error) -> Result<Vec<Affine>> {
+    let get = |name: &str| -> Result<Vec<f32>> {
+        let v = ds.attr(name).and_then(|a| a.read_raw::<f32>()).map_err(|e| bad(format!("{} attribute {name}: {e}", ds.name())))?;
+        if v.len() != len {
+            return Err(bad(format!("{} attribute {name} holds {} values, not {len}", ds.name(), v.len())));
+        }
+        Ok(v)
+    };
+    let (lo, hi) = (get("lo")?, get("hi")?);
+    Ok(lo.into_iter().zip(hi).map(|(lo, hi)| Affine { lo, hi }).collect())
+}
+
+fn read_params(g: &Group, info: &EntryInfo, path: &Path) -> Result<Vec<Primitive>> {
+    let key = EntryKey::of(&info.meta);
+    let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), key.path()));
+    let n = usize::try_from(info.count).map_err(|_| bad("count exceeds this machine's memory".into()))?;
+    let params = match info.payload {
+        Payload::Float32 => {
+            let (_, rows) = read_rows::<f32>(g, "params", 12, n, &bad)?;
+            (0..n).map(|i| std::array::from_fn(|k| rows[k * n + i])).collect()
+        }
+        Payload::Bits8(coding) => {
+            let centres = match coding {
+                CentreCoding::Float16 => {
+                    let (_, half) = read_rows::<half::f16>(g, "centres", 3, n, &bad)?;
+                    Centres::Float16(half.into_iter().map(|h| h.to_bits()).collect())
+                }
+                CentreCoding::Fixed16 => {
+                    let (ds, codes) = read_rows::<u16>(g, "centres", 3, n, &bad)?;
+                    let m = read_maps(&ds, 3, &bad)?;
+                    Centres::Fixed16 { maps: [m[0], m[1], m[2]], codes }
+                }
+            };
+            let (ds, codes) = read_rows::<u8>(g, "codes", 9, n, &bad)?;
+            let m = read_maps(&ds, 9, &bad)?;
+            let q = Quantized { n, centres, maps: std::array::from_fn(|k| m[k]), codes };
+            q.dequantize().map_err(|e| bad(e.to_string()))?
+        }
+    };
+    if params.iter().any(|p: &Primitive| p.iter().any(|v| !v.is_finite())) {
+        return Err(bad("holds non-finite parameters".into()));
+    }
+    Ok(params)
+}

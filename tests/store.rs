@@ -1,0 +1,226 @@
+//! The HDF5 store (cargo feature `hdf5`): round trips of every payload,
+//! refusals, one process writing and another reading, h5dump reading it
+//! without gsenc, and the decoded series. Writers killed mid-append are in
+//! `store_crash.rs`: its child processes would inherit this binary's open
+//! HDF5 files, and their locks, from the tests running beside it.
+#![cfg(feature = "hdf5")]
+
+mod common;
+use common::store_model as model;
+use common::tmpdir;
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::format::{write_model_as, Payload};
+use gsenc::io::series::{write_decoded_series, xdmf_path, SeriesOptions};
+use gsenc::io::store::{EntryKey, Store};
+use gsenc::quantize::CentreCoding;
+use gsenc::Error;
+use std::path::Path;
+use std::process::Command;
+
+#[test]
+fn every_payload_round_trips_with_its_metadata() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("roundtrip");
+    let path = dir.join("s.h5");
+    let mut stored = Vec::new();
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        for (i, payload) in Payload::ALL.into_iter().enumerate() {
+            for rank in 0..2 {
+                let m = model("density", 10 + i as u64, rank, 1000 + 7 * i, 0.5);
+                s.append(&m, payload).unwrap();
+                stored.push((m, payload));
+            }
+        }
+        // A second field beside the first, and an empty model.
+        let mut empty = model("temperature", 10, 0, 0, 0.5);
+        empty.meta.time = None;
+        s.append(&empty, Payload::Bits8(CentreCoding::Fixed16)).unwrap();
+        stored.push((empty, Payload::Bits8(CentreCoding::Fixed16)));
+    }
+    let s = Store::open_read(&path).unwrap();
+    let entries = s.entries().unwrap();
+    assert_eq!(entries.len(), stored.len());
+    for (m, payload) in &stored {
+        let key = EntryKey::of(&m.meta);
+        let (back, back_payload) = s.read(&key).unwrap();
+        assert_eq!(back_payload, *payload, "{}", key.path());
+        assert_eq!(back.meta, m.meta, "{}", key.path());
+        // Exactly what the .gsm file of that payload holds: one quantisation.
+        assert_eq!(back.params, payload.round_trip(&m.params).unwrap(), "{}", key.path());
+        let info = entries.iter().find(|e| e.key == key).unwrap().content.as_ref().unwrap();
+        assert_eq!(info.count, m.params.len() as u64);
+    }
+}
+
+#[test]
+fn appends_never_rewrite_and_bad_input_is_refused() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("refuse");
+    let path = dir.join("s.h5");
+    let m = model("rho", 3, 0, 200, 0.5);
+    let mut s = Store::open_append(&path).unwrap();
+    s.append(&m, Payload::Float32).unwrap();
+    let mut other = model("rho", 3, 0, 50, 0.5);
+    assert!(matches!(s.append(&other, Payload::Float32), Err(Error::InvalidArgument(_))));
+    other.meta.field = "a/b".into();
+    assert!(matches!(s.append(&other, Payload::Float32), Err(Error::InvalidArgument(_))));
+    other.meta.field = "ok".into();
+    other.params[7][4] = f32::NAN;
+    assert!(matches!(s.append(&other, Payload::Bits8(CentreCoding::Float16)), Err(Error::InvalidData(_))));
+    drop(s);
+    // The first model is untouched, and the refused ones left nothing behind.
+    let s = Store::open_read(&path).unwrap();
+    assert_eq!(s.entries().unwrap().len(), 1);
+    assert_eq!(s.read(&EntryKey::of(&m.meta)).unwrap().0, m);
+    assert!(matches!(s.read(&EntryKey { field: "rho".into(), step: 4, rank: 0 }), Err(Error::InvalidArgument(_))));
+
+    // Foreign files: a model file, an HDF5 file that is no store, a newer store.
+    let gsm = dir.join("m.gsm");
+    std::fs::write(&gsm, write_model_as(&m, Payload::Float32).unwrap()).unwrap();
+    assert!(matches!(Store::open_read(&gsm), Err(Error::Format(_))));
+    assert!(matches!(Store::open_append(&gsm), Err(Error::Hdf5 { .. } | Error::Format(_))));
+    let plain = dir.join("plain.h5");
+    hdf5::File::create(&plain).unwrap().create_group("x").unwrap();
+    assert!(matches!(Store::open_read(&plain), Err(Error::Format(_))));
+    let newer = dir.join("newer.h5");
+    drop(Store::open_append(&newer).unwrap());
+    {
+        let f = hdf5::File::open_rw(&newer).unwrap();
+        f.delete_attr("gsenc_store").unwrap();
+        let v: hdf5::types::VarLenUnicode = "2.0".parse().unwrap();
+        f.new_attr::<hdf5::types::VarLenUnicode>().create("gsenc_store").unwrap().write_scalar(&v).unwrap();
+    }
+    assert!(matches!(Store::open_read(&newer), Err(Error::Version(_))));
+    assert!(matches!(Store::open_read(dir.join("missing.h5")), Err(Error::Io { .. })));
+}
+
+fn gsenc_bin() -> &'static str {
+    env!("CARGO_BIN_EXE_gsenc")
+}
+
+#[test]
+fn one_process_writes_another_reads() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("procs");
+    let path = dir.join("s.h5");
+    // The command-line tool, another process, writes two steps...
+    let mut files = Vec::new();
+    for step in [5u64, 6] {
+        let m = model("rho", step, 1, 300, 0.5);
+        let f = dir.join(format!("m{step}.gsm"));
+        std::fs::write(&f, write_model_as(&m, Payload::Float32).unwrap()).unwrap();
+        files.push((f, m));
+    }
+    let out = Command::new(gsenc_bin())
+        .args(["store", "add", "--payload", "8bit-u16"])
+        .arg(&path)
+        .args(files.iter().map(|(f, _)| f))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // ...which this process reads.
+    let s = Store::open_read(&path).unwrap();
+    for (_, m) in &files {
+        let (back, payload) = s.read(&EntryKey::of(&m.meta)).unwrap();
+        assert_eq!(payload, Payload::Bits8(CentreCoding::Fixed16));
+        assert_eq!(back.params, payload.round_trip(&m.params).unwrap());
+        assert_eq!(back.meta.encode_psnr, None, "a lossy payload cannot keep the float32 PSNR");
+    }
+    drop(s);
+    // This process appends; the tool reads it back in another process.
+    let m = model("rho", 7, 1, 100, 0.5);
+    Store::open_append(&path).unwrap().append(&m, Payload::Float32).unwrap();
+    let out = Command::new(gsenc_bin()).args(["info", "--json"]).arg(&path).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let entries = v["entries"].as_array().unwrap();
+    let names: Vec<&str> = entries.iter().map(|e| e["entry"].as_str().unwrap()).collect();
+    assert_eq!(names, ["/rho/5/rank_1", "/rho/6/rank_1", "/rho/7/rank_1"]);
+    assert_eq!(entries[2]["primitives"], 100);
+    assert_eq!(entries[2]["time"], 1.75);
+    assert_eq!(entries[0]["payload"], "8bit-u16");
+    // And extracts a model that equals what this process stored.
+    let got = dir.join("got.gsm");
+    let out = Command::new(gsenc_bin()).args(["store", "extract"]).arg(&path).arg("rho/7/1").arg("-o").arg(&got).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(gsenc::format::read_model(&std::fs::read(&got).unwrap()).unwrap(), m);
+}
+
+/// h5dump, from HDF5's own tools, reads the store without gsenc.
+#[test]
+fn h5dump_reads_the_store() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("h5dump");
+    let path = dir.join("s.h5");
+    let mut m = model("rho", 9, 2, 5, 0.5);
+    for (i, p) in m.params.iter_mut().enumerate() {
+        p[10] = i as f32 * 0.25 - 1.0; // values h5dump prints exactly
+    }
+    Store::open_append(&path).unwrap().append(&m, Payload::Float32).unwrap();
+    let out = Command::new("h5dump")
+        .args(["-a", "/rho/9/rank_2/count", "-d", "/rho/9/rank_2/params"])
+        .arg(&path)
+        .output()
+        .expect("h5dump (apt hdf5-tools) is needed by this test");
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("(0): 5"), "{text}");
+    // Row k of params is parameter k of every primitive: row 10 is alpha.
+    let row = text.lines().find(|l| l.trim_start().starts_with("(10,0)")).unwrap_or_else(|| panic!("{text}"));
+    assert_eq!(row.trim(), "(10,0): -1, -0.75, -0.5, -0.25, 0,", "{text}");
+}
+
+fn read_f32_dataset(path: &Path, name: &str) -> (Vec<usize>, Vec<f32>) {
+    let f = hdf5::File::open(path).unwrap();
+    let ds = f.dataset(name).unwrap();
+    (ds.shape(), ds.read_raw::<f32>().unwrap())
+}
+
+#[test]
+fn decoded_series_matches_each_model_and_xdmf_points_at_it() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("series");
+    let path = dir.join("s.h5");
+    let mut models = Vec::new();
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        for step in [2u64, 4] {
+            for rank in 0..2 {
+                let m = model("rho", step, rank, 40, -0.5);
+                s.append(&m, Payload::Float32).unwrap();
+                models.push(m);
+            }
+        }
+        s.append(&model("other", 1, 0, 10, -0.5), Payload::Float32).unwrap();
+    }
+    let s = Store::open_read(&path).unwrap();
+    let out = dir.join("series.h5");
+    let mut opts = SeriesOptions { field: None, scale: 0.5, normalized: false, slab_voxels: 24 * 16 };
+    let mut cpu = CpuBackend::new();
+    assert!(matches!(write_decoded_series(&s, &out, &opts, &mut cpu), Err(Error::InvalidArgument(_))), "two fields, none chosen");
+    opts.field = Some("rho");
+    let summary = write_decoded_series(&s, &out, &opts, &mut cpu).unwrap();
+    assert_eq!(summary.pieces.len(), 4);
+    assert!(summary.skipped.is_empty());
+    let xdmf = std::fs::read_to_string(xdmf_path(&out)).unwrap();
+    for m in &models {
+        let key = EntryKey::of(&m.meta);
+        let want_dims = [12, 8, 6];
+        let want = m.decode(&mut cpu, Some(want_dims)).unwrap();
+        let (shape, got) = read_f32_dataset(&out, &key.path());
+        assert_eq!(shape, [6, 8, 12]);
+        for (g, w) in got.iter().zip(&want.values) {
+            let w = m.meta.range.denormalize(*w) as f32;
+            assert!((g - w).abs() <= 1e-5 * w.abs().max(1.0), "{}: {g} vs {w}", key.path());
+        }
+        assert!(xdmf.contains(&format!("series.h5:{}</DataItem>", key.path())), "{xdmf}");
+    }
+    // Two time steps with the models' own times, two ranks each.
+    assert_eq!(xdmf.matches("<Time Value=").count(), 2);
+    assert!(xdmf.contains("<Time Value=\"5e-1\"/>") && xdmf.contains("<Time Value=\"1e0\"/>"), "{xdmf}");
+    assert_eq!(xdmf.matches("Dimensions=\"6 8 12\"").count(), 8);
+    // Rank 1's box starts 2 world units further in x: origin = bmin + half a voxel.
+    let spacing = 24.0 / 12.0 / 12.0;
+    assert!(xdmf.contains(&format!("{:e} {:e} {:e}</DataItem>", 0.5 + spacing / 2.0, -1.0 + spacing / 2.0, 2.0 + spacing / 2.0)), "{xdmf}");
+}

@@ -1,0 +1,90 @@
+"""Reads a gsenc HDF5 store with h5py alone, following docs/FORMAT.md, and
+checks every entry against the float32 model file `gsenc store extract`
+writes for it: the store is readable without gsenc.
+
+    python3 tests/store_h5py.py GSENC_BINARY
+Builds its own store from random models written by `gsenc store add`.
+"""
+import os
+import struct
+import subprocess
+import sys
+import tempfile
+import zlib
+
+import h5py
+import numpy as np
+
+gsenc = sys.argv[1]
+
+
+def read_store_entry(g):
+    """Parameters (12 x N) of one entry, from the layout in docs/FORMAT.md."""
+    if g.attrs["payload"] == "f32":
+        return g["params"][()].astype(np.float64)
+    c, k = g["centres"], g["codes"]
+    if c.dtype == np.float16:
+        mu = c[()].astype(np.float64)
+    else:
+        lo, hi = c.attrs["lo"].astype(np.float32), c.attrs["hi"].astype(np.float32)
+        mu = lo[:, None] + (hi - lo)[:, None] * (c[()].astype(np.float32) / np.float32(65535))
+    lo, hi = k.attrs["lo"].astype(np.float32), k.attrs["hi"].astype(np.float32)
+    rest = lo[:, None] + (hi - lo)[:, None] * (k[()].astype(np.float32) / np.float32(255))
+    return np.vstack([mu, rest]).astype(np.float64)
+
+
+def read_gsm_f32(path):
+    """Parameters (12 x N) of a float32 .gsm file (docs/FORMAT.md)."""
+    b = open(path, "rb").read()
+    assert b[:8] == b"GSENCMDL"
+    header_len = struct.unpack_from("<I", b, 12)[0]
+    payload, count = struct.unpack_from("<IQ", b, 16)
+    assert payload == 0
+    body = np.frombuffer(b, dtype="<f4", count=12 * count, offset=16 + header_len)
+    return body.reshape(count, 12).T.astype(np.float64)
+
+
+def write_gsm_f32(path, params, field, step, rank):
+    """A float32 model file (version 1.1) with the given parameters."""
+    h = struct.pack("<IQ3I3dd2dI", 0, params.shape[0], 32, 32, 32, 0, 0, 0, 1.0, 0.0, 1.0, 0)
+    h += struct.pack("<QIIQQ", step, 10, 100, 1, 2)
+    for s in ("short", field):
+        h += struct.pack("<H", len(s)) + s.encode()
+    h += struct.pack("<dId", 0.5 * step, rank, float("nan"))
+    b = b"GSENCMDL" + struct.pack("<HHI", 1, 1, len(h)) + h + params.astype("<f4").tobytes()
+    b += struct.pack("<I", zlib.crc32(b))
+    open(path, "wb").write(b)
+
+
+def main():
+    rng = np.random.default_rng(7)
+    failures = 0
+    with tempfile.TemporaryDirectory() as d:
+        store = os.path.join(d, "s.h5")
+        for i, payload in enumerate(["f32", "8bit", "8bit-u16"]):
+            n = 500 + 13 * i
+            p = np.column_stack([rng.uniform(0, 31, (n, 3)), rng.uniform(-2, 1, (n, 3)), rng.uniform(-3, 3, (n, 6))])
+            m = os.path.join(d, f"m{i}.gsm")
+            write_gsm_f32(m, p, "rho", 10 + i, i)
+            subprocess.run([gsenc, "store", "add", store, m, "--payload", payload], check=True, capture_output=True)
+        with h5py.File(store, "r") as f:
+            assert f.attrs["gsenc_store"] == "1.0"
+            entries = [(field, step, rank) for field in f for step in f[field] for rank in f[field][step]]
+            assert len(entries) == 3, entries
+            for field, step, rank in entries:
+                g = f[field][step][rank]
+                mine = read_store_entry(g)
+                out = os.path.join(d, "x.gsm")
+                subprocess.run([gsenc, "store", "extract", store, f"{field}/{step}/{rank}", "-o", out,
+                                "--payload", "f32"], check=True, capture_output=True)
+                theirs = read_gsm_f32(out)
+                err = np.max(np.abs(mine - theirs) / np.maximum(np.abs(theirs), 1.0))
+                ok = mine.shape == (12, g.attrs["count"]) and err <= 1e-6
+                failures += not ok
+                print(f"h5py {field}/{step}/{rank} {g.attrs['payload']}: max relative difference {err:.2e}",
+                      "ok" if ok else "FAILED")
+    print(f"h5py: {3 - failures} passed, {failures} failed")
+    sys.exit(1 if failures else 0)
+
+
+main()
