@@ -5,7 +5,9 @@ use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::field::{check_finite, Grid};
 use crate::kernel::{morton_key, Primitive};
-use crate::loss::{regularizers, LossWeights};
+use crate::loss::{regularizers, v_eval, LossWeights};
+use crate::metrics::psnr_from_mse;
+use crate::rng::Rng;
 use crate::optim::{cosine_lr, Adam};
 use crate::points::PointSampler;
 use crate::relocate::{relocate, Relocation, RELOCATE_AT, RELOCATE_POINTS};
@@ -151,6 +153,58 @@ pub struct EncodeOutput {
     pub seed_seconds: f64,
     /// Seconds in the optimisation loop (the paper's reported time).
     pub loop_seconds: f64,
+    /// `(iterations done, validation PSNR)`, when a [`Validation`] was given:
+    /// at 0 (the initial model), every `every` iterations, and at the end.
+    pub validation: Vec<(usize, f64)>,
+    /// Seconds spent scoring the validation set (inside `loop_seconds`).
+    pub validation_seconds: f64,
+}
+
+/// A fixed set of voxel centres with their reference values, scored during
+/// an encode so that quality can be read against iterations (time to quality).
+/// Fixed by its seed, so every step of a series is scored on the same points.
+#[derive(Clone, Debug)]
+pub struct Validation {
+    pub points: Vec<[f32; 3]>,
+    pub values: Vec<f32>,
+    /// Score every this many iterations (at least 1).
+    pub every: usize,
+}
+
+impl Validation {
+    /// `count` voxel centres of `reference` drawn uniformly with replacement.
+    pub fn from_reference(reference: &Grid, count: usize, seed: u64, every: usize) -> Result<Validation> {
+        if count == 0 || every == 0 {
+            return Err(Error::arg("validation needs at least one point and a positive interval"));
+        }
+        let [dx, dy, _] = reference.dims;
+        let mut rng = Rng::new(seed);
+        let mut points = Vec::with_capacity(count);
+        let mut values = Vec::with_capacity(count);
+        for _ in 0..count {
+            let i = rng.below(reference.len() as u64) as usize;
+            points.push([(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]);
+            values.push(reference.values[i]);
+        }
+        Ok(Validation { points, values, every })
+    }
+
+    /// The same points with the values of another reference on the same
+    /// lattice (the next step of a series).
+    pub fn rescored(&self, reference: &Grid) -> Validation {
+        let [dx, dy, _] = reference.dims;
+        let values = self.points.iter().map(|p| reference.values[p[0] as usize + dx * (p[1] as usize + dy * p[2] as usize)]).collect();
+        Validation { points: self.points.clone(), values, every: self.every }
+    }
+
+    /// PSNR of `V_eval` of `params` against the reference values at the points.
+    pub fn psnr(&self, backend: &mut dyn Backend, params: &[Primitive]) -> f64 {
+        let mut rho = vec![0.0; self.points.len()];
+        let mut n = vec![0.0; self.points.len()];
+        backend.evaluate_points(params, &self.points, &mut rho, &mut n);
+        let se: f64 = (0..self.points.len()).map(|i| ((v_eval(rho[i], n[i]) - self.values[i]) as f64).powi(2)).sum();
+        psnr_from_mse(se / self.points.len() as f64)
+    }
 }
 
 /// Checks a target and a configuration before any work is done.
@@ -202,7 +256,26 @@ pub fn encode(
     backend: &mut dyn Backend,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<EncodeOutput> {
+    encode_validated(target, cfg, init, None, backend, progress)
+}
+
+/// [`encode`], also scoring `validation` (when given) along the way, with
+/// the same backend. Scoring reads the parameters only: the model is the same
+/// with or without it.
+pub fn encode_validated(
+    target: &Target,
+    cfg: &EncodeConfig,
+    init: Option<&[Primitive]>,
+    validation: Option<&Validation>,
+    backend: &mut dyn Backend,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<EncodeOutput> {
     validate(target, cfg, init)?;
+    if let Some(v) = validation {
+        if v.every == 0 || v.points.is_empty() || v.points.len() != v.values.len() {
+            return Err(Error::arg("validation set is empty, mismatched, or has a zero interval"));
+        }
+    }
     let t_seed = Instant::now();
     // Primitives are kept in spatial (Morton) order, which makes the backend's
     // candidate blocks compact; the seeding record follows the same permutation.
@@ -240,7 +313,19 @@ pub fn encode(
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; n];
     let mut relocations = vec![];
     let mut last = LossTerms::default();
+    let mut scores = Vec::new();
+    let mut validation_seconds = 0.0;
+    let mut score = |t: usize, params: &[Primitive], backend: &mut dyn Backend| {
+        if let Some(v) = validation {
+            let started = Instant::now();
+            scores.push((t, v.psnr(backend, params)));
+            validation_seconds += started.elapsed().as_secs_f64();
+        }
+    };
     for t in 0..iterations {
+        if t % validation.map_or(usize::MAX, |v| v.every) == 0 {
+            score(t, &params, backend);
+        }
         if reloc_at.contains(&t) {
             let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
             let r = relocate(backend, &mut params, &mut adam, &batch);
@@ -268,6 +353,7 @@ pub fn encode(
         adam.step(&mut params, &grad, cosine_lr(cfg.learning_rate, t, iterations));
         progress(&Progress { iteration: t + 1, iterations, loss: last.total });
     }
+    score(iterations, &params, backend);
     let loop_seconds = t_loop.elapsed().as_secs_f64();
     tracing::info!(loop_seconds, loss = last.total, "encode done");
     Ok(EncodeOutput {
@@ -279,6 +365,8 @@ pub fn encode(
         last_loss: last,
         seed_seconds,
         loop_seconds,
+        validation: scores,
+        validation_seconds,
     })
 }
 

@@ -47,6 +47,7 @@ pub mod relocate;
 pub mod rng;
 pub mod samples;
 pub mod seeding;
+pub mod series;
 
 #[path = "../capi/mod.rs"]
 pub mod capi;

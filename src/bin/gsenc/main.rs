@@ -1,5 +1,6 @@
 //! `gsenc`: the command-line tool, a thin layer over the library.
 
+mod series;
 mod store;
 
 use clap::{Args, Parser, Subcommand};
@@ -47,6 +48,9 @@ enum Command {
     Store(store::StoreCommand),
     /// Decode one field of a store to HDF5 plus XDMF, for ParaView (feature `hdf5`).
     DecodeSeries(store::DecodeSeriesArgs),
+    /// Encode every step of a particle time series, warm-starting each step
+    /// from the previous one, with a CSV of validation PSNR per iteration.
+    EncodeSeries(series::EncodeSeriesArgs),
 }
 
 #[derive(Subcommand)]
@@ -102,7 +106,7 @@ struct EncodeGridArgs {
 
 /// How values are normalised.
 #[derive(Args, Clone)]
-struct ValueArgs {
+pub struct ValueArgs {
     /// Value range MIN,MAX (after --log10); default: the data's range.
     #[arg(long, value_parser = parse_range)]
     range: Option<[f64; 2]>,
@@ -165,7 +169,7 @@ struct EncodeOptions {
 
 /// Where the reference grid of particles or cells lies.
 #[derive(Args, Clone)]
-struct PlacementArgs {
+pub struct PlacementArgs {
     /// Reference grid dims X,Y,Z (or one number for a cube).
     #[arg(long, value_parser = parse_dims, required_unless_present = "fit_dims", conflicts_with = "fit_dims")]
     dims: Option<[usize; 3]>,
@@ -181,7 +185,7 @@ struct PlacementArgs {
 
 /// Raw per-item array files: little-endian, C order, one row per item.
 #[derive(Args, Clone)]
-struct ItemFiles {
+pub struct ItemFiles {
     /// Element type of every array file: f32 or f64 (also u8, u16).
     #[arg(long, default_value = "f32")]
     dtype: String,
@@ -194,7 +198,7 @@ struct ItemFiles {
 }
 
 #[derive(Args, Clone)]
-struct ParticleInput {
+pub struct ParticleInput {
     /// Positions, N x 3.
     #[arg(long)]
     positions: PathBuf,
@@ -410,7 +414,7 @@ fn load_grid(a: &GridInput) -> Result<Loaded> {
     Ok(Loaded { grid, frame })
 }
 
-fn progress_bar(quiet: bool, len: u64) -> indicatif::ProgressBar {
+pub fn progress_bar(quiet: bool, len: u64) -> indicatif::ProgressBar {
     if quiet || !std::io::stderr().is_terminal() {
         return indicatif::ProgressBar::hidden();
     }
@@ -451,7 +455,7 @@ pub fn read_model_file(path: &Path) -> Result<format::ModelFile> {
 }
 
 impl ValueArgs {
-    fn spec(&self) -> Result<RangeSpec> {
+    pub fn spec(&self) -> Result<RangeSpec> {
         let transform = if self.log10 { Transform::Log10 } else { Transform::Linear };
         Ok(match self.range {
             Some([lo, hi]) => RangeSpec::Fixed(ValueRange::new(lo, hi, transform)?),
@@ -577,7 +581,7 @@ fn to_f32(v: Vec<f64>) -> Vec<f32> {
 
 impl PlacementArgs {
     /// The placement, with --fit-dims resolved against the given or the data's bounds.
-    fn resolve(&self, data_bounds: impl FnOnce() -> Bounds) -> Result<Placement> {
+    pub fn resolve(&self, data_bounds: impl FnOnce() -> Bounds) -> Result<Placement> {
         let dims = match (self.dims, self.fit_dims) {
             (Some(d), _) => d,
             (None, Some(n)) => self.bounds.unwrap_or_else(data_bounds).fitted_dims(n)?,
@@ -587,17 +591,38 @@ impl PlacementArgs {
     }
 }
 
+/// Particle arrays read from files, owned (a [`Particles`] borrows them).
+pub struct ParticleArrays {
+    positions: Vec<[f64; 3]>,
+    smoothing_length: Vec<f64>,
+    mass: Vec<f32>,
+    values: Vec<f32>,
+}
+
+impl ParticleArrays {
+    pub fn particles(&self) -> Particles<'_> {
+        Particles { positions: &self.positions, smoothing_length: &self.smoothing_length, mass: &self.mass, values: &self.values }
+    }
+}
+
 impl ParticleInput {
-    fn prepare(&self, values: &ValueArgs) -> Result<Prepared> {
-        let f = &self.files;
+    /// The arrays of row `row` (the files' row when `None`).
+    pub fn load(&self, row: Option<usize>) -> Result<ParticleArrays> {
+        let mut f = self.files.clone();
+        f.row = row.unwrap_or(f.row);
         let positions = triples(f.read(&self.positions, 3)?);
-        let hh = f.read(&self.smoothing_length, 1)?;
-        let field = to_f32(f.read(&self.values, 1)?);
+        let smoothing_length = f.read(&self.smoothing_length, 1)?;
+        let values = to_f32(f.read(&self.values, 1)?);
         let mass = match &self.mass {
             Some(p) => to_f32(f.read(p, 1)?),
             None => vec![1.0; positions.len()],
         };
-        let p = Particles { positions: &positions, smoothing_length: &hh, mass: &mass, values: &field };
+        Ok(ParticleArrays { positions, smoothing_length, mass, values })
+    }
+
+    fn prepare(&self, values: &ValueArgs) -> Result<Prepared> {
+        let arrays = self.load(None)?;
+        let p = arrays.particles();
         let placement = self.placement.resolve(|| p.bounds())?;
         prepare_particles(&p, &placement, &values.spec()?)
     }
@@ -621,7 +646,7 @@ impl CellInput {
 }
 
 /// The process's peak resident memory (Linux `VmHWM`), when known.
-fn peak_rss_bytes() -> Option<u64> {
+pub fn peak_rss_bytes() -> Option<u64> {
     let status = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
@@ -868,6 +893,7 @@ fn main() {
         Command::Convert(a) => cmd_convert(a),
         Command::Store(c) => store::store(c),
         Command::DecodeSeries(a) => store::decode_series(a),
+        Command::EncodeSeries(a) => series::encode_series(a),
     };
     if let Err(e) = r {
         eprintln!("gsenc: {e}");

@@ -1,0 +1,252 @@
+//! `gsenc encode-series`: every step of a particle time series, each
+//! warm-started from the previous one (or not), stored as complete models,
+//! with a CSV of validation PSNR against iterations for every step.
+
+use super::{peak_rss_bytes, print_result, progress_bar, OutputFlags, ParticleInput, ValueArgs};
+use clap::Args;
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::backend::{Backend, Lattice};
+use gsenc::encoder::{with_threads, EncodeConfig, Schedule};
+use gsenc::format::{self, Payload};
+use gsenc::io::{raw, write_atomic, AtomicFile};
+use gsenc::metrics::{occupied_psnr, voxel_psnr};
+use gsenc::model::Model;
+use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange, StepInput, WarmStart};
+use gsenc::{Error, Result};
+use serde_json::json;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Args)]
+pub struct EncodeSeriesArgs {
+    /// Per-step arrays: every file holds one row of --count items per step.
+    #[command(flatten)]
+    input: ParticleInput,
+    #[command(flatten)]
+    values: ValueArgs,
+    /// Steps (rows) to encode: A..B (B excluded), or a comma list; default all.
+    #[arg(long)]
+    steps: Option<String>,
+    /// Encode each step's deposit as a grid (voxel-seeded) instead of seeding
+    /// from the particles.
+    #[arg(long)]
+    as_grid: bool,
+    /// Warm start of every step after the first: off (each step on its own),
+    /// coarse (1000 iterations, no relocation) or dense (1500, relocation on).
+    #[arg(long, default_value = "dense")]
+    warm: String,
+    /// Number of Gaussians.
+    #[arg(long)]
+    budget: usize,
+    /// Schedule of the first step and of independent steps.
+    #[arg(long, default_value = "full")]
+    schedule: String,
+    #[arg(long)]
+    iters: Option<usize>,
+    #[arg(long)]
+    points: Option<usize>,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long, default_value_t = 1)]
+    sample_seed: u64,
+    /// Validation points (fixed per series) and how often they are scored.
+    #[arg(long, default_value_t = 1 << 16)]
+    validation_points: usize,
+    #[arg(long, default_value_t = 50)]
+    validation_every: usize,
+    #[arg(long, default_value = "scalar")]
+    field: String,
+    #[arg(long, default_value = "f32")]
+    payload: String,
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Output: an HDF5 store (.h5, needs the hdf5 feature) or a folder of
+    /// FIELD_STEP.gsm files.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// CSV of validation PSNR: field,step,start,iteration,validation_psnr.
+    #[arg(long)]
+    csv: Option<PathBuf>,
+    #[command(flatten)]
+    out: OutputFlags,
+}
+
+/// Steps to encode out of `rows`: "A..B", "A,B,C" or all.
+fn parse_steps(spec: Option<&str>, rows: usize) -> Result<Vec<usize>> {
+    let steps: Vec<usize> = match spec {
+        None => (0..rows).collect(),
+        Some(s) if s.contains("..") => {
+            let (a, b) = s.split_once("..").unwrap();
+            let parse = |x: &str| x.trim().parse::<usize>().map_err(|_| Error::arg(format!("--steps '{s}' is not A..B")));
+            (parse(a)?..parse(b)?).collect()
+        }
+        Some(s) => s
+            .split(',')
+            .map(|x| x.trim().parse::<usize>().map_err(|_| Error::arg(format!("--steps '{s}' is not a comma list"))))
+            .collect::<Result<_>>()?,
+    };
+    if steps.is_empty() {
+        return Err(Error::arg("no steps to encode"));
+    }
+    if let Some(&s) = steps.iter().find(|&&s| s >= rows) {
+        return Err(Error::arg(format!("step {s} is missing: the input holds {rows} steps (rows of --count items)")));
+    }
+    if steps.windows(2).any(|w| w[1] <= w[0]) {
+        return Err(Error::arg("--steps must increase"));
+    }
+    Ok(steps)
+}
+
+/// Where the steps' models go.
+enum Sink {
+    Folder(PathBuf),
+    #[cfg(feature = "hdf5")]
+    Store(gsenc::io::store::Store),
+}
+
+impl Sink {
+    fn open(path: &Path) -> Result<Sink> {
+        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("h5")) {
+            #[cfg(feature = "hdf5")]
+            return Ok(Sink::Store(gsenc::io::store::Store::open_append(path)?));
+            #[cfg(not(feature = "hdf5"))]
+            return Err(Error::arg(
+                "an .h5 output needs HDF5 support; rebuild with `cargo build --release --features hdf5` or give a folder",
+            ));
+        }
+        std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
+        Ok(Sink::Folder(path.to_path_buf()))
+    }
+
+    /// Stores `model`; returns where and how many bytes the model file took.
+    fn put(&mut self, model: &Model, payload: Payload) -> Result<String> {
+        match self {
+            Sink::Folder(dir) => {
+                let path = dir.join(format!("{}_{:06}.gsm", model.meta.field, model.meta.step));
+                write_atomic(&path, &format::write_model_as(model, payload)?)?;
+                Ok(path.display().to_string())
+            }
+            #[cfg(feature = "hdf5")]
+            Sink::Store(store) => {
+                store.append(model, payload)?;
+                Ok(format!("{}:{}", store.path().display(), gsenc::io::store::EntryKey::of(&model.meta).path()))
+            }
+        }
+    }
+}
+
+pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
+    let files = &a.input.files;
+    let count = files.count.ok_or_else(|| Error::arg("encode-series needs --count (particles per step)"))?;
+    let dtype = raw::DType::from_name(&files.dtype)?;
+    let value_bytes = std::fs::metadata(&a.input.values).map_err(|e| Error::io(&a.input.values, e))?.len() as usize;
+    let rows = value_bytes / (count * dtype.size()).max(1);
+    let steps = parse_steps(a.steps.as_deref(), rows)?;
+    let warm = WarmStart::from_name(&a.warm)?;
+    let payload = Payload::from_name(&a.payload)?;
+    let mut base = EncodeConfig::new(a.budget, Schedule::from_name(&a.schedule)?);
+    base.iterations = a.iters;
+    base.points = a.points;
+    base.seed_init = a.seed;
+    base.seed_sample = a.sample_seed;
+    base.particles = !a.as_grid;
+    let range = match a.values.spec()? {
+        gsenc::reference::RangeSpec::Fixed(r) => SeriesRange::Fixed(r),
+        gsenc::reference::RangeSpec::FromData(t) => SeriesRange::FirstStep(t),
+    };
+    let mut cfg = SeriesConfig::new(base, warm, range);
+    cfg.validation_points = a.validation_points;
+    cfg.validation_every = a.validation_every;
+    let mut series = SeriesEncoder::new(cfg)?;
+    let mut sink = None; // opened once the first step is encoded
+    let mut csv = match &a.csv {
+        Some(p) => {
+            let mut f = AtomicFile::create(p)?;
+            f.write(b"field,step,start,iteration,validation_psnr\n")?;
+            Some(f)
+        }
+        None => None,
+    };
+    let mut rows_out = Vec::new();
+    for &row in &steps {
+        let t = Instant::now();
+        let arrays = a.input.load(Some(row))?;
+        let particles = arrays.particles();
+        let placement = a.input.placement.resolve(|| particles.bounds())?;
+        let input = if a.as_grid {
+            StepInput::ParticleDeposit { particles: &particles, placement }
+        } else {
+            StepInput::Particles { particles: &particles, placement }
+        };
+        let pb = progress_bar(a.out.quiet, 0);
+        let (mut r, psnr, occupied) = with_threads(a.threads, || -> Result<_> {
+            let mut cpu = CpuBackend::new();
+            let r = series.encode_step(&a.field, row as u64, None, input, &mut cpu, &mut |p| {
+                pb.set_length(p.iterations as u64);
+                pb.set_position(p.iteration as u64);
+            })?;
+            // Score the parameters as they will be stored.
+            let stored = payload.round_trip(&r.model.params)?;
+            let mut decoded = vec![0f32; r.reference.len()];
+            cpu.decode_lattice(&stored, &Lattice::reference(r.reference.dims), &mut decoded);
+            let psnr = voxel_psnr(&decoded, &r.reference.values);
+            let occupied = occupied_psnr(&decoded, &r.reference.values);
+            Ok((r, psnr, occupied))
+        })??;
+        pb.finish_and_clear();
+        r.model.meta.encode_psnr = Some(psnr);
+        if sink.is_none() {
+            sink = Some(Sink::open(&a.output)?);
+        }
+        let stored_at = sink.as_mut().expect("opened above").put(&r.model, payload)?;
+        let start = if r.warm_started { warm.name() } else { "independent" };
+        if let Some(f) = csv.as_mut() {
+            for (it, p) in &r.output.validation {
+                f.write(format!("{},{row},{start},{it},{p:.4}\n", a.field).as_bytes())?;
+            }
+        }
+        let line = json!({
+            "step": row,
+            "start": start,
+            "iterations": r.output.iterations,
+            "voxel_psnr": psnr,
+            "occupied_psnr": occupied,
+            "validation_psnr": r.output.validation.last().map(|v| v.1),
+            "clamped_values": r.clamped_values,
+            "loop_seconds": r.output.loop_seconds,
+            "validation_seconds": r.output.validation_seconds,
+            "step_seconds": t.elapsed().as_secs_f64(),
+            "stored": stored_at,
+        });
+        if a.out.json {
+            println!("{line}");
+        } else {
+            eprintln!(
+                "step {row:>4} {start:<11} {:>5} its  voxel PSNR {psnr:6.2} dB  validation {:6.2} dB  {:6.1} s",
+                r.output.iterations,
+                r.output.validation.last().map_or(f64::NAN, |v| v.1),
+                r.output.loop_seconds
+            );
+        }
+        rows_out.push(line);
+    }
+    if let Some(f) = csv {
+        f.commit()?;
+    }
+    let range = series.range(&a.field).expect("at least one step was encoded");
+    print_result(
+        a.out.json,
+        json!({
+            "field": a.field,
+            "steps": steps.len(),
+            "warm": warm.name(),
+            "value_min": range.vmin,
+            "value_max": range.vmax,
+            "mean_voxel_psnr": rows_out.iter().filter_map(|r| r["voxel_psnr"].as_f64()).sum::<f64>() / rows_out.len() as f64,
+            "peak_rss_bytes": peak_rss_bytes(),
+            "output": a.output.display().to_string(),
+            "csv": a.csv.as_ref().map(|p| p.display().to_string()),
+        }),
+    );
+    Ok(())
+}
