@@ -409,3 +409,85 @@ fn store_commands_without_hdf5_say_how_to_get_them() {
     }
     assert!(!store.exists());
 }
+
+/// Writes a 3-step particle series (rows of 300 particles drifting in x):
+/// positions, smoothing lengths and values as little-endian f32.
+fn write_particle_series(dir: &Path, steps: usize) -> [PathBuf; 3] {
+    let n = 300;
+    let mut rng = gsenc::rng::Rng::new(9);
+    let base: Vec<[f64; 3]> = (0..n).map(|_| [rng.range(0.2, 0.8), rng.range(0.2, 0.8), rng.range(0.2, 0.8)]).collect();
+    let (mut pos, mut hh, mut val) = (Vec::new(), Vec::new(), Vec::new());
+    for s in 0..steps {
+        for (i, p) in base.iter().enumerate() {
+            pos.extend([p[0] + 0.02 * s as f64, p[1], p[2]].map(|c| c as f32));
+            hh.push(0.06f32);
+            val.push(1.0 + (i % 7) as f32 + s as f32);
+        }
+    }
+    let bytes = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let paths = [dir.join("pos.f32"), dir.join("hh.f32"), dir.join("val.f32")];
+    for (p, v) in paths.iter().zip([&pos, &hh, &val]) {
+        std::fs::write(p, bytes(v)).unwrap();
+    }
+    paths
+}
+
+#[test]
+fn encode_series_warm_starts_writes_models_csv_and_plot() {
+    let dir = tmpdir("series");
+    let [pos, hh, val] = write_particle_series(&dir, 3);
+    let (out, csv, png) = (dir.join("models"), dir.join("psnr.csv"), dir.join("psnr.png"));
+    let common = [
+        "encode-series", "--positions", pos.to_str().unwrap(), "--smoothing-length", hh.to_str().unwrap(),
+        "--values", val.to_str().unwrap(), "--count", "300", "--dims", "16", "--bounds", "0,0,0,1.2,1,1",
+        "--budget", "60", "--schedule", "short", "--iters", "200", "--points", "512", "--validation-every", "100",
+        "--validation-points", "2000", "--field", "rho", "--quiet",
+    ];
+    let mut args = common.to_vec();
+    args.extend(["--warm", "coarse", "-o", out.to_str().unwrap(), "--csv", csv.to_str().unwrap(), "--plot", png.to_str().unwrap(), "--json"]);
+    let (code, stdout, err) = gsenc(&args);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<serde_json::Value> = stdout.lines().map(json).collect();
+    assert_eq!(lines.len(), 4, "three steps and a summary: {stdout}");
+    assert_eq!(lines[0]["start"], "independent");
+    assert_eq!(lines[1]["start"], "coarse");
+    assert_eq!(lines[2]["iterations"], 1000);
+    // Every step is a complete model on the first step's range and frame.
+    let models: Vec<gsenc::model::Model> = (0..3)
+        .map(|s| gsenc::format::read_model(&std::fs::read(out.join(format!("rho_{s:06}.gsm"))).unwrap()).unwrap())
+        .collect();
+    for (s, m) in models.iter().enumerate() {
+        assert_eq!(m.meta.step, s as u64);
+        assert_eq!(m.meta.range, models[0].meta.range, "one range per series");
+        assert_eq!(m.meta.frame, models[0].meta.frame);
+        assert_eq!(m.len(), 60);
+        assert!((m.meta.encode_psnr.unwrap() - lines[s]["voxel_psnr"].as_f64().unwrap()).abs() < 1e-9);
+    }
+    assert_eq!(models[1].meta.schedule, "warm-coarse");
+    // Later steps hold values beyond the first step's range: clamped and counted.
+    assert_eq!(lines[0]["clamped_values"], 0);
+    assert!(lines[2]["clamped_values"].as_u64().unwrap() > 0);
+    // The CSV logs every step from iteration 0 to its end.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let rows: Vec<Vec<&str>> = text.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    let its = |step: &str| rows.iter().filter(|r| r[1] == step).map(|r| r[3].parse::<usize>().unwrap()).collect::<Vec<_>>();
+    assert_eq!(its("0"), [0, 100, 200]);
+    assert_eq!(its("2"), (0..=1000).step_by(100).collect::<Vec<_>>());
+    let last = rows.iter().rfind(|r| r[1] == "2").unwrap();
+    assert!((last[4].parse::<f64>().unwrap() - lines[2]["validation_psnr"].as_f64().unwrap()).abs() < 1e-3);
+    assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+    // plot-series draws several CSVs; a foreign CSV is refused.
+    let (code, _, err) = gsenc(&["plot-series", csv.to_str().unwrap(), csv.to_str().unwrap(), "-o", png.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = gsenc(&["plot-series", pos.to_str().unwrap(), "-o", png.to_str().unwrap()]);
+    assert_eq!(code, 4, "{err}");
+
+    // A step the input does not hold is a clear error, before any work.
+    let mut args = common.to_vec();
+    let other = dir.join("other");
+    args.extend(["--steps", "1..5", "-o", other.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("step 3 is missing"), "{err}");
+    assert!(!other.exists());
+}

@@ -2,6 +2,7 @@
 //! command-line tool and the C API use these; the core works on memory only.
 
 pub mod atomic;
+pub mod plot;
 pub mod raw;
 #[cfg(feature = "hdf5")]
 pub mod series;

@@ -51,6 +51,8 @@ enum Command {
     /// Encode every step of a particle time series, warm-starting each step
     /// from the previous one, with a CSV of validation PSNR per iteration.
     EncodeSeries(series::EncodeSeriesArgs),
+    /// Draw final validation PSNR against step from encode-series CSVs (PNG).
+    PlotSeries(series::PlotSeriesArgs),
 }
 
 #[derive(Subcommand)]
@@ -894,6 +896,7 @@ fn main() {
         Command::Store(c) => store::store(c),
         Command::DecodeSeries(a) => store::decode_series(a),
         Command::EncodeSeries(a) => series::encode_series(a),
+        Command::PlotSeries(a) => series::plot_series(a),
     };
     if let Err(e) = r {
         eprintln!("gsenc: {e}");

@@ -67,6 +67,10 @@ pub struct EncodeSeriesArgs {
     /// CSV of validation PSNR: field,step,start,iteration,validation_psnr.
     #[arg(long)]
     csv: Option<PathBuf>,
+    /// PNG of validation PSNR against step: each step's final PSNR and, for
+    /// warm-started steps, the PSNR it started from (the previous model's).
+    #[arg(long)]
+    plot: Option<PathBuf>,
     #[command(flatten)]
     out: OutputFlags,
 }
@@ -212,6 +216,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             "voxel_psnr": psnr,
             "occupied_psnr": occupied,
             "validation_psnr": r.output.validation.last().map(|v| v.1),
+            "start_validation_psnr": r.output.validation.first().map(|v| v.1),
             "clamped_values": r.clamped_values,
             "loop_seconds": r.output.loop_seconds,
             "validation_seconds": r.output.validation_seconds,
@@ -233,6 +238,16 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     if let Some(f) = csv {
         f.commit()?;
     }
+    if let Some(p) = &a.plot {
+        let finals = rows_out.iter().map(|r| (r["step"].as_f64().unwrap(), r["validation_psnr"].as_f64().unwrap_or(f64::NAN)));
+        let starts = rows_out.iter().filter(|r| r["start"] != "independent");
+        let mut lines = vec![(format!("final, {}", warm.name()), finals.collect())];
+        if warm != WarmStart::Off {
+            let start_points = starts.map(|r| (r["step"].as_f64().unwrap(), r["start_validation_psnr"].as_f64().unwrap_or(f64::NAN)));
+            lines.push(("start of warm step".into(), start_points.collect()));
+        }
+        write_atomic(p, &series_chart(lines).to_png())?;
+    }
     let range = series.range(&a.field).expect("at least one step was encoded");
     print_result(
         a.out.json,
@@ -248,5 +263,65 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             "csv": a.csv.as_ref().map(|p| p.display().to_string()),
         }),
     );
+    Ok(())
+}
+
+#[derive(Args)]
+pub struct PlotSeriesArgs {
+    /// CSV files written by `encode-series --csv` (one line each).
+    #[arg(required = true)]
+    csv: Vec<PathBuf>,
+    /// Output PNG.
+    #[arg(short, long)]
+    output: PathBuf,
+}
+
+/// Final validation PSNR per step of one `encode-series` CSV, and its label:
+/// the warm start of its warm-started steps, or "independent".
+fn read_series_csv(path: &Path) -> Result<(String, Vec<(f64, f64)>)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let text = String::from_utf8_lossy(&bytes);
+    let mut lines = text.lines();
+    if lines.next() != Some("field,step,start,iteration,validation_psnr") {
+        return Err(Error::format(format!("{}: not a CSV written by encode-series --csv", path.display())));
+    }
+    let mut last: std::collections::BTreeMap<u64, (u64, f64)> = Default::default();
+    let mut label = "independent".to_owned();
+    for (i, line) in lines.enumerate() {
+        let bad = || Error::format(format!("{}: line {} is not field,step,start,iteration,psnr", path.display(), i + 2));
+        let cols: Vec<&str> = line.split(',').collect();
+        let [_, step, start, it, psnr] = cols[..] else { return Err(bad()) };
+        let (step, it, psnr) = (step.parse::<u64>().map_err(|_| bad())?, it.parse::<u64>().map_err(|_| bad())?, psnr.parse::<f64>().map_err(|_| bad())?);
+        if start != "independent" {
+            label = format!("warm {start}");
+        }
+        let e = last.entry(step).or_insert((it, psnr));
+        if it >= e.0 {
+            *e = (it, psnr);
+        }
+    }
+    Ok((label, last.into_iter().map(|(s, (_, p))| (s as f64, p)).collect()))
+}
+
+fn series_chart(lines: Vec<(String, Vec<(f64, f64)>)>) -> gsenc::io::plot::Chart {
+    use gsenc::io::plot::{Chart, Line, PALETTE};
+    Chart {
+        width: 960,
+        height: 560,
+        title: "final validation PSNR per step".into(),
+        x_label: "step".into(),
+        y_label: "PSNR dB".into(),
+        lines: lines
+            .into_iter()
+            .enumerate()
+            .map(|(k, (label, points))| Line { label, points, color: PALETTE[k % PALETTE.len()] })
+            .collect(),
+    }
+}
+
+pub fn plot_series(a: PlotSeriesArgs) -> Result<()> {
+    let lines = a.csv.iter().map(|p| read_series_csv(p)).collect::<Result<Vec<_>>>()?;
+    write_atomic(&a.output, &series_chart(lines).to_png())?;
+    println!("{}", a.output.display());
     Ok(())
 }

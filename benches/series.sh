@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Benchmark of time-series warm starts (issue 5) on dambreak3d_particles:
+# speed deposited on a 128^3 reference, 50,000 primitives, steps 1..21
+# (step 0 is the dam at rest: speed 0 everywhere), range 0..4 m/s fixed for
+# the series. Three series: every step independent (3000 iterations), and
+# warm-started coarse (1000, no relocation) and dense (1500, relocation on),
+# whose first step is the independent one. Validation PSNR every 50
+# iterations goes to bench-out/series_<mode>.csv; `benches/series_report.py`
+# turns the CSVs into the table of docs/BENCHMARKS.md.
+#   bash benches/series.sh [POINTS]      (points per iteration, default 4096)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+points=${1:-4096}
+data=../shared/data
+out=bench-out
+mkdir -p "$out"
+cargo build --release --locked --bin gsenc >&2
+bin=target/release/gsenc
+dam=(--positions "$data/dambreak3d_particles.positions.float32"
+     --smoothing-length "$data/dambreak3d_particles.smoothing_length.float32"
+     --mass "$data/dambreak3d_particles.mass.float32"
+     --values "$data/dambreak3d_particles.speed.float32" --count 42042
+     --dims 128 --range 0,4 --steps 1..22 --field speed)
+for mode in off dense coarse; do
+    rm -rf "$out/series_$mode"
+    "$bin" encode-series "${dam[@]}" --budget 50000 --schedule full --iters 3000 --points "$points" \
+        --warm "$mode" --validation-every 50 -o "$out/series_$mode" --csv "$out/series_$mode.csv" \
+        --json --quiet > "$out/series_$mode.jsonl"
+    echo "[series] $mode done" >&2
+done
+python3 benches/series_report.py "$out"
