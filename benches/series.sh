@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Benchmark of time-series warm starts (issue 5) on dambreak3d_particles:
-# speed deposited on a 128^3 reference, 50,000 primitives, steps 1..21
-# (step 0 is the dam at rest: speed 0 everywhere), range 0..4 m/s fixed for
-# the series. Three series: every step independent (3000 iterations), and
+# speed deposited on a 128^3 reference over the series' whole box (the
+# manifest's bounds: the fluid moves across the tank, so the first step's box
+# would drop most later particles), 50,000 primitives, steps 1..21 (step 0 is
+# the dam at rest: speed 0 everywhere), range 0..4 m/s fixed for the series. Three series: every step independent (3000 iterations), and
 # warm-started coarse (1000, no relocation) and dense (1500, relocation on),
 # whose first step is the independent one. Validation PSNR every 50
 # iterations goes to bench-out/series_<mode>.csv; `benches/series_report.py`
@@ -15,12 +16,13 @@ data=../shared/data
 out=bench-out
 mkdir -p "$out"
 cargo build --release --locked --bin gsenc >&2
-bin=target/release/gsenc
+bin=${GSENC_BIN:-target/release/gsenc}
 dam=(--positions "$data/dambreak3d_particles.positions.float32"
      --smoothing-length "$data/dambreak3d_particles.smoothing_length.float32"
      --mass "$data/dambreak3d_particles.mass.float32"
      --values "$data/dambreak3d_particles.speed.float32" --count 42042
-     --dims 128 --range 0,4 --steps 1..22 --field speed)
+     --dims 128 --bounds 0.021,-0.481,0.0107,3.22,0.481,0.55
+     --range 0,4 --steps 1..22 --field speed)
 for mode in off dense coarse; do
     rm -rf "$out/series_$mode"
     "$bin" encode-series "${dam[@]}" --budget 50000 --schedule full --iters 3000 --points "$points" \

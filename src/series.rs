@@ -116,6 +116,10 @@ pub struct StepResult {
     pub clamped_values: usize,
     /// The normalised reference the step was fitted to, for scoring.
     pub reference: Grid,
+    /// Particles or cells outside the series' box at this step (they seed
+    /// nothing; their support is clipped). Data that move out of the first
+    /// step's box need bounds that cover the whole series.
+    pub outside_items: usize,
 }
 
 /// Per-field state carried from step to step.
@@ -228,7 +232,10 @@ impl SeriesEncoder {
         let bounds = state.map_or(prepared.bounds, |s| s.bounds);
         let (range, frame) = (prepared.range, prepared.frame);
         self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation, last: model.clone() });
-        Ok(StepResult { model, output, warm_started, clamped_values: prepared.clamped_values, reference: prepared.reference })
+        Ok(StepResult { model, output, warm_started, clamped_values: prepared.clamped_values,
+            reference: prepared.reference,
+            outside_items: prepared.outside_items,
+        })
     }
 }
 
@@ -240,6 +247,7 @@ struct PreparedStep {
     range: ValueRange,
     bounds: Option<Bounds>,
     clamped_values: usize,
+    outside_items: usize,
 }
 
 fn prepare_step(input: &StepInput, series_bounds: Option<Bounds>, range: &RangeSpec) -> Result<PreparedStep> {
@@ -250,6 +258,7 @@ fn prepare_step(input: &StepInput, series_bounds: Option<Bounds>, range: &RangeS
         range: p.range,
         bounds: Some(bounds),
         clamped_values: p.clamped_values,
+        outside_items: p.deposit.outside,
     };
     match input {
         StepInput::Grid { values, frame } => {
@@ -265,6 +274,7 @@ fn prepare_step(input: &StepInput, series_bounds: Option<Bounds>, range: &RangeS
                 range,
                 bounds: None,
                 clamped_values: norm.clamped,
+                outside_items: 0,
             })
         }
         StepInput::Particles { particles, placement } | StepInput::ParticleDeposit { particles, placement } => {

@@ -452,6 +452,7 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
     assert_eq!(lines[0]["start"], "independent");
     assert_eq!(lines[1]["start"], "coarse");
     assert_eq!(lines[2]["iterations"], 1000);
+    assert_eq!(lines[2]["outside_items"], 0, "--bounds covers the drift");
     // Every step is a complete model on the first step's range and frame.
     let models: Vec<gsenc::model::Model> = (0..3)
         .map(|s| gsenc::format::read_model(&std::fs::read(out.join(format!("rho_{s:06}.gsm"))).unwrap()).unwrap())
@@ -490,4 +491,35 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
     assert_eq!(code, 2);
     assert!(err.contains("step 3 is missing"), "{err}");
     assert!(!other.exists());
+}
+
+/// With the `hdf5` feature the series goes into one store, a complete model
+/// per step, readable like any store entry.
+#[cfg(feature = "hdf5")]
+#[test]
+fn encode_series_into_a_store() {
+    let dir = tmpdir("series-store");
+    let [pos, hh, val] = write_particle_series(&dir, 2);
+    let store = dir.join("run.h5");
+    let (code, _, err) = gsenc(&[
+        "encode-series", "--positions", pos.to_str().unwrap(), "--smoothing-length", hh.to_str().unwrap(),
+        "--values", val.to_str().unwrap(), "--count", "300", "--dims", "12", "--budget", "40", "--schedule", "short",
+        "--iters", "100", "--points", "256", "--validation-points", "500", "--warm", "dense", "--as-grid",
+        "--payload", "8bit", "--field", "rho", "--quiet", "-o", store.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, stdout, err) = gsenc(&["info", "--json", store.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&stdout);
+    let entries = v["entries"].as_array().unwrap();
+    let names: Vec<&str> = entries.iter().map(|e| e["entry"].as_str().unwrap()).collect();
+    assert_eq!(names, ["/rho/0/rank_0", "/rho/1/rank_0"]);
+    for e in entries {
+        assert_eq!(e["payload"], "8bit");
+        assert_eq!(e["primitives"], 40);
+        assert_eq!(e["value_min"], entries[0]["value_min"]);
+        assert_eq!(e["value_max"], entries[0]["value_max"]);
+    }
+    assert_eq!(entries[1]["schedule"], "warm-dense");
+    assert_eq!(entries[1]["iterations"], 1500);
 }

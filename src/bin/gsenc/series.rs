@@ -218,6 +218,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             "validation_psnr": r.output.validation.last().map(|v| v.1),
             "start_validation_psnr": r.output.validation.first().map(|v| v.1),
             "clamped_values": r.clamped_values,
+            "outside_items": r.outside_items,
             "loop_seconds": r.output.loop_seconds,
             "validation_seconds": r.output.validation_seconds,
             "step_seconds": t.elapsed().as_secs_f64(),
