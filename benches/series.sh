@@ -25,7 +25,7 @@ dam=(--positions "$data/dambreak3d_particles.positions.float32"
      --range 0,4 --steps 1..22 --field speed)
 for mode in off dense coarse; do
     rm -rf "$out/series_$mode"
-    "$bin" encode-series "${dam[@]}" --budget 50000 --schedule full --iters 3000 --points "$points" \
+    "$bin" encode-series "${dam[@]}" --budget 50000 --schedule full --iters 3000 --points "$points" --no-relocation \
         --warm "$mode" --validation-every 50 -o "$out/series_$mode" --csv "$out/series_$mode.csv" \
         --json --quiet > "$out/series_$mode.jsonl"
     echo "[series] $mode done" >&2

@@ -49,6 +49,10 @@ pub struct EncodeSeriesArgs {
     seed: u64,
     #[arg(long, default_value_t = 1)]
     sample_seed: u64,
+    /// Skip relocation in the first and independent steps (the paper's
+    /// independent time steps do; warm steps follow --warm).
+    #[arg(long)]
+    no_relocation: bool,
     /// Validation points (fixed per series) and how often they are scored.
     #[arg(long, default_value_t = 1 << 16)]
     validation_points: usize,
@@ -154,6 +158,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     base.seed_init = a.seed;
     base.seed_sample = a.sample_seed;
     base.particles = !a.as_grid;
+    base.relocation = !a.no_relocation;
     let range = match a.values.spec()? {
         gsenc::reference::RangeSpec::Fixed(r) => SeriesRange::Fixed(r),
         gsenc::reference::RangeSpec::FromData(t) => SeriesRange::FirstStep(t),
