@@ -13,15 +13,8 @@ fn main() {
 
     let config = cbindgen::Config::from_file(root.join("cbindgen.toml")).expect("cbindgen.toml");
     let mut builder = cbindgen::Builder::new().with_config(config);
-    let mut sources: Vec<PathBuf> = std::fs::read_dir(root.join("capi"))
-        .expect("capi/")
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "rs"))
-        .collect();
-    sources.sort();
-    for s in sources {
-        builder = builder.with_src(s);
-    }
+    // cbindgen follows the `mod` declarations of capi/mod.rs to the other files.
+    builder = builder.with_src(root.join("capi/mod.rs"));
     match builder.generate() {
         Ok(bindings) => {
             bindings.write_to_file(root.join("include/gsenc.h"));

@@ -1,8 +1,78 @@
 //! The C ABI: a thin layer over the Rust API. Every function is `extern "C"`,
-//! never unwinds into C, and reports through its return value.
+//! returns a `gsenc_status` (or nothing, for destroy), never unwinds into C
+//! (each body runs in `status::guard`) and never prints; the message of a
+//! failure is the calling thread's `gsenc_last_error`.
 //!
-//! This first version holds the version query only; the encoder handles,
-//! status codes and array descriptions come with the C API issue.
+//! Modules: `status` (codes, last error), `config` (the encoder's settings),
+//! `encoder` (push, encode, write), `model` (read, decode, evaluate).
+//! Not yet here (issue 6, open): cells, the Fortran module, CMake package.
+
+#![allow(non_camel_case_types)]
+
+pub mod config;
+pub mod encoder;
+pub mod model;
+pub mod status;
+
+use status::{fail, gsenc_status, Failure};
+use std::os::raw::{c_char, c_void};
+
+/// Element types of pushed arrays.
+pub const GSENC_DTYPE_FLOAT32: i32 = 0;
+pub const GSENC_DTYPE_FLOAT64: i32 = 1;
+
+#[derive(Clone, Copy)]
+pub(crate) enum DType {
+    F32,
+    F64,
+}
+
+impl DType {
+    pub(crate) fn from_c(code: i32) -> Result<DType, Failure> {
+        match code {
+            GSENC_DTYPE_FLOAT32 => Ok(DType::F32),
+            GSENC_DTYPE_FLOAT64 => Ok(DType::F64),
+            d => fail(gsenc_status::InvalidArgument, format!("unknown dtype {d} (GSENC_DTYPE_FLOAT32 or _FLOAT64)")),
+        }
+    }
+
+    /// Element `at` of an array of this type.
+    ///
+    /// # Safety
+    /// `data` holds at least `at + 1` elements of this type.
+    pub(crate) unsafe fn read(self, data: *const c_void, at: isize) -> f64 {
+        // SAFETY: per the contract; unaligned reads tolerate any caller buffer.
+        unsafe {
+            match self {
+                DType::F32 => data.cast::<f32>().offset(at).read_unaligned() as f64,
+                DType::F64 => data.cast::<f64>().offset(at).read_unaligned(),
+            }
+        }
+    }
+}
+
+/// A caller's NUL-terminated UTF-8 string.
+///
+/// # Safety
+/// `s` is NULL or points to a NUL-terminated string.
+pub(crate) unsafe fn c_str(s: *const c_char, what: &str) -> Result<String, Failure> {
+    if s.is_null() {
+        return fail(gsenc_status::NullPointer, format!("{what} is NULL"));
+    }
+    // SAFETY: per the contract.
+    let c = unsafe { std::ffi::CStr::from_ptr(s) };
+    c.to_str().map(str::to_owned).map_err(|_| Failure(gsenc_status::InvalidArgument, format!("{what} is not UTF-8")))
+}
+
+/// Grid extents as dims, each positive and their product bounded.
+pub(crate) fn extents(e: [u64; 3]) -> Result<[usize; 3], Failure> {
+    let dims = e.map(|d| usize::try_from(d).unwrap_or(usize::MAX));
+    let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n > 0 && n <= 1 << 34);
+    match n {
+        Some(_) => Ok(dims),
+        None => fail(gsenc_status::InvalidArgument, format!("extents {e:?} must be positive with at most 2^34 cells")),
+    }
+}
 
 /// Major version of the library (changes break the ABI).
 pub const GSENC_VERSION_MAJOR: u32 = 0;
@@ -27,6 +97,93 @@ pub extern "C" fn gsenc_version_string() -> *const std::os::raw::c_char {
 
 #[cfg(test)]
 mod tests {
+    use super::config::*;
+    use super::encoder::{gsenc_grid, gsenc_particles};
+    use super::model::gsenc_model_info;
+    use super::status::gsenc_status;
+    use std::mem::{offset_of, size_of};
+
+    /// The ABI, frozen: sizes, offsets and values may only be appended to
+    /// (x86_64 and aarch64 Linux, LP64).
+    #[test]
+    fn abi_is_pinned() {
+        assert_eq!(size_of::<gsenc_config>(), 160);
+        let c = [
+            (offset_of!(gsenc_config, struct_size), 0),
+            (offset_of!(gsenc_config, budget), 8),
+            (offset_of!(gsenc_config, schedule), 16),
+            (offset_of!(gsenc_config, warm_start), 20),
+            (offset_of!(gsenc_config, iterations), 24),
+            (offset_of!(gsenc_config, points), 28),
+            (offset_of!(gsenc_config, transform), 32),
+            (offset_of!(gsenc_config, fixed_range), 36),
+            (offset_of!(gsenc_config, value_min), 40),
+            (offset_of!(gsenc_config, value_max), 48),
+            (offset_of!(gsenc_config, dims), 56),
+            (offset_of!(gsenc_config, has_bounds), 68),
+            (offset_of!(gsenc_config, bounds_min), 72),
+            (offset_of!(gsenc_config, bounds_max), 96),
+            (offset_of!(gsenc_config, payload), 120),
+            (offset_of!(gsenc_config, threads), 124),
+            (offset_of!(gsenc_config, seed_init), 128),
+            (offset_of!(gsenc_config, seed_sample), 136),
+            (offset_of!(gsenc_config, rank), 144),
+            (offset_of!(gsenc_config, output_dir), 152),
+        ];
+        for (i, (got, want)) in c.iter().enumerate() {
+            assert_eq!(got, want, "gsenc_config field {i}");
+        }
+        assert_eq!(size_of::<gsenc_grid>(), 104);
+        assert_eq!(
+            [offset_of!(gsenc_grid, dtype), offset_of!(gsenc_grid, data), offset_of!(gsenc_grid, extents), offset_of!(gsenc_grid, strides), offset_of!(gsenc_grid, origin), offset_of!(gsenc_grid, spacing)],
+            [8, 16, 24, 48, 72, 96]
+        );
+        assert_eq!(size_of::<gsenc_particles>(), 96);
+        assert_eq!(
+            [offset_of!(gsenc_particles, count), offset_of!(gsenc_particles, positions), offset_of!(gsenc_particles, position_stride), offset_of!(gsenc_particles, position_component_stride), offset_of!(gsenc_particles, smoothing_length), offset_of!(gsenc_particles, smoothing_length_stride), offset_of!(gsenc_particles, mass), offset_of!(gsenc_particles, mass_stride), offset_of!(gsenc_particles, values), offset_of!(gsenc_particles, value_stride)],
+            [16, 24, 32, 40, 48, 56, 64, 72, 80, 88]
+        );
+        assert_eq!(size_of::<gsenc_model_info>(), 96);
+        assert_eq!(
+            [offset_of!(gsenc_model_info, count), offset_of!(gsenc_model_info, dims), offset_of!(gsenc_model_info, origin), offset_of!(gsenc_model_info, spacing), offset_of!(gsenc_model_info, step), offset_of!(gsenc_model_info, time), offset_of!(gsenc_model_info, rank)],
+            [8, 16, 40, 64, 72, 80, 88]
+        );
+        assert_eq!(size_of::<gsenc_status>(), 4);
+        let statuses = [
+            gsenc_status::Ok,
+            gsenc_status::NullPointer,
+            gsenc_status::InvalidArgument,
+            gsenc_status::InvalidData,
+            gsenc_status::Format,
+            gsenc_status::Version,
+            gsenc_status::Io,
+            gsenc_status::CallOrder,
+            gsenc_status::StructSize,
+            gsenc_status::Internal,
+        ];
+        for (i, s) in statuses.iter().enumerate() {
+            assert_eq!(*s as i32, i as i32);
+        }
+        assert_eq!([GSENC_SCHEDULE_FULL, GSENC_SCHEDULE_MATCHED, GSENC_SCHEDULE_SHORT], [0, 1, 2]);
+        assert_eq!([GSENC_WARM_OFF, GSENC_WARM_COARSE, GSENC_WARM_DENSE], [0, 1, 2]);
+        assert_eq!([GSENC_TRANSFORM_LINEAR, GSENC_TRANSFORM_LOG10], [0, 1]);
+        assert_eq!([GSENC_PAYLOAD_F32, GSENC_PAYLOAD_8BIT, GSENC_PAYLOAD_8BIT_U16], [0, 1, 2]);
+        assert_eq!([super::GSENC_DTYPE_FLOAT32, super::GSENC_DTYPE_FLOAT64], [0, 1]);
+    }
+
+    /// A panic inside an entry point becomes GSENC_STATUS_INTERNAL with a
+    /// message, never an unwind into C.
+    #[test]
+    fn panics_become_internal_errors() {
+        let s = super::status::guard(|| panic!("boom"));
+        assert_eq!(s, gsenc_status::Internal);
+        let mut buf = [0 as std::os::raw::c_char; 128];
+        let n = unsafe { super::status::gsenc_last_error(buf.as_mut_ptr(), buf.len()) };
+        let msg = unsafe { std::ffi::CStr::from_ptr(buf.as_ptr()) }.to_str().unwrap();
+        assert_eq!(n, msg.len());
+        assert!(msg.contains("boom"), "{msg}");
+    }
+
     #[test]
     fn version_macros_match_the_crate_version() {
         let v: Vec<u32> = env!("CARGO_PKG_VERSION").split('.').map(|x| x.parse().unwrap()).collect();

@@ -1,8 +1,11 @@
 /*
  * gsenc: in-situ encoding of 3D scalar fields into fixed budgets of Gaussians.
  *
- * This version of the C ABI holds the version query only; the encoder
- * handles arrive with the C API. No function aborts the process or prints.
+ * Every function returns a gsenc_status (destroy functions return nothing);
+ * on failure gsenc_last_error() gives the calling thread's message. No
+ * function aborts the process or prints. Handles are opaque: an encoder is
+ * used by one thread at a time, a model by any number of threads.
+ * Structs passed in start with struct_size = sizeof(struct); set it first.
  */
 
 #ifndef GSENC_H
@@ -15,6 +18,13 @@
 #include <stddef.h>
 #include <stdint.h>
 #include <stdlib.h>
+
+/*
+ Element types of pushed arrays.
+ */
+#define GSENC_DTYPE_FLOAT32 0
+
+#define GSENC_DTYPE_FLOAT64 1
 
 /*
  Major version of the library (changes break the ABI).
@@ -31,6 +41,264 @@
  */
 #define GSENC_VERSION_PATCH 0
 
+/*
+ Schedules (`gsenc_config.schedule`).
+ */
+#define GSENC_SCHEDULE_FULL 0
+
+#define GSENC_SCHEDULE_MATCHED 1
+
+#define GSENC_SCHEDULE_SHORT 2
+
+/*
+ Warm starts of steps after a field's first (`gsenc_config.warm_start`).
+ */
+#define GSENC_WARM_OFF 0
+
+#define GSENC_WARM_COARSE 1
+
+#define GSENC_WARM_DENSE 2
+
+/*
+ Value transforms (`gsenc_config.transform`).
+ */
+#define GSENC_TRANSFORM_LINEAR 0
+
+#define GSENC_TRANSFORM_LOG10 1
+
+/*
+ Stored payloads (`gsenc_config.payload`).
+ */
+#define GSENC_PAYLOAD_F32 0
+
+#define GSENC_PAYLOAD_8BIT 1
+
+#define GSENC_PAYLOAD_8BIT_U16 2
+
+/*
+ What a call did. Values are fixed and only ever appended to.
+ */
+typedef enum {
+  /*
+   Success.
+   */
+  GSENC_STATUS_OK = 0,
+  /*
+   A required pointer argument was NULL.
+   */
+  GSENC_STATUS_NULL_POINTER = 1,
+  /*
+   An argument is out of range (budget, dims, an unknown enum value).
+   */
+  GSENC_STATUS_INVALID_ARGUMENT = 2,
+  /*
+   Input data are unusable: NaN or infinite values, empty arrays.
+   */
+  GSENC_STATUS_INVALID_DATA = 3,
+  /*
+   A file is not a gsenc model, or is truncated or corrupted.
+   */
+  GSENC_STATUS_FORMAT = 4,
+  /*
+   A model file written by a newer, incompatible gsenc.
+   */
+  GSENC_STATUS_VERSION = 5,
+  /*
+   A file could not be read or written (missing folder, full disk).
+   */
+  GSENC_STATUS_IO = 6,
+  /*
+   Functions called in the wrong order (encode with nothing pushed, a
+   model asked of a field never encoded).
+   */
+  GSENC_STATUS_CALL_ORDER = 7,
+  /*
+   A struct's `struct_size` is smaller than this library needs.
+   */
+  GSENC_STATUS_STRUCT_SIZE = 8,
+  /*
+   A bug in gsenc (a caught panic); the message says where.
+   */
+  GSENC_STATUS_INTERNAL = 9,
+} gsenc_status;
+
+/*
+ Opaque encoder; create with `gsenc_encoder_create`, free with
+ `gsenc_encoder_destroy`.
+ */
+typedef struct gsenc_encoder gsenc_encoder;
+
+/*
+ Opaque model; read with `gsenc_model_read`, free with `gsenc_model_destroy`.
+ */
+typedef struct gsenc_model gsenc_model;
+
+/*
+ Everything an encoder is created with. Set `struct_size` to
+ `sizeof(gsenc_config)` and call `gsenc_config_init` before changing
+ fields; later versions only append fields, which older callers then
+ leave at their defaults.
+ */
+typedef struct {
+  /*
+   `sizeof(gsenc_config)` as the caller was compiled with.
+   */
+  size_t struct_size;
+  /*
+   Number of Gaussians per field and step (default 32000).
+   */
+  uint64_t budget;
+  /*
+   `GSENC_SCHEDULE_*` of first and independent steps (default matched).
+   */
+  int32_t schedule;
+  /*
+   `GSENC_WARM_*` (default dense).
+   */
+  int32_t warm_start;
+  /*
+   Iterations and points per iteration; 0 keeps the schedule's.
+   */
+  uint32_t iterations;
+  uint32_t points;
+  /*
+   `GSENC_TRANSFORM_*` applied before normalising (default linear).
+   */
+  int32_t transform;
+  /*
+   Non-zero: `value_min`..`value_max` (transformed units) for every step;
+   zero: the range of each field's first step (default).
+   */
+  int32_t fixed_range;
+  double value_min;
+  double value_max;
+  /*
+   Reference grid dims for particles and cells (default 128^3).
+   */
+  uint32_t dims[3];
+  /*
+   Non-zero: particles and cells are deposited in `bounds_min`..
+   `bounds_max` (world units); zero: in the box of each field's first step.
+   */
+  int32_t has_bounds;
+  double bounds_min[3];
+  double bounds_max[3];
+  /*
+   `GSENC_PAYLOAD_*` of written models (default float32).
+   */
+  int32_t payload;
+  /*
+   Worker threads; 0 uses every core.
+   */
+  uint32_t threads;
+  /*
+   Seeds of the seeding draws (0) and of point sampling (1).
+   */
+  uint64_t seed_init;
+  uint64_t seed_sample;
+  /*
+   MPI rank stored in the models (0).
+   */
+  uint32_t rank;
+  /*
+   Folder that `gsenc_encode` writes every model to as
+   `FIELD_STEP.gsm` (`FIELD_STEP_rRANK.gsm` on ranks other than 0);
+   NULL (default) writes nothing. Copied at create.
+   */
+  const char *output_dir;
+} gsenc_config;
+
+/*
+ A regular grid as it lies in the caller's memory: value `(i, j, k)` is
+ element `i * strides[0] + j * strides[1] + k * strides[2]` of `data`.
+ Strides are in elements; all zero means contiguous with i fastest
+ (C `[nz][ny][nx]`, Fortran `(nx, ny, nz)`). Strides larger than the
+ extents skip ghost layers without a copy.
+ */
+typedef struct {
+  /*
+   `sizeof(gsenc_grid)`.
+   */
+  size_t struct_size;
+  /*
+   `GSENC_DTYPE_FLOAT32` or `GSENC_DTYPE_FLOAT64`.
+   */
+  int32_t dtype;
+  const void *data;
+  /*
+   Cells along x, y, z.
+   */
+  uint64_t extents[3];
+  int64_t strides[3];
+  /*
+   World position of the lower corner of cell (0, 0, 0), and the edge of
+   every (cubic) cell. Values are cell-centred.
+   */
+  double origin[3];
+  double spacing;
+} gsenc_grid;
+
+/*
+ SPH particles as they lie in memory. Component `c` of particle `p`'s
+ position is element `p * position_stride + c * position_component_stride`
+ of `positions` (defaults 3 and 1: interleaved xyz; give 1 and `count` for
+ separate x, y, z arrays); a scalar array's element `p` is
+ `p * stride` (default 1, or the tuple size to pick one component of a
+ vector field). Strides are in elements; 0 selects the default.
+ */
+typedef struct {
+  /*
+   `sizeof(gsenc_particles)`.
+   */
+  size_t struct_size;
+  /*
+   `GSENC_DTYPE_FLOAT32` or `GSENC_DTYPE_FLOAT64`, for every array.
+   */
+  int32_t dtype;
+  uint64_t count;
+  const void *positions;
+  int64_t position_stride;
+  int64_t position_component_stride;
+  /*
+   SPH smoothing length `hh` (support radius `2 hh`).
+   */
+  const void *smoothing_length;
+  int64_t smoothing_length_stride;
+  /*
+   Masses; NULL for equal masses.
+   */
+  const void *mass;
+  int64_t mass_stride;
+  /*
+   The field's values.
+   */
+  const void *values;
+  int64_t value_stride;
+} gsenc_particles;
+
+/*
+ What a model covers. Set `struct_size` to `sizeof(gsenc_model_info)`.
+ */
+typedef struct {
+  size_t struct_size;
+  /*
+   Number of Gaussians.
+   */
+  uint64_t count;
+  /*
+   Reference lattice dims, and its box: lower corner and cell edge.
+   */
+  uint64_t dims[3];
+  double origin[3];
+  double spacing;
+  uint64_t step;
+  /*
+   Simulation time; NaN when unknown.
+   */
+  double time;
+  uint32_t rank;
+} gsenc_model_info;
+
 #ifdef __cplusplus
 extern "C" {
 #endif // __cplusplus
@@ -46,6 +314,119 @@ uint32_t gsenc_version(void);
  ("0.1.0"); owned by the library, never freed by the caller. Thread-safe.
  */
 const char *gsenc_version_string(void);
+
+/*
+ Fills `*config` with the defaults above. `config->struct_size` must be
+ set first (to `sizeof(gsenc_config)`). Thread-safe.
+ */
+gsenc_status gsenc_config_init(gsenc_config *config);
+
+/*
+ Creates an encoder from `*config` (read, not kept) into `*out`.
+ On failure `*out` is NULL. Thread-safe.
+ */
+gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **out);
+
+/*
+ Frees an encoder and everything it holds; NULL is ignored. The handle
+ must not be used afterwards.
+ */
+void gsenc_encoder_destroy(gsenc_encoder *encoder);
+
+/*
+ Hands over one field of step `step` (simulation time `time`; NaN when
+ unknown) on a regular grid. The values are copied. Encode with
+ `gsenc_encode`.
+ */
+gsenc_status gsenc_push_grid(gsenc_encoder *encoder,
+                             const char *field,
+                             uint64_t step,
+                             double time,
+                             const gsenc_grid *grid);
+
+/*
+ Hands over one field of step `step` as SPH particles (see
+ `gsenc_particles`), deposited on the configured `dims` and bounds. The
+ arrays are copied.
+ */
+gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
+                                  const char *field,
+                                  uint64_t step,
+                                  double time,
+                                  const gsenc_particles *particles);
+
+/*
+ Encodes every field pushed since the last call, each warm-started from
+ its own previous step where configured, and writes the models to the
+ configured `output_dir`. Blocks until done. A field that fails leaves
+ its series as it was; the fields after it are still encoded, and the
+ first failure is returned.
+ */
+gsenc_status gsenc_encode(gsenc_encoder *encoder);
+
+/*
+ Writes the last model of `field` to `path` (through a temporary file and
+ a rename), with the configured payload.
+ */
+gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field, const char *path);
+
+/*
+ The last encoded step of `field` and the voxel PSNR (dB) of its model as
+ stored, against the reference it was fitted to.
+ */
+gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
+                                     const char *field,
+                                     uint64_t *step,
+                                     double *psnr);
+
+/*
+ Reads the model file at `path` into `*out` (NULL on failure).
+ */
+gsenc_status gsenc_model_read(const char *path, gsenc_model **out);
+
+/*
+ Frees a model; NULL is ignored.
+ */
+void gsenc_model_destroy(gsenc_model *model);
+
+/*
+ Fills `*info` (whose `struct_size` must be set).
+ */
+gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *info);
+
+/*
+ Decodes the model onto `dims` cells covering its box (NULL `dims`: its
+ reference dims) into `out`, which holds `out_len` floats, x fastest,
+ in data units.
+ */
+gsenc_status gsenc_model_decode(const gsenc_model *model,
+                                const uint64_t *dims,
+                                float *out,
+                                uint64_t out_len);
+
+/*
+ Evaluates the model at `count` world points (`points`: x, y, z per
+ point, interleaved) into `out` (`count` floats, data units).
+ */
+gsenc_status gsenc_model_evaluate(const gsenc_model *model,
+                                  const double *points,
+                                  uint64_t count,
+                                  float *out);
+
+/*
+ Copies the calling thread's last error message into `buf` (at most
+ `len` bytes, always NUL-terminated when `len > 0`) and returns the
+ message's full length without the NUL, so that `gsenc_last_error(NULL, 0)`
+ sizes the buffer. Empty when no call of this thread has failed.
+ Thread-safe: each thread has its own message.
+ */
+size_t gsenc_last_error(char *buf, size_t len);
+
+/*
+ A static, NUL-terminated name of a status ("GSENC_STATUS_IO"); never
+ freed by the caller. Unknown values give "GSENC_STATUS_UNKNOWN". Thread-safe.
+ */
+const char *gsenc_status_string(int32_t status);
 
 #ifdef __cplusplus
 }  // extern "C"

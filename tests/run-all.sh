@@ -24,6 +24,9 @@ trap 'rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
 "$out/version"
 echo "c: 1 passed, 0 failed"
+# The C API from C: a warm-started series, models read back, every error path.
+cc -std=c99 -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi"
+GSENC_CAPI_TMP="$out" "$out/capi"
 
 # The store read with h5py alone, against the models gsenc extracts from it.
 cargo build --release --locked --features hdf5 --bin gsenc

@@ -11,3 +11,12 @@ pub mod store;
 pub mod vti;
 
 pub use atomic::{write_atomic, AtomicFile};
+
+/// Checks a field name: it names an HDF5 group of a store and a part of
+/// model file names.
+pub fn check_field_name(field: &str) -> crate::Result<()> {
+    if field.is_empty() || field == "." || field == ".." || field.contains('/') || field.contains('\\') || field.contains('\0') {
+        return Err(crate::Error::arg(format!("field name '{field}' cannot name a file or group (empty, '.', '/', '\\' or NUL)")));
+    }
+    Ok(())
+}

@@ -21,6 +21,7 @@ use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::format::Payload;
 use crate::io::atomic::temporary_path;
+use crate::io::check_field_name;
 use crate::kernel::Primitive;
 use crate::model::{Model, ModelMeta};
 use crate::quantize::{Affine, CentreCoding, Centres, Quantized};
@@ -85,14 +86,6 @@ pub struct Store {
 
 fn h5(path: &Path) -> impl Fn(hdf5::Error) -> Error + '_ {
     move |e| Error::Hdf5 { path: path.display().to_string(), message: e.to_string() }
-}
-
-/// Checks a field name: it becomes an HDF5 group name.
-pub fn check_field_name(field: &str) -> Result<()> {
-    if field.is_empty() || field == "." || field == ".." || field.contains('/') || field.contains('\0') {
-        return Err(Error::arg(format!("field name '{field}' cannot name a group of the store (empty, '.', '/' or NUL)")));
-    }
-    Ok(())
 }
 
 impl Store {

@@ -1,0 +1,215 @@
+//! The encoder's configuration as C sees it: one struct that starts with its
+//! own size, filled with defaults by `gsenc_config_init`.
+
+use super::status::{fail, gsenc_status, guard, Failure};
+use crate::encoder::{EncodeConfig, Schedule};
+use crate::field::{Transform, ValueRange};
+use crate::format::Payload;
+use crate::quantize::CentreCoding;
+use crate::reference::Bounds;
+use crate::series::{SeriesConfig, SeriesRange, WarmStart};
+use std::os::raw::c_char;
+
+/// Schedules (`gsenc_config.schedule`).
+pub const GSENC_SCHEDULE_FULL: i32 = 0;
+pub const GSENC_SCHEDULE_MATCHED: i32 = 1;
+pub const GSENC_SCHEDULE_SHORT: i32 = 2;
+/// Warm starts of steps after a field's first (`gsenc_config.warm_start`).
+pub const GSENC_WARM_OFF: i32 = 0;
+pub const GSENC_WARM_COARSE: i32 = 1;
+pub const GSENC_WARM_DENSE: i32 = 2;
+/// Value transforms (`gsenc_config.transform`).
+pub const GSENC_TRANSFORM_LINEAR: i32 = 0;
+pub const GSENC_TRANSFORM_LOG10: i32 = 1;
+/// Stored payloads (`gsenc_config.payload`).
+pub const GSENC_PAYLOAD_F32: i32 = 0;
+pub const GSENC_PAYLOAD_8BIT: i32 = 1;
+pub const GSENC_PAYLOAD_8BIT_U16: i32 = 2;
+
+/// Everything an encoder is created with. Set `struct_size` to
+/// `sizeof(gsenc_config)` and call `gsenc_config_init` before changing
+/// fields; later versions only append fields, which older callers then
+/// leave at their defaults.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_config {
+    /// `sizeof(gsenc_config)` as the caller was compiled with.
+    pub struct_size: usize,
+    /// Number of Gaussians per field and step (default 32000).
+    pub budget: u64,
+    /// `GSENC_SCHEDULE_*` of first and independent steps (default matched).
+    pub schedule: i32,
+    /// `GSENC_WARM_*` (default dense).
+    pub warm_start: i32,
+    /// Iterations and points per iteration; 0 keeps the schedule's.
+    pub iterations: u32,
+    pub points: u32,
+    /// `GSENC_TRANSFORM_*` applied before normalising (default linear).
+    pub transform: i32,
+    /// Non-zero: `value_min`..`value_max` (transformed units) for every step;
+    /// zero: the range of each field's first step (default).
+    pub fixed_range: i32,
+    pub value_min: f64,
+    pub value_max: f64,
+    /// Reference grid dims for particles and cells (default 128^3).
+    pub dims: [u32; 3],
+    /// Non-zero: particles and cells are deposited in `bounds_min`..
+    /// `bounds_max` (world units); zero: in the box of each field's first step.
+    pub has_bounds: i32,
+    pub bounds_min: [f64; 3],
+    pub bounds_max: [f64; 3],
+    /// `GSENC_PAYLOAD_*` of written models (default float32).
+    pub payload: i32,
+    /// Worker threads; 0 uses every core.
+    pub threads: u32,
+    /// Seeds of the seeding draws (0) and of point sampling (1).
+    pub seed_init: u64,
+    pub seed_sample: u64,
+    /// MPI rank stored in the models (0).
+    pub rank: u32,
+    /// Folder that `gsenc_encode` writes every model to as
+    /// `FIELD_STEP.gsm` (`FIELD_STEP_rRANK.gsm` on ranks other than 0);
+    /// NULL (default) writes nothing. Copied at create.
+    pub output_dir: *const c_char,
+}
+
+/// The bytes of `gsenc_config` this version reads.
+pub(crate) const CONFIG_SIZE: usize = std::mem::size_of::<gsenc_config>();
+
+impl gsenc_config {
+    fn defaults() -> gsenc_config {
+        gsenc_config {
+            struct_size: CONFIG_SIZE,
+            budget: 32_000,
+            schedule: GSENC_SCHEDULE_MATCHED,
+            warm_start: GSENC_WARM_DENSE,
+            iterations: 0,
+            points: 0,
+            transform: GSENC_TRANSFORM_LINEAR,
+            fixed_range: 0,
+            value_min: 0.0,
+            value_max: 1.0,
+            dims: [128; 3],
+            has_bounds: 0,
+            bounds_min: [0.0; 3],
+            bounds_max: [1.0; 3],
+            payload: GSENC_PAYLOAD_F32,
+            threads: 0,
+            seed_init: 0,
+            seed_sample: 1,
+            rank: 0,
+            output_dir: std::ptr::null(),
+        }
+    }
+}
+
+/// Fills `*config` with the defaults above. `config->struct_size` must be
+/// set first (to `sizeof(gsenc_config)`). Thread-safe.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_config_init(config: *mut gsenc_config) -> gsenc_status {
+    guard(|| {
+        if config.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_config_init: config is NULL");
+        }
+        // SAFETY: non-null, and the caller owns at least `struct_size` bytes there.
+        let size = unsafe { (*config).struct_size };
+        if size < CONFIG_SIZE {
+            return fail(
+                gsenc_status::StructSize,
+                format!("gsenc_config_init: struct_size is {size}, this gsenc needs {CONFIG_SIZE}; set it to sizeof(gsenc_config)"),
+            );
+        }
+        // SAFETY: as above; only this version's bytes are written.
+        unsafe { config.write(gsenc_config::defaults()) };
+        Ok(())
+    })
+}
+
+/// A checked copy of a caller's configuration.
+pub(crate) struct Settings {
+    pub series: SeriesConfig,
+    pub dims: [usize; 3],
+    pub bounds: Option<Bounds>,
+    pub payload: Payload,
+    pub threads: Option<usize>,
+    pub rank: u32,
+    pub output_dir: Option<std::path::PathBuf>,
+}
+
+impl Settings {
+    /// # Safety
+    /// `c` points to a caller's `gsenc_config` of at least `struct_size` bytes.
+    pub unsafe fn from_c(c: *const gsenc_config) -> Result<Settings, Failure> {
+        if c.is_null() {
+            return fail(gsenc_status::NullPointer, "config is NULL");
+        }
+        // SAFETY: per the contract.
+        let size = unsafe { (*c).struct_size };
+        if size < CONFIG_SIZE {
+            return fail(gsenc_status::StructSize, format!("config struct_size is {size}, this gsenc needs {CONFIG_SIZE}"));
+        }
+        let c = unsafe { *c };
+        let bad = |what: String| Failure(gsenc_status::InvalidArgument, what);
+        let schedule = match c.schedule {
+            GSENC_SCHEDULE_FULL => Schedule::Full,
+            GSENC_SCHEDULE_MATCHED => Schedule::Matched,
+            GSENC_SCHEDULE_SHORT => Schedule::Short,
+            s => return Err(bad(format!("unknown schedule {s}"))),
+        };
+        let warm = match c.warm_start {
+            GSENC_WARM_OFF => WarmStart::Off,
+            GSENC_WARM_COARSE => WarmStart::Coarse,
+            GSENC_WARM_DENSE => WarmStart::Dense,
+            w => return Err(bad(format!("unknown warm start {w}"))),
+        };
+        let transform = match c.transform {
+            GSENC_TRANSFORM_LINEAR => Transform::Linear,
+            GSENC_TRANSFORM_LOG10 => Transform::Log10,
+            t => return Err(bad(format!("unknown transform {t}"))),
+        };
+        let payload = match c.payload {
+            GSENC_PAYLOAD_F32 => Payload::Float32,
+            GSENC_PAYLOAD_8BIT => Payload::Bits8(CentreCoding::Float16),
+            GSENC_PAYLOAD_8BIT_U16 => Payload::Bits8(CentreCoding::Fixed16),
+            p => return Err(bad(format!("unknown payload {p}"))),
+        };
+        let budget = usize::try_from(c.budget).map_err(|_| bad(format!("budget {} is too large", c.budget)))?;
+        if budget == 0 {
+            return Err(bad("budget must be at least 1".into()));
+        }
+        let range = if c.fixed_range != 0 {
+            SeriesRange::Fixed(ValueRange::new(c.value_min, c.value_max, transform)?)
+        } else {
+            SeriesRange::FirstStep(transform)
+        };
+        let mut encode = EncodeConfig::new(budget, schedule);
+        encode.iterations = (c.iterations > 0).then_some(c.iterations as usize);
+        encode.points = (c.points > 0).then_some(c.points as usize);
+        encode.seed_init = c.seed_init;
+        encode.seed_sample = c.seed_sample;
+        if c.dims.contains(&0) {
+            return Err(bad(format!("dims {:?} must be positive", c.dims)));
+        }
+        let bounds = (c.has_bounds != 0).then_some(Bounds { min: c.bounds_min, max: c.bounds_max });
+        if let Some(b) = bounds {
+            if (0..3).any(|a| !(b.min[a].is_finite() && b.max[a].is_finite() && b.max[a] > b.min[a])) {
+                return Err(bad(format!("bounds {:?}..{:?} are not a box", b.min, b.max)));
+            }
+        }
+        let output_dir = match c.output_dir.is_null() {
+            true => None,
+            // SAFETY: a non-null `output_dir` is a NUL-terminated string.
+            false => Some(std::path::PathBuf::from(unsafe { super::c_str(c.output_dir, "output_dir")? })),
+        };
+        Ok(Settings {
+            series: SeriesConfig::new(encode, warm, range),
+            dims: c.dims.map(|d| d as usize),
+            bounds,
+            payload,
+            threads: (c.threads > 0).then_some(c.threads as usize),
+            rank: c.rank,
+            output_dir,
+        })
+    }
+}

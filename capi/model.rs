@@ -1,0 +1,168 @@
+//! Reading a model file and evaluating it: decode onto a lattice into a
+//! caller's buffer, or at arbitrary world points. A model handle is
+//! read-only: any number of threads may decode and evaluate it at once.
+
+use super::status::{fail, gsenc_status, guard, Failure};
+use super::{c_str, extents};
+use crate::backend::cpu::CpuBackend;
+use crate::backend::Backend;
+use crate::loss::v_eval;
+use crate::model::Model;
+use std::os::raw::c_char;
+
+/// Opaque model; read with `gsenc_model_read`, free with `gsenc_model_destroy`.
+pub struct gsenc_model {
+    model: Model,
+}
+
+/// What a model covers. Set `struct_size` to `sizeof(gsenc_model_info)`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_model_info {
+    pub struct_size: usize,
+    /// Number of Gaussians.
+    pub count: u64,
+    /// Reference lattice dims, and its box: lower corner and cell edge.
+    pub dims: [u64; 3],
+    pub origin: [f64; 3],
+    pub spacing: f64,
+    pub step: u64,
+    /// Simulation time; NaN when unknown.
+    pub time: f64,
+    pub rank: u32,
+}
+
+fn model_ref<'a>(model: *const gsenc_model, what: &str) -> Result<&'a Model, Failure> {
+    if model.is_null() {
+        return fail(gsenc_status::NullPointer, format!("{what}: model is NULL"));
+    }
+    // SAFETY: a live handle from gsenc_model_read.
+    Ok(unsafe { &(*model).model })
+}
+
+/// Reads the model file at `path` into `*out` (NULL on failure).
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gsenc_model) -> gsenc_status {
+    guard(|| {
+        if out.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_model_read: out is NULL");
+        }
+        // SAFETY: non-null pointer to the caller's handle slot.
+        unsafe { *out = std::ptr::null_mut() };
+        // SAFETY: NUL-terminated string or NULL (refused).
+        let path = unsafe { c_str(path, "path") }?;
+        let bytes = std::fs::read(&path).map_err(|e| crate::Error::io(&path, e))?;
+        let model = crate::format::read_model(&bytes).map_err(|e| match e {
+            crate::Error::Format(m) => crate::Error::Format(format!("{path}: {m}")),
+            other => other,
+        })?;
+        // SAFETY: as above.
+        unsafe { *out = Box::into_raw(Box::new(gsenc_model { model })) };
+        Ok(())
+    })
+}
+
+/// Frees a model; NULL is ignored.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
+    if !model.is_null() {
+        let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            // SAFETY: made by Box::into_raw in gsenc_model_read, freed once.
+            drop(unsafe { Box::from_raw(model) });
+        }));
+    }
+}
+
+/// Fills `*info` (whose `struct_size` must be set).
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *mut gsenc_model_info) -> gsenc_status {
+    guard(|| {
+        let m = model_ref(model, "gsenc_model_info_get")?;
+        if info.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_model_info_get: info is NULL");
+        }
+        // SAFETY: non-null; the caller owns struct_size bytes there.
+        let size = unsafe { (*info).struct_size };
+        let want = std::mem::size_of::<gsenc_model_info>();
+        if size < want {
+            return fail(gsenc_status::StructSize, format!("gsenc_model_info_get: struct_size is {size}, this gsenc needs {want}"));
+        }
+        let f = &m.meta.frame;
+        let value = gsenc_model_info {
+            struct_size: want,
+            count: m.len() as u64,
+            dims: f.dims.map(|d| d as u64),
+            origin: f.bmin,
+            spacing: 1.0 / f.gamma,
+            step: m.meta.step,
+            time: m.meta.time.unwrap_or(f64::NAN),
+            rank: m.meta.rank,
+        };
+        // SAFETY: as above.
+        unsafe { info.write(value) };
+        Ok(())
+    })
+}
+
+/// Decodes the model onto `dims` cells covering its box (NULL `dims`: its
+/// reference dims) into `out`, which holds `out_len` floats, x fastest,
+/// in data units.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *const u64, out: *mut f32, out_len: u64) -> gsenc_status {
+    guard(|| {
+        let m = model_ref(model, "gsenc_model_decode")?;
+        let dims = if dims.is_null() {
+            m.meta.frame.dims
+        } else {
+            // SAFETY: three u64 at `dims`.
+            extents(unsafe { [*dims, *dims.add(1), *dims.add(2)] })?
+        };
+        let n: usize = dims.iter().product();
+        if out.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_model_decode: out is NULL");
+        }
+        if out_len != n as u64 {
+            return fail(gsenc_status::InvalidArgument, format!("gsenc_model_decode: out holds {out_len} floats, {dims:?} needs {n}"));
+        }
+        // SAFETY: the caller's buffer holds out_len floats.
+        let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
+        let mut at = 0;
+        let range = m.meta.range;
+        m.decode_streaming(&mut CpuBackend::new(), dims, crate::model::IndexBox::whole(dims), crate::model::DEFAULT_SLAB_VOXELS, &mut |slab| {
+            for (o, &v) in out[at..at + slab.len()].iter_mut().zip(slab) {
+                *o = range.denormalize(v) as f32;
+            }
+            at += slab.len();
+            Ok(())
+        })?;
+        Ok(())
+    })
+}
+
+/// Evaluates the model at `count` world points (`points`: x, y, z per
+/// point, interleaved) into `out` (`count` floats, data units).
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
+    guard(|| {
+        let m = model_ref(model, "gsenc_model_evaluate")?;
+        if points.is_null() || out.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_model_evaluate: points or out is NULL");
+        }
+        let n = usize::try_from(count).map_err(|_| Failure(gsenc_status::InvalidArgument, "count too large".into()))?;
+        // SAFETY: the caller's arrays hold 3 count doubles and count floats.
+        let (pts, out) = unsafe { (std::slice::from_raw_parts(points, 3 * n), std::slice::from_raw_parts_mut(out, n)) };
+        if pts.iter().any(|v| !v.is_finite()) {
+            return fail(gsenc_status::InvalidData, "gsenc_model_evaluate: a point is not finite");
+        }
+        let f = &m.meta.frame;
+        let index: Vec<[f32; 3]> =
+            pts.chunks_exact(3).map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)).collect();
+        let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
+        CpuBackend::new().evaluate_points(&m.params, &index, &mut rho, &mut num);
+        for i in 0..n {
+            out[i] = m.meta.range.denormalize(v_eval(rho[i], num[i])) as f32;
+        }
+        Ok(())
+    })
+}

@@ -1,0 +1,124 @@
+//! Status codes, the thread-local last-error message, and the guard every C
+//! entry point runs its body in: it turns errors and panics into a status,
+//! so nothing unwinds into C and nothing is printed.
+
+use crate::error::Error;
+use std::cell::RefCell;
+use std::os::raw::c_char;
+use std::panic::{catch_unwind, AssertUnwindSafe};
+
+/// What a call did. Values are fixed and only ever appended to.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[allow(non_camel_case_types)]
+pub enum gsenc_status {
+    /// Success.
+    Ok = 0,
+    /// A required pointer argument was NULL.
+    NullPointer = 1,
+    /// An argument is out of range (budget, dims, an unknown enum value).
+    InvalidArgument = 2,
+    /// Input data are unusable: NaN or infinite values, empty arrays.
+    InvalidData = 3,
+    /// A file is not a gsenc model, or is truncated or corrupted.
+    Format = 4,
+    /// A model file written by a newer, incompatible gsenc.
+    Version = 5,
+    /// A file could not be read or written (missing folder, full disk).
+    Io = 6,
+    /// Functions called in the wrong order (encode with nothing pushed, a
+    /// model asked of a field never encoded).
+    CallOrder = 7,
+    /// A struct's `struct_size` is smaller than this library needs.
+    StructSize = 8,
+    /// A bug in gsenc (a caught panic); the message says where.
+    Internal = 9,
+}
+
+thread_local! {
+    static LAST_ERROR: RefCell<String> = const { RefCell::new(String::new()) };
+}
+
+/// A failed call: its status and message.
+pub(crate) struct Failure(pub gsenc_status, pub String);
+
+impl From<Error> for Failure {
+    fn from(e: Error) -> Failure {
+        let status = match &e {
+            Error::InvalidArgument(_) => gsenc_status::InvalidArgument,
+            Error::InvalidData(_) => gsenc_status::InvalidData,
+            Error::Format(_) => gsenc_status::Format,
+            Error::Version(_) => gsenc_status::Version,
+            Error::Io { .. } | Error::Hdf5 { .. } => gsenc_status::Io,
+        };
+        Failure(status, e.to_string())
+    }
+}
+
+pub(crate) fn fail<T>(status: gsenc_status, msg: impl Into<String>) -> Result<T, Failure> {
+    Err(Failure(status, msg.into()))
+}
+
+/// Runs `body`, records its error (or panic) as the thread's last error and
+/// returns its status. Success leaves the last error as it was.
+pub(crate) fn guard(body: impl FnOnce() -> Result<(), Failure>) -> gsenc_status {
+    let outcome = catch_unwind(AssertUnwindSafe(body)).unwrap_or_else(|panic| {
+        let what = panic
+            .downcast_ref::<&str>()
+            .map(|s| s.to_string())
+            .or_else(|| panic.downcast_ref::<String>().cloned())
+            .unwrap_or_else(|| "unknown panic".into());
+        Err(Failure(gsenc_status::Internal, format!("internal error (please report): {what}")))
+    });
+    match outcome {
+        Ok(()) => gsenc_status::Ok,
+        Err(Failure(status, msg)) => {
+            LAST_ERROR.with(|e| *e.borrow_mut() = msg);
+            status
+        }
+    }
+}
+
+/// Copies the calling thread's last error message into `buf` (at most
+/// `len` bytes, always NUL-terminated when `len > 0`) and returns the
+/// message's full length without the NUL, so that `gsenc_last_error(NULL, 0)`
+/// sizes the buffer. Empty when no call of this thread has failed.
+/// Thread-safe: each thread has its own message.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_last_error(buf: *mut c_char, len: usize) -> usize {
+    catch_unwind(|| {
+        LAST_ERROR.with(|e| {
+            let msg = e.borrow();
+            if !buf.is_null() && len > 0 {
+                let n = msg.len().min(len - 1);
+                // SAFETY: the caller gives `len` writable bytes at `buf`.
+                unsafe {
+                    std::ptr::copy_nonoverlapping(msg.as_ptr().cast::<c_char>(), buf, n);
+                    *buf.add(n) = 0;
+                }
+            }
+            msg.len()
+        })
+    })
+    .unwrap_or(0)
+}
+
+/// A static, NUL-terminated name of a status ("GSENC_STATUS_IO"); never
+/// freed by the caller. Unknown values give "GSENC_STATUS_UNKNOWN". Thread-safe.
+#[no_mangle]
+pub extern "C" fn gsenc_status_string(status: i32) -> *const c_char {
+    let s: &'static str = match status {
+        0 => "GSENC_STATUS_OK\0",
+        1 => "GSENC_STATUS_NULL_POINTER\0",
+        2 => "GSENC_STATUS_INVALID_ARGUMENT\0",
+        3 => "GSENC_STATUS_INVALID_DATA\0",
+        4 => "GSENC_STATUS_FORMAT\0",
+        5 => "GSENC_STATUS_VERSION\0",
+        6 => "GSENC_STATUS_IO\0",
+        7 => "GSENC_STATUS_CALL_ORDER\0",
+        8 => "GSENC_STATUS_STRUCT_SIZE\0",
+        9 => "GSENC_STATUS_INTERNAL\0",
+        _ => "GSENC_STATUS_UNKNOWN\0",
+    };
+    s.as_ptr().cast()
+}

@@ -1,0 +1,231 @@
+/* The C API from C: a two-step warm-started series of a grid and of
+ * particles, models written, read back, decoded and evaluated; and the
+ * error paths of every function (NULL handles and pointers, bad sizes and
+ * enum values, NaN data, wrong call order, unwritable folders, foreign
+ * files). Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
+#include <math.h>
+#include <stddef.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include "gsenc.h"
+
+static int passed, failed;
+#define CHECK(cond, ...) do { if (cond) passed++; else { failed++; fprintf(stderr, "FAILED %s:%d: ", __FILE__, __LINE__); fprintf(stderr, __VA_ARGS__); fprintf(stderr, " [%s]\n", last_error()); } } while (0)
+#define EXPECT(call, status) do { gsenc_status s_ = (call); CHECK(s_ == (status), "%s gave %s, expected %s", #call, gsenc_status_string(s_), gsenc_status_string(status)); } while (0)
+
+static const char *last_error(void) {
+    static char buf[1024];
+    gsenc_last_error(buf, sizeof buf);
+    return buf;
+}
+
+enum { NX = 20, NY = 16, NZ = 12, G = 2 }; /* G: ghost layers around the grid */
+
+/* A blob drifting with the step, in [1, 6]; stored with G ghost cells on each side. */
+static void fill_grid(double *a, int step) {
+    int sx = NX + 2 * G, sy = NY + 2 * G;
+    for (int k = 0; k < NZ + 2 * G; k++)
+        for (int j = 0; j < sy; j++)
+            for (int i = 0; i < sx; i++) {
+                double x = i - G - (8.0 + step), y = j - G - 8.0, z = k - G - 6.0;
+                a[(k * sy + j) * sx + i] = 1.0 + 5.0 * exp(-(x * x / 18.0 + y * y / 10.0 + z * z / 8.0));
+            }
+}
+
+int main(void) {
+    const char *dir = getenv("GSENC_CAPI_TMP") ? getenv("GSENC_CAPI_TMP") : "/tmp";
+    char path[512];
+
+    /* The ABI as this C compiler lays it out: the values capi/mod.rs pins. */
+    CHECK(sizeof(gsenc_config) == 160 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, dims) == 56
+              && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144, "gsenc_config layout");
+    CHECK(sizeof(gsenc_grid) == 104 && offsetof(gsenc_grid, strides) == 48 && offsetof(gsenc_grid, spacing) == 96, "gsenc_grid layout");
+    CHECK(sizeof(gsenc_particles) == 96 && offsetof(gsenc_particles, values) == 80, "gsenc_particles layout");
+    CHECK(sizeof(gsenc_model_info) == 96 && offsetof(gsenc_model_info, rank) == 88, "gsenc_model_info layout");
+    CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8, "gsenc_status values");
+
+    /* Configuration. */
+    gsenc_config cfg;
+    memset(&cfg, 0, sizeof cfg);
+    EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_STRUCT_SIZE);
+    CHECK(strstr(last_error(), "struct_size") != NULL, "message names struct_size");
+    cfg.struct_size = sizeof cfg;
+    EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_OK);
+    CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_DENSE && cfg.seed_sample == 1, "defaults");
+    EXPECT(gsenc_config_init(NULL), GSENC_STATUS_NULL_POINTER);
+
+    cfg.budget = 120;
+    cfg.schedule = GSENC_SCHEDULE_SHORT;
+    cfg.iterations = 150;
+    cfg.points = 1024;
+    cfg.warm_start = GSENC_WARM_COARSE;
+    cfg.threads = 2;
+    cfg.dims[0] = cfg.dims[1] = cfg.dims[2] = 16;
+    cfg.output_dir = dir;
+
+    gsenc_encoder *enc = (gsenc_encoder *)1;
+    EXPECT(gsenc_encoder_create(NULL, &enc), GSENC_STATUS_NULL_POINTER);
+    CHECK(enc == NULL, "out is NULL after a failed create");
+    EXPECT(gsenc_encoder_create(&cfg, NULL), GSENC_STATUS_NULL_POINTER);
+    gsenc_config bad = cfg;
+    bad.budget = 0;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    bad = cfg;
+    bad.schedule = 7;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "schedule") != NULL, "message names the schedule");
+    bad = cfg;
+    bad.struct_size = 8;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_STRUCT_SIZE);
+    EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
+
+    /* A grid with ghost layers, passed with strides. */
+    static double a[(NX + 2 * G) * (NY + 2 * G) * (NZ + 2 * G)];
+    gsenc_grid grid;
+    memset(&grid, 0, sizeof grid);
+    grid.struct_size = sizeof grid;
+    grid.dtype = GSENC_DTYPE_FLOAT64;
+    grid.extents[0] = NX; grid.extents[1] = NY; grid.extents[2] = NZ;
+    grid.strides[0] = 1; grid.strides[1] = NX + 2 * G; grid.strides[2] = (NX + 2 * G) * (NY + 2 * G);
+    grid.origin[0] = -1.0; grid.origin[1] = 0.0; grid.origin[2] = 2.0;
+    grid.spacing = 0.5;
+    double psnr[2];
+    for (int step = 0; step < 2; step++) {
+        fill_grid(a, step);
+        grid.data = a + G * (grid.strides[2] + grid.strides[1] + 1); /* first interior cell */
+        EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)step, 0.5 * step, &grid), GSENC_STATUS_OK);
+        EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)step, 0.5 * step, &grid), GSENC_STATUS_CALL_ORDER);
+        EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+        uint64_t got_step = 99;
+        EXPECT(gsenc_encoder_last_step(enc, "rho", &got_step, &psnr[step]), GSENC_STATUS_OK);
+        CHECK(got_step == (uint64_t)step, "last step %llu", (unsigned long long)got_step);
+        CHECK(psnr[step] > 20.0, "step %d PSNR %.2f dB above the floor", step, psnr[step]);
+    }
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_CALL_ORDER);
+
+    /* The written model of step 1, read back: its decode matches evaluation at cell centres. */
+    snprintf(path, sizeof path, "%s/rho_000001.gsm", dir);
+    gsenc_model *model = NULL;
+    EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_OK);
+    gsenc_model_info info;
+    memset(&info, 0, sizeof info);
+    EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_STRUCT_SIZE);
+    info.struct_size = sizeof info;
+    EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_OK);
+    CHECK(info.count == 120 && info.dims[0] == NX && info.dims[2] == NZ && info.step == 1, "info");
+    CHECK(fabs(info.time - 0.5) < 1e-12 && fabs(info.spacing - 0.5) < 1e-12 && info.origin[0] == -1.0, "info time/frame");
+    static float decoded[NX * NY * NZ];
+    EXPECT(gsenc_model_decode(model, NULL, decoded, NX * NY * NZ - 1), GSENC_STATUS_INVALID_ARGUMENT);
+    EXPECT(gsenc_model_decode(model, NULL, decoded, NX * NY * NZ), GSENC_STATUS_OK);
+    double pts[3 * 4];
+    int cells[4][3] = {{0, 0, 0}, {8, 8, 6}, {9, 7, 5}, {NX - 1, NY - 1, NZ - 1}};
+    for (int p = 0; p < 4; p++)
+        for (int c = 0; c < 3; c++) pts[3 * p + c] = grid.origin[c] + (cells[p][c] + 0.5) * grid.spacing;
+    float at[4];
+    EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_OK);
+    for (int p = 0; p < 4; p++) {
+        float d = decoded[(cells[p][2] * NY + cells[p][1]) * NX + cells[p][0]];
+        CHECK(fabsf(at[p] - d) <= 1e-4f * fmaxf(1.0f, fabsf(d)), "evaluate %g vs decode %g at cell %d", at[p], d, p);
+    }
+    CHECK(at[1] > 4.0f && at[0] < 2.0f, "the blob is where it was: %g inside, %g outside", at[1], at[0]);
+    pts[0] = NAN;
+    EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_DATA);
+    EXPECT(gsenc_model_evaluate(NULL, pts, 4, at), GSENC_STATUS_NULL_POINTER);
+    gsenc_model_destroy(model);
+
+    /* Particles, float32, separate x/y/z arrays (component stride = count). */
+    enum { NP = 400 };
+    static float pos[3 * NP], hh[NP], val[NP];
+    for (int i = 0; i < NP; i++) {
+        pos[i] = (float)(i % 20) / 20.0f;
+        pos[NP + i] = (float)((i / 20) % 20) / 20.0f;
+        pos[2 * NP + i] = 0.5f + 0.01f * (float)(i % 7);
+        hh[i] = 0.06f;
+        val[i] = 1.0f + (float)(i % 5);
+    }
+    gsenc_particles parts;
+    memset(&parts, 0, sizeof parts);
+    parts.struct_size = sizeof parts;
+    parts.dtype = GSENC_DTYPE_FLOAT32;
+    parts.count = NP;
+    parts.positions = pos;
+    parts.position_stride = 1;
+    parts.position_component_stride = NP;
+    parts.smoothing_length = hh;
+    parts.values = val;
+    EXPECT(gsenc_push_particles(enc, "tracer", 0, NAN, &parts), GSENC_STATUS_OK);
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+    uint64_t st;
+    double p_psnr;
+    EXPECT(gsenc_encoder_last_step(enc, "tracer", &st, &p_psnr), GSENC_STATUS_OK);
+    CHECK(p_psnr > 15.0, "particle PSNR %.2f", p_psnr);
+
+    /* Bad data and arguments: each refused with its code, the series intact. */
+    val[3] = NAN;
+    EXPECT(gsenc_push_particles(enc, "tracer", 1, NAN, &parts), GSENC_STATUS_INVALID_DATA);
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_CALL_ORDER); /* the bad push left nothing pending */
+    a[G * ((NX + 2 * G) * (NY + 2 * G) + (NX + 2 * G) + 1) + 5] = INFINITY;
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &grid), GSENC_STATUS_INVALID_DATA);
+    a[G * ((NX + 2 * G) * (NY + 2 * G) + (NX + 2 * G) + 1) + 5] = 1.0;
+    val[3] = 2.0f;
+    parts.values = NULL;
+    EXPECT(gsenc_push_particles(enc, "tracer", 1, NAN, &parts), GSENC_STATUS_NULL_POINTER);
+    parts.values = val;
+    parts.dtype = 5;
+    EXPECT(gsenc_push_particles(enc, "tracer", 1, NAN, &parts), GSENC_STATUS_INVALID_ARGUMENT);
+    parts.dtype = GSENC_DTYPE_FLOAT32;
+    EXPECT(gsenc_push_grid(enc, NULL, 2, 0.0, &grid), GSENC_STATUS_NULL_POINTER);
+    EXPECT(gsenc_push_grid(enc, "a/b", 2, 0.0, &grid), GSENC_STATUS_INVALID_ARGUMENT);
+    EXPECT(gsenc_push_grid(NULL, "rho", 2, 0.0, &grid), GSENC_STATUS_NULL_POINTER);
+    gsenc_grid g2 = grid;
+    g2.extents[1] = 0;
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    g2 = grid;
+    g2.struct_size = 4;
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_STRUCT_SIZE);
+    g2 = grid;
+    g2.spacing = -1.0;
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    /* A step on another lattice: refused at encode, the series goes on. */
+    g2 = grid;
+    g2.extents[0] = NX - 4;
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &g2), GSENC_STATUS_OK);
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "lattice") != NULL, "message names the lattice");
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &grid), GSENC_STATUS_OK);
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+    EXPECT(gsenc_encoder_last_step(enc, "nothing", &st, &p_psnr), GSENC_STATUS_CALL_ORDER);
+    EXPECT(gsenc_encoder_write_model(enc, "rho", "/nonexistent-dir/x.gsm"), GSENC_STATUS_IO);
+    snprintf(path, sizeof path, "%s/rho_copy.gsm", dir);
+    EXPECT(gsenc_encoder_write_model(enc, "rho", path), GSENC_STATUS_OK);
+    gsenc_encoder_destroy(enc);
+    gsenc_encoder_destroy(NULL);
+
+    /* An encoder whose output folder does not exist fails at encode. */
+    cfg.output_dir = "/nonexistent-dir";
+    EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
+    EXPECT(gsenc_push_grid(enc, "rho", 0, 0.0, &grid), GSENC_STATUS_OK);
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_IO);
+    gsenc_encoder_destroy(enc);
+
+    /* Foreign and missing files. */
+    EXPECT(gsenc_model_read("/nonexistent-dir/m.gsm", &model), GSENC_STATUS_IO);
+    CHECK(model == NULL, "out is NULL after a failed read");
+    snprintf(path, sizeof path, "%s/foreign.gsm", dir);
+    FILE *f = fopen(path, "wb");
+    fputs("not a model", f);
+    fclose(f);
+    EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_FORMAT);
+    EXPECT(gsenc_model_read(NULL, &model), GSENC_STATUS_NULL_POINTER);
+
+    /* The last-error getter: sizing call, truncation, NUL. */
+    size_t need = gsenc_last_error(NULL, 0);
+    char small[8];
+    CHECK(need > 8 && gsenc_last_error(small, sizeof small) == need && small[7] == '\0', "truncated message");
+    CHECK(strcmp(gsenc_status_string(GSENC_STATUS_IO), "GSENC_STATUS_IO") == 0, "status string");
+    CHECK(strcmp(gsenc_status_string(1000), "GSENC_STATUS_UNKNOWN") == 0, "unknown status string");
+
+    printf("c-api: %d passed, %d failed\n", passed, failed);
+    return failed != 0;
+}
