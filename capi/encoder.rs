@@ -10,6 +10,7 @@ use super::status::{fail, gsenc_status, guard, Failure};
 use super::{c_str, DType};
 use crate::backend::cpu::CpuBackend;
 use crate::backend::{Backend, Lattice};
+use crate::cells::{CellSize, Cells};
 use crate::encoder::with_threads;
 use crate::field::{Grid, IndexFrame};
 use crate::format::write_model_as;
@@ -43,6 +44,49 @@ struct Pending {
 enum PendingData {
     Grid { grid: Grid, frame: IndexFrame },
     Particles { positions: Vec<[f64; 3]>, smoothing_length: Vec<f64>, mass: Vec<f32>, values: Vec<f32> },
+    /// Cells as centres with edge lengths, or with volumes (from hexahedra).
+    Cells { centres: Vec<[f64; 3]>, edges: Vec<[f64; 3]>, volumes: Vec<f64>, values: Vec<f32> },
+}
+
+/// Cell layouts (`gsenc_cells.layout`).
+pub const GSENC_CELLS_BOXES: i32 = 0;
+pub const GSENC_CELLS_HEXAHEDRA: i32 = 1;
+
+/// Hexahedral cells as they lie in memory, with one value each, in one of
+/// two layouts:
+/// - `GSENC_CELLS_BOXES` (AMR codes): axis-aligned boxes, `centres` and
+///   `edges` (edge lengths along x, y, z) as tuples like particle positions;
+/// - `GSENC_CELLS_HEXAHEDRA` (unstructured meshes): `points` (`point_count`
+///   tuples) and `connectivity`, eight 0-based point indices per cell in VTK
+///   order (0-1-2-3 one face, 4-5-6-7 the opposite, `i + 4` above `i`);
+///   gsenc computes each cell's centre and volume.
+///
+/// Tuple strides default to 3 and component strides to 1 (0 selects them).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_cells {
+    /// `sizeof(gsenc_cells)`.
+    pub struct_size: usize,
+    /// `GSENC_DTYPE_*` of every floating-point array.
+    pub dtype: i32,
+    /// `GSENC_CELLS_BOXES` or `GSENC_CELLS_HEXAHEDRA`.
+    pub layout: i32,
+    /// Number of cells.
+    pub count: u64,
+    pub centres: *const c_void,
+    pub centre_stride: i64,
+    pub centre_component_stride: i64,
+    pub edges: *const c_void,
+    pub edge_stride: i64,
+    pub edge_component_stride: i64,
+    pub points: *const c_void,
+    pub point_count: u64,
+    pub point_stride: i64,
+    pub point_component_stride: i64,
+    pub connectivity: *const i64,
+    pub values: *const c_void,
+    pub value_stride: i64,
 }
 
 /// A regular grid as it lies in the caller's memory: value `(i, j, k)` is
@@ -95,6 +139,33 @@ pub struct gsenc_particles {
     /// The field's values.
     pub values: *const c_void,
     pub value_stride: i64,
+}
+
+/// `n` tuples of three from a caller's array (strides in elements, 0 = default).
+///
+/// # Safety
+/// `ptr` holds every element the count and strides name.
+unsafe fn read_tuples(dtype: DType, ptr: *const c_void, n: usize, stride: i64, component: i64) -> Vec<[f64; 3]> {
+    let (ts, cs) = (if stride == 0 { 3 } else { stride }, if component == 0 { 1 } else { component });
+    // SAFETY: per the contract.
+    (0..n as i64).map(|i| std::array::from_fn(|c| unsafe { dtype.read(ptr, (i * ts + c as i64 * cs) as isize) })).collect()
+}
+
+/// `n` scalars from a caller's array (stride in elements, 0 = 1).
+///
+/// # Safety
+/// `ptr` holds every element the count and stride name.
+unsafe fn read_scalars(dtype: DType, ptr: *const c_void, n: usize, stride: i64) -> Vec<f64> {
+    let s = if stride == 0 { 1 } else { stride };
+    // SAFETY: per the contract.
+    (0..n as i64).map(|i| unsafe { dtype.read(ptr, (i * s) as isize) }).collect()
+}
+
+fn item_count(count: u64, what: &str) -> Result<usize, Failure> {
+    usize::try_from(count)
+        .ok()
+        .filter(|&n| n > 0 && n <= 1 << 40)
+        .ok_or_else(|| Failure(gsenc_status::InvalidArgument, format!("{what} count {count} must be 1..2^40")))
 }
 
 /// Creates an encoder from `*config` (read, not kept) into `*out`.
@@ -159,6 +230,12 @@ impl gsenc_encoder {
                 crate::field::check_finite(mass)?;
                 if positions.iter().flatten().chain(smoothing_length).any(|v| !v.is_finite()) {
                     return fail(gsenc_status::InvalidData, "a particle position or smoothing length is not finite");
+                }
+            }
+            PendingData::Cells { centres, edges, volumes, values } => {
+                crate::field::check_finite(values)?;
+                if centres.iter().chain(edges).flatten().chain(volumes).any(|v| !v.is_finite()) {
+                    return fail(gsenc_status::InvalidData, "a cell centre, edge length or volume is not finite");
                 }
             }
         }
@@ -246,32 +323,88 @@ pub unsafe extern "C" fn gsenc_push_particles(
         check_struct_size(size, std::mem::size_of::<gsenc_particles>(), "gsenc_push_particles")?;
         let p = unsafe { *particles };
         let dtype = DType::from_c(p.dtype)?;
-        let n = usize::try_from(p.count).ok().filter(|&n| n > 0 && n <= 1 << 40);
-        let n = n.ok_or_else(|| Failure(gsenc_status::InvalidArgument, format!("particle count {} must be 1..2^40", p.count)))?;
+        let n = item_count(p.count, "particle")?;
         for (ptr, name) in [(p.positions, "positions"), (p.smoothing_length, "smoothing_length"), (p.values, "values")] {
             if ptr.is_null() {
                 return fail(gsenc_status::NullPointer, format!("gsenc_push_particles: {name} is NULL"));
             }
         }
-        let or = |s: i64, d: i64| if s == 0 { d } else { s };
-        let (ts, cs) = (or(p.position_stride, 3), or(p.position_component_stride, 1));
         // SAFETY (every read below): the caller's arrays hold every element
         // that `count` and the strides name.
-        let positions: Vec<[f64; 3]> = (0..n as i64)
-            .map(|i| std::array::from_fn(|c| unsafe { dtype.read(p.positions, (i * ts + c as i64 * cs) as isize) }))
-            .collect();
-        let scalars = |ptr: *const c_void, stride: i64| -> Vec<f64> {
-            let s = or(stride, 1);
-            (0..n as i64).map(|i| unsafe { dtype.read(ptr, (i * s) as isize) }).collect()
-        };
-        let smoothing_length = scalars(p.smoothing_length, p.smoothing_length_stride);
-        let values = scalars(p.values, p.value_stride).into_iter().map(|v| v as f32).collect();
+        let positions = unsafe { read_tuples(dtype, p.positions, n, p.position_stride, p.position_component_stride) };
+        let smoothing_length = unsafe { read_scalars(dtype, p.smoothing_length, n, p.smoothing_length_stride) };
+        let values = unsafe { read_scalars(dtype, p.values, n, p.value_stride) }.into_iter().map(|v| v as f32).collect();
         let mass = if p.mass.is_null() {
             vec![1.0; n]
         } else {
-            scalars(p.mass, p.mass_stride).into_iter().map(|v| v as f32).collect()
+            unsafe { read_scalars(dtype, p.mass, n, p.mass_stride) }.into_iter().map(|v| v as f32).collect()
         };
         enc.push(field, step, time, PendingData::Particles { positions, smoothing_length, mass, values })
+    })
+}
+
+/// Hands over one field of step `step` on hexahedral cells (see
+/// `gsenc_cells`), deposited on the configured `dims` and bounds
+/// (volume-weighted). The arrays are copied.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_push_cells(
+    encoder: *mut gsenc_encoder,
+    field: *const c_char,
+    step: u64,
+    time: f64,
+    cells: *const gsenc_cells,
+) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_push_cells")?;
+        // SAFETY: a NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        if cells.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_push_cells: cells is NULL");
+        }
+        // SAFETY: non-null; the size is checked before reading further.
+        let size = unsafe { (*cells).struct_size };
+        check_struct_size(size, std::mem::size_of::<gsenc_cells>(), "gsenc_push_cells")?;
+        let c = unsafe { *cells };
+        let dtype = DType::from_c(c.dtype)?;
+        let n = item_count(c.count, "cell")?;
+        if c.values.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_push_cells: values is NULL");
+        }
+        // SAFETY (every read below): the caller's arrays hold every element
+        // that the counts and strides name.
+        let values: Vec<f32> = unsafe { read_scalars(dtype, c.values, n, c.value_stride) }.into_iter().map(|v| v as f32).collect();
+        let data = match c.layout {
+            GSENC_CELLS_BOXES => {
+                if c.centres.is_null() || c.edges.is_null() {
+                    return fail(gsenc_status::NullPointer, "gsenc_push_cells: centres or edges is NULL");
+                }
+                let centres = unsafe { read_tuples(dtype, c.centres, n, c.centre_stride, c.centre_component_stride) };
+                let edges = unsafe { read_tuples(dtype, c.edges, n, c.edge_stride, c.edge_component_stride) };
+                PendingData::Cells { centres, edges, volumes: Vec::new(), values }
+            }
+            GSENC_CELLS_HEXAHEDRA => {
+                if c.points.is_null() || c.connectivity.is_null() {
+                    return fail(gsenc_status::NullPointer, "gsenc_push_cells: points or connectivity is NULL");
+                }
+                let np = item_count(c.point_count, "point")?;
+                let points = unsafe { read_tuples(dtype, c.points, np, c.point_stride, c.point_component_stride) };
+                // SAFETY: 8 indices per cell.
+                let conn = unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) };
+                if let Some(i) = conn.iter().position(|&k| k < 0 || k as u64 >= np as u64) {
+                    return fail(
+                        gsenc_status::InvalidArgument,
+                        format!("connectivity entry {i} (cell {}) is {}, outside 0..{np}", i / 8, conn[i]),
+                    );
+                }
+                let (centres, volumes) = conn
+                    .chunks_exact(8)
+                    .map(|k| crate::cells::hexahedron_centre_volume(&std::array::from_fn(|j| points[k[j] as usize])))
+                    .unzip();
+                PendingData::Cells { centres, edges: Vec::new(), volumes, values }
+            }
+            l => return fail(gsenc_status::InvalidArgument, format!("unknown cell layout {l}")),
+        };
+        enc.push(field, step, time, data)
     })
 }
 
@@ -305,11 +438,17 @@ impl gsenc_encoder {
         let (model, psnr) = with_threads(s.threads, || -> crate::Result<(Model, f64)> {
             let mut cpu = CpuBackend::new();
             let particles;
+            let cells;
             let input = match &p.data {
                 PendingData::Grid { grid, frame } => StepInput::Grid { values: grid, frame: *frame },
                 PendingData::Particles { positions, smoothing_length, mass, values } => {
                     particles = Particles { positions, smoothing_length, mass, values };
                     StepInput::Particles { particles: &particles, placement }
+                }
+                PendingData::Cells { centres, edges, volumes, values } => {
+                    let size = if volumes.is_empty() { CellSize::Edges(edges) } else { CellSize::Volumes(volumes) };
+                    cells = Cells { centres, size, values };
+                    StepInput::Cells { cells: &cells, placement }
                 }
             };
             let mut r = series.encode_step(&p.field, p.step, p.time, input, &mut cpu, &mut |_| {})?;

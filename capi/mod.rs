@@ -5,7 +5,8 @@
 //!
 //! Modules: `status` (codes, last error), `config` (the encoder's settings),
 //! `encoder` (push, encode, write), `model` (read, decode, evaluate).
-//! Not yet here (issue 6, open): cells, the Fortran module, CMake package.
+//! Not yet here (issue 6, open): the Fortran module, the CMake package, the
+//! mock-solver examples.
 
 #![allow(non_camel_case_types)]
 
@@ -98,7 +99,7 @@ pub extern "C" fn gsenc_version_string() -> *const std::os::raw::c_char {
 #[cfg(test)]
 mod tests {
     use super::config::*;
-    use super::encoder::{gsenc_grid, gsenc_particles};
+    use super::encoder::{gsenc_cells, gsenc_grid, gsenc_particles};
     use super::model::gsenc_model_info;
     use super::status::gsenc_status;
     use std::mem::{offset_of, size_of};
@@ -143,6 +144,12 @@ mod tests {
             [offset_of!(gsenc_particles, count), offset_of!(gsenc_particles, positions), offset_of!(gsenc_particles, position_stride), offset_of!(gsenc_particles, position_component_stride), offset_of!(gsenc_particles, smoothing_length), offset_of!(gsenc_particles, smoothing_length_stride), offset_of!(gsenc_particles, mass), offset_of!(gsenc_particles, mass_stride), offset_of!(gsenc_particles, values), offset_of!(gsenc_particles, value_stride)],
             [16, 24, 32, 40, 48, 56, 64, 72, 80, 88]
         );
+        assert_eq!(size_of::<gsenc_cells>(), 128);
+        assert_eq!(
+            [offset_of!(gsenc_cells, layout), offset_of!(gsenc_cells, count), offset_of!(gsenc_cells, centres), offset_of!(gsenc_cells, edges), offset_of!(gsenc_cells, points), offset_of!(gsenc_cells, point_count), offset_of!(gsenc_cells, connectivity), offset_of!(gsenc_cells, values), offset_of!(gsenc_cells, value_stride)],
+            [12, 16, 24, 48, 72, 80, 104, 112, 120]
+        );
+        assert_eq!([super::encoder::GSENC_CELLS_BOXES, super::encoder::GSENC_CELLS_HEXAHEDRA], [0, 1]);
         assert_eq!(size_of::<gsenc_model_info>(), 96);
         assert_eq!(
             [offset_of!(gsenc_model_info, count), offset_of!(gsenc_model_info, dims), offset_of!(gsenc_model_info, origin), offset_of!(gsenc_model_info, spacing), offset_of!(gsenc_model_info, step), offset_of!(gsenc_model_info, time), offset_of!(gsenc_model_info, rank)],

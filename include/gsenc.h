@@ -76,6 +76,13 @@
 #define GSENC_PAYLOAD_8BIT_U16 2
 
 /*
+ Cell layouts (`gsenc_cells.layout`).
+ */
+#define GSENC_CELLS_BOXES 0
+
+#define GSENC_CELLS_HEXAHEDRA 1
+
+/*
  What a call did. Values are fixed and only ever appended to.
  */
 typedef enum {
@@ -277,6 +284,50 @@ typedef struct {
 } gsenc_particles;
 
 /*
+ Hexahedral cells as they lie in memory, with one value each, in one of
+ two layouts:
+ - `GSENC_CELLS_BOXES` (AMR codes): axis-aligned boxes, `centres` and
+   `edges` (edge lengths along x, y, z) as tuples like particle positions;
+ - `GSENC_CELLS_HEXAHEDRA` (unstructured meshes): `points` (`point_count`
+   tuples) and `connectivity`, eight 0-based point indices per cell in VTK
+   order (0-1-2-3 one face, 4-5-6-7 the opposite, `i + 4` above `i`);
+   gsenc computes each cell's centre and volume.
+
+ Tuple strides default to 3 and component strides to 1 (0 selects them).
+ */
+typedef struct {
+  /*
+   `sizeof(gsenc_cells)`.
+   */
+  size_t struct_size;
+  /*
+   `GSENC_DTYPE_*` of every floating-point array.
+   */
+  int32_t dtype;
+  /*
+   `GSENC_CELLS_BOXES` or `GSENC_CELLS_HEXAHEDRA`.
+   */
+  int32_t layout;
+  /*
+   Number of cells.
+   */
+  uint64_t count;
+  const void *centres;
+  int64_t centre_stride;
+  int64_t centre_component_stride;
+  const void *edges;
+  int64_t edge_stride;
+  int64_t edge_component_stride;
+  const void *points;
+  uint64_t point_count;
+  int64_t point_stride;
+  int64_t point_component_stride;
+  const int64_t *connectivity;
+  const void *values;
+  int64_t value_stride;
+} gsenc_cells;
+
+/*
  What a model covers. Set `struct_size` to `sizeof(gsenc_model_info)`.
  */
 typedef struct {
@@ -354,6 +405,17 @@ gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
                                   uint64_t step,
                                   double time,
                                   const gsenc_particles *particles);
+
+/*
+ Hands over one field of step `step` on hexahedral cells (see
+ `gsenc_cells`), deposited on the configured `dims` and bounds
+ (volume-weighted). The arrays are copied.
+ */
+gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
+                              const char *field,
+                              uint64_t step,
+                              double time,
+                              const gsenc_cells *cells);
 
 /*
  Encodes every field pushed since the last call, each warm-started from

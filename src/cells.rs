@@ -149,3 +149,44 @@ impl Conversion for Cells<'_> {
         Item { u, sample_scale: h, importance: vol, inside, splat, nearest }
     }
 }
+
+/// Centre (mean of the nodes) and volume of a hexahedron given by its eight
+/// nodes in VTK order (0-1-2-3 one face, 4-5-6-7 the opposite one, `i + 4`
+/// above `i`), through six tetrahedra around the diagonal 0-6. Exact for
+/// any hexahedron with planar faces; the magnitude is taken, so either
+/// orientation works.
+pub fn hexahedron_centre_volume(n: &[[f64; 3]; 8]) -> ([f64; 3], f64) {
+    let centre = std::array::from_fn(|a| n.iter().map(|p| p[a]).sum::<f64>() / 8.0);
+    let sub = |p: [f64; 3], q: [f64; 3]| [p[0] - q[0], p[1] - q[1], p[2] - q[2]];
+    let det = |a: [f64; 3], b: [f64; 3], c: [f64; 3]| {
+        a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0])
+    };
+    let tets = [[1, 2], [2, 3], [3, 7], [7, 4], [4, 5], [5, 1]];
+    let v: f64 = tets.iter().map(|&[i, j]| det(sub(n[i], n[0]), sub(n[j], n[0]), sub(n[6], n[0]))).sum();
+    (centre, v.abs() / 6.0)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn hexahedron_volumes_match_their_shapes() {
+        let cube: [[f64; 3]; 8] =
+            [[0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.], [0., 0., 1.], [1., 0., 1.], [1., 1., 1.], [0., 1., 1.]];
+        let (c, v) = hexahedron_centre_volume(&cube);
+        assert_eq!(c, [0.5; 3]);
+        assert!((v - 1.0).abs() < 1e-12);
+        // A box of 2 x 3 x 0.5, shifted, then sheared in x by z (volume kept).
+        let boxed = cube.map(|p| [2.0 * p[0] + 5.0 + 0.7 * p[2], 3.0 * p[1] - 1.0, 0.5 * p[2]]);
+        let (c, v) = hexahedron_centre_volume(&boxed);
+        assert!((v - 3.0).abs() < 1e-12, "{v}");
+        assert!((c[0] - (6.0 + 0.35)).abs() < 1e-12 && (c[1] - 0.5).abs() < 1e-12 && (c[2] - 0.25).abs() < 1e-12);
+        // The mirror image (inverted node order) has the same volume.
+        let mirrored = cube.map(|p| [-p[0], p[1], p[2]]);
+        assert!((hexahedron_centre_volume(&mirrored).1 - 1.0).abs() < 1e-12);
+        // A frustum-like hexahedron: bottom 2 x 2, top 1 x 1 centred, height 1: volume 7/3.
+        let f = [[0., 0., 0.], [2., 0., 0.], [2., 2., 0.], [0., 2., 0.], [0.5, 0.5, 1.], [1.5, 0.5, 1.], [1.5, 1.5, 1.], [0.5, 1.5, 1.]];
+        assert!((hexahedron_centre_volume(&f).1 - 7.0 / 3.0).abs() < 1e-12);
+    }
+}

@@ -42,6 +42,7 @@ int main(void) {
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144, "gsenc_config layout");
     CHECK(sizeof(gsenc_grid) == 104 && offsetof(gsenc_grid, strides) == 48 && offsetof(gsenc_grid, spacing) == 96, "gsenc_grid layout");
     CHECK(sizeof(gsenc_particles) == 96 && offsetof(gsenc_particles, values) == 80, "gsenc_particles layout");
+    CHECK(sizeof(gsenc_cells) == 128 && offsetof(gsenc_cells, connectivity) == 104 && offsetof(gsenc_cells, value_stride) == 120, "gsenc_cells layout");
     CHECK(sizeof(gsenc_model_info) == 96 && offsetof(gsenc_model_info, rank) == 88, "gsenc_model_info layout");
     CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8, "gsenc_status values");
 
@@ -119,13 +120,13 @@ int main(void) {
     EXPECT(gsenc_model_decode(model, NULL, decoded, NX * NY * NZ - 1), GSENC_STATUS_INVALID_ARGUMENT);
     EXPECT(gsenc_model_decode(model, NULL, decoded, NX * NY * NZ), GSENC_STATUS_OK);
     double pts[3 * 4];
-    int cells[4][3] = {{0, 0, 0}, {8, 8, 6}, {9, 7, 5}, {NX - 1, NY - 1, NZ - 1}};
+    int probe[4][3] = {{0, 0, 0}, {8, 8, 6}, {9, 7, 5}, {NX - 1, NY - 1, NZ - 1}};
     for (int p = 0; p < 4; p++)
-        for (int c = 0; c < 3; c++) pts[3 * p + c] = grid.origin[c] + (cells[p][c] + 0.5) * grid.spacing;
+        for (int c = 0; c < 3; c++) pts[3 * p + c] = grid.origin[c] + (probe[p][c] + 0.5) * grid.spacing;
     float at[4];
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_OK);
     for (int p = 0; p < 4; p++) {
-        float d = decoded[(cells[p][2] * NY + cells[p][1]) * NX + cells[p][0]];
+        float d = decoded[(probe[p][2] * NY + probe[p][1]) * NX + probe[p][0]];
         CHECK(fabsf(at[p] - d) <= 1e-4f * fmaxf(1.0f, fabsf(d)), "evaluate %g vs decode %g at cell %d", at[p], d, p);
     }
     CHECK(at[1] > 4.0f && at[0] < 2.0f, "the blob is where it was: %g inside, %g outside", at[1], at[0]);
@@ -160,6 +161,62 @@ int main(void) {
     double p_psnr;
     EXPECT(gsenc_encoder_last_step(enc, "tracer", &st, &p_psnr), GSENC_STATUS_OK);
     CHECK(p_psnr > 15.0, "particle PSNR %.2f", p_psnr);
+
+    /* Cells: 8^3 cubes of edge 1/8 over the unit box, once as boxes (centres
+     * and edges) and once as hexahedra (9^3 shared points, VTK order): the
+     * same cells, so the same model. */
+    enum { NC = 8 * 8 * 8, NPT = 9 * 9 * 9 };
+    static double cc[3 * NC], ce[3 * NC], cv[NC], pts9[3 * NPT];
+    static int64_t conn[8 * NC];
+    for (int k = 0; k < 9; k++)
+        for (int j = 0; j < 9; j++)
+            for (int i = 0; i < 9; i++) {
+                int p = (k * 9 + j) * 9 + i;
+                pts9[3 * p] = i / 8.0; pts9[3 * p + 1] = j / 8.0; pts9[3 * p + 2] = k / 8.0;
+            }
+    for (int k = 0; k < 8; k++)
+        for (int j = 0; j < 8; j++)
+            for (int i = 0; i < 8; i++) {
+                int c = (k * 8 + j) * 8 + i;
+                double x = (i + 0.5) / 8, y = (j + 0.5) / 8, z = (k + 0.5) / 8;
+                cc[3 * c] = x; cc[3 * c + 1] = y; cc[3 * c + 2] = z;
+                ce[3 * c] = ce[3 * c + 1] = ce[3 * c + 2] = 0.125;
+                cv[c] = 1.0 + 4.0 * exp(-((x - 0.4) * (x - 0.4) + (y - 0.5) * (y - 0.5) + (z - 0.6) * (z - 0.6)) / 0.05);
+                int b = (k * 9 + j) * 9 + i; /* lower corner point */
+                int64_t nodes[8] = {b, b + 1, b + 10, b + 9, b + 81, b + 82, b + 91, b + 90};
+                memcpy(conn + 8 * c, nodes, sizeof nodes);
+            }
+    gsenc_cells cells;
+    memset(&cells, 0, sizeof cells);
+    cells.struct_size = sizeof cells;
+    cells.dtype = GSENC_DTYPE_FLOAT64;
+    cells.layout = GSENC_CELLS_BOXES;
+    cells.count = NC;
+    cells.centres = cc;
+    cells.edges = ce;
+    cells.values = cv;
+    EXPECT(gsenc_push_cells(enc, "cells_box", 0, 0.0, &cells), GSENC_STATUS_OK);
+    gsenc_cells hex = cells;
+    hex.layout = GSENC_CELLS_HEXAHEDRA;
+    hex.centres = NULL;
+    hex.edges = NULL;
+    hex.points = pts9;
+    hex.point_count = NPT;
+    hex.connectivity = conn;
+    EXPECT(gsenc_push_cells(enc, "cells_hex", 0, 0.0, &hex), GSENC_STATUS_OK);
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+    double box_psnr, hex_psnr;
+    EXPECT(gsenc_encoder_last_step(enc, "cells_box", &st, &box_psnr), GSENC_STATUS_OK);
+    EXPECT(gsenc_encoder_last_step(enc, "cells_hex", &st, &hex_psnr), GSENC_STATUS_OK);
+    CHECK(box_psnr > 15.0 && fabs(box_psnr - hex_psnr) < 1e-9, "boxes %.6f dB, hexahedra %.6f dB", box_psnr, hex_psnr);
+    conn[17] = NPT; /* a point index past the end */
+    EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, &hex), GSENC_STATUS_INVALID_ARGUMENT);
+    conn[17] = 0;
+    hex.layout = 9;
+    EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, &hex), GSENC_STATUS_INVALID_ARGUMENT);
+    hex.layout = GSENC_CELLS_HEXAHEDRA;
+    hex.connectivity = NULL;
+    EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, &hex), GSENC_STATUS_NULL_POINTER);
 
     /* Bad data and arguments: each refused with its code, the series intact. */
     val[3] = NAN;
