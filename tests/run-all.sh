@@ -24,9 +24,14 @@ trap 'rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
 "$out/version"
 echo "c: 1 passed, 0 failed"
+# The 30-line example must build warning-free against the header.
+cc -std=c99 -Wall -Werror -Iinclude examples_c/minimal.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/minimal"
 # The C API from C: a warm-started series, models read back, every error path.
 cc -std=c99 -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi"
 GSENC_CAPI_TMP="$out" "$out/capi"
+# ...and under valgrind memcheck: no invalid reads or writes, no leaks.
+cc -std=c99 -g -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi-g"
+GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
 
 # The store read with h5py alone, against the models gsenc extracts from it.
 cargo build --release --locked --features hdf5 --bin gsenc
