@@ -141,15 +141,8 @@ impl Settings {
     /// # Safety
     /// `c` points to a caller's `gsenc_config` of at least `struct_size` bytes.
     pub unsafe fn from_c(c: *const gsenc_config) -> Result<Settings, Failure> {
-        if c.is_null() {
-            return fail(gsenc_status::NullPointer, "config is NULL");
-        }
         // SAFETY: per the contract.
-        let size = unsafe { (*c).struct_size };
-        if size < CONFIG_SIZE {
-            return fail(gsenc_status::StructSize, format!("config struct_size is {size}, this gsenc needs {CONFIG_SIZE}"));
-        }
-        let c = unsafe { *c };
+        let c = unsafe { super::encoder::read_sized(c, "config") }?;
         let bad = |what: String| Failure(gsenc_status::InvalidArgument, what);
         let schedule = match c.schedule {
             GSENC_SCHEDULE_FULL => Schedule::Full,

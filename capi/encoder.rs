@@ -208,11 +208,34 @@ fn encoder_mut<'a>(encoder: *mut gsenc_encoder, what: &str) -> Result<&'a mut gs
     Ok(unsafe { &mut *encoder })
 }
 
-fn check_struct_size(size: usize, want: usize, what: &str) -> Result<(), Failure> {
+/// Checks that a caller's struct, which starts with `size_t struct_size`,
+/// holds at least this version's fields. Reads the size only.
+///
+/// # Safety
+/// `p` is NULL or points to such a struct.
+pub(crate) unsafe fn check_sized<T>(p: *const T, what: &str) -> Result<(), Failure> {
+    if p.is_null() {
+        return fail(gsenc_status::NullPointer, format!("{what} is NULL"));
+    }
+    // SAFETY: per the contract, the first field is a usize.
+    let size = unsafe { p.cast::<usize>().read_unaligned() };
+    let want = std::mem::size_of::<T>();
     if size < want {
         return fail(gsenc_status::StructSize, format!("{what}: struct_size is {size}, this gsenc needs {want}"));
     }
     Ok(())
+}
+
+/// A copy of a caller's struct after [`check_sized`].
+///
+/// # Safety
+/// As for [`check_sized`], and the struct is initialised.
+pub(crate) unsafe fn read_sized<T: Copy>(p: *const T, what: &str) -> Result<T, Failure> {
+    // SAFETY: per the contract; then it holds at least size_of::<T>() bytes.
+    unsafe {
+        check_sized(p, what)?;
+        Ok(p.read_unaligned())
+    }
 }
 
 fn time_of(time: f64) -> Option<f64> {
@@ -262,13 +285,8 @@ pub unsafe extern "C" fn gsenc_push_grid(
         let enc = encoder_mut(encoder, "gsenc_push_grid")?;
         // SAFETY: a NUL-terminated string or NULL (refused).
         let field = unsafe { c_str(field, "field") }?;
-        if grid.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_push_grid: grid is NULL");
-        }
-        // SAFETY: non-null; the size is checked before reading further.
-        let size = unsafe { (*grid).struct_size };
-        check_struct_size(size, std::mem::size_of::<gsenc_grid>(), "gsenc_push_grid")?;
-        let g = unsafe { *grid };
+        // SAFETY: NULL or the caller's gsenc_grid.
+        let g = unsafe { read_sized(grid, "gsenc_push_grid: grid") }?;
         let dtype = DType::from_c(g.dtype)?;
         if g.data.is_null() {
             return fail(gsenc_status::NullPointer, "gsenc_push_grid: data is NULL");
@@ -315,13 +333,8 @@ pub unsafe extern "C" fn gsenc_push_particles(
         let enc = encoder_mut(encoder, "gsenc_push_particles")?;
         // SAFETY: a NUL-terminated string or NULL (refused).
         let field = unsafe { c_str(field, "field") }?;
-        if particles.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_push_particles: particles is NULL");
-        }
-        // SAFETY: non-null; the size is checked before reading further.
-        let size = unsafe { (*particles).struct_size };
-        check_struct_size(size, std::mem::size_of::<gsenc_particles>(), "gsenc_push_particles")?;
-        let p = unsafe { *particles };
+        // SAFETY: NULL or the caller's gsenc_particles.
+        let p = unsafe { read_sized(particles, "gsenc_push_particles: particles") }?;
         let dtype = DType::from_c(p.dtype)?;
         let n = item_count(p.count, "particle")?;
         for (ptr, name) in [(p.positions, "positions"), (p.smoothing_length, "smoothing_length"), (p.values, "values")] {
@@ -358,13 +371,8 @@ pub unsafe extern "C" fn gsenc_push_cells(
         let enc = encoder_mut(encoder, "gsenc_push_cells")?;
         // SAFETY: a NUL-terminated string or NULL (refused).
         let field = unsafe { c_str(field, "field") }?;
-        if cells.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_push_cells: cells is NULL");
-        }
-        // SAFETY: non-null; the size is checked before reading further.
-        let size = unsafe { (*cells).struct_size };
-        check_struct_size(size, std::mem::size_of::<gsenc_cells>(), "gsenc_push_cells")?;
-        let c = unsafe { *cells };
+        // SAFETY: NULL or the caller's gsenc_cells.
+        let c = unsafe { read_sized(cells, "gsenc_push_cells: cells") }?;
         let dtype = DType::from_c(c.dtype)?;
         let n = item_count(c.count, "cell")?;
         if c.values.is_null() {

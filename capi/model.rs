@@ -79,15 +79,9 @@ pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
 pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *mut gsenc_model_info) -> gsenc_status {
     guard(|| {
         let m = model_ref(model, "gsenc_model_info_get")?;
-        if info.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_model_info_get: info is NULL");
-        }
-        // SAFETY: non-null; the caller owns struct_size bytes there.
-        let size = unsafe { (*info).struct_size };
+        // SAFETY: NULL or the caller's gsenc_model_info, to be filled.
+        unsafe { super::encoder::check_sized(info.cast_const(), "gsenc_model_info_get: info") }?;
         let want = std::mem::size_of::<gsenc_model_info>();
-        if size < want {
-            return fail(gsenc_status::StructSize, format!("gsenc_model_info_get: struct_size is {size}, this gsenc needs {want}"));
-        }
         let f = &m.meta.frame;
         let value = gsenc_model_info {
             struct_size: want,

@@ -117,9 +117,9 @@ pub struct ValueArgs {
     log10: bool,
 }
 
-/// Everything about an encode but its input.
+/// The budget and the optimisation: what every encoding command shares.
 #[derive(Args)]
-struct EncodeOptions {
+pub struct TrainingArgs {
     /// Number of Gaussians.
     #[arg(long)]
     budget: usize,
@@ -145,6 +145,27 @@ struct EncodeOptions {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
+}
+
+impl TrainingArgs {
+    /// The encoder configuration; `particles` selects the particles' full schedule.
+    pub fn config(&self, particles: bool) -> Result<EncodeConfig> {
+        let mut cfg = EncodeConfig::new(self.budget, Schedule::from_name(&self.schedule)?);
+        cfg.iterations = self.iters;
+        cfg.points = self.points;
+        cfg.seed_init = self.seed;
+        cfg.seed_sample = self.sample_seed;
+        cfg.relocation = !self.no_relocation;
+        cfg.particles = particles;
+        Ok(cfg)
+    }
+}
+
+/// Everything about an encode but its input.
+#[derive(Args)]
+struct EncodeOptions {
+    #[command(flatten)]
+    train: TrainingArgs,
     /// CPU backend brick edge in voxels (tuning only; does not change the model
     /// beyond float rounding).
     #[arg(long, hide = true)]
@@ -477,17 +498,11 @@ struct EncodeInputData<'a> {
 /// Encodes, writes the model and returns the result keys every encode prints.
 fn run_encode(input: &EncodeInputData, o: &EncodeOptions, t_total: Instant) -> Result<serde_json::Map<String, serde_json::Value>> {
     let reference = input.target.reference;
-    let mut cfg = EncodeConfig::new(o.budget, Schedule::from_name(&o.schedule)?);
-    cfg.iterations = o.iters;
-    cfg.points = o.points;
-    cfg.seed_init = o.seed;
-    cfg.seed_sample = o.sample_seed;
-    cfg.relocation = !o.no_relocation;
-    cfg.particles = input.particles;
+    let cfg = o.train.config(input.particles)?;
     gsenc::encoder::validate(&input.target, &cfg, None)?;
     let payload = format::Payload::from_name(&o.payload)?;
     let pb = progress_bar(o.out.quiet, cfg.iterations() as u64);
-    let (out, decoded, evals) = with_threads(o.threads, || -> Result<_> {
+    let (out, decoded, evals) = with_threads(o.train.threads, || -> Result<_> {
         let mut backend = CpuBackend::new();
         if let Some(b) = o.brick {
             backend.brick = b;
@@ -690,13 +705,13 @@ fn encode_prepared(p: Prepared, particles: bool, o: &EncodeOptions, t_total: Ins
 
 fn cmd_encode_particles(a: EncodeParticlesArgs) -> Result<()> {
     let t_total = Instant::now();
-    let p = with_threads(a.encode.threads, || a.input.prepare(&a.values))??;
+    let p = with_threads(a.encode.train.threads, || a.input.prepare(&a.values))??;
     encode_prepared(p, true, &a.encode, t_total)
 }
 
 fn cmd_encode_cells(a: EncodeCellsArgs) -> Result<()> {
     let t_total = Instant::now();
-    let p = with_threads(a.encode.threads, || a.input.prepare(&a.values))??;
+    let p = with_threads(a.encode.train.threads, || a.input.prepare(&a.values))??;
     encode_prepared(p, false, &a.encode, t_total)
 }
 

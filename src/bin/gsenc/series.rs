@@ -2,11 +2,11 @@
 //! warm-started from the previous one (or not), stored as complete models,
 //! with a CSV of validation PSNR against iterations for every step.
 
-use super::{peak_rss_bytes, print_result, progress_bar, OutputFlags, ParticleInput, ValueArgs};
+use super::{peak_rss_bytes, print_result, progress_bar, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
 use clap::Args;
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::backend::{Backend, Lattice};
-use gsenc::encoder::{with_threads, EncodeConfig, Schedule};
+use gsenc::encoder::with_threads;
 use gsenc::format::{self, Payload};
 use gsenc::io::{raw, write_atomic, AtomicFile};
 use gsenc::metrics::{occupied_psnr, voxel_psnr};
@@ -35,24 +35,10 @@ pub struct EncodeSeriesArgs {
     /// coarse (1000 iterations, no relocation) or dense (1500, relocation on).
     #[arg(long, default_value = "dense")]
     warm: String,
-    /// Number of Gaussians.
-    #[arg(long)]
-    budget: usize,
-    /// Schedule of the first step and of independent steps.
-    #[arg(long, default_value = "full")]
-    schedule: String,
-    #[arg(long)]
-    iters: Option<usize>,
-    #[arg(long)]
-    points: Option<usize>,
-    #[arg(long, default_value_t = 0)]
-    seed: u64,
-    #[arg(long, default_value_t = 1)]
-    sample_seed: u64,
-    /// Skip relocation in the first and independent steps (the paper's
-    /// independent time steps do; warm steps follow --warm).
-    #[arg(long)]
-    no_relocation: bool,
+    /// Budget and schedule of the first step and of independent steps
+    /// (`--no-relocation` there too, as the paper's independent time steps).
+    #[command(flatten)]
+    train: TrainingArgs,
     /// Validation points (fixed per series) and how often they are scored.
     #[arg(long, default_value_t = 1 << 16)]
     validation_points: usize,
@@ -62,8 +48,6 @@ pub struct EncodeSeriesArgs {
     field: String,
     #[arg(long, default_value = "f32")]
     payload: String,
-    #[arg(long)]
-    threads: Option<usize>,
     /// Output: an HDF5 store (.h5, needs the hdf5 feature) or a folder of
     /// FIELD_STEP.gsm files.
     #[arg(short, long)]
@@ -152,13 +136,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     let steps = parse_steps(a.steps.as_deref(), rows)?;
     let warm = WarmStart::from_name(&a.warm)?;
     let payload = Payload::from_name(&a.payload)?;
-    let mut base = EncodeConfig::new(a.budget, Schedule::from_name(&a.schedule)?);
-    base.iterations = a.iters;
-    base.points = a.points;
-    base.seed_init = a.seed;
-    base.seed_sample = a.sample_seed;
-    base.particles = !a.as_grid;
-    base.relocation = !a.no_relocation;
+    let base = a.train.config(!a.as_grid)?;
     let range = match a.values.spec()? {
         gsenc::reference::RangeSpec::Fixed(r) => SeriesRange::Fixed(r),
         gsenc::reference::RangeSpec::FromData(t) => SeriesRange::FirstStep(t),
@@ -188,7 +166,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             StepInput::Particles { particles: &particles, placement }
         };
         let pb = progress_bar(a.out.quiet, 0);
-        let (mut r, psnr, occupied) = with_threads(a.threads, || -> Result<_> {
+        let (mut r, psnr, occupied) = with_threads(a.train.threads, || -> Result<_> {
             let mut cpu = CpuBackend::new();
             let r = series.encode_step(&a.field, row as u64, None, input, &mut cpu, &mut |p| {
                 pb.set_length(p.iterations as u64);
