@@ -152,7 +152,8 @@ impl Store {
     }
 
     /// Every entry, sorted by field, step and rank. An entry that cannot be
-    /// read is listed with its error; the others are unaffected.
+    /// read is listed with its error (a step whose whole group is unreadable,
+    /// as its rank 0); the others are unaffected.
     pub fn entries(&self) -> Result<Vec<Entry>> {
         let err = h5(&self.path);
         let mut out = Vec::new();
@@ -160,7 +161,17 @@ impl Store {
             let Ok(fg) = self.file.group(&field) else { continue };
             for step_name in fg.member_names().map_err(&err)? {
                 let Ok(step) = step_name.parse::<u64>() else { continue };
-                let Ok(sg) = fg.group(&step_name) else { continue };
+                let sg = match fg.group(&step_name) {
+                    Ok(g) => g,
+                    Err(e) => {
+                        // A step whose own group cannot be opened (an append
+                        // cut short) is listed once, as rank 0, with why.
+                        let key = EntryKey { field: field.clone(), step, rank: 0 };
+                        let why = format!("{}: group /{field}/{step} is unreadable ({e}); an append cut short", self.path.display());
+                        out.push(Entry { key, content: Err(Error::Format(why)) });
+                        continue;
+                    }
+                };
                 for rank_name in sg.member_names().map_err(&err)? {
                     let Some(rank) = rank_name.strip_prefix("rank_").and_then(|r| r.parse::<u32>().ok()) else { continue };
                     let key = EntryKey { field: field.clone(), step, rank };
