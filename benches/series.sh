@@ -8,10 +8,14 @@
 # whose first step is the independent one. Validation PSNR every 50
 # iterations goes to bench-out/series_<mode>.csv; `benches/series_report.py`
 # turns the CSVs into the table of docs/BENCHMARKS.md.
-#   bash benches/series.sh [POINTS]      (points per iteration, default 4096)
+#   bash benches/series.sh [POINTS] [STEPS] [MODES]
+#   (points per iteration, default 4096; steps A..B, default 1..22; modes,
+#   default "off dense coarse")
 set -euo pipefail
 cd "$(dirname "$0")/.."
 points=${1:-4096}
+steps=${2:-1..22}
+modes=${3:-off dense coarse}
 data=../shared/data
 out=bench-out
 mkdir -p "$out"
@@ -22,8 +26,8 @@ dam=(--positions "$data/dambreak3d_particles.positions.float32"
      --mass "$data/dambreak3d_particles.mass.float32"
      --values "$data/dambreak3d_particles.speed.float32" --count 42042
      --dims 128 --bounds 0.021,-0.481,0.0107,3.22,0.481,0.55
-     --range 0,4 --steps 1..22 --field speed)
-for mode in off dense coarse; do
+     --range 0,4 --steps "$steps" --field speed)
+for mode in $modes; do
     rm -rf "$out/series_$mode"
     "$bin" encode-series "${dam[@]}" --budget 50000 --schedule full --iters 3000 --points "$points" --no-relocation \
         --warm "$mode" --validation-every 50 -o "$out/series_$mode" --csv "$out/series_$mode.csv" \

@@ -4,17 +4,25 @@ first iteration at which each warm start reaches the independent final PSNR.
     python3 benches/series_report.py bench-out
 """
 import csv
+import json
 import sys
 
 out = sys.argv[1]
 
 
 def load(mode):
+    """Per step, [(iteration, validation PSNR, start)], from the run's CSV, or
+    (a run stopped before its CSV was written) the final PSNR of each step
+    from its JSON lines."""
     runs = {}
     try:
         rows = list(csv.DictReader(open(f"{out}/series_{mode}.csv")))
     except FileNotFoundError:
-        return {}
+        try:
+            lines = [json.loads(l) for l in open(f"{out}/series_{mode}.jsonl") if '"step"' in l]
+        except FileNotFoundError:
+            return {}
+        return {d["step"]: [(d["iterations"], d["validation_psnr"], d["start"])] for d in lines}
     for r in rows:
         runs.setdefault(int(r["step"]), []).append((int(r["iteration"]), float(r["validation_psnr"]), r["start"]))
     return runs

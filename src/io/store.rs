@@ -10,12 +10,13 @@
 //!   exists only once its root is complete;
 //! - file space is never reused (strategy "none"), so a new step's data never
 //!   lands on bytes that an earlier step's metadata still points to;
-//! - the metadata cache never evicts, so the in-place updates an append makes
-//!   to its parents reach the file only at the flush that ends the append,
-//!   not while its data is being written.
+//! - a new entry is built unlinked and flushed; then one link, into a group
+//!   whose header was sized for it, commits it, and a second flush writes it;
+//! - the metadata cache never evicts, so nothing reaches the file between
+//!   those points.
 //!
-//! What remains is the flush itself (a few metadata blocks, one `write` each);
-//! `tests/store.rs` kills writers at many points and checks every earlier step.
+//! `tests/store_crash.rs` kills writers at many points and checks every
+//! earlier step.
 
 use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
@@ -96,7 +97,7 @@ impl Store {
             create_empty(&path)?;
         }
         let file = File::with_options()
-            .with_fapl(|p| p.mdc_config(&never_evict()))
+            .with_fapl(|p| p.mdc_config(&never_evict()).libver_v18())
             .open_rw(&path)
             .map_err(h5(&path))?;
         check_root(&file, &path)?;
@@ -121,32 +122,49 @@ impl Store {
         &self.path
     }
 
-    /// Appends `model` as `/<field>/<step>/rank_<r>` with `payload`, then
-    /// flushes. Refuses an entry that already exists: earlier steps are
-    /// never rewritten.
+    /// Appends `model` as `/<field>/<step>/rank_<r>` with `payload`.
+    /// Refuses an entry that already exists: earlier steps are never
+    /// rewritten. The entry (and a new step or field group above it) is
+    /// built unlinked and flushed first; one link then commits it, and a
+    /// second flush writes that link (see the module documentation).
     pub fn append(&mut self, model: &Model, payload: Payload) -> Result<()> {
         let key = EntryKey::of(&model.meta);
         check_field_name(&key.field)?;
         payload.round_trip(&model.params)?; // refuses unstorable parameters before touching the file
         let err = h5(&self.path);
-        let field = child_group(&self.file, &key.field).map_err(&err)?;
-        let step = child_group(&field, &key.step.to_string()).map_err(&err)?;
+        let step_name = key.step.to_string();
         let rank_name = format!("rank_{}", key.rank);
-        if step.link_exists(&rank_name) {
+        let field = self.file.link_exists(&key.field).then(|| self.file.group(&key.field)).transpose().map_err(&err)?;
+        let step = match &field {
+            Some(f) if f.link_exists(&step_name) => Some(f.group(&step_name).map_err(&err)?),
+            _ => None,
+        };
+        if step.as_ref().is_some_and(|s| s.link_exists(&rank_name)) {
             return Err(Error::arg(format!("{} already holds a model; a store never rewrites a step", key.path())));
         }
-        if step.attr_names().map_err(&err)?.is_empty() {
-            scalar_attr(&step, "step", &key.step).map_err(&err)?;
-            scalar_attr(&step, "time", &model.meta.time.unwrap_or(f64::NAN)).map_err(&err)?;
-        }
-        let group = step.create_group(&rank_name).map_err(&err)?;
-        if let Err(e) = write_entry(&group, model, payload) {
-            // A full disk, say: take the half-written entry back out so that
-            // the key stays free; earlier entries were never touched.
-            drop(group);
-            let _ = step.unlink(&rank_name);
-            return Err(err(e));
-        }
+        // Everything new, unlinked: nothing existing changes until the commit.
+        let entry = anonymous_group(&self.file, 0).map_err(&err)?;
+        write_entry(&entry, model, payload).map_err(&err)?;
+        let (parent, name, top) = match (field, step) {
+            (Some(_), Some(step)) => (step, rank_name, entry),
+            (field, None) => {
+                let new_step = anonymous_group(&self.file, RANKS_PER_STEP).map_err(&err)?;
+                scalar_attr(&new_step, "step", &key.step).map_err(&err)?;
+                scalar_attr(&new_step, "time", &model.meta.time.unwrap_or(f64::NAN)).map_err(&err)?;
+                link(&entry, &new_step, &rank_name).map_err(&err)?;
+                match field {
+                    Some(field) => (field, step_name, new_step),
+                    None => {
+                        let new_field = anonymous_group(&self.file, STEPS_PER_FIELD).map_err(&err)?;
+                        link(&new_step, &new_field, &step_name).map_err(&err)?;
+                        ((*self.file).clone(), key.field.clone(), new_field)
+                    }
+                }
+            }
+            (None, Some(_)) => unreachable!("a step exists only inside its field"),
+        };
+        self.file.flush().map_err(&err)?;
+        link(&top, &parent, &name).map_err(&err)?;
         self.file.flush().map_err(&err)?;
         Ok(())
     }
@@ -219,7 +237,10 @@ fn never_evict() -> MetadataCacheConfig {
 fn create_empty(path: &Path) -> Result<()> {
     let tmp = temporary_path(path)?;
     let made = (|| -> hdf5::Result<()> {
-        let f = File::with_options().with_fcpl(|p| p.file_space_strategy(FileSpaceStrategy::None)).create_excl(&tmp)?;
+        let f = File::with_options()
+            .with_fapl(|p| p.libver_v18())
+            .with_fcpl(|p| p.file_space_strategy(FileSpaceStrategy::None))
+            .create_excl(&tmp)?;
         scalar_str_attr(&f, "gsenc_store", STORE_VERSION)?;
         scalar_str_attr(&f, "creator", &format!("gsenc {}", crate::VERSION))?;
         f.close()
@@ -248,12 +269,41 @@ fn check_root(file: &File, path: &Path) -> Result<()> {
     }
 }
 
-fn child_group(parent: &Group, name: &str) -> hdf5::Result<Group> {
-    if parent.link_exists(name) {
-        parent.group(name)
-    } else {
-        parent.create_group(name)
+/// Links a group the file sees as compact: new-style groups keep their
+/// links in their object header, sized at creation for this many links, so
+/// that linking one more rewrites that header in place and allocates nothing.
+const STEPS_PER_FIELD: usize = 4096;
+const RANKS_PER_STEP: usize = 256;
+
+/// A new group linked nowhere, with room for `links` links in its header.
+fn anonymous_group(file: &File, links: usize) -> hdf5::Result<Group> {
+    let gcpl = hdf5::plist::GroupCreate::try_new()?;
+    if links > 0 {
+        let max_compact = u32::try_from(links).unwrap_or(u32::MAX);
+        // SAFETY: a valid group-creation property list.
+        let ok = hdf5::sync::sync(|| unsafe {
+            hdf5_sys::h5p::H5Pset_link_phase_change(gcpl.id(), max_compact, max_compact.saturating_sub(1).max(1)) >= 0
+                && hdf5_sys::h5p::H5Pset_est_link_info(gcpl.id(), max_compact, 12) >= 0
+        });
+        if !ok {
+            return Err("cannot size a group's link storage".into());
+        }
     }
+    file.create_group_builder().set_gcpl(&gcpl).create(None)
+}
+
+/// Links `obj` into `parent` as `name`: the one change an append makes to
+/// objects that already exist.
+fn link(obj: &Group, parent: &Group, name: &str) -> hdf5::Result<()> {
+    let cname = std::ffi::CString::new(name).map_err(|_| hdf5::Error::from("a name holds NUL"))?;
+    // SAFETY: valid object and location ids, a NUL-terminated name.
+    let status = hdf5::sync::sync(|| unsafe {
+        hdf5_sys::h5o::H5Olink(obj.id(), parent.id(), cname.as_ptr(), hdf5_sys::h5p::H5P_DEFAULT, hdf5_sys::h5p::H5P_DEFAULT)
+    });
+    if status < 0 {
+        return Err(format!("cannot link {name}").into());
+    }
+    Ok(())
 }
 
 fn scalar_attr<T: H5Type>(loc: &Location, name: &str, v: &T) -> hdf5::Result<()> {
