@@ -22,6 +22,11 @@ def load(mode):
             lines = [json.loads(l) for l in open(f"{out}/series_{mode}.jsonl") if '"step"' in l]
         except FileNotFoundError:
             return {}
+        # Leave a final-only CSV behind so that `gsenc plot-series` can draw it.
+        with open(f"{out}/series_{mode}.csv", "w") as f:
+            f.write("field,step,start,iteration,validation_psnr\n")
+            for d in lines:
+                f.write(f"speed,{d['step']},{d['start']},{d['iterations']},{d['validation_psnr']:.4f}\n")
         return {d["step"]: [(d["iterations"], d["validation_psnr"], d["start"])] for d in lines}
     for r in rows:
         runs.setdefault(int(r["step"]), []).append((int(r["iteration"]), float(r["validation_psnr"]), r["start"]))
