@@ -128,7 +128,9 @@ struct FieldState {
     frame: IndexFrame,
     /// The world box particles or cells are deposited in (their first step's).
     bounds: Option<Bounds>,
-    validation: Validation,
+    /// Drawn on the first step encoded here (a resumed series draws the same
+    /// points: they depend only on the lattice and the seed).
+    validation: Option<Validation>,
     last: Model,
 }
 
@@ -155,6 +157,27 @@ impl SeriesEncoder {
     /// The last model of `field`.
     pub fn last_model(&self, field: &str) -> Option<&Model> {
         self.fields.get(field).map(|f| &f.last)
+    }
+
+    /// Continues a series from `model`, its last stored step (a restart from
+    /// a checkpoint): the field's next step starts from it, on its lattice
+    /// and value range, exactly as if the series had not stopped. Particles
+    /// and cells of later steps must be placed in the same box (give the
+    /// bounds), which the frame check of `encode_step` enforces.
+    pub fn resume(&mut self, model: Model) -> Result<()> {
+        let field = model.meta.field.clone();
+        if field.is_empty() {
+            return Err(Error::arg("a resumed model needs a field name"));
+        }
+        if self.fields.contains_key(&field) {
+            return Err(Error::arg(format!("field '{field}' already has steps in this series; resume before the first")));
+        }
+        if model.params.is_empty() {
+            return Err(Error::data(format!("the model of field '{field}' holds no primitives")));
+        }
+        let (range, frame) = (model.meta.range, model.meta.frame);
+        self.fields.insert(field, FieldState { range, frame, bounds: None, validation: None, last: model });
+        Ok(())
     }
 
     /// Encodes step `step` (simulation time `time`) of `field`. Steps of a
@@ -193,10 +216,16 @@ impl SeriesEncoder {
                     prepared.frame.dims, s.frame.dims
                 )));
             }
+            if prepared.frame != s.frame {
+                return Err(Error::arg(format!(
+                    "field '{field}' step {step}: the grid's box (origin {:?}, {} voxels per unit) is not the series' (origin {:?}, {} per unit); every step of a field must share its lattice",
+                    prepared.frame.bmin, prepared.frame.gamma, s.frame.bmin, s.frame.gamma
+                )));
+            }
         }
         // The same points every step (drawn on the first), this step's values.
-        let validation = match state {
-            Some(s) => s.validation.rescored(&prepared.reference),
+        let validation = match state.and_then(|s| s.validation.as_ref()) {
+            Some(v) => v.rescored(&prepared.reference),
             None => Validation::from_reference(
                 &prepared.reference,
                 self.cfg.validation_points,
@@ -231,7 +260,7 @@ impl SeriesEncoder {
         let warm_started = warm.is_some();
         let bounds = state.map_or(prepared.bounds, |s| s.bounds);
         let (range, frame) = (prepared.range, prepared.frame);
-        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation, last: model.clone() });
+        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation: Some(validation), last: model.clone() });
         Ok(StepResult { model, output, warm_started, clamped_values: prepared.clamped_values,
             reference: prepared.reference,
             outside_items: prepared.outside_items,

@@ -163,3 +163,31 @@ fn steps_that_do_not_fit_the_series_are_refused() {
     let r = s.encode_step("temp", 0, None, StepInput::Grid { values: &g, frame: frame(other) }, &mut cpu, &mut |_| {}).unwrap();
     assert!(!r.warm_started);
 }
+
+#[test]
+fn a_resumed_series_continues_exactly_as_an_unbroken_one() {
+    let mut cpu = CpuBackend::new();
+    let steps: Vec<Grid> = (0..3).map(|k| step_grid(k, DIMS)).collect();
+    let mut unbroken = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
+    let mut models = Vec::new();
+    for (k, g) in steps.iter().enumerate() {
+        let r = unbroken.encode_step("rho", k as u64, None, StepInput::Grid { values: g, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+        models.push(r);
+    }
+    // Stop after step 1 (its model stored and read back), start again.
+    let stored = gsenc::format::read_model(&gsenc::format::write_model(&models[1].model).unwrap()).unwrap();
+    let mut resumed = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
+    resumed.resume(stored.clone()).unwrap();
+    assert_eq!(resumed.range("rho"), unbroken.range("rho"));
+    let r = resumed.encode_step("rho", 2, None, StepInput::Grid { values: &steps[2], frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert!(r.warm_started);
+    assert_eq!(r.model.params, models[2].model.params, "the resumed step differs from the unbroken series'");
+    assert_eq!(r.output.validation, models[2].output.validation, "the validation points differ");
+    // A step on a shifted box is refused, as is resuming a field twice.
+    let mut shifted = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
+    shifted.resume(stored.clone()).unwrap();
+    let moved = IndexFrame { bmin: [0.5, 0.0, 0.0], ..frame(DIMS) };
+    let e = shifted.encode_step("rho", 2, None, StepInput::Grid { values: &steps[2], frame: moved }, &mut cpu, &mut |_| {});
+    assert!(matches!(&e, Err(Error::InvalidArgument(m)) if m.contains("box")), "{:?}", e.err());
+    assert!(matches!(shifted.resume(stored), Err(Error::InvalidArgument(_))));
+}

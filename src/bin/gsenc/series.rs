@@ -46,6 +46,11 @@ pub struct EncodeSeriesArgs {
     validation_every: usize,
     #[arg(long, default_value = "scalar")]
     field: String,
+    /// Continue a series that stopped: the first step warm-starts from this
+    /// model (the series' last stored step, a .gsm file) on its lattice and
+    /// value range, exactly as an unbroken run would.
+    #[arg(long)]
+    resume_from: Option<PathBuf>,
     #[arg(long, default_value = "f32")]
     payload: String,
     /// Output: an HDF5 store (.h5, needs the hdf5 feature) or a folder of
@@ -145,6 +150,26 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     cfg.validation_points = a.validation_points;
     cfg.validation_every = a.validation_every;
     let mut series = SeriesEncoder::new(cfg)?;
+    if let Some(path) = &a.resume_from {
+        let model = format::read_model(&std::fs::read(path).map_err(|e| Error::io(path, e))?)?;
+        if model.meta.field != a.field {
+            return Err(Error::arg(format!(
+                "--resume-from {} holds field '{}', not --field '{}'",
+                path.display(),
+                model.meta.field,
+                a.field
+            )));
+        }
+        if model.meta.step >= steps[0] as u64 {
+            return Err(Error::arg(format!(
+                "--resume-from {} is step {}; the steps to encode must come after it (they start at {})",
+                path.display(),
+                model.meta.step,
+                steps[0]
+            )));
+        }
+        series.resume(model)?;
+    }
     let mut sink = None; // opened once the first step is encoded
     let mut csv = match &a.csv {
         Some(p) => {
