@@ -72,6 +72,9 @@ pub struct gsenc_config {
     /// `FIELD_STEP.gsm` (`FIELD_STEP_rRANK.gsm` on ranks other than 0);
     /// NULL (default) writes nothing. Copied at create.
     pub output_dir: *const c_char,
+    /// Iterations of a warm-started step; 0 keeps the regime's (1000
+    /// coarse, 1500 dense).
+    pub warm_iterations: u32,
 }
 
 /// The bytes of `gsenc_config` this version reads.
@@ -100,6 +103,7 @@ impl gsenc_config {
             seed_sample: 1,
             rank: 0,
             output_dir: std::ptr::null(),
+            warm_iterations: 0,
         }
     }
 }
@@ -195,8 +199,10 @@ impl Settings {
             // SAFETY: a non-null `output_dir` is a NUL-terminated string.
             false => Some(std::path::PathBuf::from(unsafe { super::c_str(c.output_dir, "output_dir")? })),
         };
+        let mut series = SeriesConfig::new(encode, warm, range);
+        series.warm_iterations = (c.warm_iterations > 0).then_some(c.warm_iterations as usize);
         Ok(Settings {
-            series: SeriesConfig::new(encode, warm, range),
+            series,
             dims: c.dims.map(|d| d as usize),
             bounds,
             payload,

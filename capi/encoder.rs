@@ -6,6 +6,7 @@
 //! different encoders are independent.
 
 use super::config::{gsenc_config, Settings};
+use super::handles::Kind;
 use super::status::{fail, gsenc_status, guard, Failure};
 use super::{c_str, DType};
 use crate::backend::cpu::CpuBackend;
@@ -183,27 +184,29 @@ pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: 
         let series = SeriesEncoder::new(settings.series.clone())?;
         let enc = Box::new(gsenc_encoder { settings, series, pending: Vec::new(), last: BTreeMap::new() });
         // SAFETY: as above.
-        unsafe { *out = Box::into_raw(enc) };
+        let raw = Box::into_raw(enc);
+        super::handles::register(raw, Kind::Encoder);
+        unsafe { *out = raw };
         Ok(())
     })
 }
 
-/// Frees an encoder and everything it holds; NULL is ignored. The handle
-/// must not be used afterwards.
+/// Frees an encoder and everything it holds. NULL, and a handle destroyed
+/// already, are ignored; other calls with it afterwards fail with
+/// `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
-    if !encoder.is_null() {
+    if !encoder.is_null() && super::handles::release(encoder, Kind::Encoder) {
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            // SAFETY: made by Box::into_raw in gsenc_encoder_create, freed once.
+            // SAFETY: made by Box::into_raw in gsenc_encoder_create, and live
+            // until now (released above, so never freed twice).
             drop(unsafe { Box::from_raw(encoder) });
         }));
     }
 }
 
 fn encoder_mut<'a>(encoder: *mut gsenc_encoder, what: &str) -> Result<&'a mut gsenc_encoder, Failure> {
-    if encoder.is_null() {
-        return fail(gsenc_status::NullPointer, format!("{what}: encoder is NULL"));
-    }
+    super::handles::check(encoder, Kind::Encoder, what)?;
     // SAFETY: a live handle from gsenc_encoder_create, used by one thread.
     Ok(unsafe { &mut *encoder })
 }

@@ -5,13 +5,14 @@
 //!
 //! Modules: `status` (codes, last error), `config` (the encoder's settings),
 //! `encoder` (push, encode, write), `model` (read, decode, evaluate).
-//! Not yet here (issue 6, open): the Fortran module, the CMake package, the
-//! mock-solver examples.
+//! `handles` keeps the live handles, so misused ones are refused. The
+//! Fortran module `gsenc` (capi/gsenc.f90) binds these functions.
 
 #![allow(non_camel_case_types)]
 
 pub mod config;
 pub mod encoder;
+mod handles;
 pub mod model;
 pub mod status;
 
@@ -108,7 +109,7 @@ mod tests {
     /// (x86_64 and aarch64 Linux, LP64).
     #[test]
     fn abi_is_pinned() {
-        assert_eq!(size_of::<gsenc_config>(), 160);
+        assert_eq!(size_of::<gsenc_config>(), 168);
         let c = [
             (offset_of!(gsenc_config, struct_size), 0),
             (offset_of!(gsenc_config, budget), 8),
@@ -130,6 +131,7 @@ mod tests {
             (offset_of!(gsenc_config, seed_sample), 136),
             (offset_of!(gsenc_config, rank), 144),
             (offset_of!(gsenc_config, output_dir), 152),
+            (offset_of!(gsenc_config, warm_iterations), 160),
         ];
         for (i, (got, want)) in c.iter().enumerate() {
             assert_eq!(got, want, "gsenc_config field {i}");
@@ -150,10 +152,10 @@ mod tests {
             [12, 16, 24, 48, 72, 80, 104, 112, 120]
         );
         assert_eq!([super::encoder::GSENC_CELLS_BOXES, super::encoder::GSENC_CELLS_HEXAHEDRA], [0, 1]);
-        assert_eq!(size_of::<gsenc_model_info>(), 96);
+        assert_eq!(size_of::<gsenc_model_info>(), 112);
         assert_eq!(
-            [offset_of!(gsenc_model_info, count), offset_of!(gsenc_model_info, dims), offset_of!(gsenc_model_info, origin), offset_of!(gsenc_model_info, spacing), offset_of!(gsenc_model_info, step), offset_of!(gsenc_model_info, time), offset_of!(gsenc_model_info, rank)],
-            [8, 16, 40, 64, 72, 80, 88]
+            [offset_of!(gsenc_model_info, count), offset_of!(gsenc_model_info, dims), offset_of!(gsenc_model_info, origin), offset_of!(gsenc_model_info, spacing), offset_of!(gsenc_model_info, step), offset_of!(gsenc_model_info, time), offset_of!(gsenc_model_info, rank), offset_of!(gsenc_model_info, iterations), offset_of!(gsenc_model_info, warm_started), offset_of!(gsenc_model_info, encode_psnr)],
+            [8, 16, 40, 64, 72, 80, 88, 92, 96, 104]
         );
         assert_eq!(size_of::<gsenc_status>(), 4);
         let statuses = [

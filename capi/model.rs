@@ -2,6 +2,7 @@
 //! caller's buffer, or at arbitrary world points. A model handle is
 //! read-only: any number of threads may decode and evaluate it at once.
 
+use super::handles::Kind;
 use super::status::{fail, gsenc_status, guard, Failure};
 use super::{c_str, extents};
 use crate::backend::cpu::CpuBackend;
@@ -31,12 +32,17 @@ pub struct gsenc_model_info {
     /// Simulation time; NaN when unknown.
     pub time: f64,
     pub rank: u32,
+    /// Optimisation iterations the step ran.
+    pub iterations: u32,
+    /// Non-zero when the step started from the field's previous model.
+    pub warm_started: i32,
+    /// Voxel PSNR (dB) of the stored model against its reference at encode
+    /// time; NaN when not measured.
+    pub encode_psnr: f64,
 }
 
 fn model_ref<'a>(model: *const gsenc_model, what: &str) -> Result<&'a Model, Failure> {
-    if model.is_null() {
-        return fail(gsenc_status::NullPointer, format!("{what}: model is NULL"));
-    }
+    super::handles::check(model, Kind::Model, what)?;
     // SAFETY: a live handle from gsenc_model_read.
     Ok(unsafe { &(*model).model })
 }
@@ -58,17 +64,22 @@ pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gs
             other => other,
         })?;
         // SAFETY: as above.
-        unsafe { *out = Box::into_raw(Box::new(gsenc_model { model })) };
+        let raw = Box::into_raw(Box::new(gsenc_model { model }));
+        super::handles::register(raw, Kind::Model);
+        unsafe { *out = raw };
         Ok(())
     })
 }
 
-/// Frees a model; NULL is ignored.
+/// Frees a model. NULL, and a handle destroyed already, are ignored;
+/// other calls with it afterwards fail with `GSENC_STATUS_INVALID_ARGUMENT`.
+/// Not concurrently with other calls on it.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
-    if !model.is_null() {
+    if !model.is_null() && super::handles::release(model, Kind::Model) {
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            // SAFETY: made by Box::into_raw in gsenc_model_read, freed once.
+            // SAFETY: made by Box::into_raw in gsenc_model_read, live until
+            // now (released above, so never freed twice).
             drop(unsafe { Box::from_raw(model) });
         }));
     }
@@ -92,6 +103,9 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
             step: m.meta.step,
             time: m.meta.time.unwrap_or(f64::NAN),
             rank: m.meta.rank,
+            iterations: m.meta.iterations,
+            warm_started: m.meta.schedule.starts_with("warm-") as i32,
+            encode_psnr: m.meta.encode_psnr.unwrap_or(f64::NAN),
         };
         // SAFETY: as above.
         unsafe { info.write(value) };

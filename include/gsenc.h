@@ -213,6 +213,11 @@ typedef struct {
    NULL (default) writes nothing. Copied at create.
    */
   const char *output_dir;
+  /*
+   Iterations of a warm-started step; 0 keeps the regime's (1000
+   coarse, 1500 dense).
+   */
+  uint32_t warm_iterations;
 } gsenc_config;
 
 /*
@@ -348,6 +353,19 @@ typedef struct {
    */
   double time;
   uint32_t rank;
+  /*
+   Optimisation iterations the step ran.
+   */
+  uint32_t iterations;
+  /*
+   Non-zero when the step started from the field's previous model.
+   */
+  int32_t warm_started;
+  /*
+   Voxel PSNR (dB) of the stored model against its reference at encode
+   time; NaN when not measured.
+   */
+  double encode_psnr;
 } gsenc_model_info;
 
 #ifdef __cplusplus
@@ -379,8 +397,9 @@ gsenc_status gsenc_config_init(gsenc_config *config);
 gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **out);
 
 /*
- Frees an encoder and everything it holds; NULL is ignored. The handle
- must not be used afterwards.
+ Frees an encoder and everything it holds. NULL, and a handle destroyed
+ already, are ignored; other calls with it afterwards fail with
+ `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
  */
 void gsenc_encoder_destroy(gsenc_encoder *encoder);
 
@@ -447,7 +466,9 @@ gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
 gsenc_status gsenc_model_read(const char *path, gsenc_model **out);
 
 /*
- Frees a model; NULL is ignored.
+ Frees a model. NULL, and a handle destroyed already, are ignored;
+ other calls with it afterwards fail with `GSENC_STATUS_INVALID_ARGUMENT`.
+ Not concurrently with other calls on it.
  */
 void gsenc_model_destroy(gsenc_model *model);
 

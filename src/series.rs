@@ -84,11 +84,14 @@ pub struct SeriesConfig {
     pub validation_points: usize,
     pub validation_every: usize,
     pub validation_seed: u64,
+    /// Iterations of a warm-started step instead of its regime's (1000
+    /// coarse, 1500 dense), to trade quality for time per step.
+    pub warm_iterations: Option<usize>,
 }
 
 impl SeriesConfig {
     pub fn new(encode: EncodeConfig, warm: WarmStart, range: SeriesRange) -> SeriesConfig {
-        SeriesConfig { encode, warm, range, validation_points: 1 << 16, validation_every: 50, validation_seed: 0x7a11_da7e }
+        SeriesConfig { encode, warm, range, validation_points: 1 << 16, validation_every: 50, validation_seed: 0x7a11_da7e, warm_iterations: None }
     }
 }
 
@@ -234,7 +237,14 @@ impl SeriesEncoder {
             )?,
         };
         let warm = state.filter(|_| self.cfg.warm != WarmStart::Off).map(|s| s.last.params.as_slice());
-        let cfg = if warm.is_some() { self.cfg.warm.step_config(&self.cfg.encode) } else { self.cfg.encode.clone() };
+        let cfg = match warm {
+            Some(_) => {
+                let mut c = self.cfg.warm.step_config(&self.cfg.encode);
+                c.iterations = self.cfg.warm_iterations.or(c.iterations);
+                c
+            }
+            None => self.cfg.encode.clone(),
+        };
         let samples_grid;
         let target = match &prepared.samples {
             Some(s) => Target { reference: &prepared.reference, samples: s.as_ref() },

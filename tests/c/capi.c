@@ -38,12 +38,12 @@ int main(void) {
     char path[512];
 
     /* The ABI as this C compiler lays it out: the values capi/mod.rs pins. */
-    CHECK(sizeof(gsenc_config) == 160 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, dims) == 56
+    CHECK(sizeof(gsenc_config) == 168 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144, "gsenc_config layout");
     CHECK(sizeof(gsenc_grid) == 104 && offsetof(gsenc_grid, strides) == 48 && offsetof(gsenc_grid, spacing) == 96, "gsenc_grid layout");
     CHECK(sizeof(gsenc_particles) == 96 && offsetof(gsenc_particles, values) == 80, "gsenc_particles layout");
     CHECK(sizeof(gsenc_cells) == 128 && offsetof(gsenc_cells, connectivity) == 104 && offsetof(gsenc_cells, value_stride) == 120, "gsenc_cells layout");
-    CHECK(sizeof(gsenc_model_info) == 96 && offsetof(gsenc_model_info, rank) == 88, "gsenc_model_info layout");
+    CHECK(sizeof(gsenc_model_info) == 112 && offsetof(gsenc_model_info, rank) == 88 && offsetof(gsenc_model_info, warm_started) == 96 && offsetof(gsenc_model_info, encode_psnr) == 104, "gsenc_model_info layout");
     CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8, "gsenc_status values");
 
     /* Configuration. */
@@ -61,6 +61,7 @@ int main(void) {
     cfg.iterations = 150;
     cfg.points = 1024;
     cfg.warm_start = GSENC_WARM_COARSE;
+    cfg.warm_iterations = 300;
     cfg.threads = 2;
     cfg.dims[0] = cfg.dims[1] = cfg.dims[2] = 16;
     cfg.output_dir = dir;
@@ -115,6 +116,9 @@ int main(void) {
     info.struct_size = sizeof info;
     EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_OK);
     CHECK(info.count == 120 && info.dims[0] == NX && info.dims[2] == NZ && info.step == 1, "info");
+    CHECK(info.warm_started == 1 && info.iterations == 300, "step 1 warm-started for warm_iterations: %d, %u",
+          info.warm_started, info.iterations);
+    CHECK(fabs(info.encode_psnr - psnr[1]) < 1e-9, "stored PSNR %g, last_step's %g", info.encode_psnr, psnr[1]);
     CHECK(fabs(info.time - 0.5) < 1e-12 && fabs(info.spacing - 0.5) < 1e-12 && info.origin[0] == -1.0, "info time/frame");
     static float decoded[NX * NY * NZ];
     EXPECT(gsenc_model_decode(model, NULL, decoded, NX * NY * NZ - 1), GSENC_STATUS_INVALID_ARGUMENT);
@@ -133,6 +137,11 @@ int main(void) {
     pts[0] = NAN;
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_DATA);
     EXPECT(gsenc_model_evaluate(NULL, pts, 4, at), GSENC_STATUS_NULL_POINTER);
+    /* A handle of the wrong kind; a model after destroy. */
+    EXPECT(gsenc_encode((gsenc_encoder *)model), GSENC_STATUS_INVALID_ARGUMENT);
+    EXPECT(gsenc_model_info_get((gsenc_model *)enc, &info), GSENC_STATUS_INVALID_ARGUMENT);
+    gsenc_model_destroy(model);
+    EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_ARGUMENT);
     gsenc_model_destroy(model);
 
     /* Particles, float32, separate x/y/z arrays (component stride = count). */
@@ -256,8 +265,12 @@ int main(void) {
     EXPECT(gsenc_encoder_write_model(enc, "rho", "/nonexistent-dir/x.gsm"), GSENC_STATUS_IO);
     snprintf(path, sizeof path, "%s/rho_copy.gsm", dir);
     EXPECT(gsenc_encoder_write_model(enc, "rho", path), GSENC_STATUS_OK);
+    /* Calls after destroy: refused, not undefined. */
     gsenc_encoder_destroy(enc);
     gsenc_encoder_destroy(NULL);
+    EXPECT(gsenc_encode(enc), GSENC_STATUS_INVALID_ARGUMENT);
+    EXPECT(gsenc_push_grid(enc, "rho", 5, 0.0, &grid), GSENC_STATUS_INVALID_ARGUMENT);
+    gsenc_encoder_destroy(enc); /* a second destroy is ignored */
 
     /* An encoder whose output folder does not exist fails at encode. */
     cfg.output_dir = "/nonexistent-dir";
