@@ -122,3 +122,19 @@ pub extern "C" fn gsenc_status_string(status: i32) -> *const c_char {
     };
     s.as_ptr().cast()
 }
+
+/// Records `message` as the calling thread's last error, for language
+/// bindings (the Fortran module) that refuse an argument before calling
+/// into gsenc; C callers have no use for it. NULL records an empty message.
+/// Thread-safe: each thread has its own message.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_set_last_error(message: *const c_char) {
+    let _ = catch_unwind(|| {
+        let msg = match message.is_null() {
+            true => String::new(),
+            // SAFETY: a non-null `message` is NUL-terminated.
+            false => unsafe { std::ffi::CStr::from_ptr(message) }.to_string_lossy().into_owned(),
+        };
+        LAST_ERROR.with(|e| *e.borrow_mut() = msg);
+    });
+}

@@ -511,6 +511,14 @@ size_t gsenc_last_error(char *buf, size_t len);
  */
 const char *gsenc_status_string(int32_t status);
 
+/*
+ Records `message` as the calling thread's last error, for language
+ bindings (the Fortran module) that refuse an argument before calling
+ into gsenc; C callers have no use for it. NULL records an empty message.
+ Thread-safe: each thread has its own message.
+ */
+void gsenc_set_last_error(const char *message);
+
 #ifdef __cplusplus
 }  // extern "C"
 #endif  // __cplusplus

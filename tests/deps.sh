@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Installs what the test suite needs beyond a Rust toolchain, when missing:
 # C and C++ compilers (the C tests, libFuzzer), HDF5 (the `hdf5` feature's
-# store, and h5dump to read it), valgrind (the C API under memcheck) and
+# store, and h5dump to read it), valgrind (the C API under memcheck), CMake
+# and gfortran (the installed package, the Fortran module and examples) and
 # h5py (to read the store from Python). Debian
 # packages through apt when run as root; otherwise it says what to install.
 set -euo pipefail
@@ -13,6 +14,8 @@ command -v pkg-config >/dev/null || need_apt+=(pkg-config)
 pkg-config --exists hdf5 2>/dev/null || need_apt+=(libhdf5-dev)
 command -v h5dump >/dev/null || need_apt+=(hdf5-tools)
 command -v valgrind >/dev/null || need_apt+=(valgrind)
+command -v cmake >/dev/null || need_apt+=(cmake make)
+command -v gfortran >/dev/null || need_apt+=(gfortran)
 if [ ${#need_apt[@]} -gt 0 ]; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
         echo "installing ${need_apt[*]}" >&2

@@ -31,7 +31,10 @@ cc -std=c99 -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lp
 GSENC_CAPI_TMP="$out" "$out/capi"
 # ...and under valgrind memcheck: no invalid reads or writes, no leaks.
 cc -std=c99 -g -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi-g"
-GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
+GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --show-leak-kinds=definite,indirect --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
+
+# The installed CMake package: C and Fortran mock solvers as a separate project.
+bash tests/package.sh
 
 # The store read with h5py alone, against the models gsenc extracts from it.
 cargo build --release --locked --features hdf5 --bin gsenc

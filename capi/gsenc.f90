@@ -1,0 +1,705 @@
+! gsenc: in-situ encoding of 3D scalar fields into fixed budgets of Gaussians.
+!
+! The Fortran module over the C API of gsenc.h (Fortran 2008, iso_c_binding).
+! Two layers:
+!  - the C functions themselves, bound under their C names with a `_c` suffix
+!    (gsenc_push_grid_c, ...), taking the bind(c) structs and type(c_ptr);
+!  - Fortran-friendly procedures under the C names (gsenc_push_grid, ...):
+!    character strings instead of NUL-terminated arrays, assumed-shape arrays
+!    of real32 or real64 whose memory strides are passed on (so array sections
+!    that skip ghost layers go through without a copy), optional arguments.
+! Every function returns an integer(c_int) status, GSENC_STATUS_OK (0) on
+! success; gsenc_last_error_message() gives the calling thread's message.
+! Handles (encoder, model) are type(c_ptr): initialise them to c_null_ptr,
+! free them with gsenc_encoder_destroy / gsenc_model_destroy.
+!
+! Threading and ownership are as in gsenc.h: an encoder is used by one
+! thread at a time; a model by any number; pushed arrays are copied before the
+! call returns. Connectivity of hexahedra is 0-based, in VTK order, as in C.
+!
+! This source is installed beside gsenc.mod, so that a build with another
+! Fortran compiler can compile it itself (see the CMake package).
+module gsenc
+    use, intrinsic :: iso_c_binding
+    use, intrinsic :: iso_fortran_env, only: real32, real64, int64
+    use, intrinsic :: ieee_arithmetic, only: ieee_value, ieee_quiet_nan
+    implicit none
+    private
+
+    ! Status codes (gsenc_status): fixed values, only ever appended to.
+    integer(c_int), parameter, public :: GSENC_STATUS_OK = 0, GSENC_STATUS_NULL_POINTER = 1, &
+        GSENC_STATUS_INVALID_ARGUMENT = 2, GSENC_STATUS_INVALID_DATA = 3, GSENC_STATUS_FORMAT = 4, &
+        GSENC_STATUS_VERSION = 5, GSENC_STATUS_IO = 6, GSENC_STATUS_CALL_ORDER = 7, &
+        GSENC_STATUS_STRUCT_SIZE = 8, GSENC_STATUS_INTERNAL = 9
+    integer(c_int32_t), parameter, public :: GSENC_DTYPE_FLOAT32 = 0, GSENC_DTYPE_FLOAT64 = 1
+    integer(c_int32_t), parameter, public :: GSENC_SCHEDULE_FULL = 0, GSENC_SCHEDULE_MATCHED = 1, &
+        GSENC_SCHEDULE_SHORT = 2
+    integer(c_int32_t), parameter, public :: GSENC_WARM_OFF = 0, GSENC_WARM_COARSE = 1, GSENC_WARM_DENSE = 2
+    integer(c_int32_t), parameter, public :: GSENC_TRANSFORM_LINEAR = 0, GSENC_TRANSFORM_LOG10 = 1
+    integer(c_int32_t), parameter, public :: GSENC_PAYLOAD_F32 = 0, GSENC_PAYLOAD_8BIT = 1, &
+        GSENC_PAYLOAD_8BIT_U16 = 2
+    integer(c_int32_t), parameter, public :: GSENC_CELLS_BOXES = 0, GSENC_CELLS_HEXAHEDRA = 1
+
+    ! gsenc_config. Unsigned C fields are signed here; values stay small.
+    ! Get one with gsenc_config_default(); output_dir is given to
+    ! gsenc_encoder_create as a string, not set here.
+    type, bind(c), public :: gsenc_config
+        integer(c_size_t) :: struct_size = 0
+        integer(c_int64_t) :: budget = 0
+        integer(c_int32_t) :: schedule = 0, warm_start = 0
+        integer(c_int32_t) :: iterations = 0, points = 0
+        integer(c_int32_t) :: transform = 0, fixed_range = 0
+        real(c_double) :: value_min = 0, value_max = 0
+        integer(c_int32_t) :: dims(3) = 0
+        integer(c_int32_t) :: has_bounds = 0
+        real(c_double) :: bounds_min(3) = 0, bounds_max(3) = 0
+        integer(c_int32_t) :: payload = 0, threads = 0
+        integer(c_int64_t) :: seed_init = 0, seed_sample = 0
+        integer(c_int32_t) :: rank = 0
+        type(c_ptr) :: output_dir = c_null_ptr
+        integer(c_int32_t) :: warm_iterations = 0
+    end type
+
+    type, bind(c), public :: gsenc_grid
+        integer(c_size_t) :: struct_size = 0
+        integer(c_int32_t) :: dtype = 0
+        type(c_ptr) :: data = c_null_ptr
+        integer(c_int64_t) :: extents(3) = 0, strides(3) = 0
+        real(c_double) :: origin(3) = 0, spacing = 0
+    end type
+
+    type, bind(c), public :: gsenc_particles
+        integer(c_size_t) :: struct_size = 0
+        integer(c_int32_t) :: dtype = 0
+        integer(c_int64_t) :: count = 0
+        type(c_ptr) :: positions = c_null_ptr
+        integer(c_int64_t) :: position_stride = 0, position_component_stride = 0
+        type(c_ptr) :: smoothing_length = c_null_ptr
+        integer(c_int64_t) :: smoothing_length_stride = 0
+        type(c_ptr) :: mass = c_null_ptr
+        integer(c_int64_t) :: mass_stride = 0
+        type(c_ptr) :: values = c_null_ptr
+        integer(c_int64_t) :: value_stride = 0
+    end type
+
+    type, bind(c), public :: gsenc_cells
+        integer(c_size_t) :: struct_size = 0
+        integer(c_int32_t) :: dtype = 0, layout = 0
+        integer(c_int64_t) :: count = 0
+        type(c_ptr) :: centres = c_null_ptr
+        integer(c_int64_t) :: centre_stride = 0, centre_component_stride = 0
+        type(c_ptr) :: edges = c_null_ptr
+        integer(c_int64_t) :: edge_stride = 0, edge_component_stride = 0
+        type(c_ptr) :: points = c_null_ptr
+        integer(c_int64_t) :: point_count = 0, point_stride = 0, point_component_stride = 0
+        type(c_ptr) :: connectivity = c_null_ptr
+        type(c_ptr) :: values = c_null_ptr
+        integer(c_int64_t) :: value_stride = 0
+    end type
+
+    type, bind(c), public :: gsenc_model_info
+        integer(c_size_t) :: struct_size = 0
+        integer(c_int64_t) :: count = 0
+        integer(c_int64_t) :: dims(3) = 0
+        real(c_double) :: origin(3) = 0, spacing = 0
+        integer(c_int64_t) :: step = 0
+        real(c_double) :: time = 0
+        integer(c_int32_t) :: rank = 0, iterations = 0
+        integer(c_int32_t) :: warm_started = 0
+        real(c_double) :: encode_psnr = 0
+    end type
+
+    ! The C functions, under their C names with a `_c` suffix.
+    interface
+        integer(c_int32_t) function gsenc_version() bind(c, name="gsenc_version")
+            import :: c_int32_t
+        end function
+        integer(c_int) function gsenc_config_init_c(config) bind(c, name="gsenc_config_init")
+            import :: c_int, gsenc_config
+            type(gsenc_config), intent(inout) :: config
+        end function
+        integer(c_int) function gsenc_encoder_create_c(config, out) bind(c, name="gsenc_encoder_create")
+            import :: c_int, c_ptr, gsenc_config
+            type(gsenc_config), intent(in) :: config
+            type(c_ptr), intent(out) :: out
+        end function
+        subroutine gsenc_encoder_destroy_c(encoder) bind(c, name="gsenc_encoder_destroy")
+            import :: c_ptr
+            type(c_ptr), value :: encoder
+        end subroutine
+        integer(c_int) function gsenc_push_grid_c(encoder, field, step, time, grid) bind(c, name="gsenc_push_grid")
+            import :: c_int, c_ptr, c_char, c_int64_t, c_double, gsenc_grid
+            type(c_ptr), value :: encoder
+            character(kind=c_char), intent(in) :: field(*)
+            integer(c_int64_t), value :: step
+            real(c_double), value :: time
+            type(gsenc_grid), intent(in) :: grid
+        end function
+        integer(c_int) function gsenc_push_particles_c(encoder, field, step, time, particles) &
+                bind(c, name="gsenc_push_particles")
+            import :: c_int, c_ptr, c_char, c_int64_t, c_double, gsenc_particles
+            type(c_ptr), value :: encoder
+            character(kind=c_char), intent(in) :: field(*)
+            integer(c_int64_t), value :: step
+            real(c_double), value :: time
+            type(gsenc_particles), intent(in) :: particles
+        end function
+        integer(c_int) function gsenc_push_cells_c(encoder, field, step, time, cells) bind(c, name="gsenc_push_cells")
+            import :: c_int, c_ptr, c_char, c_int64_t, c_double, gsenc_cells
+            type(c_ptr), value :: encoder
+            character(kind=c_char), intent(in) :: field(*)
+            integer(c_int64_t), value :: step
+            real(c_double), value :: time
+            type(gsenc_cells), intent(in) :: cells
+        end function
+        integer(c_int) function gsenc_encode(encoder) bind(c, name="gsenc_encode")
+            import :: c_int, c_ptr
+            type(c_ptr), value :: encoder
+        end function
+        integer(c_int) function gsenc_encoder_write_model_c(encoder, field, path) &
+                bind(c, name="gsenc_encoder_write_model")
+            import :: c_int, c_ptr, c_char
+            type(c_ptr), value :: encoder
+            character(kind=c_char), intent(in) :: field(*), path(*)
+        end function
+        integer(c_int) function gsenc_encoder_last_step_c(encoder, field, step, psnr) &
+                bind(c, name="gsenc_encoder_last_step")
+            import :: c_int, c_ptr, c_char, c_int64_t, c_double
+            type(c_ptr), value :: encoder
+            character(kind=c_char), intent(in) :: field(*)
+            integer(c_int64_t), intent(out) :: step
+            real(c_double), intent(out) :: psnr
+        end function
+        integer(c_int) function gsenc_model_read_c(path, out) bind(c, name="gsenc_model_read")
+            import :: c_int, c_ptr, c_char
+            character(kind=c_char), intent(in) :: path(*)
+            type(c_ptr), intent(out) :: out
+        end function
+        subroutine gsenc_model_destroy_c(model) bind(c, name="gsenc_model_destroy")
+            import :: c_ptr
+            type(c_ptr), value :: model
+        end subroutine
+        integer(c_int) function gsenc_model_info_get_c(model, info) bind(c, name="gsenc_model_info_get")
+            import :: c_int, c_ptr, gsenc_model_info
+            type(c_ptr), value :: model
+            type(gsenc_model_info), intent(inout) :: info
+        end function
+        integer(c_int) function gsenc_model_decode_c(model, dims, out, out_len) bind(c, name="gsenc_model_decode")
+            import :: c_int, c_ptr, c_int64_t
+            type(c_ptr), value :: model, dims, out
+            integer(c_int64_t), value :: out_len
+        end function
+        integer(c_int) function gsenc_model_evaluate_c(model, points, count, out) bind(c, name="gsenc_model_evaluate")
+            import :: c_int, c_ptr, c_int64_t
+            type(c_ptr), value :: model, points, out
+            integer(c_int64_t), value :: count
+        end function
+        subroutine gsenc_set_last_error_c(message) bind(c, name="gsenc_set_last_error")
+            import :: c_char
+            character(kind=c_char), intent(in) :: message(*)
+        end subroutine
+        integer(c_size_t) function gsenc_last_error_c(buf, len) bind(c, name="gsenc_last_error")
+            import :: c_size_t, c_ptr
+            type(c_ptr), value :: buf
+            integer(c_size_t), value :: len
+        end function
+    end interface
+
+    public :: gsenc_version, gsenc_encode
+    public :: gsenc_config_init_c, gsenc_encoder_create_c, gsenc_encoder_destroy_c, gsenc_push_grid_c, &
+        gsenc_push_particles_c, gsenc_push_cells_c, gsenc_encoder_write_model_c, gsenc_encoder_last_step_c, &
+        gsenc_model_read_c, gsenc_model_destroy_c, gsenc_model_info_get_c, gsenc_model_decode_c, &
+        gsenc_model_evaluate_c, gsenc_last_error_c
+    public :: gsenc_config_default, gsenc_encoder_create, gsenc_encoder_destroy, gsenc_push_grid, &
+        gsenc_push_particles, gsenc_push_cells_boxes, gsenc_push_cells_hexahedra, gsenc_encoder_write_model, &
+        gsenc_encoder_last_step, gsenc_model_read, gsenc_model_destroy, gsenc_model_info_get, gsenc_model_decode, &
+        gsenc_model_evaluate, gsenc_last_error_message
+
+    !> Hands over one field of a step on a regular grid: values(i, j, k) of
+    !> any real32 or real64 array or array section (strides are passed on).
+    interface gsenc_push_grid
+        module procedure push_grid_r4, push_grid_r8
+    end interface
+    !> SPH particles: positions(3, n), smoothing_length(n), values(n) and
+    !> optionally mass(n), sections allowed (one component of a vector field).
+    interface gsenc_push_particles
+        module procedure push_particles_r4, push_particles_r8
+    end interface
+    !> AMR cells as boxes: centres(3, n), edges(3, n), values(n).
+    interface gsenc_push_cells_boxes
+        module procedure push_boxes_r4, push_boxes_r8
+    end interface
+    !> Unstructured hexahedra: points(3, np), connectivity(8, n) (0-based,
+    !> VTK order, int64), values(n).
+    interface gsenc_push_cells_hexahedra
+        module procedure push_hexahedra_r4, push_hexahedra_r8
+    end interface
+
+contains
+
+    !> A NUL-terminated copy of a Fortran string (trailing blanks dropped).
+    pure function c_string(s) result(c)
+        character(len=*), intent(in) :: s
+        character(kind=c_char) :: c(len_trim(s) + 1)
+        integer :: i
+        do i = 1, len_trim(s)
+            c(i) = s(i:i)
+        end do
+        c(len_trim(s) + 1) = c_null_char
+    end function
+
+    !> The address of a C pointer, for stride arithmetic.
+    integer(c_intptr_t) function address(p)
+        type(c_ptr), intent(in) :: p
+        address = transfer(p, address)
+    end function
+
+    !> Elements between two addresses, for elements of `size` bytes.
+    integer(c_int64_t) function elements(from, to, size)
+        type(c_ptr), intent(in) :: from, to
+        integer, intent(in) :: size
+        elements = int((address(to) - address(from)) / size, c_int64_t)
+    end function
+
+    real(c_double) function time_or_nan(time)
+        real(c_double), intent(in), optional :: time
+        if (present(time)) then
+            time_or_nan = time
+        else
+            time_or_nan = ieee_value(time_or_nan, ieee_quiet_nan)
+        end if
+    end function
+
+    !> The defaults of gsenc_config_init, with struct_size set.
+    function gsenc_config_default() result(config)
+        type(gsenc_config) :: config
+        integer(c_int) :: status
+        config%struct_size = c_sizeof(config)
+        status = gsenc_config_init_c(config)
+    end function
+
+    !> Creates an encoder from `config`; `output_dir`, when given, is the
+    !> folder every model is written to as FIELD_STEP.gsm.
+    integer(c_int) function gsenc_encoder_create(config, encoder, output_dir) result(status)
+        type(gsenc_config), intent(in) :: config
+        type(c_ptr), intent(out) :: encoder
+        character(len=*), intent(in), optional :: output_dir
+        type(gsenc_config) :: c
+        character(kind=c_char), allocatable, target :: dir(:)
+        c = config
+        c%output_dir = c_null_ptr
+        if (present(output_dir)) then
+            allocate (dir(len_trim(output_dir) + 1))
+            dir(:) = c_string(output_dir)
+            c%output_dir = c_loc(dir)
+        end if
+        status = gsenc_encoder_create_c(c, encoder)
+    end function
+
+    !> Frees the encoder and sets the handle to c_null_ptr.
+    subroutine gsenc_encoder_destroy(encoder)
+        type(c_ptr), intent(inout) :: encoder
+        call gsenc_encoder_destroy_c(encoder)
+        encoder = c_null_ptr
+    end subroutine
+
+    integer(c_int) function push_grid_r4(encoder, field, step, values, origin, spacing, time) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real32), intent(in), target :: values(:, :, :)
+        real(c_double), intent(in) :: origin(3), spacing
+        real(c_double), intent(in), optional :: time
+        type(gsenc_grid) :: g
+        g = grid_of(GSENC_DTYPE_FLOAT32, shape(values, kind=c_int64_t), origin, spacing)
+        if (size(values) == 0) then
+            g%data = c_null_ptr
+        else
+            g%data = c_loc(values(1, 1, 1))
+            g%strides = grid_strides(g%extents, 4, g%data, c_loc(values(min(2, size(values, 1)), 1, 1)), &
+                c_loc(values(1, min(2, size(values, 2)), 1)), c_loc(values(1, 1, min(2, size(values, 3)))))
+        end if
+        status = gsenc_push_grid_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), g)
+    end function
+
+    integer(c_int) function push_grid_r8(encoder, field, step, values, origin, spacing, time) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real64), intent(in), target :: values(:, :, :)
+        real(c_double), intent(in) :: origin(3), spacing
+        real(c_double), intent(in), optional :: time
+        type(gsenc_grid) :: g
+        g = grid_of(GSENC_DTYPE_FLOAT64, shape(values, kind=c_int64_t), origin, spacing)
+        if (size(values) == 0) then
+            g%data = c_null_ptr
+        else
+            g%data = c_loc(values(1, 1, 1))
+            g%strides = grid_strides(g%extents, 8, g%data, c_loc(values(min(2, size(values, 1)), 1, 1)), &
+                c_loc(values(1, min(2, size(values, 2)), 1)), c_loc(values(1, 1, min(2, size(values, 3)))))
+        end if
+        status = gsenc_push_grid_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), g)
+    end function
+
+    type(gsenc_grid) function grid_of(dtype, extents, origin, spacing) result(g)
+        integer(c_int32_t), intent(in) :: dtype
+        integer(c_int64_t), intent(in) :: extents(3)
+        real(c_double), intent(in) :: origin(3), spacing
+        g%struct_size = c_sizeof(g)
+        g%dtype = dtype
+        g%extents = extents
+        g%origin = origin
+        g%spacing = spacing
+    end function
+
+    !> Memory strides (elements) of a 3D array from the addresses of its
+    !> elements (1,1,1), (2,1,1), (1,2,1), (1,1,2); an axis of extent 1 gets
+    !> stride 1 (never used), which is not the "all zero: contiguous" default.
+    function grid_strides(extents, size, p000, p100, p010, p001) result(strides)
+        integer(c_int64_t), intent(in) :: extents(3)
+        integer, intent(in) :: size
+        type(c_ptr), intent(in) :: p000, p100, p010, p001
+        integer(c_int64_t) :: strides(3)
+        strides = [elements(p000, p100, size), elements(p000, p010, size), elements(p000, p001, size)]
+        where (extents <= 1) strides = 1
+    end function
+
+    !> Tuple and component strides of a (3, n) array.
+    subroutine tuple_strides(n, size, p11, p21, p12, tuple, component)
+        integer(c_int64_t), intent(in) :: n
+        integer, intent(in) :: size
+        type(c_ptr), intent(in) :: p11, p21, p12
+        integer(c_int64_t), intent(out) :: tuple, component
+        component = elements(p11, p21, size)
+        tuple = 1
+        if (n > 1) tuple = elements(p11, p12, size)
+    end subroutine
+
+    integer(c_int64_t) function scalar_stride(n, size, p1, p2)
+        integer(c_int64_t), intent(in) :: n
+        integer, intent(in) :: size
+        type(c_ptr), intent(in) :: p1, p2
+        scalar_stride = 1
+        if (n > 1) scalar_stride = elements(p1, p2, size)
+    end function
+
+    !> Whether two array lengths agree; records `what` as the error if not.
+    logical function shapes_agree(what, n, m)
+        character(len=*), intent(in) :: what
+        integer(c_int64_t), intent(in) :: n, m
+        shapes_agree = n == m
+        if (.not. shapes_agree) call set_error(what)
+    end function
+
+    !> Records a Fortran-side argument error as the thread's last error.
+    subroutine set_error(what)
+        character(len=*), intent(in) :: what
+        call gsenc_set_last_error_c(c_string(what))
+    end subroutine
+
+    integer(c_int) function push_particles_r4(encoder, field, step, positions, smoothing_length, values, mass, time) &
+            result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real32), intent(in), target :: positions(:, :), smoothing_length(:), values(:)
+        real(real32), intent(in), target, optional :: mass(:)
+        real(c_double), intent(in), optional :: time
+        type(gsenc_particles) :: p
+        integer(c_int64_t) :: n
+        p%struct_size = c_sizeof(p)
+        p%dtype = GSENC_DTYPE_FLOAT32
+        n = size(values, kind=c_int64_t)
+        status = GSENC_STATUS_INVALID_ARGUMENT
+        if (size(positions, 1) /= 3) then
+            call set_error("gsenc_push_particles: positions must be (3, n)")
+            return
+        end if
+        if (.not. shapes_agree("gsenc_push_particles: positions, smoothing_length and values differ in length", &
+                n, size(positions, 2, kind=c_int64_t))) return
+        if (.not. shapes_agree("gsenc_push_particles: smoothing_length and values differ in length", &
+                n, size(smoothing_length, kind=c_int64_t))) return
+        p%count = n
+        if (n > 0) then
+            p%positions = c_loc(positions(1, 1))
+            call tuple_strides(n, 4, p%positions, c_loc(positions(2, 1)), c_loc(positions(1, min(2_c_int64_t, n))), &
+                p%position_stride, p%position_component_stride)
+            p%smoothing_length = c_loc(smoothing_length(1))
+            p%smoothing_length_stride = scalar_stride(n, 4, p%smoothing_length, c_loc(smoothing_length(min(2_c_int64_t, n))))
+            p%values = c_loc(values(1))
+            p%value_stride = scalar_stride(n, 4, p%values, c_loc(values(min(2_c_int64_t, n))))
+            if (present(mass)) then
+                if (.not. shapes_agree("gsenc_push_particles: mass and values differ in length", &
+                        n, size(mass, kind=c_int64_t))) return
+                p%mass = c_loc(mass(1))
+                p%mass_stride = scalar_stride(n, 4, p%mass, c_loc(mass(min(2_c_int64_t, n))))
+            end if
+        end if
+        status = gsenc_push_particles_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), p)
+    end function
+
+    integer(c_int) function push_particles_r8(encoder, field, step, positions, smoothing_length, values, mass, time) &
+            result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real64), intent(in), target :: positions(:, :), smoothing_length(:), values(:)
+        real(real64), intent(in), target, optional :: mass(:)
+        real(c_double), intent(in), optional :: time
+        type(gsenc_particles) :: p
+        integer(c_int64_t) :: n
+        p%struct_size = c_sizeof(p)
+        p%dtype = GSENC_DTYPE_FLOAT64
+        n = size(values, kind=c_int64_t)
+        status = GSENC_STATUS_INVALID_ARGUMENT
+        if (size(positions, 1) /= 3) then
+            call set_error("gsenc_push_particles: positions must be (3, n)")
+            return
+        end if
+        if (.not. shapes_agree("gsenc_push_particles: positions, smoothing_length and values differ in length", &
+                n, size(positions, 2, kind=c_int64_t))) return
+        if (.not. shapes_agree("gsenc_push_particles: smoothing_length and values differ in length", &
+                n, size(smoothing_length, kind=c_int64_t))) return
+        p%count = n
+        if (n > 0) then
+            p%positions = c_loc(positions(1, 1))
+            call tuple_strides(n, 8, p%positions, c_loc(positions(2, 1)), c_loc(positions(1, min(2_c_int64_t, n))), &
+                p%position_stride, p%position_component_stride)
+            p%smoothing_length = c_loc(smoothing_length(1))
+            p%smoothing_length_stride = scalar_stride(n, 8, p%smoothing_length, c_loc(smoothing_length(min(2_c_int64_t, n))))
+            p%values = c_loc(values(1))
+            p%value_stride = scalar_stride(n, 8, p%values, c_loc(values(min(2_c_int64_t, n))))
+            if (present(mass)) then
+                if (.not. shapes_agree("gsenc_push_particles: mass and values differ in length", &
+                        n, size(mass, kind=c_int64_t))) return
+                p%mass = c_loc(mass(1))
+                p%mass_stride = scalar_stride(n, 8, p%mass, c_loc(mass(min(2_c_int64_t, n))))
+            end if
+        end if
+        status = gsenc_push_particles_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), p)
+    end function
+
+    integer(c_int) function push_boxes_r4(encoder, field, step, centres, edges, values, time) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real32), intent(in), target :: centres(:, :), edges(:, :), values(:)
+        real(c_double), intent(in), optional :: time
+        type(gsenc_cells) :: c
+        integer(c_int64_t) :: n
+        c%struct_size = c_sizeof(c)
+        c%dtype = GSENC_DTYPE_FLOAT32
+        c%layout = GSENC_CELLS_BOXES
+        n = size(values, kind=c_int64_t)
+        status = GSENC_STATUS_INVALID_ARGUMENT
+        if (size(centres, 1) /= 3 .or. size(edges, 1) /= 3) then
+            call set_error("gsenc_push_cells_boxes: centres and edges must be (3, n)")
+            return
+        end if
+        if (.not. shapes_agree("gsenc_push_cells_boxes: centres, edges and values differ in length", n, &
+                merge(size(centres, 2, kind=c_int64_t), -1_c_int64_t, size(centres, 2) == size(edges, 2)))) return
+        c%count = n
+        if (n > 0) then
+            c%centres = c_loc(centres(1, 1))
+            call tuple_strides(n, 4, c%centres, c_loc(centres(2, 1)), c_loc(centres(1, min(2_c_int64_t, n))), &
+                c%centre_stride, c%centre_component_stride)
+            c%edges = c_loc(edges(1, 1))
+            call tuple_strides(n, 4, c%edges, c_loc(edges(2, 1)), c_loc(edges(1, min(2_c_int64_t, n))), &
+                c%edge_stride, c%edge_component_stride)
+            c%values = c_loc(values(1))
+            c%value_stride = scalar_stride(n, 4, c%values, c_loc(values(min(2_c_int64_t, n))))
+        end if
+        status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
+    end function
+
+    integer(c_int) function push_boxes_r8(encoder, field, step, centres, edges, values, time) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real64), intent(in), target :: centres(:, :), edges(:, :), values(:)
+        real(c_double), intent(in), optional :: time
+        type(gsenc_cells) :: c
+        integer(c_int64_t) :: n
+        c%struct_size = c_sizeof(c)
+        c%dtype = GSENC_DTYPE_FLOAT64
+        c%layout = GSENC_CELLS_BOXES
+        n = size(values, kind=c_int64_t)
+        status = GSENC_STATUS_INVALID_ARGUMENT
+        if (size(centres, 1) /= 3 .or. size(edges, 1) /= 3) then
+            call set_error("gsenc_push_cells_boxes: centres and edges must be (3, n)")
+            return
+        end if
+        if (.not. shapes_agree("gsenc_push_cells_boxes: centres, edges and values differ in length", n, &
+                merge(size(centres, 2, kind=c_int64_t), -1_c_int64_t, size(centres, 2) == size(edges, 2)))) return
+        c%count = n
+        if (n > 0) then
+            c%centres = c_loc(centres(1, 1))
+            call tuple_strides(n, 8, c%centres, c_loc(centres(2, 1)), c_loc(centres(1, min(2_c_int64_t, n))), &
+                c%centre_stride, c%centre_component_stride)
+            c%edges = c_loc(edges(1, 1))
+            call tuple_strides(n, 8, c%edges, c_loc(edges(2, 1)), c_loc(edges(1, min(2_c_int64_t, n))), &
+                c%edge_stride, c%edge_component_stride)
+            c%values = c_loc(values(1))
+            c%value_stride = scalar_stride(n, 8, c%values, c_loc(values(min(2_c_int64_t, n))))
+        end if
+        status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
+    end function
+
+    integer(c_int) function push_hexahedra_r4(encoder, field, step, points, connectivity, values, time) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real32), intent(in), target :: points(:, :), values(:)
+        integer(c_int64_t), intent(in), target, contiguous :: connectivity(:, :)
+        real(c_double), intent(in), optional :: time
+        type(gsenc_cells) :: c
+        integer(c_int64_t) :: n, np
+        c%struct_size = c_sizeof(c)
+        c%dtype = GSENC_DTYPE_FLOAT32
+        c%layout = GSENC_CELLS_HEXAHEDRA
+        n = size(values, kind=c_int64_t)
+        np = size(points, 2, kind=c_int64_t)
+        status = GSENC_STATUS_INVALID_ARGUMENT
+        if (size(points, 1) /= 3 .or. size(connectivity, 1) /= 8) then
+            call set_error("gsenc_push_cells_hexahedra: points must be (3, np) and connectivity (8, n)")
+            return
+        end if
+        if (.not. shapes_agree("gsenc_push_cells_hexahedra: connectivity and values differ in length", &
+                n, size(connectivity, 2, kind=c_int64_t))) return
+        c%count = n
+        c%point_count = np
+        if (n > 0) c%connectivity = c_loc(connectivity(1, 1))
+        if (n > 0) c%values = c_loc(values(1))
+        if (n > 0) c%value_stride = scalar_stride(n, 4, c%values, c_loc(values(min(2_c_int64_t, n))))
+        if (np > 0) then
+            c%points = c_loc(points(1, 1))
+            call tuple_strides(np, 4, c%points, c_loc(points(2, 1)), c_loc(points(1, min(2_c_int64_t, np))), &
+                c%point_stride, c%point_component_stride)
+        end if
+        status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
+    end function
+
+    integer(c_int) function push_hexahedra_r8(encoder, field, step, points, connectivity, values, time) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        real(real64), intent(in), target :: points(:, :), values(:)
+        integer(c_int64_t), intent(in), target, contiguous :: connectivity(:, :)
+        real(c_double), intent(in), optional :: time
+        type(gsenc_cells) :: c
+        integer(c_int64_t) :: n, np
+        c%struct_size = c_sizeof(c)
+        c%dtype = GSENC_DTYPE_FLOAT64
+        c%layout = GSENC_CELLS_HEXAHEDRA
+        n = size(values, kind=c_int64_t)
+        np = size(points, 2, kind=c_int64_t)
+        status = GSENC_STATUS_INVALID_ARGUMENT
+        if (size(points, 1) /= 3 .or. size(connectivity, 1) /= 8) then
+            call set_error("gsenc_push_cells_hexahedra: points must be (3, np) and connectivity (8, n)")
+            return
+        end if
+        if (.not. shapes_agree("gsenc_push_cells_hexahedra: connectivity and values differ in length", &
+                n, size(connectivity, 2, kind=c_int64_t))) return
+        c%count = n
+        c%point_count = np
+        if (n > 0) c%connectivity = c_loc(connectivity(1, 1))
+        if (n > 0) c%values = c_loc(values(1))
+        if (n > 0) c%value_stride = scalar_stride(n, 8, c%values, c_loc(values(min(2_c_int64_t, n))))
+        if (np > 0) then
+            c%points = c_loc(points(1, 1))
+            call tuple_strides(np, 8, c%points, c_loc(points(2, 1)), c_loc(points(1, min(2_c_int64_t, np))), &
+                c%point_stride, c%point_component_stride)
+        end if
+        status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
+    end function
+
+    integer(c_int) function gsenc_encoder_write_model(encoder, field, path) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field, path
+        status = gsenc_encoder_write_model_c(encoder, c_string(field), c_string(path))
+    end function
+
+    integer(c_int) function gsenc_encoder_last_step(encoder, field, step, psnr) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(out) :: step
+        real(c_double), intent(out) :: psnr
+        integer(c_int64_t) :: s
+        status = gsenc_encoder_last_step_c(encoder, c_string(field), s, psnr)
+        step = s
+    end function
+
+    integer(c_int) function gsenc_model_read(path, model) result(status)
+        character(len=*), intent(in) :: path
+        type(c_ptr), intent(out) :: model
+        status = gsenc_model_read_c(c_string(path), model)
+    end function
+
+    !> Frees the model and sets the handle to c_null_ptr.
+    subroutine gsenc_model_destroy(model)
+        type(c_ptr), intent(inout) :: model
+        call gsenc_model_destroy_c(model)
+        model = c_null_ptr
+    end subroutine
+
+    integer(c_int) function gsenc_model_info_get(model, info) result(status)
+        type(c_ptr), intent(in) :: model
+        type(gsenc_model_info), intent(out) :: info
+        info%struct_size = c_sizeof(info)
+        status = gsenc_model_info_get_c(model, info)
+    end function
+
+    !> Decodes onto out(nx, ny, nz) cells covering the model's box (any
+    !> shape: the model is resampled), in data units. `out` must be
+    !> contiguous (decode into a whole array, then copy a section).
+    integer(c_int) function gsenc_model_decode(model, out) result(status)
+        type(c_ptr), intent(in) :: model
+        real(real32), intent(inout), target :: out(:, :, :)
+        integer(c_int64_t), target :: dims(3)
+        if (.not. is_contiguous(out)) then
+            call set_error("gsenc_model_decode: out must be a contiguous array")
+            status = GSENC_STATUS_INVALID_ARGUMENT
+            return
+        end if
+        dims = shape(out, kind=c_int64_t)
+        if (size(out) == 0) then
+            status = gsenc_model_decode_c(model, c_loc(dims), c_null_ptr, 0_c_int64_t)
+        else
+            status = gsenc_model_decode_c(model, c_loc(dims), c_loc(out(1, 1, 1)), size(out, kind=c_int64_t))
+        end if
+    end function
+
+    !> Evaluates the model at world points(3, n) into out(n), data units.
+    integer(c_int) function gsenc_model_evaluate(model, points, out) result(status)
+        type(c_ptr), intent(in) :: model
+        real(real64), intent(in), target, contiguous :: points(:, :)
+        real(real32), intent(inout), target, contiguous :: out(:)
+        status = GSENC_STATUS_INVALID_ARGUMENT
+        if (size(points, 1) /= 3) then
+            call set_error("gsenc_model_evaluate: points must be (3, n)")
+            return
+        end if
+        if (.not. shapes_agree("gsenc_model_evaluate: points and out differ in length", &
+                size(points, 2, kind=c_int64_t), size(out, kind=c_int64_t))) return
+        if (size(out) == 0) then
+            status = gsenc_model_evaluate_c(model, c_null_ptr, 0_c_int64_t, c_null_ptr)
+        else
+            status = gsenc_model_evaluate_c(model, c_loc(points(1, 1)), size(out, kind=c_int64_t), c_loc(out(1)))
+        end if
+    end function
+
+    !> The calling thread's last error message ("" when none).
+    function gsenc_last_error_message() result(message)
+        character(len=:), allocatable :: message
+        character(kind=c_char), allocatable, target :: buf(:)
+        integer(c_size_t) :: n
+        integer :: i
+        n = gsenc_last_error_c(c_null_ptr, 0_c_size_t)
+        allocate (buf(n + 1))
+        n = gsenc_last_error_c(c_loc(buf), n + 1)
+        allocate (character(len=n) :: message)
+        do i = 1, int(n)
+            message(i:i) = buf(i)
+        end do
+    end function
+end module gsenc
