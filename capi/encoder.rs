@@ -274,8 +274,11 @@ impl gsenc_encoder {
 }
 
 /// Hands over one field of step `step` (simulation time `time`; NaN when
-/// unknown) on a regular grid. The values are copied. Encode with
-/// `gsenc_encode`.
+/// unknown) on a regular grid. The values and `field` are copied before
+/// the call returns: the caller keeps ownership and may reuse its buffers
+/// at once. Encode with `gsenc_encode`.
+/// Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_grid(
     encoder: *mut gsenc_encoder,
@@ -323,7 +326,9 @@ pub unsafe extern "C" fn gsenc_push_grid(
 
 /// Hands over one field of step `step` as SPH particles (see
 /// `gsenc_particles`), deposited on the configured `dims` and bounds. The
-/// arrays are copied.
+/// arrays and `field` are copied before the call returns.
+/// Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_particles(
     encoder: *mut gsenc_encoder,
@@ -361,7 +366,10 @@ pub unsafe extern "C" fn gsenc_push_particles(
 
 /// Hands over one field of step `step` on hexahedral cells (see
 /// `gsenc_cells`), deposited on the configured `dims` and bounds
-/// (volume-weighted). The arrays are copied.
+/// (volume-weighted). The arrays and `field` are copied before the call
+/// returns.
+/// Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_cells(
     encoder: *mut gsenc_encoder,
@@ -423,7 +431,10 @@ pub unsafe extern "C" fn gsenc_push_cells(
 /// its own previous step where configured, and writes the models to the
 /// configured `output_dir`. Blocks until done. A field that fails leaves
 /// its series as it was; the fields after it are still encoded, and the
-/// first failure is returned.
+/// first failure is returned. Runs on a pool of `config.threads` threads
+/// of its own (0: rayon's global pool, every core).
+/// Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encode(encoder: *mut gsenc_encoder) -> gsenc_status {
     guard(|| {
@@ -489,7 +500,9 @@ fn model_file_name(m: &Model) -> String {
 }
 
 /// Writes the last model of `field` to `path` (through a temporary file and
-/// a rename), with the configured payload.
+/// a rename), with the configured payload. Strings are read during the
+/// call only. Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, field: *const c_char, path: *const c_char) -> gsenc_status {
     guard(|| {
@@ -505,7 +518,8 @@ pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, 
 }
 
 /// The last encoded step of `field` and the voxel PSNR (dB) of its model as
-/// stored, against the reference it was fitted to.
+/// stored, against the reference it was fitted to. Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_last_step(
     encoder: *mut gsenc_encoder,

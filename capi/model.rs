@@ -47,7 +47,9 @@ fn model_ref<'a>(model: *const gsenc_model, what: &str) -> Result<&'a Model, Fai
     Ok(unsafe { &(*model).model })
 }
 
-/// Reads the model file at `path` into `*out` (NULL on failure).
+/// Reads the model file at `path` into `*out` (NULL on failure). The
+/// caller owns the new handle and frees it with `gsenc_model_destroy`.
+/// Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gsenc_model) -> gsenc_status {
     guard(|| {
@@ -85,7 +87,8 @@ pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
     }
 }
 
-/// Fills `*info` (whose `struct_size` must be set).
+/// Fills `*info` (whose `struct_size` must be set). Thread-safe, also on
+/// one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *mut gsenc_model_info) -> gsenc_status {
     guard(|| {
@@ -115,7 +118,7 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 
 /// Decodes the model onto `dims` cells covering its box (NULL `dims`: its
 /// reference dims) into `out`, which holds `out_len` floats, x fastest,
-/// in data units.
+/// in data units. The caller owns `out`. Thread-safe, also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *const u64, out: *mut f32, out_len: u64) -> gsenc_status {
     guard(|| {
@@ -149,7 +152,8 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 }
 
 /// Evaluates the model at `count` world points (`points`: x, y, z per
-/// point, interleaved) into `out` (`count` floats, data units).
+/// point, interleaved) into `out` (`count` floats, data units), both
+/// owned by the caller. Thread-safe, also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
     guard(|| {

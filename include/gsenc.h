@@ -405,8 +405,11 @@ void gsenc_encoder_destroy(gsenc_encoder *encoder);
 
 /*
  Hands over one field of step `step` (simulation time `time`; NaN when
- unknown) on a regular grid. The values are copied. Encode with
- `gsenc_encode`.
+ unknown) on a regular grid. The values and `field` are copied before
+ the call returns: the caller keeps ownership and may reuse its buffers
+ at once. Encode with `gsenc_encode`.
+ Not thread-safe on one encoder (one thread at a time); different
+ encoders are independent.
  */
 gsenc_status gsenc_push_grid(gsenc_encoder *encoder,
                              const char *field,
@@ -417,7 +420,9 @@ gsenc_status gsenc_push_grid(gsenc_encoder *encoder,
 /*
  Hands over one field of step `step` as SPH particles (see
  `gsenc_particles`), deposited on the configured `dims` and bounds. The
- arrays are copied.
+ arrays and `field` are copied before the call returns.
+ Not thread-safe on one encoder (one thread at a time); different
+ encoders are independent.
  */
 gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
                                   const char *field,
@@ -428,7 +433,10 @@ gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
 /*
  Hands over one field of step `step` on hexahedral cells (see
  `gsenc_cells`), deposited on the configured `dims` and bounds
- (volume-weighted). The arrays are copied.
+ (volume-weighted). The arrays and `field` are copied before the call
+ returns.
+ Not thread-safe on one encoder (one thread at a time); different
+ encoders are independent.
  */
 gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
                               const char *field,
@@ -441,19 +449,25 @@ gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
  its own previous step where configured, and writes the models to the
  configured `output_dir`. Blocks until done. A field that fails leaves
  its series as it was; the fields after it are still encoded, and the
- first failure is returned.
+ first failure is returned. Runs on a pool of `config.threads` threads
+ of its own (0: rayon's global pool, every core).
+ Not thread-safe on one encoder (one thread at a time); different
+ encoders are independent.
  */
 gsenc_status gsenc_encode(gsenc_encoder *encoder);
 
 /*
  Writes the last model of `field` to `path` (through a temporary file and
- a rename), with the configured payload.
+ a rename), with the configured payload. Strings are read during the
+ call only. Not thread-safe on one encoder (one thread at a time); different
+ encoders are independent.
  */
 gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field, const char *path);
 
 /*
  The last encoded step of `field` and the voxel PSNR (dB) of its model as
- stored, against the reference it was fitted to.
+ stored, against the reference it was fitted to. Not thread-safe on one encoder (one thread at a time); different
+ encoders are independent.
  */
 gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
                                      const char *field,
@@ -461,7 +475,9 @@ gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
                                      double *psnr);
 
 /*
- Reads the model file at `path` into `*out` (NULL on failure).
+ Reads the model file at `path` into `*out` (NULL on failure). The
+ caller owns the new handle and frees it with `gsenc_model_destroy`.
+ Thread-safe.
  */
 gsenc_status gsenc_model_read(const char *path, gsenc_model **out);
 
@@ -473,14 +489,15 @@ gsenc_status gsenc_model_read(const char *path, gsenc_model **out);
 void gsenc_model_destroy(gsenc_model *model);
 
 /*
- Fills `*info` (whose `struct_size` must be set).
+ Fills `*info` (whose `struct_size` must be set). Thread-safe, also on
+ one model.
  */
 gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *info);
 
 /*
  Decodes the model onto `dims` cells covering its box (NULL `dims`: its
  reference dims) into `out`, which holds `out_len` floats, x fastest,
- in data units.
+ in data units. The caller owns `out`. Thread-safe, also on one model.
  */
 gsenc_status gsenc_model_decode(const gsenc_model *model,
                                 const uint64_t *dims,
@@ -489,7 +506,8 @@ gsenc_status gsenc_model_decode(const gsenc_model *model,
 
 /*
  Evaluates the model at `count` world points (`points`: x, y, z per
- point, interleaved) into `out` (`count` floats, data units).
+ point, interleaved) into `out` (`count` floats, data units), both
+ owned by the caller. Thread-safe, also on one model.
  */
 gsenc_status gsenc_model_evaluate(const gsenc_model *model,
                                   const double *points,
