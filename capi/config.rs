@@ -7,6 +7,7 @@ use crate::field::{Transform, ValueRange};
 use crate::format::Payload;
 use crate::quantize::CentreCoding;
 use crate::reference::Bounds;
+use crate::queue::WhenFull;
 use crate::series::{SeriesConfig, SeriesRange, WarmStart};
 use std::os::raw::c_char;
 
@@ -25,6 +26,22 @@ pub const GSENC_TRANSFORM_LOG10: i32 = 1;
 pub const GSENC_PAYLOAD_F32: i32 = 0;
 pub const GSENC_PAYLOAD_8BIT: i32 = 1;
 pub const GSENC_PAYLOAD_8BIT_U16: i32 = 2;
+/// What a push does when the queue is full (`gsenc_config.when_full`):
+/// wait, drop the step (`GSENC_STATUS_SKIPPED`), or return
+/// `GSENC_STATUS_BUSY` having queued nothing.
+pub const GSENC_QUEUE_BLOCK: i32 = 0;
+pub const GSENC_QUEUE_SKIP: i32 = 1;
+pub const GSENC_QUEUE_BUSY: i32 = 2;
+/// Where models go (`gsenc_config.output_format`).
+pub const GSENC_OUTPUT_FOLDER: i32 = 0;
+pub const GSENC_OUTPUT_HDF5: i32 = 1;
+
+/// `gsenc_config.output_format`, checked.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum OutputFormat {
+    Folder,
+    Hdf5,
+}
 
 /// Everything an encoder is created with. Set `struct_size` to
 /// `sizeof(gsenc_config)` and call `gsenc_config_init` before changing
@@ -61,20 +78,34 @@ pub struct gsenc_config {
     pub bounds_max: [f64; 3],
     /// `GSENC_PAYLOAD_*` of written models (default float32).
     pub payload: i32,
-    /// Worker threads; 0 uses every core.
+    /// Threads of the encoder's own pool, beside the solver's (default 1;
+    /// give it the cores the solver leaves free); 0 uses every core.
     pub threads: u32,
     /// Seeds of the seeding draws (0) and of point sampling (1).
     pub seed_init: u64,
     pub seed_sample: u64,
     /// MPI rank stored in the models (0).
     pub rank: u32,
-    /// Folder that `gsenc_encode` writes every model to as
-    /// `FIELD_STEP.gsm` (`FIELD_STEP_rRANK.gsm` on ranks other than 0);
-    /// NULL (default) writes nothing. Copied at create.
+    /// Where every model goes, per `output_format`: a folder of
+    /// `FIELD_STEP.gsm` files (`FIELD_STEP_rRANK.gsm` on ranks other than
+    /// 0), or an HDF5 store file. NULL (default) keeps models in memory
+    /// only. Copied at create.
     pub output_dir: *const c_char,
     /// Iterations of a warm-started step; 0 keeps the regime's (1000
     /// coarse, 1500 dense).
     pub warm_iterations: u32,
+    /// `GSENC_QUEUE_*`: what a push does when the queue's memory is taken
+    /// (default block).
+    pub when_full: i32,
+    /// Bytes of pushed copies the queue may hold, queued and running steps
+    /// together (default 1 GiB). A step larger than this is still taken
+    /// when the queue is empty.
+    pub queue_bytes: u64,
+    /// `GSENC_OUTPUT_*`: a folder of model files (default) or an HDF5
+    /// store (needs a gsenc built with HDF5; written on the caller's thread
+    /// in `gsenc_wait`, `gsenc_poll` and destroy, since HDF5 is not
+    /// thread-safe and the host may use it too).
+    pub output_format: i32,
 }
 
 /// The bytes of `gsenc_config` this version reads.
@@ -98,12 +129,15 @@ impl gsenc_config {
             bounds_min: [0.0; 3],
             bounds_max: [1.0; 3],
             payload: GSENC_PAYLOAD_F32,
-            threads: 0,
+            threads: 1,
             seed_init: 0,
             seed_sample: 1,
             rank: 0,
             output_dir: std::ptr::null(),
             warm_iterations: 0,
+            when_full: GSENC_QUEUE_BLOCK,
+            queue_bytes: 1 << 30,
+            output_format: GSENC_OUTPUT_FOLDER,
         }
     }
 }
@@ -136,9 +170,13 @@ pub(crate) struct Settings {
     pub dims: [usize; 3],
     pub bounds: Option<Bounds>,
     pub payload: Payload,
-    pub threads: Option<usize>,
+    pub threads: usize,
+    pub when_full: WhenFull,
+    pub queue_bytes: usize,
+    pub output_format: OutputFormat,
     pub rank: u32,
-    pub output_dir: Option<std::path::PathBuf>,
+    /// The folder or store models go to.
+    pub output: Option<std::path::PathBuf>,
 }
 
 impl Settings {
@@ -194,7 +232,26 @@ impl Settings {
                 return Err(bad(format!("bounds {:?}..{:?} are not a box", b.min, b.max)));
             }
         }
-        let output_dir = match c.output_dir.is_null() {
+        let when_full = match c.when_full {
+            GSENC_QUEUE_BLOCK => WhenFull::Block,
+            GSENC_QUEUE_SKIP => WhenFull::Skip,
+            GSENC_QUEUE_BUSY => WhenFull::Busy,
+            w => return Err(bad(format!("unknown when_full {w} (GSENC_QUEUE_BLOCK, _SKIP, _BUSY)"))),
+        };
+        let output_format = match c.output_format {
+            GSENC_OUTPUT_FOLDER => OutputFormat::Folder,
+            GSENC_OUTPUT_HDF5 => OutputFormat::Hdf5,
+            f => return Err(bad(format!("unknown output_format {f} (GSENC_OUTPUT_FOLDER, _HDF5)"))),
+        };
+        let queue_bytes = usize::try_from(c.queue_bytes).ok().filter(|&b| b > 0);
+        let Some(queue_bytes) = queue_bytes else {
+            return Err(bad(format!("queue_bytes {} must be positive", c.queue_bytes)));
+        };
+        let threads = match c.threads {
+            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
+            t => t as usize,
+        };
+        let output = match c.output_dir.is_null() {
             true => None,
             // SAFETY: a non-null `output_dir` is a NUL-terminated string.
             false => Some(std::path::PathBuf::from(unsafe { super::c_str(c.output_dir, "output_dir")? })),
@@ -206,9 +263,12 @@ impl Settings {
             dims: c.dims.map(|d| d as usize),
             bounds,
             payload,
-            threads: (c.threads > 0).then_some(c.threads as usize),
+            threads,
+            when_full,
+            queue_bytes,
+            output_format,
             rank: c.rank,
-            output_dir,
+            output,
         })
     }
 }

@@ -1,52 +1,57 @@
-//! The encoder handle: push a step's fields, encode them (each warm-started
-//! from its own previous step where configured), write the models.
+//! The encoder handle: push a step's fields (copied, then queued), and the
+//! calls that follow the background queue: wait, poll, cancel, the last
+//! model of a field.
 //!
 //! Pushed arrays are copied before the push returns, so the caller may
-//! reuse its buffers at once. An encoder is used by one thread at a time;
-//! different encoders are independent.
+//! reuse its buffers at once; a worker thread of the encoder encodes them
+//! (`queue::BackgroundEncoder`). An encoder is used by one thread at a
+//! time; different encoders are independent.
 
-use super::config::{gsenc_config, Settings};
+use super::config::{gsenc_config, OutputFormat, Settings};
 use super::handles::Kind;
 use super::status::{fail, gsenc_status, guard, Failure};
 use super::{c_str, DType};
-use crate::backend::cpu::CpuBackend;
-use crate::backend::{Backend, Lattice};
-use crate::cells::{CellSize, Cells};
-use crate::encoder::with_threads;
 use crate::field::{Grid, IndexFrame};
-use crate::format::write_model_as;
+use crate::format::{write_model_as, Payload};
 use crate::io::write_atomic;
-use crate::metrics::voxel_psnr;
 use crate::model::Model;
-use crate::particles::Particles;
+use crate::queue::{BackgroundEncoder, CallerStores, Job, JobState, ModelSink, Pushed, QueueConfig, StepData};
 use crate::reference::Placement;
-use crate::series::{SeriesEncoder, StepInput};
-use std::collections::BTreeMap;
 use std::os::raw::{c_char, c_void};
+use std::path::PathBuf;
 
 /// Opaque encoder; create with `gsenc_encoder_create`, free with
 /// `gsenc_encoder_destroy`.
 pub struct gsenc_encoder {
     settings: Settings,
-    series: SeriesEncoder,
-    pending: Vec<Pending>,
-    /// The last model of each field and the PSNR of what was stored.
-    last: BTreeMap<String, (Model, f64)>,
+    queue: BackgroundEncoder,
+    /// The HDF5 store models go to, written on the caller's thread at the
+    /// synchronising calls (`gsenc_wait`, `gsenc_poll`, destroy).
+    #[cfg(feature = "hdf5")]
+    store: Option<crate::io::store::Store>,
 }
 
-/// A pushed field waiting for `gsenc_encode`.
-struct Pending {
-    field: String,
-    step: u64,
-    time: Option<f64>,
-    data: PendingData,
+/// Writes each model as `FIELD_STEP.gsm` into a folder, on the worker.
+struct FolderSink {
+    dir: PathBuf,
+    payload: Payload,
 }
 
-enum PendingData {
-    Grid { grid: Grid, frame: IndexFrame },
-    Particles { positions: Vec<[f64; 3]>, smoothing_length: Vec<f64>, mass: Vec<f32>, values: Vec<f32> },
-    /// Cells as centres with edge lengths, or with volumes (from hexahedra).
-    Cells { centres: Vec<[f64; 3]>, edges: Vec<[f64; 3]>, volumes: Vec<f64>, values: Vec<f32> },
+impl ModelSink for FolderSink {
+    fn store(&mut self, model: &Model) -> crate::Result<Option<String>> {
+        let path = self.dir.join(model_file_name(model));
+        write_atomic(&path, &write_model_as(model, self.payload)?)?;
+        Ok(Some(path.display().to_string()))
+    }
+}
+
+/// Keeps models in memory only (no output configured).
+struct KeepInMemory;
+
+impl ModelSink for KeepInMemory {
+    fn store(&mut self, _: &Model) -> crate::Result<Option<String>> {
+        Ok(Some(String::new()))
+    }
 }
 
 /// Cell layouts (`gsenc_cells.layout`).
@@ -162,6 +167,38 @@ unsafe fn read_scalars(dtype: DType, ptr: *const c_void, n: usize, stride: i64) 
     (0..n as i64).map(|i| unsafe { dtype.read(ptr, (i * s) as isize) }).collect()
 }
 
+/// The values of a strided grid, x fastest, as float32. Rows with unit
+/// stride are copied as slices (a 128^3 float push is a few memcpy-speed
+/// milliseconds, the solver's only wait); other layouts element by element.
+///
+/// # Safety
+/// `ptr` holds every element that `dims` and `strides` name.
+unsafe fn copy_grid(dtype: DType, ptr: *const c_void, dims: [usize; 3], strides: [i64; 3]) -> Vec<f32> {
+    let mut values = Vec::with_capacity(dims.iter().product());
+    // Slices need aligned data; a misaligned caller buffer takes the slow path.
+    let unit = match dtype {
+        DType::F32 if ptr.cast::<f32>().is_aligned() => strides[0] == 1,
+        DType::F64 if ptr.cast::<f64>().is_aligned() => strides[0] == 1,
+        _ => false,
+    };
+    for k in 0..dims[2] as i64 {
+        for j in 0..dims[1] as i64 {
+            let row = j * strides[1] + k * strides[2];
+            // SAFETY (all three arms): per the contract, the row's elements exist.
+            match (dtype, unit) {
+                (DType::F32, true) => values.extend_from_slice(unsafe {
+                    std::slice::from_raw_parts(ptr.cast::<f32>().offset(row as isize), dims[0])
+                }),
+                (DType::F64, true) => values.extend(
+                    unsafe { std::slice::from_raw_parts(ptr.cast::<f64>().offset(row as isize), dims[0]) }.iter().map(|&v| v as f32),
+                ),
+                _ => values.extend((0..dims[0] as i64).map(|i| unsafe { dtype.read(ptr, (row + i * strides[0]) as isize) } as f32)),
+            }
+        }
+    }
+    values
+}
+
 fn item_count(count: u64, what: &str) -> Result<usize, Failure> {
     usize::try_from(count)
         .ok()
@@ -181,8 +218,7 @@ pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: 
         unsafe { *out = std::ptr::null_mut() };
         // SAFETY: the caller passes a config of at least its struct_size bytes.
         let settings = unsafe { Settings::from_c(config) }?;
-        let series = SeriesEncoder::new(settings.series.clone())?;
-        let enc = Box::new(gsenc_encoder { settings, series, pending: Vec::new(), last: BTreeMap::new() });
+        let enc = Box::new(gsenc_encoder::new(settings)?);
         // SAFETY: as above.
         let raw = Box::into_raw(enc);
         super::handles::register(raw, Kind::Encoder);
@@ -191,8 +227,11 @@ pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: 
     })
 }
 
-/// Frees an encoder and everything it holds. NULL, and a handle destroyed
-/// already, are ignored; other calls with it afterwards fail with
+/// Drains the queue (every pushed step is encoded and written; call
+/// `gsenc_encoder_cancel` first to drop them instead), then frees the
+/// encoder and everything it holds. Failures of the drained jobs are not
+/// reported: call `gsenc_wait` first to see them. NULL, and a handle
+/// destroyed already, are ignored; other calls with it afterwards fail with
 /// `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
@@ -200,7 +239,10 @@ pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             // SAFETY: made by Box::into_raw in gsenc_encoder_create, and live
             // until now (released above, so never freed twice).
-            drop(unsafe { Box::from_raw(encoder) });
+            let mut enc = unsafe { Box::from_raw(encoder) };
+            let _ = enc.queue.wait(None);
+            enc.flush();
+            drop(enc); // the queue's drop joins its idle worker
         }));
     }
 }
@@ -246,37 +288,76 @@ fn time_of(time: f64) -> Option<f64> {
 }
 
 impl gsenc_encoder {
-    fn push(&mut self, field: String, step: u64, time: f64, data: PendingData) -> Result<(), Failure> {
-        crate::io::check_field_name(&field)?;
-        // Refused now, not at encode, so the caller sees which push was bad.
-        match &data {
-            PendingData::Grid { grid, .. } => crate::field::check_finite(&grid.values)?,
-            PendingData::Particles { positions, smoothing_length, mass, values } => {
-                crate::field::check_finite(values)?;
-                crate::field::check_finite(mass)?;
-                if positions.iter().flatten().chain(smoothing_length).any(|v| !v.is_finite()) {
-                    return fail(gsenc_status::InvalidData, "a particle position or smoothing length is not finite");
-                }
-            }
-            PendingData::Cells { centres, edges, volumes, values } => {
-                crate::field::check_finite(values)?;
-                if centres.iter().chain(edges).flatten().chain(volumes).any(|v| !v.is_finite()) {
-                    return fail(gsenc_status::InvalidData, "a cell centre, edge length or volume is not finite");
-                }
+    fn new(settings: Settings) -> Result<gsenc_encoder, Failure> {
+        let sink: Box<dyn ModelSink> = match (&settings.output, settings.output_format) {
+            (None, _) => Box::new(KeepInMemory),
+            (Some(dir), OutputFormat::Folder) => Box::new(FolderSink { dir: dir.clone(), payload: settings.payload }),
+            (Some(_), OutputFormat::Hdf5) => Box::new(CallerStores),
+        };
+        #[cfg(feature = "hdf5")]
+        let store = match (&settings.output, settings.output_format) {
+            (Some(path), OutputFormat::Hdf5) => Some(crate::io::store::Store::open_append(path)?),
+            _ => None,
+        };
+        #[cfg(not(feature = "hdf5"))]
+        if settings.output.is_some() && settings.output_format == OutputFormat::Hdf5 {
+            return fail(
+                gsenc_status::InvalidArgument,
+                "this gsenc was built without HDF5 (cargo feature hdf5); write a folder of model files",
+            );
+        }
+        let queue = BackgroundEncoder::new(
+            QueueConfig {
+                series: settings.series.clone(),
+                max_bytes: settings.queue_bytes,
+                when_full: settings.when_full,
+                threads: settings.threads,
+                payload: settings.payload,
+                rank: settings.rank,
+            },
+            sink,
+        )?;
+        Ok(gsenc_encoder {
+            settings,
+            queue,
+            #[cfg(feature = "hdf5")]
+            store,
+        })
+    }
+
+    fn push(&mut self, field: String, step: u64, time: f64, data: StepData) -> Result<(), Failure> {
+        let full = || format!("field '{field}' step {step}: the queue is full (queue_bytes {})", self.settings.queue_bytes);
+        match self.queue.push(Job { field: field.clone(), step, time: time_of(time), data })? {
+            Pushed::Queued => Ok(()),
+            Pushed::Skipped => fail(gsenc_status::Skipped, format!("{}; the step was skipped", full())),
+            Pushed::Busy => fail(gsenc_status::Busy, format!("{}; nothing was queued, push it again later", full())),
+        }
+    }
+
+    /// Appends the models the worker left for the caller's thread (HDF5).
+    fn flush(&mut self) {
+        #[cfg(feature = "hdf5")]
+        if let Some(store) = self.store.as_mut() {
+            for m in self.queue.take_finished() {
+                let r = store.append(&m, self.settings.payload).map(|()| {
+                    format!("{}:{}", store.path().display(), crate::io::store::EntryKey::of(&m.meta).path())
+                });
+                self.queue.set_stored(&m.meta.field, m.meta.step, r);
             }
         }
-        if self.pending.iter().any(|p| p.field == field) {
-            return fail(gsenc_status::CallOrder, format!("field '{field}' was already pushed for this step; call gsenc_encode first"));
-        }
-        self.pending.push(Pending { field, step, time: time_of(time), data });
-        Ok(())
+    }
+
+    fn placement(&self) -> Placement {
+        Placement { dims: self.settings.dims, bounds: self.settings.bounds }
     }
 }
 
 /// Hands over one field of step `step` (simulation time `time`; NaN when
 /// unknown) on a regular grid. The values and `field` are copied before
 /// the call returns: the caller keeps ownership and may reuse its buffers
-/// at once. Encode with `gsenc_encode`.
+/// at once. The step is queued for the background encode (see
+/// `gsenc_config.when_full` for a full queue: `GSENC_STATUS_BUSY` or
+/// `GSENC_STATUS_SKIPPED`); `gsenc_wait` and `gsenc_poll` follow it.
 /// Not thread-safe on one encoder (one thread at a time); different
 /// encoders are independent.
 #[no_mangle]
@@ -309,18 +390,10 @@ pub unsafe extern "C" fn gsenc_push_grid(
         if strides.iter().any(|&s| s <= 0) {
             return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
         }
-        let mut values = Vec::with_capacity(dims.iter().product());
-        for k in 0..dims[2] {
-            for j in 0..dims[1] {
-                for i in 0..dims[0] {
-                    let at = i as i64 * strides[0] + j as i64 * strides[1] + k as i64 * strides[2];
-                    // SAFETY: the caller's array holds every element its extents and strides name.
-                    values.push(unsafe { dtype.read(g.data, at as isize) } as f32);
-                }
-            }
-        }
+        // SAFETY: the caller's array holds every element its extents and strides name.
+        let values = unsafe { copy_grid(dtype, g.data, dims, strides) };
         let frame = IndexFrame { dims, bmin: g.origin, gamma: 1.0 / g.spacing };
-        enc.push(field, step, time, PendingData::Grid { grid: Grid::new(dims, values)?, frame })
+        enc.push(field, step, time, StepData::Grid { grid: Grid::new(dims, values)?, frame })
     })
 }
 
@@ -360,7 +433,8 @@ pub unsafe extern "C" fn gsenc_push_particles(
         } else {
             unsafe { read_scalars(dtype, p.mass, n, p.mass_stride) }.into_iter().map(|v| v as f32).collect()
         };
-        enc.push(field, step, time, PendingData::Particles { positions, smoothing_length, mass, values })
+        let placement = enc.placement();
+        enc.push(field, step, time, StepData::Particles { positions, smoothing_length, mass, values, placement })
     })
 }
 
@@ -399,7 +473,7 @@ pub unsafe extern "C" fn gsenc_push_cells(
                 }
                 let centres = unsafe { read_tuples(dtype, c.centres, n, c.centre_stride, c.centre_component_stride) };
                 let edges = unsafe { read_tuples(dtype, c.edges, n, c.edge_stride, c.edge_component_stride) };
-                PendingData::Cells { centres, edges, volumes: Vec::new(), values }
+                StepData::Cells { centres, edges, volumes: Vec::new(), values, placement: enc.placement() }
             }
             GSENC_CELLS_HEXAHEDRA => {
                 if c.points.is_null() || c.connectivity.is_null() {
@@ -419,7 +493,7 @@ pub unsafe extern "C" fn gsenc_push_cells(
                     .chunks_exact(8)
                     .map(|k| crate::cells::hexahedron_centre_volume(&std::array::from_fn(|j| points[k[j] as usize])))
                     .unzip();
-                PendingData::Cells { centres, edges: Vec::new(), volumes, values }
+                StepData::Cells { centres, edges: Vec::new(), volumes, values, placement: enc.placement() }
             }
             l => return fail(gsenc_status::InvalidArgument, format!("unknown cell layout {l}")),
         };
@@ -427,68 +501,124 @@ pub unsafe extern "C" fn gsenc_push_cells(
     })
 }
 
-/// Encodes every field pushed since the last call, each warm-started from
-/// its own previous step where configured, and writes the models to the
-/// configured `output_dir`. Blocks until done. A field that fails leaves
-/// its series as it was; the fields after it are still encoded, and the
-/// first failure is returned. Runs on a pool of `config.threads` threads
-/// of its own (0: rayon's global pool, every core).
-/// Not thread-safe on one encoder (one thread at a time); different
-/// encoders are independent.
+/// Blocks until every pushed step of `field` (NULL: of every field) is
+/// encoded and written. Returns the first failure not reported before
+/// (its message names the field and step; later steps were still encoded),
+/// else `GSENC_STATUS_OK`. Models bound for an HDF5 store are written here,
+/// on the caller's thread. Not thread-safe on one encoder.
 #[no_mangle]
-pub unsafe extern "C" fn gsenc_encode(encoder: *mut gsenc_encoder) -> gsenc_status {
+pub unsafe extern "C" fn gsenc_wait(encoder: *mut gsenc_encoder, field: *const c_char) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_encode")?;
-        if enc.pending.is_empty() {
-            return fail(gsenc_status::CallOrder, "gsenc_encode: nothing was pushed since the last encode");
+        let enc = encoder_mut(encoder, "gsenc_wait")?;
+        // SAFETY: NULL or a NUL-terminated string.
+        let field = if field.is_null() { None } else { Some(unsafe { c_str(field, "field") }?) };
+        if let Some(f) = &field {
+            crate::io::check_field_name(f)?;
         }
-        let mut first_failure = None;
-        for p in std::mem::take(&mut enc.pending) {
-            if let Err(f) = enc.encode_one(p) {
-                first_failure.get_or_insert(f);
-            }
-        }
-        first_failure.map_or(Ok(()), Err)
+        let waited = enc.queue.wait(field.as_deref());
+        enc.flush();
+        waited?;
+        // A store write that failed in the flush is a failure of this wait too.
+        enc.queue.wait(field.as_deref())?;
+        Ok(())
     })
 }
 
-impl gsenc_encoder {
-    fn encode_one(&mut self, p: Pending) -> Result<(), Failure> {
-        let s = &self.settings;
-        let placement = Placement { dims: s.dims, bounds: s.bounds };
-        let (series, payload) = (&mut self.series, s.payload);
-        let (model, psnr) = with_threads(s.threads, || -> crate::Result<(Model, f64)> {
-            let mut cpu = CpuBackend::new();
-            let particles;
-            let cells;
-            let input = match &p.data {
-                PendingData::Grid { grid, frame } => StepInput::Grid { values: grid, frame: *frame },
-                PendingData::Particles { positions, smoothing_length, mass, values } => {
-                    particles = Particles { positions, smoothing_length, mass, values };
-                    StepInput::Particles { particles: &particles, placement }
-                }
-                PendingData::Cells { centres, edges, volumes, values } => {
-                    let size = if volumes.is_empty() { CellSize::Edges(edges) } else { CellSize::Volumes(volumes) };
-                    cells = Cells { centres, size, values };
-                    StepInput::Cells { cells: &cells, placement }
-                }
-            };
-            let mut r = series.encode_step(&p.field, p.step, p.time, input, &mut cpu, &mut |_| {})?;
-            let stored = payload.round_trip(&r.model.params)?;
-            let mut decoded = vec![0f32; r.reference.len()];
-            cpu.decode_lattice(&stored, &Lattice::reference(r.reference.dims), &mut decoded);
-            let psnr = voxel_psnr(&decoded, &r.reference.values);
-            r.model.meta.encode_psnr = Some(psnr);
-            Ok((r.model, psnr))
-        })??;
-        let mut model = model;
-        model.meta.rank = s.rank;
-        if let Some(dir) = &s.output_dir {
-            write_atomic(dir.join(model_file_name(&model)), &write_model_as(&model, s.payload)?)?;
+/// Job states (`gsenc_job.state`).
+pub const GSENC_JOB_QUEUED: i32 = 0;
+pub const GSENC_JOB_RUNNING: i32 = 1;
+/// Encoded, and written when an output is configured.
+pub const GSENC_JOB_DONE: i32 = 2;
+pub const GSENC_JOB_FAILED: i32 = 3;
+/// Dropped by the `GSENC_QUEUE_SKIP` policy.
+pub const GSENC_JOB_SKIPPED: i32 = 4;
+/// Dropped by `gsenc_encoder_cancel`.
+pub const GSENC_JOB_CANCELLED: i32 = 5;
+
+/// Where one pushed step is. Set `struct_size` to `sizeof(gsenc_job)`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_job {
+    pub struct_size: usize,
+    /// `GSENC_JOB_*`.
+    pub state: i32,
+    /// While running: the optimisation iteration reached, of `iterations`
+    /// (both 0 while depositing and seeding).
+    pub iteration: u32,
+    pub iterations: u32,
+    /// When failed: the failure's status (its message is then the calling
+    /// thread's `gsenc_last_error`); else `GSENC_STATUS_OK`.
+    pub error: i32,
+    /// When done: the voxel PSNR (dB) of the model as stored; else NaN.
+    pub psnr: f64,
+}
+
+/// Fills `*job` with the state of `field`'s step `step`, without waiting.
+/// `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
+/// for an HDF5 store are written here. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c_char, step: u64, job: *mut gsenc_job) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_poll")?;
+        // SAFETY: a NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        // SAFETY: NULL or the caller's gsenc_job.
+        unsafe { check_sized(job.cast_const(), "gsenc_poll: job") }?;
+        enc.flush();
+        let Some(state) = enc.queue.poll(&field, step) else {
+            return fail(gsenc_status::CallOrder, format!("field '{field}' step {step} was never pushed"));
+        };
+        let mut out = gsenc_job {
+            struct_size: std::mem::size_of::<gsenc_job>(),
+            state: GSENC_JOB_QUEUED,
+            iteration: 0,
+            iterations: 0,
+            error: gsenc_status::Ok as i32,
+            psnr: f64::NAN,
+        };
+        let mut message = None;
+        match state {
+            JobState::Queued => {}
+            JobState::Running { iteration, iterations } => {
+                out.state = GSENC_JOB_RUNNING;
+                out.iteration = iteration as u32;
+                out.iterations = iterations as u32;
+            }
+            JobState::Written { psnr, .. } | JobState::Encoded { psnr } => {
+                out.state = GSENC_JOB_DONE;
+                out.psnr = psnr;
+            }
+            JobState::Failed(e) => {
+                out.state = GSENC_JOB_FAILED;
+                let f = Failure::from(e.in_context(&format!("field '{field}' step {step}")));
+                out.error = f.0 as i32;
+                message = Some(f.1);
+            }
+            JobState::Skipped => out.state = GSENC_JOB_SKIPPED,
+            JobState::Cancelled => out.state = GSENC_JOB_CANCELLED,
         }
-        self.last.insert(p.field, (model, psnr));
+        // SAFETY: as above.
+        unsafe { job.write(out) };
+        if let Some(m) = message {
+            super::status::set_last_error(m);
+        }
         Ok(())
-    }
+    })
+}
+
+/// Drops every queued step and stops the running one at its next
+/// iteration; returns when the worker is idle. Their states become
+/// `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
+/// encoded one. The encoder stays usable. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_encoder_cancel")?;
+        enc.queue.cancel();
+        enc.flush();
+        Ok(())
+    })
 }
 
 /// `FIELD_STEP.gsm`, with `_rRANK` on ranks other than 0.
@@ -499,27 +629,27 @@ fn model_file_name(m: &Model) -> String {
     }
 }
 
-/// Writes the last model of `field` to `path` (through a temporary file and
-/// a rename), with the configured payload. Strings are read during the
-/// call only. Not thread-safe on one encoder (one thread at a time); different
-/// encoders are independent.
+/// Writes the last encoded model of `field` to `path` (through a temporary
+/// file and a rename), with the configured payload. Does not wait for
+/// queued steps (call `gsenc_wait` first for the newest). Strings are read
+/// during the call only. Not thread-safe on one encoder.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, field: *const c_char, path: *const c_char) -> gsenc_status {
     guard(|| {
         let enc = encoder_mut(encoder, "gsenc_encoder_write_model")?;
         // SAFETY: NUL-terminated strings or NULL (refused).
         let (field, path) = unsafe { (c_str(field, "field")?, c_str(path, "path")?) };
-        let Some((model, _)) = enc.last.get(&field) else {
-            return fail(gsenc_status::CallOrder, format!("field '{field}' has not been encoded"));
+        let Some((model, _)) = enc.queue.last(&field) else {
+            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
         };
-        write_atomic(&path, &write_model_as(model, enc.settings.payload)?)?;
+        write_atomic(&path, &write_model_as(&model, enc.settings.payload)?)?;
         Ok(())
     })
 }
 
 /// The last encoded step of `field` and the voxel PSNR (dB) of its model as
-/// stored, against the reference it was fitted to. Not thread-safe on one encoder (one thread at a time); different
-/// encoders are independent.
+/// stored, against the reference it was fitted to. Does not wait for queued
+/// steps. Not thread-safe on one encoder.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_last_step(
     encoder: *mut gsenc_encoder,
@@ -534,13 +664,13 @@ pub unsafe extern "C" fn gsenc_encoder_last_step(
         if step.is_null() || psnr.is_null() {
             return fail(gsenc_status::NullPointer, "gsenc_encoder_last_step: step or psnr is NULL");
         }
-        let Some((model, p)) = enc.last.get(&field) else {
-            return fail(gsenc_status::CallOrder, format!("field '{field}' has not been encoded"));
+        let Some((model, p)) = enc.queue.last(&field) else {
+            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
         };
         // SAFETY: non-null out pointers.
         unsafe {
             *step = model.meta.step;
-            *psnr = *p;
+            *psnr = p;
         }
         Ok(())
     })

@@ -30,7 +30,8 @@ module gsenc
     integer(c_int), parameter, public :: GSENC_STATUS_OK = 0, GSENC_STATUS_NULL_POINTER = 1, &
         GSENC_STATUS_INVALID_ARGUMENT = 2, GSENC_STATUS_INVALID_DATA = 3, GSENC_STATUS_FORMAT = 4, &
         GSENC_STATUS_VERSION = 5, GSENC_STATUS_IO = 6, GSENC_STATUS_CALL_ORDER = 7, &
-        GSENC_STATUS_STRUCT_SIZE = 8, GSENC_STATUS_INTERNAL = 9
+        GSENC_STATUS_STRUCT_SIZE = 8, GSENC_STATUS_INTERNAL = 9, GSENC_STATUS_BUSY = 10, &
+        GSENC_STATUS_SKIPPED = 11, GSENC_STATUS_CANCELLED = 12
     integer(c_int32_t), parameter, public :: GSENC_DTYPE_FLOAT32 = 0, GSENC_DTYPE_FLOAT64 = 1
     integer(c_int32_t), parameter, public :: GSENC_SCHEDULE_FULL = 0, GSENC_SCHEDULE_MATCHED = 1, &
         GSENC_SCHEDULE_SHORT = 2
@@ -39,6 +40,10 @@ module gsenc
     integer(c_int32_t), parameter, public :: GSENC_PAYLOAD_F32 = 0, GSENC_PAYLOAD_8BIT = 1, &
         GSENC_PAYLOAD_8BIT_U16 = 2
     integer(c_int32_t), parameter, public :: GSENC_CELLS_BOXES = 0, GSENC_CELLS_HEXAHEDRA = 1
+    integer(c_int32_t), parameter, public :: GSENC_QUEUE_BLOCK = 0, GSENC_QUEUE_SKIP = 1, GSENC_QUEUE_BUSY = 2
+    integer(c_int32_t), parameter, public :: GSENC_OUTPUT_FOLDER = 0, GSENC_OUTPUT_HDF5 = 1
+    integer(c_int32_t), parameter, public :: GSENC_JOB_QUEUED = 0, GSENC_JOB_RUNNING = 1, GSENC_JOB_DONE = 2, &
+        GSENC_JOB_FAILED = 3, GSENC_JOB_SKIPPED = 4, GSENC_JOB_CANCELLED = 5
 
     ! gsenc_config. Unsigned C fields are signed here; values stay small.
     ! Get one with gsenc_config_default(); output_dir is given to
@@ -58,6 +63,16 @@ module gsenc
         integer(c_int32_t) :: rank = 0
         type(c_ptr) :: output_dir = c_null_ptr
         integer(c_int32_t) :: warm_iterations = 0
+        integer(c_int32_t) :: when_full = 0
+        integer(c_int64_t) :: queue_bytes = 0
+        integer(c_int32_t) :: output_format = 0
+    end type
+
+    ! gsenc_job: where one pushed step is (gsenc_poll).
+    type, bind(c), public :: gsenc_job
+        integer(c_size_t) :: struct_size = 0
+        integer(c_int32_t) :: state = 0, iteration = 0, iterations = 0, error = 0
+        real(c_double) :: psnr = 0
     end type
 
     type, bind(c), public :: gsenc_grid
@@ -152,7 +167,18 @@ module gsenc
             real(c_double), value :: time
             type(gsenc_cells), intent(in) :: cells
         end function
-        integer(c_int) function gsenc_encode(encoder) bind(c, name="gsenc_encode")
+        integer(c_int) function gsenc_wait_c(encoder, field) bind(c, name="gsenc_wait")
+            import :: c_int, c_ptr
+            type(c_ptr), value :: encoder, field
+        end function
+        integer(c_int) function gsenc_poll_c(encoder, field, step, job) bind(c, name="gsenc_poll")
+            import :: c_int, c_ptr, c_char, c_int64_t, gsenc_job
+            type(c_ptr), value :: encoder
+            character(kind=c_char), intent(in) :: field(*)
+            integer(c_int64_t), value :: step
+            type(gsenc_job), intent(inout) :: job
+        end function
+        integer(c_int) function gsenc_encoder_cancel(encoder) bind(c, name="gsenc_encoder_cancel")
             import :: c_int, c_ptr
             type(c_ptr), value :: encoder
         end function
@@ -205,12 +231,12 @@ module gsenc
         end function
     end interface
 
-    public :: gsenc_version, gsenc_encode
-    public :: gsenc_config_init_c, gsenc_encoder_create_c, gsenc_encoder_destroy_c, gsenc_push_grid_c, &
+    public :: gsenc_version, gsenc_encoder_cancel
+    public :: gsenc_config_init_c, gsenc_encoder_create_c, gsenc_wait_c, gsenc_poll_c, gsenc_encoder_destroy_c, gsenc_push_grid_c, &
         gsenc_push_particles_c, gsenc_push_cells_c, gsenc_encoder_write_model_c, gsenc_encoder_last_step_c, &
         gsenc_model_read_c, gsenc_model_destroy_c, gsenc_model_info_get_c, gsenc_model_decode_c, &
         gsenc_model_evaluate_c, gsenc_last_error_c
-    public :: gsenc_config_default, gsenc_encoder_create, gsenc_encoder_destroy, gsenc_push_grid, &
+    public :: gsenc_config_default, gsenc_encoder_create, gsenc_encoder_destroy, gsenc_wait, gsenc_poll, gsenc_push_grid, &
         gsenc_push_particles, gsenc_push_cells_boxes, gsenc_push_cells_hexahedra, gsenc_encoder_write_model, &
         gsenc_encoder_last_step, gsenc_model_read, gsenc_model_destroy, gsenc_model_info_get, gsenc_model_decode, &
         gsenc_model_evaluate, gsenc_last_error_message
@@ -611,6 +637,31 @@ contains
                 c%point_stride, c%point_component_stride)
         end if
         status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
+    end function
+
+    !> Blocks until every pushed step of `field` (absent: of every field) is
+    !> encoded and written; returns the first failure not reported before.
+    integer(c_int) function gsenc_wait(encoder, field) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in), optional :: field
+        character(kind=c_char), allocatable, target :: name(:)
+        if (present(field)) then
+            allocate (name(len_trim(field) + 1))
+            name(:) = c_string(field)
+            status = gsenc_wait_c(encoder, c_loc(name))
+        else
+            status = gsenc_wait_c(encoder, c_null_ptr)
+        end if
+    end function
+
+    !> The state of `field`'s step `step` (GSENC_JOB_*), without waiting.
+    integer(c_int) function gsenc_poll(encoder, field, step, job) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        type(gsenc_job), intent(out) :: job
+        job%struct_size = c_sizeof(job)
+        status = gsenc_poll_c(encoder, c_string(field), int(step, c_int64_t), job)
     end function
 
     integer(c_int) function gsenc_encoder_write_model(encoder, field, path) result(status)

@@ -4,7 +4,8 @@
 //! failure is the calling thread's `gsenc_last_error`.
 //!
 //! Modules: `status` (codes, last error), `config` (the encoder's settings),
-//! `encoder` (push, encode, write), `model` (read, decode, evaluate).
+//! `encoder` (push, then the background queue: wait, poll, cancel; write),
+//! `model` (read, decode, evaluate).
 //! `handles` keeps the live handles, so misused ones are refused. The
 //! Fortran module `gsenc` (capi/gsenc.f90) binds these functions.
 
@@ -109,7 +110,7 @@ mod tests {
     /// (x86_64 and aarch64 Linux, LP64).
     #[test]
     fn abi_is_pinned() {
-        assert_eq!(size_of::<gsenc_config>(), 168);
+        assert_eq!(size_of::<gsenc_config>(), 184);
         let c = [
             (offset_of!(gsenc_config, struct_size), 0),
             (offset_of!(gsenc_config, budget), 8),
@@ -132,6 +133,9 @@ mod tests {
             (offset_of!(gsenc_config, rank), 144),
             (offset_of!(gsenc_config, output_dir), 152),
             (offset_of!(gsenc_config, warm_iterations), 160),
+            (offset_of!(gsenc_config, when_full), 164),
+            (offset_of!(gsenc_config, queue_bytes), 168),
+            (offset_of!(gsenc_config, output_format), 176),
         ];
         for (i, (got, want)) in c.iter().enumerate() {
             assert_eq!(got, want, "gsenc_config field {i}");
@@ -169,6 +173,9 @@ mod tests {
             gsenc_status::CallOrder,
             gsenc_status::StructSize,
             gsenc_status::Internal,
+            gsenc_status::Busy,
+            gsenc_status::Skipped,
+            gsenc_status::Cancelled,
         ];
         for (i, s) in statuses.iter().enumerate() {
             assert_eq!(*s as i32, i as i32);
@@ -178,6 +185,18 @@ mod tests {
         assert_eq!([GSENC_TRANSFORM_LINEAR, GSENC_TRANSFORM_LOG10], [0, 1]);
         assert_eq!([GSENC_PAYLOAD_F32, GSENC_PAYLOAD_8BIT, GSENC_PAYLOAD_8BIT_U16], [0, 1, 2]);
         assert_eq!([super::GSENC_DTYPE_FLOAT32, super::GSENC_DTYPE_FLOAT64], [0, 1]);
+        assert_eq!([GSENC_QUEUE_BLOCK, GSENC_QUEUE_SKIP, GSENC_QUEUE_BUSY], [0, 1, 2]);
+        assert_eq!([GSENC_OUTPUT_FOLDER, GSENC_OUTPUT_HDF5], [0, 1]);
+        use super::encoder::*;
+        assert_eq!(size_of::<gsenc_job>(), 32);
+        assert_eq!(
+            [offset_of!(gsenc_job, state), offset_of!(gsenc_job, iteration), offset_of!(gsenc_job, iterations), offset_of!(gsenc_job, error), offset_of!(gsenc_job, psnr)],
+            [8, 12, 16, 20, 24]
+        );
+        assert_eq!(
+            [GSENC_JOB_QUEUED, GSENC_JOB_RUNNING, GSENC_JOB_DONE, GSENC_JOB_FAILED, GSENC_JOB_SKIPPED, GSENC_JOB_CANCELLED],
+            [0, 1, 2, 3, 4, 5]
+        );
     }
 
     /// A panic inside an entry point becomes GSENC_STATUS_INTERNAL with a

@@ -33,6 +33,15 @@ pub enum gsenc_status {
     StructSize = 8,
     /// A bug in gsenc (a caught panic); the message says where.
     Internal = 9,
+    /// The queue is full and the policy is `GSENC_QUEUE_BUSY`: nothing was
+    /// queued; push the step again later.
+    Busy = 10,
+    /// The queue was full and the policy is `GSENC_QUEUE_SKIP`: this step
+    /// was dropped (its job says `GSENC_JOB_SKIPPED`); the next one is
+    /// warm-started from the field's last encoded step.
+    Skipped = 11,
+    /// The work was cancelled (`gsenc_encoder_cancel`).
+    Cancelled = 12,
 }
 
 thread_local! {
@@ -50,6 +59,7 @@ impl From<Error> for Failure {
             Error::Format(_) => gsenc_status::Format,
             Error::Version(_) => gsenc_status::Version,
             Error::Io { .. } | Error::Hdf5 { .. } => gsenc_status::Io,
+            Error::Cancelled(_) => gsenc_status::Cancelled,
         };
         Failure(status, e.to_string())
     }
@@ -73,10 +83,15 @@ pub(crate) fn guard(body: impl FnOnce() -> Result<(), Failure>) -> gsenc_status 
     match outcome {
         Ok(()) => gsenc_status::Ok,
         Err(Failure(status, msg)) => {
-            LAST_ERROR.with(|e| *e.borrow_mut() = msg);
+            set_last_error(msg);
             status
         }
     }
+}
+
+/// Records `msg` as the calling thread's last error.
+pub(crate) fn set_last_error(msg: String) {
+    LAST_ERROR.with(|e| *e.borrow_mut() = msg);
 }
 
 /// Copies the calling thread's last error message into `buf` (at most
@@ -118,6 +133,9 @@ pub extern "C" fn gsenc_status_string(status: i32) -> *const c_char {
         7 => "GSENC_STATUS_CALL_ORDER\0",
         8 => "GSENC_STATUS_STRUCT_SIZE\0",
         9 => "GSENC_STATUS_INTERNAL\0",
+        10 => "GSENC_STATUS_BUSY\0",
+        11 => "GSENC_STATUS_SKIPPED\0",
+        12 => "GSENC_STATUS_CANCELLED\0",
         _ => "GSENC_STATUS_UNKNOWN\0",
     };
     s.as_ptr().cast()

@@ -20,7 +20,7 @@ int main(void) {
         for (int z = 0; z < N; z++) for (int y = 0; y < N; y++) for (int x = 0; x < N; x++)
             field[z][y][x] = exp(-(pow(x - 10.0 - 4 * step, 2) + pow(y - 16.0, 2) + pow(z - 16.0, 2)) / 30.0);
         double psnr; uint64_t s;
-        if (gsenc_push_grid(enc, "field", step, 0.1 * step, &grid) != GSENC_STATUS_OK || gsenc_encode(enc) != GSENC_STATUS_OK
+        if (gsenc_push_grid(enc, "field", step, 0.1 * step, &grid) != GSENC_STATUS_OK || gsenc_wait(enc, NULL) != GSENC_STATUS_OK
             || gsenc_encoder_last_step(enc, "field", &s, &psnr) != GSENC_STATUS_OK) {
             char msg[256]; gsenc_last_error(msg, sizeof msg); fprintf(stderr, "gsenc: %s\n", msg); return 1;
         }

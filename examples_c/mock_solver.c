@@ -203,7 +203,7 @@ int main(int argc, char **argv) {
         failed |= check(gsenc_push_grid(enc, "grid", (uint64_t)step, t, &g), "gsenc_push_grid");
         failed |= check(gsenc_push_particles(enc, "tracers", (uint64_t)step, t, &p), "gsenc_push_particles");
         failed |= check(gsenc_push_cells(enc, "amr", (uint64_t)step, t, &c), "gsenc_push_cells");
-        failed |= check(gsenc_encode(enc), "gsenc_encode");
+        failed |= check(gsenc_wait(enc, NULL), "gsenc_wait");
         if (failed) break;
         const char *fields[3] = {"grid", "tracers", "amr"};
         printf("step %2d  t=%.2f  %zu cells ", step, t, cells.count);

@@ -55,7 +55,7 @@ program mock_solver_f
         end do
         call check(gsenc_push_grid(enc, 'fortran_grid', int(step, int64), u(1:n, 1:n, 1:n), &
             origin=[0d0, 0d0, 0d0], spacing=1d0 / n, time=t), 'gsenc_push_grid')
-        call check(gsenc_encode(enc), 'gsenc_encode')
+        call check(gsenc_wait(enc), 'gsenc_wait')
         call check(gsenc_encoder_last_step(enc, 'fortran_grid', last, psnr), 'gsenc_encoder_last_step')
         write (*, '(a, i3, a, f6.2, a)') 'step ', last, '  fortran_grid ', psnr, ' dB'
     end do

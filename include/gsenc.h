@@ -76,11 +76,53 @@
 #define GSENC_PAYLOAD_8BIT_U16 2
 
 /*
+ What a push does when the queue is full (`gsenc_config.when_full`):
+ wait, drop the step (`GSENC_STATUS_SKIPPED`), or return
+ `GSENC_STATUS_BUSY` having queued nothing.
+ */
+#define GSENC_QUEUE_BLOCK 0
+
+#define GSENC_QUEUE_SKIP 1
+
+#define GSENC_QUEUE_BUSY 2
+
+/*
+ Where models go (`gsenc_config.output_format`).
+ */
+#define GSENC_OUTPUT_FOLDER 0
+
+#define GSENC_OUTPUT_HDF5 1
+
+/*
  Cell layouts (`gsenc_cells.layout`).
  */
 #define GSENC_CELLS_BOXES 0
 
 #define GSENC_CELLS_HEXAHEDRA 1
+
+/*
+ Job states (`gsenc_job.state`).
+ */
+#define GSENC_JOB_QUEUED 0
+
+#define GSENC_JOB_RUNNING 1
+
+/*
+ Encoded, and written when an output is configured.
+ */
+#define GSENC_JOB_DONE 2
+
+#define GSENC_JOB_FAILED 3
+
+/*
+ Dropped by the `GSENC_QUEUE_SKIP` policy.
+ */
+#define GSENC_JOB_SKIPPED 4
+
+/*
+ Dropped by `gsenc_encoder_cancel`.
+ */
+#define GSENC_JOB_CANCELLED 5
 
 /*
  What a call did. Values are fixed and only ever appended to.
@@ -127,6 +169,21 @@ typedef enum {
    A bug in gsenc (a caught panic); the message says where.
    */
   GSENC_STATUS_INTERNAL = 9,
+  /*
+   The queue is full and the policy is `GSENC_QUEUE_BUSY`: nothing was
+   queued; push the step again later.
+   */
+  GSENC_STATUS_BUSY = 10,
+  /*
+   The queue was full and the policy is `GSENC_QUEUE_SKIP`: this step
+   was dropped (its job says `GSENC_JOB_SKIPPED`); the next one is
+   warm-started from the field's last encoded step.
+   */
+  GSENC_STATUS_SKIPPED = 11,
+  /*
+   The work was cancelled (`gsenc_encoder_cancel`).
+   */
+  GSENC_STATUS_CANCELLED = 12,
 } gsenc_status;
 
 /*
@@ -195,7 +252,8 @@ typedef struct {
    */
   int32_t payload;
   /*
-   Worker threads; 0 uses every core.
+   Threads of the encoder's own pool, beside the solver's (default 1;
+   give it the cores the solver leaves free); 0 uses every core.
    */
   uint32_t threads;
   /*
@@ -208,9 +266,10 @@ typedef struct {
    */
   uint32_t rank;
   /*
-   Folder that `gsenc_encode` writes every model to as
-   `FIELD_STEP.gsm` (`FIELD_STEP_rRANK.gsm` on ranks other than 0);
-   NULL (default) writes nothing. Copied at create.
+   Where every model goes, per `output_format`: a folder of
+   `FIELD_STEP.gsm` files (`FIELD_STEP_rRANK.gsm` on ranks other than
+   0), or an HDF5 store file. NULL (default) keeps models in memory
+   only. Copied at create.
    */
   const char *output_dir;
   /*
@@ -218,6 +277,24 @@ typedef struct {
    coarse, 1500 dense).
    */
   uint32_t warm_iterations;
+  /*
+   `GSENC_QUEUE_*`: what a push does when the queue's memory is taken
+   (default block).
+   */
+  int32_t when_full;
+  /*
+   Bytes of pushed copies the queue may hold, queued and running steps
+   together (default 1 GiB). A step larger than this is still taken
+   when the queue is empty.
+   */
+  uint64_t queue_bytes;
+  /*
+   `GSENC_OUTPUT_*`: a folder of model files (default) or an HDF5
+   store (needs a gsenc built with HDF5; written on the caller's thread
+   in `gsenc_wait`, `gsenc_poll` and destroy, since HDF5 is not
+   thread-safe and the host may use it too).
+   */
+  int32_t output_format;
 } gsenc_config;
 
 /*
@@ -333,6 +410,32 @@ typedef struct {
 } gsenc_cells;
 
 /*
+ Where one pushed step is. Set `struct_size` to `sizeof(gsenc_job)`.
+ */
+typedef struct {
+  size_t struct_size;
+  /*
+   `GSENC_JOB_*`.
+   */
+  int32_t state;
+  /*
+   While running: the optimisation iteration reached, of `iterations`
+   (both 0 while depositing and seeding).
+   */
+  uint32_t iteration;
+  uint32_t iterations;
+  /*
+   When failed: the failure's status (its message is then the calling
+   thread's `gsenc_last_error`); else `GSENC_STATUS_OK`.
+   */
+  int32_t error;
+  /*
+   When done: the voxel PSNR (dB) of the model as stored; else NaN.
+   */
+  double psnr;
+} gsenc_job;
+
+/*
  What a model covers. Set `struct_size` to `sizeof(gsenc_model_info)`.
  */
 typedef struct {
@@ -397,8 +500,11 @@ gsenc_status gsenc_config_init(gsenc_config *config);
 gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **out);
 
 /*
- Frees an encoder and everything it holds. NULL, and a handle destroyed
- already, are ignored; other calls with it afterwards fail with
+ Drains the queue (every pushed step is encoded and written; call
+ `gsenc_encoder_cancel` first to drop them instead), then frees the
+ encoder and everything it holds. Failures of the drained jobs are not
+ reported: call `gsenc_wait` first to see them. NULL, and a handle
+ destroyed already, are ignored; other calls with it afterwards fail with
  `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
  */
 void gsenc_encoder_destroy(gsenc_encoder *encoder);
@@ -407,7 +513,9 @@ void gsenc_encoder_destroy(gsenc_encoder *encoder);
  Hands over one field of step `step` (simulation time `time`; NaN when
  unknown) on a regular grid. The values and `field` are copied before
  the call returns: the caller keeps ownership and may reuse its buffers
- at once. Encode with `gsenc_encode`.
+ at once. The step is queued for the background encode (see
+ `gsenc_config.when_full` for a full queue: `GSENC_STATUS_BUSY` or
+ `GSENC_STATUS_SKIPPED`); `gsenc_wait` and `gsenc_poll` follow it.
  Not thread-safe on one encoder (one thread at a time); different
  encoders are independent.
  */
@@ -445,29 +553,41 @@ gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
                               const gsenc_cells *cells);
 
 /*
- Encodes every field pushed since the last call, each warm-started from
- its own previous step where configured, and writes the models to the
- configured `output_dir`. Blocks until done. A field that fails leaves
- its series as it was; the fields after it are still encoded, and the
- first failure is returned. Runs on a pool of `config.threads` threads
- of its own (0: rayon's global pool, every core).
- Not thread-safe on one encoder (one thread at a time); different
- encoders are independent.
+ Blocks until every pushed step of `field` (NULL: of every field) is
+ encoded and written. Returns the first failure not reported before
+ (its message names the field and step; later steps were still encoded),
+ else `GSENC_STATUS_OK`. Models bound for an HDF5 store are written here,
+ on the caller's thread. Not thread-safe on one encoder.
  */
-gsenc_status gsenc_encode(gsenc_encoder *encoder);
+gsenc_status gsenc_wait(gsenc_encoder *encoder, const char *field);
 
 /*
- Writes the last model of `field` to `path` (through a temporary file and
- a rename), with the configured payload. Strings are read during the
- call only. Not thread-safe on one encoder (one thread at a time); different
- encoders are independent.
+ Fills `*job` with the state of `field`'s step `step`, without waiting.
+ `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
+ for an HDF5 store are written here. Not thread-safe on one encoder.
+ */
+gsenc_status gsenc_poll(gsenc_encoder *encoder, const char *field, uint64_t step, gsenc_job *job);
+
+/*
+ Drops every queued step and stops the running one at its next
+ iteration; returns when the worker is idle. Their states become
+ `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
+ encoded one. The encoder stays usable. Not thread-safe on one encoder.
+ */
+gsenc_status gsenc_encoder_cancel(gsenc_encoder *encoder);
+
+/*
+ Writes the last encoded model of `field` to `path` (through a temporary
+ file and a rename), with the configured payload. Does not wait for
+ queued steps (call `gsenc_wait` first for the newest). Strings are read
+ during the call only. Not thread-safe on one encoder.
  */
 gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field, const char *path);
 
 /*
  The last encoded step of `field` and the voxel PSNR (dB) of its model as
- stored, against the reference it was fitted to. Not thread-safe on one encoder (one thread at a time); different
- encoders are independent.
+ stored, against the reference it was fitted to. Does not wait for queued
+ steps. Not thread-safe on one encoder.
  */
 gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
                                      const char *field,

@@ -79,6 +79,22 @@ pub struct EncodeConfig {
     pub weights: LossWeights,
     /// True for SPH particle input (longer full schedule).
     pub particles: bool,
+    /// Not part of the model: lets another thread stop the encode between
+    /// iterations (it then fails with `Error::Cancelled`).
+    pub cancel: Option<Cancel>,
+}
+
+/// A flag another thread sets to stop an encode.
+#[derive(Clone, Debug, Default)]
+pub struct Cancel(std::sync::Arc<std::sync::atomic::AtomicBool>);
+
+impl Cancel {
+    pub fn set(&self, on: bool) {
+        self.0.store(on, std::sync::atomic::Ordering::SeqCst);
+    }
+    pub fn is_set(&self) -> bool {
+        self.0.load(std::sync::atomic::Ordering::SeqCst)
+    }
 }
 
 impl EncodeConfig {
@@ -94,6 +110,7 @@ impl EncodeConfig {
             learning_rate: 8e-3,
             weights: LossWeights::default(),
             particles: false,
+            cancel: None,
         }
     }
     pub fn iterations(&self) -> usize {
@@ -323,6 +340,9 @@ pub fn encode_validated(
         }
     };
     for t in 0..iterations {
+        if cfg.cancel.as_ref().is_some_and(Cancel::is_set) {
+            return Err(Error::Cancelled(format!("at iteration {t} of {iterations}")));
+        }
         if t % validation.map_or(usize::MAX, |v| v.every) == 0 {
             score(t, &params, backend);
         }

@@ -28,6 +28,9 @@ pub enum Error {
     /// The HDF5 library refused an operation on a store.
     #[error("HDF5 error on {path}: {message}")]
     Hdf5 { path: String, message: String },
+    /// The encode was cancelled (`queue::BackgroundEncoder::cancel`).
+    #[error("cancelled: {0}")]
+    Cancelled(String),
 }
 
 impl Error {
@@ -42,6 +45,23 @@ impl Error {
     }
     pub fn io(path: impl AsRef<std::path::Path>, source: std::io::Error) -> Self {
         Error::Io { path: path.as_ref().display().to_string(), source }
+    }
+
+    /// The same kind of error with `context` ("field 'rho' step 4") before
+    /// its message, for errors reported away from where they happened.
+    pub fn in_context(&self, context: &str) -> Error {
+        let with = |m: &str| format!("{context}: {m}");
+        match self {
+            Error::InvalidArgument(m) => Error::InvalidArgument(with(m)),
+            Error::InvalidData(m) => Error::InvalidData(with(m)),
+            Error::Format(m) => Error::Format(with(m)),
+            Error::Version(m) => Error::Version(with(m)),
+            Error::Io { path, source } => {
+                Error::Io { path: with(path), source: std::io::Error::new(source.kind(), source.to_string()) }
+            }
+            Error::Hdf5 { path, message } => Error::Hdf5 { path: with(path), message: message.clone() },
+            Error::Cancelled(m) => Error::Cancelled(with(m)),
+        }
     }
 }
 

@@ -10,6 +10,8 @@
 //!   input turned into samples and a deposited reference grid;
 //! - [`samples`], [`seeding`], [`points`], [`optim`], [`relocate`], [`encoder`]:
 //!   the encoder itself, on memory only;
+//! - [`series`], [`queue`]: time series with warm starts, and the background
+//!   queue that encodes them beside a running simulation;
 //! - [`model`], [`format`], [`metrics`]: models, their file format and scores;
 //! - [`io`]: files (raw arrays, VTK ImageData, crash-safe writes), used by the
 //!   command-line tool and the C API, never by the core.
@@ -47,6 +49,7 @@ pub mod relocate;
 pub mod rng;
 pub mod samples;
 pub mod seeding;
+pub mod queue;
 pub mod series;
 
 #[path = "../capi/mod.rs"]

@@ -15,6 +15,8 @@ steps=${1:-20}
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 prefix="$work/prefix"
+# (grep reads all its input in pipes below: `grep -q` would stop early and, under
+# pipefail, fail the pipeline by the writer's SIGPIPE.)
 quiet() { "$@" > "$work/log" 2>&1 || { cat "$work/log" >&2; return 1; }; }
 fails=0
 check() { if eval "$1"; then :; else echo "FAIL: $2" >&2; fails=$((fails + 1)); fi; }
@@ -29,7 +31,7 @@ for f in include/gsenc.h include/fortran/gsenc.mod include/fortran/gsenc.f90 lib
     check "test -e '$prefix/$f'" "installed $f"
 done
 check "cmp -s include/gsenc.h '$prefix/include/gsenc.h'" "the installed header is the checked-in one"
-check "objdump -p '$prefix/lib/libgsenc.so' | grep -q 'SONAME *libgsenc.so.0'" "the shared library's SONAME"
+check "objdump -p '$prefix/lib/libgsenc.so' | grep 'SONAME *libgsenc.so.0' > /dev/null" "the shared library's SONAME"
 
 # Version checking: this release satisfies 0.1, not 0.2 or 1.0.
 for want in 0.1:found 0.2:missing 1.0:missing; do
@@ -45,8 +47,8 @@ done
 quiet cmake -S examples_c -B "$work/exc" -DCMAKE_PREFIX_PATH="$prefix"
 quiet cmake --build "$work/exc"
 check "'$work/exc/version' > /dev/null" "version: header and library agree"
-check "ldd '$work/exc/minimal' | grep -q '$prefix/lib/libgsenc.so.0'" "minimal links the installed shared library"
-check "! ldd '$work/exc/mock_solver' | grep -q libgsenc" "mock_solver links the static library"
+check "ldd '$work/exc/minimal' | grep '$prefix/lib/libgsenc.so.0' > /dev/null" "minimal links the installed shared library"
+check "! ldd '$work/exc/mock_solver' | grep libgsenc > /dev/null" "mock_solver links the static library"
 mkdir -p "$work/minimal"
 check "(cd '$work/minimal' && '$work/exc/minimal' > out.txt) && [ \$(ls '$work/minimal'/field_*.gsm | wc -l) = 3 ]" "minimal writes 3 models"
 

@@ -38,13 +38,17 @@ int main(void) {
     char path[512];
 
     /* The ABI as this C compiler lays it out: the values capi/mod.rs pins. */
-    CHECK(sizeof(gsenc_config) == 168 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160 && offsetof(gsenc_config, dims) == 56
+    CHECK(sizeof(gsenc_config) == 184 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
+              && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144, "gsenc_config layout");
     CHECK(sizeof(gsenc_grid) == 104 && offsetof(gsenc_grid, strides) == 48 && offsetof(gsenc_grid, spacing) == 96, "gsenc_grid layout");
     CHECK(sizeof(gsenc_particles) == 96 && offsetof(gsenc_particles, values) == 80, "gsenc_particles layout");
     CHECK(sizeof(gsenc_cells) == 128 && offsetof(gsenc_cells, connectivity) == 104 && offsetof(gsenc_cells, value_stride) == 120, "gsenc_cells layout");
     CHECK(sizeof(gsenc_model_info) == 112 && offsetof(gsenc_model_info, rank) == 88 && offsetof(gsenc_model_info, warm_started) == 96 && offsetof(gsenc_model_info, encode_psnr) == 104, "gsenc_model_info layout");
-    CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8, "gsenc_status values");
+    CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8 && GSENC_STATUS_BUSY == 10
+              && GSENC_STATUS_SKIPPED == 11 && GSENC_STATUS_CANCELLED == 12, "gsenc_status values");
+    CHECK(sizeof(gsenc_job) == 32 && offsetof(gsenc_job, error) == 20 && offsetof(gsenc_job, psnr) == 24 && GSENC_JOB_CANCELLED == 5,
+          "gsenc_job layout");
 
     /* Configuration. */
     gsenc_config cfg;
@@ -97,14 +101,24 @@ int main(void) {
         fill_grid(a, step);
         grid.data = a + G * (grid.strides[2] + grid.strides[1] + 1); /* first interior cell */
         EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)step, 0.5 * step, &grid), GSENC_STATUS_OK);
-        EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)step, 0.5 * step, &grid), GSENC_STATUS_CALL_ORDER);
-        EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+        EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)step, 0.5 * step, &grid), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(strstr(last_error(), "does not follow") != NULL, "a repeated step: %s", last_error());
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
         uint64_t got_step = 99;
         EXPECT(gsenc_encoder_last_step(enc, "rho", &got_step, &psnr[step]), GSENC_STATUS_OK);
         CHECK(got_step == (uint64_t)step, "last step %llu", (unsigned long long)got_step);
         CHECK(psnr[step] > 20.0, "step %d PSNR %.2f dB above the floor", step, psnr[step]);
     }
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_CALL_ORDER);
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK); /* nothing pending */
+    gsenc_job job;
+    memset(&job, 0, sizeof job);
+    EXPECT(gsenc_poll(enc, "rho", 1, &job), GSENC_STATUS_STRUCT_SIZE);
+    job.struct_size = sizeof job;
+    EXPECT(gsenc_poll(enc, "rho", 1, &job), GSENC_STATUS_OK);
+    CHECK(job.state == GSENC_JOB_DONE && job.error == GSENC_STATUS_OK && fabs(job.psnr - psnr[1]) < 1e-12,
+          "poll: state %d, psnr %g", job.state, job.psnr);
+    EXPECT(gsenc_poll(enc, "rho", 7, &job), GSENC_STATUS_CALL_ORDER);
+    EXPECT(gsenc_poll(enc, "rho", 1, NULL), GSENC_STATUS_NULL_POINTER);
 
     /* The written model of step 1, read back: its decode matches evaluation at cell centres. */
     snprintf(path, sizeof path, "%s/rho_000001.gsm", dir);
@@ -138,7 +152,7 @@ int main(void) {
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_DATA);
     EXPECT(gsenc_model_evaluate(NULL, pts, 4, at), GSENC_STATUS_NULL_POINTER);
     /* A handle of the wrong kind; a model after destroy. */
-    EXPECT(gsenc_encode((gsenc_encoder *)model), GSENC_STATUS_INVALID_ARGUMENT);
+    EXPECT(gsenc_wait((gsenc_encoder *)model, NULL), GSENC_STATUS_INVALID_ARGUMENT);
     EXPECT(gsenc_model_info_get((gsenc_model *)enc, &info), GSENC_STATUS_INVALID_ARGUMENT);
     gsenc_model_destroy(model);
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_ARGUMENT);
@@ -165,7 +179,7 @@ int main(void) {
     parts.smoothing_length = hh;
     parts.values = val;
     EXPECT(gsenc_push_particles(enc, "tracer", 0, NAN, &parts), GSENC_STATUS_OK);
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
     uint64_t st;
     double p_psnr;
     EXPECT(gsenc_encoder_last_step(enc, "tracer", &st, &p_psnr), GSENC_STATUS_OK);
@@ -213,7 +227,7 @@ int main(void) {
     hex.point_count = NPT;
     hex.connectivity = conn;
     EXPECT(gsenc_push_cells(enc, "cells_hex", 0, 0.0, &hex), GSENC_STATUS_OK);
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
     double box_psnr, hex_psnr;
     EXPECT(gsenc_encoder_last_step(enc, "cells_box", &st, &box_psnr), GSENC_STATUS_OK);
     EXPECT(gsenc_encoder_last_step(enc, "cells_hex", &st, &hex_psnr), GSENC_STATUS_OK);
@@ -230,7 +244,7 @@ int main(void) {
     /* Bad data and arguments: each refused with its code, the series intact. */
     val[3] = NAN;
     EXPECT(gsenc_push_particles(enc, "tracer", 1, NAN, &parts), GSENC_STATUS_INVALID_DATA);
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_CALL_ORDER); /* the bad push left nothing pending */
+    EXPECT(gsenc_poll(enc, "tracer", 1, &job), GSENC_STATUS_CALL_ORDER); /* the bad push queued nothing */
     a[G * ((NX + 2 * G) * (NY + 2 * G) + (NX + 2 * G) + 1) + 5] = INFINITY;
     EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &grid), GSENC_STATUS_INVALID_DATA);
     a[G * ((NX + 2 * G) * (NY + 2 * G) + (NX + 2 * G) + 1) + 5] = 1.0;
@@ -253,14 +267,22 @@ int main(void) {
     g2 = grid;
     g2.spacing = -1.0;
     EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
-    /* A step on another lattice: refused at encode, the series goes on. */
+    /* A step on another lattice: it fails in the background, reported once
+     * by wait (naming field and step) and by poll; the series goes on. */
     g2 = grid;
     g2.extents[0] = NX - 4;
     EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &g2), GSENC_STATUS_OK);
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_INVALID_ARGUMENT);
-    CHECK(strstr(last_error(), "lattice") != NULL, "message names the lattice");
-    EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &grid), GSENC_STATUS_OK);
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_OK);
+    EXPECT(gsenc_wait(enc, "rho"), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "lattice") != NULL && strstr(last_error(), "step 2") != NULL, "wait: %s", last_error());
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK); /* reported once */
+    EXPECT(gsenc_poll(enc, "rho", 2, &job), GSENC_STATUS_OK);
+    CHECK(job.state == GSENC_JOB_FAILED && job.error == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "lattice"),
+          "poll of the failed step: state %d error %d: %s", job.state, job.error, last_error());
+    EXPECT(gsenc_push_grid(enc, "rho", 3, 1.0, &grid), GSENC_STATUS_OK);
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+    EXPECT(gsenc_encoder_last_step(enc, "rho", &st, &p_psnr), GSENC_STATUS_OK);
+    CHECK(st == 3, "the step after a failure is encoded: last step %llu", (unsigned long long)st);
+    EXPECT(gsenc_wait(enc, "a/b"), GSENC_STATUS_INVALID_ARGUMENT);
     EXPECT(gsenc_encoder_last_step(enc, "nothing", &st, &p_psnr), GSENC_STATUS_CALL_ORDER);
     EXPECT(gsenc_encoder_write_model(enc, "rho", "/nonexistent-dir/x.gsm"), GSENC_STATUS_IO);
     snprintf(path, sizeof path, "%s/rho_copy.gsm", dir);
@@ -268,7 +290,7 @@ int main(void) {
     /* Calls after destroy: refused, not undefined. */
     gsenc_encoder_destroy(enc);
     gsenc_encoder_destroy(NULL);
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_INVALID_ARGUMENT);
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_INVALID_ARGUMENT);
     EXPECT(gsenc_push_grid(enc, "rho", 5, 0.0, &grid), GSENC_STATUS_INVALID_ARGUMENT);
     gsenc_encoder_destroy(enc); /* a second destroy is ignored */
 
@@ -276,7 +298,7 @@ int main(void) {
     cfg.output_dir = "/nonexistent-dir";
     EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
     EXPECT(gsenc_push_grid(enc, "rho", 0, 0.0, &grid), GSENC_STATUS_OK);
-    EXPECT(gsenc_encode(enc), GSENC_STATUS_IO);
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_IO);
     gsenc_encoder_destroy(enc);
 
     /* Foreign and missing files. */

@@ -13,6 +13,7 @@ program module_test
     integer, parameter :: n = 16
     type(gsenc_config) :: cfg
     type(gsenc_model_info) :: info
+    type(gsenc_job) :: job
     type(c_ptr) :: enc = c_null_ptr, copy, model = c_null_ptr
     character(len=1024) :: dir
     integer :: passed = 0, failed = 0, i, j, k, p
@@ -96,7 +97,7 @@ program module_test
     end do
     call expect(gsenc_push_cells_hexahedra(enc, 'hex', 0_int64, hex_points, conn, hex_values), GSENC_STATUS_OK, &
         'push hexahedra')
-    call expect(gsenc_encode(enc), GSENC_STATUS_OK, 'encode step 0')
+    call expect(gsenc_wait(enc), GSENC_STATUS_OK, 'wait for step 0')
     call expect(gsenc_encoder_last_step(enc, 'grid', last, psnr), GSENC_STATUS_OK, 'last step')
     call check(last == 0 .and. psnr > 25, 'the strided grid encodes its own cells (PSNR above 25 dB)')
     call expect(gsenc_encoder_last_step(enc, 'tracers', last, psnr), GSENC_STATUS_OK, 'last step of particles')
@@ -123,11 +124,15 @@ program module_test
     ! A warm-started second step of the grid.
     call expect(gsenc_push_grid(enc, 'grid', 1_int64, wide(1:2 * n:2, :, :), [0d0, 0d0, 0d0], 1d0 / n), &
         GSENC_STATUS_OK, 'push step 1')
-    call expect(gsenc_encode(enc), GSENC_STATUS_OK, 'encode step 1')
+    call expect(gsenc_wait(enc, 'grid'), GSENC_STATUS_OK, 'wait for step 1 of the grid')
+    call expect(gsenc_poll(enc, 'grid', 1_int64, job), GSENC_STATUS_OK, 'poll step 1')
+    call expect(gsenc_encoder_last_step(enc, 'grid', last, psnr), GSENC_STATUS_OK, 'last step 1')
+    call check(job%state == GSENC_JOB_DONE .and. abs(job%psnr - psnr) < 1d-12 .and. last == 1, 'poll: done, its PSNR')
+    call expect(gsenc_poll(enc, 'grid', 9_int64, job), GSENC_STATUS_CALL_ORDER, 'poll a step never pushed')
     copy = enc
     call gsenc_encoder_destroy(enc)
     call check(.not. c_associated(enc), 'destroy nulls the handle')
-    call expect(gsenc_encode(copy), GSENC_STATUS_INVALID_ARGUMENT, 'encode after destroy')
+    call expect(gsenc_wait(copy), GSENC_STATUS_INVALID_ARGUMENT, 'wait after destroy')
     call gsenc_encoder_destroy(copy)
 
     ! Read the warm-started step back: decode and evaluate agree; info is right.

@@ -920,6 +920,7 @@ fn main() {
             Error::InvalidData(_) => 3,
             Error::Format(_) | Error::Version(_) => 4,
             Error::Io { .. } | Error::Hdf5 { .. } => 5,
+            Error::Cancelled(_) => 6,
         });
     }
 }

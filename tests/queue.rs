@@ -1,0 +1,258 @@
+//! The background queue: what each full-queue policy does, draining and
+//! cancelling, a failed job that does not stop later steps, and models
+//! equal to the ones the series encoder makes on the caller's thread.
+//!
+//! A gated sink holds every job in flight until the test opens the gate,
+//! so "the encode is slower than the solver" is a fact, not a timing.
+
+mod common;
+use common::blobs;
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::encoder::{EncodeConfig, Schedule};
+use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
+use gsenc::format::Payload;
+use gsenc::model::Model;
+use gsenc::queue::{BackgroundEncoder, Job, JobState, ModelSink, Pushed, QueueConfig, StepData, WhenFull};
+use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange, StepInput, WarmStart};
+use gsenc::Error;
+use std::sync::mpsc::{channel, Receiver, Sender};
+use std::sync::{Arc, Mutex};
+
+const DIMS: [usize; 3] = [12, 10, 8];
+
+fn frame() -> IndexFrame {
+    IndexFrame { dims: DIMS, bmin: [0.0; 3], gamma: 1.0 }
+}
+
+fn step_grid(k: u64) -> Grid {
+    blobs(DIMS, 70 + k, 3)
+}
+
+fn series_config() -> SeriesConfig {
+    let mut c = EncodeConfig::new(30, Schedule::Short);
+    c.iterations = Some(40);
+    c.points = Some(256);
+    let range = SeriesRange::Fixed(ValueRange::new(0.0, 1.0, Transform::Linear).unwrap());
+    let mut s = SeriesConfig::new(c, WarmStart::Coarse, range);
+    s.warm_iterations = Some(30);
+    s.validation_points = 256;
+    s
+}
+
+fn queue_config(max_jobs: usize, when_full: WhenFull) -> QueueConfig {
+    QueueConfig {
+        series: series_config(),
+        max_bytes: max_jobs * DIMS.iter().product::<usize>() * 4,
+        when_full,
+        threads: 1,
+        payload: Payload::Float32,
+        rank: 0,
+    }
+}
+
+fn job(field: &str, step: u64) -> Job {
+    Job { field: field.into(), step, time: None, data: StepData::Grid { grid: step_grid(step), frame: frame() } }
+}
+
+/// Stores models in memory, each only once the test lets it through the
+/// gate, and fails the steps in `fail`.
+struct GatedSink {
+    gate: Receiver<()>,
+    fail: Vec<u64>,
+    stored: Arc<Mutex<Vec<Model>>>,
+}
+
+impl ModelSink for GatedSink {
+    fn store(&mut self, model: &Model) -> gsenc::Result<Option<String>> {
+        let _ = self.gate.recv();
+        if self.fail.contains(&model.meta.step) {
+            return Err(Error::io("injected", std::io::Error::other("disk full (injected)")));
+        }
+        self.stored.lock().unwrap().push(model.clone());
+        Ok(Some(format!("memory:{}", model.meta.step)))
+    }
+}
+
+fn gated(cfg: QueueConfig, fail: Vec<u64>) -> (BackgroundEncoder, Sender<()>, Arc<Mutex<Vec<Model>>>) {
+    let (open, gate) = channel();
+    let stored = Arc::new(Mutex::new(Vec::new()));
+    let q = BackgroundEncoder::new(cfg, Box::new(GatedSink { gate, fail, stored: stored.clone() })).unwrap();
+    (q, open, stored)
+}
+
+fn steps_stored(stored: &Mutex<Vec<Model>>) -> Vec<u64> {
+    stored.lock().unwrap().iter().map(|m| m.meta.step).collect()
+}
+
+#[test]
+fn queued_models_equal_the_series_encoders() {
+    let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![]);
+    for k in 0..3 {
+        open.send(()).unwrap();
+        assert_eq!(q.push(job("rho", k)).unwrap(), Pushed::Queued);
+    }
+    q.wait(None).unwrap();
+    let mut direct = SeriesEncoder::new(series_config()).unwrap();
+    let mut cpu = CpuBackend::new();
+    let queued = stored.lock().unwrap().clone();
+    assert_eq!(queued.len(), 3);
+    for (k, m) in queued.iter().enumerate() {
+        let g = step_grid(k as u64);
+        let r = direct.encode_step("rho", k as u64, None, StepInput::Grid { values: &g, frame: frame() }, &mut cpu, &mut |_| {}).unwrap();
+        assert_eq!(m.params, r.model.params, "step {k}: the queue's model differs from the series encoder's");
+        assert_eq!(m.meta.schedule, r.model.meta.schedule);
+    }
+    match q.poll("rho", 2) {
+        Some(JobState::Written { psnr, location }) => {
+            assert!(psnr > 10.0, "{psnr}");
+            assert_eq!(location, "memory:2");
+            assert_eq!(q.last("rho").unwrap().1, psnr);
+        }
+        other => panic!("step 2: {other:?}"),
+    }
+    assert!(q.poll("rho", 7).is_none());
+}
+
+#[test]
+fn block_waits_for_room_and_loses_nothing() {
+    let (q, open, stored) = gated(queue_config(1, WhenFull::Block), vec![]);
+    let q = Arc::new(q);
+    assert_eq!(q.push(job("rho", 0)).unwrap(), Pushed::Queued);
+    // The queue holds one step, held at the gate: the next push blocks.
+    let pusher = {
+        let q = q.clone();
+        std::thread::spawn(move || q.push(job("rho", 1)).unwrap())
+    };
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert!(!pusher.is_finished(), "a push into a full queue must block");
+    assert!(q.poll("rho", 1).is_none(), "the blocked step is not queued yet");
+    open.send(()).unwrap(); // step 0 stored: room for step 1
+    assert_eq!(pusher.join().unwrap(), Pushed::Queued);
+    assert!(q.queued_bytes() <= q.config().max_bytes);
+    open.send(()).unwrap();
+    q.wait(None).unwrap();
+    assert_eq!(steps_stored(&stored), [0, 1]);
+}
+
+#[test]
+fn skip_drops_the_step_and_the_series_goes_on() {
+    let (q, open, stored) = gated(queue_config(1, WhenFull::Skip), vec![]);
+    assert_eq!(q.push(job("rho", 0)).unwrap(), Pushed::Queued);
+    assert_eq!(q.push(job("rho", 1)).unwrap(), Pushed::Skipped);
+    assert!(matches!(q.poll("rho", 1), Some(JobState::Skipped)));
+    // A skipped step still counts as pushed: steps must go on increasing.
+    assert!(matches!(q.push(job("rho", 1)), Err(Error::InvalidArgument(_))));
+    open.send(()).unwrap();
+    q.wait(None).unwrap();
+    open.send(()).unwrap();
+    assert_eq!(q.push(job("rho", 2)).unwrap(), Pushed::Queued);
+    q.wait(None).unwrap();
+    assert_eq!(steps_stored(&stored), [0, 2]);
+    // Step 2 warm-started from step 0, the last one encoded.
+    assert_eq!(stored.lock().unwrap()[1].meta.schedule, "warm-coarse");
+}
+
+#[test]
+fn busy_queues_nothing_and_the_step_can_be_pushed_again() {
+    let (q, open, stored) = gated(queue_config(1, WhenFull::Busy), vec![]);
+    assert_eq!(q.push(job("rho", 0)).unwrap(), Pushed::Queued);
+    assert_eq!(q.push(job("rho", 1)).unwrap(), Pushed::Busy);
+    assert!(q.poll("rho", 1).is_none(), "a busy push leaves no trace");
+    open.send(()).unwrap();
+    q.wait(None).unwrap();
+    open.send(()).unwrap();
+    assert_eq!(q.push(job("rho", 1)).unwrap(), Pushed::Queued);
+    q.wait(None).unwrap();
+    assert_eq!(steps_stored(&stored), [0, 1]);
+}
+
+#[test]
+fn a_failed_job_is_reported_once_and_later_steps_are_written() {
+    let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![1]);
+    for k in 0..4 {
+        open.send(()).unwrap();
+        q.push(job("rho", k)).unwrap();
+    }
+    let e = q.wait(Some("rho")).unwrap_err();
+    assert!(matches!(e, Error::Io { .. }), "{e}");
+    assert!(e.to_string().contains("field 'rho' step 1") && e.to_string().contains("injected"), "{e}");
+    q.wait(None).unwrap(); // reported once
+    assert!(matches!(q.poll("rho", 1), Some(JobState::Failed(_))));
+    assert_eq!(steps_stored(&stored), [0, 2, 3]);
+    // The failed store did not stop the series: step 2 warm-started from step 1's model.
+    let last = q.last("rho").unwrap().0;
+    assert_eq!(last.meta.step, 3);
+}
+
+#[test]
+fn dropping_the_queue_drains_it() {
+    let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![]);
+    for k in 0..3 {
+        q.push(job("rho", k)).unwrap();
+    }
+    for _ in 0..3 {
+        open.send(()).unwrap();
+    }
+    drop(q);
+    assert_eq!(steps_stored(&stored), [0, 1, 2]);
+}
+
+#[test]
+fn cancel_drops_queued_steps_and_the_encoder_stays_usable() {
+    let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![]);
+    for k in 0..4 {
+        q.push(job("rho", k)).unwrap();
+    }
+    // Once step 0's loop is over (nothing can cancel it now), the worker
+    // waits at the gate with steps 1..3 queued; open it after cancel began.
+    while !matches!(q.poll("rho", 0), Some(JobState::Running { iteration, iterations }) if iterations > 0 && iteration == iterations) {
+        std::thread::yield_now();
+    }
+    let canceller = {
+        let open = open.clone();
+        std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(200));
+            open.send(()).unwrap();
+        })
+    };
+    q.cancel();
+    canceller.join().unwrap();
+    for k in 1..4 {
+        assert!(matches!(q.poll("rho", k), Some(JobState::Cancelled)), "step {k}: {:?}", q.poll("rho", k));
+    }
+    assert_eq!(q.queued_bytes(), 0);
+    open.send(()).unwrap();
+    q.push(job("rho", 4)).unwrap();
+    q.wait(None).unwrap();
+    assert_eq!(steps_stored(&stored), [0, 4]);
+}
+
+#[test]
+fn a_running_encode_stops_at_cancel() {
+    // A long encode, no gate: cancel must stop it between iterations.
+    let mut cfg = queue_config(8, WhenFull::Block);
+    cfg.series.encode.iterations = Some(1_000_000);
+    let (q, _open, stored) = gated(cfg, vec![]);
+    q.push(job("rho", 0)).unwrap();
+    while !matches!(q.poll("rho", 0), Some(JobState::Running { iteration, .. }) if iteration > 0) {
+        std::thread::yield_now();
+    }
+    q.cancel();
+    assert!(matches!(q.poll("rho", 0), Some(JobState::Cancelled)), "{:?}", q.poll("rho", 0));
+    assert!(steps_stored(&stored).is_empty());
+    assert!(q.last("rho").is_none(), "a cancelled step leaves no model");
+}
+
+#[test]
+fn bad_pushes_are_refused_at_once() {
+    let (q, _open, _) = gated(queue_config(8, WhenFull::Block), vec![]);
+    let mut g = step_grid(0);
+    g.values[5] = f32::NAN;
+    let bad = Job { field: "rho".into(), step: 0, time: None, data: StepData::Grid { grid: g, frame: frame() } };
+    assert!(matches!(q.push(bad), Err(Error::InvalidData(_))));
+    assert!(matches!(q.push(job("a/b", 0)), Err(Error::InvalidArgument(_))));
+    assert!(q.poll("rho", 0).is_none());
+    let mut cfg = queue_config(8, WhenFull::Block);
+    cfg.threads = 0;
+    assert!(BackgroundEncoder::new(cfg, Box::new(gsenc::queue::CallerStores)).is_err());
+}
