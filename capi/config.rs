@@ -257,6 +257,7 @@ impl Settings {
             false => Some(std::path::PathBuf::from(unsafe { super::c_str(c.output_dir, "output_dir")? })),
         };
         let mut series = SeriesConfig::new(encode, warm, range);
+        series.validation_points = 0; // no per-iteration log in situ: gsenc_poll reports progress
         series.warm_iterations = (c.warm_iterations > 0).then_some(c.warm_iterations as usize);
         Ok(Settings {
             series,

@@ -167,14 +167,16 @@ unsafe fn read_scalars(dtype: DType, ptr: *const c_void, n: usize, stride: i64) 
     (0..n as i64).map(|i| unsafe { dtype.read(ptr, (i * s) as isize) }).collect()
 }
 
-/// The values of a strided grid, x fastest, as float32. Rows with unit
+/// The values of a strided grid, x fastest, as float32, into `values`
+/// (a recycled buffer: no page faults for a fresh allocation). Rows with unit
 /// stride are copied as slices (a 128^3 float push is a few memcpy-speed
 /// milliseconds, the solver's only wait); other layouts element by element.
 ///
 /// # Safety
 /// `ptr` holds every element that `dims` and `strides` name.
-unsafe fn copy_grid(dtype: DType, ptr: *const c_void, dims: [usize; 3], strides: [i64; 3]) -> Vec<f32> {
-    let mut values = Vec::with_capacity(dims.iter().product());
+unsafe fn copy_grid(dtype: DType, ptr: *const c_void, dims: [usize; 3], strides: [i64; 3], mut values: Vec<f32>) -> Vec<f32> {
+    values.clear();
+    values.reserve(dims.iter().product());
     // Slices need aligned data; a misaligned caller buffer takes the slow path.
     let unit = match dtype {
         DType::F32 if ptr.cast::<f32>().is_aligned() => strides[0] == 1,
@@ -391,7 +393,9 @@ pub unsafe extern "C" fn gsenc_push_grid(
             return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
         }
         // SAFETY: the caller's array holds every element its extents and strides name.
-        let values = unsafe { copy_grid(dtype, g.data, dims, strides) };
+        let buffer = enc.queue.recycled_buffer(dims.iter().product());
+        // SAFETY: as above.
+        let values = unsafe { copy_grid(dtype, g.data, dims, strides, buffer) };
         let frame = IndexFrame { dims, bmin: g.origin, gamma: 1.0 / g.spacing };
         enc.push(field, step, time, StepData::Grid { grid: Grid::new(dims, values)?, frame })
     })

@@ -39,6 +39,7 @@ program mock_solver_f
     cfg%fixed_range = 1
     cfg%value_min = 0
     cfg%value_max = 4
+    cfg%threads = 0 ! this mock waits for every step, so the encode may use every core
     call check(gsenc_encoder_create(cfg, enc, output_dir=trim(outdir)), 'gsenc_encoder_create')
 
     allocate (u(0:n + 1, 0:n + 1, 0:n + 1))

@@ -231,6 +231,19 @@ impl ValueRange {
 }
 
 /// Fails with the position of the first NaN or infinite value.
+/// [`check_finite`] on the calling thread alone, for the caller's side of
+/// the background queue: a push must not wake a rayon pool (the host's, or
+/// the global one the encoder's threads compete with).
+pub fn check_finite_serial(values: &[f32]) -> Result<()> {
+    // Whole chunks first: `all` over a chunk vectorises; the position is
+    // looked up only on failure.
+    if values.chunks(4096).all(|c| c.iter().all(|v| v.is_finite())) {
+        return Ok(());
+    }
+    let pos = values.iter().position(|v| !v.is_finite()).expect("a non-finite value was seen");
+    Err(Error::data(format!("value {} at index {pos} is not finite", values[pos])))
+}
+
 pub fn check_finite(values: &[f32]) -> Result<()> {
     if let Some(pos) = values.par_iter().position_first(|v| !v.is_finite()) {
         return Err(Error::data(format!("value {} at index {pos} is not finite", values[pos])));

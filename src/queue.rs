@@ -84,20 +84,22 @@ impl StepData {
     }
 
     /// Refuses non-finite values now, so the failing push is the one that
-    /// passed them rather than a later encode.
+    /// passed them rather than a later encode. Runs on the calling thread
+    /// only (no rayon pool).
     pub fn check_finite(&self) -> Result<()> {
+        use crate::field::check_finite_serial as check_finite;
         match self {
-            StepData::Grid { grid, .. } => crate::field::check_finite(&grid.values),
+            StepData::Grid { grid, .. } => check_finite(&grid.values),
             StepData::Particles { positions, smoothing_length, mass, values, .. } => {
-                crate::field::check_finite(values)?;
-                crate::field::check_finite(mass)?;
+                check_finite(values)?;
+                check_finite(mass)?;
                 if positions.iter().flatten().chain(smoothing_length).any(|v| !v.is_finite()) {
                     return Err(Error::data("a particle position or smoothing length is not finite"));
                 }
                 Ok(())
             }
             StepData::Cells { centres, edges, volumes, values, .. } => {
-                crate::field::check_finite(values)?;
+                check_finite(values)?;
                 if centres.iter().chain(edges).flatten().chain(volumes).any(|v| !v.is_finite()) {
                     return Err(Error::data("a cell centre, edge length or volume is not finite"));
                 }
@@ -202,7 +204,13 @@ struct State {
     finished: Vec<Model>,
     /// Failures not yet reported by `wait`.
     unreported: Vec<Key>,
+    /// Grid buffers of finished jobs, for the next pushes to copy into.
+    recycled: Vec<Vec<f32>>,
 }
+
+/// Buffers kept for reuse (beyond the queue's budget: at most this many
+/// grids): enough for a push while one job runs and one waits.
+const RECYCLED_BUFFERS: usize = 2;
 
 struct Shared {
     state: Mutex<State>,
@@ -365,6 +373,17 @@ impl BackgroundEncoder {
         self.shared.changed.notify_all();
     }
 
+    /// An empty buffer with room for `len` values, recycled from a finished
+    /// grid job when one is large enough (a fresh 8 MB allocation costs the
+    /// push its page faults, a third of a 128^3 push).
+    pub fn recycled_buffer(&self, len: usize) -> Vec<f32> {
+        let mut st = self.shared.state.lock();
+        match st.recycled.iter().position(|b| b.capacity() >= len) {
+            Some(i) => st.recycled.swap_remove(i),
+            None => Vec::with_capacity(len),
+        }
+    }
+
     /// Bytes of pushed data the queue holds now.
     pub fn queued_bytes(&self) -> usize {
         self.shared.state.lock().bytes
@@ -395,6 +414,7 @@ struct Worker {
 impl Worker {
     fn run(mut self, jobs: Receiver<Job>) {
         while let Ok(job) = jobs.recv() {
+            self.prepare_spare(&job.data);
             let key = (job.field.clone(), job.step);
             let bytes = job.data.bytes();
             let state = if self.shared.cancel.is_set() {
@@ -410,6 +430,11 @@ impl Worker {
                     })
             };
             let mut st = self.shared.state.lock();
+            if let StepData::Grid { grid, .. } = job.data {
+                if st.recycled.len() < RECYCLED_BUFFERS {
+                    st.recycled.push(grid.values);
+                }
+            }
             if matches!(state, JobState::Failed(_)) {
                 st.unreported.push(key.clone());
             }
@@ -417,6 +442,25 @@ impl Worker {
             st.in_flight -= 1;
             st.bytes -= bytes;
             self.shared.changed.notify_all();
+        }
+    }
+
+    /// Leaves a buffer for the next grid push while this job holds its
+    /// own, its pages already faulted in here, on the encoder's thread:
+    /// otherwise a push that arrives while the queue is busy pays for a
+    /// fresh allocation (a third of a 128^3 push).
+    fn prepare_spare(&self, data: &StepData) {
+        let StepData::Grid { grid, .. } = data else { return };
+        let len = grid.values.len();
+        if self.shared.state.lock().recycled.iter().any(|b| b.capacity() >= len) {
+            return;
+        }
+        let mut spare = vec![0f32; 0];
+        spare.resize(len, 0.0); // writes every page
+        spare.clear();
+        let mut st = self.shared.state.lock();
+        if st.recycled.len() < RECYCLED_BUFFERS {
+            st.recycled.push(spare);
         }
     }
 

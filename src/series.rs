@@ -80,7 +80,8 @@ pub struct SeriesConfig {
     pub range: SeriesRange,
     /// Points of the fixed validation set (drawn once per field, on the first
     /// step's lattice, scored against each step's own reference) and how
-    /// often they are scored.
+    /// often they are scored; 0 points: no validation log (in situ, where
+    /// nobody reads it and it costs time).
     pub validation_points: usize,
     pub validation_every: usize,
     pub validation_seed: u64,
@@ -146,8 +147,8 @@ pub struct SeriesEncoder {
 
 impl SeriesEncoder {
     pub fn new(cfg: SeriesConfig) -> Result<SeriesEncoder> {
-        if cfg.validation_points == 0 || cfg.validation_every == 0 {
-            return Err(Error::arg("validation needs at least one point and a positive interval"));
+        if cfg.validation_points > 0 && cfg.validation_every == 0 {
+            return Err(Error::arg("validation needs a positive interval"));
         }
         Ok(SeriesEncoder { cfg, fields: BTreeMap::new() })
     }
@@ -228,13 +229,14 @@ impl SeriesEncoder {
         }
         // The same points every step (drawn on the first), this step's values.
         let validation = match state.and_then(|s| s.validation.as_ref()) {
-            Some(v) => v.rescored(&prepared.reference),
-            None => Validation::from_reference(
+            Some(v) => Some(v.rescored(&prepared.reference)),
+            None if self.cfg.validation_points == 0 => None,
+            None => Some(Validation::from_reference(
                 &prepared.reference,
                 self.cfg.validation_points,
                 self.cfg.validation_seed,
                 self.cfg.validation_every,
-            )?,
+            )?),
         };
         let warm = state.filter(|_| self.cfg.warm != WarmStart::Off).map(|s| s.last.params.as_slice());
         let cfg = match warm {
@@ -253,7 +255,7 @@ impl SeriesEncoder {
                 Target { reference: &prepared.reference, samples: &samples_grid }
             }
         };
-        let output = encode_validated(&target, &cfg, warm, Some(&validation), backend, progress)?;
+        let output = encode_validated(&target, &cfg, warm, validation.as_ref(), backend, progress)?;
         let mut meta = ModelMeta::new(prepared.frame, prepared.range);
         meta.field = field.to_owned();
         meta.step = step;
@@ -270,7 +272,7 @@ impl SeriesEncoder {
         let warm_started = warm.is_some();
         let bounds = state.map_or(prepared.bounds, |s| s.bounds);
         let (range, frame) = (prepared.range, prepared.frame);
-        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation: Some(validation), last: model.clone() });
+        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation, last: model.clone() });
         Ok(StepResult { model, output, warm_started, clamped_values: prepared.clamped_values,
             reference: prepared.reference,
             outside_items: prepared.outside_items,

@@ -256,3 +256,21 @@ fn bad_pushes_are_refused_at_once() {
     cfg.threads = 0;
     assert!(BackgroundEncoder::new(cfg, Box::new(gsenc::queue::CallerStores)).is_err());
 }
+
+#[test]
+fn a_caller_stored_model_waits_for_the_caller() {
+    let q = BackgroundEncoder::new(queue_config(8, WhenFull::Block), Box::new(gsenc::queue::CallerStores)).unwrap();
+    q.push(job("rho", 0)).unwrap();
+    q.push(job("rho", 1)).unwrap();
+    q.wait(None).unwrap();
+    // Encoded, not stored: the models are the caller's to write, in order.
+    assert!(matches!(q.poll("rho", 1), Some(JobState::Encoded { .. })));
+    let models = q.take_finished();
+    assert_eq!(models.iter().map(|m| m.meta.step).collect::<Vec<_>>(), [0, 1]);
+    assert!(q.take_finished().is_empty());
+    q.set_stored("rho", 0, Ok("store:/rho/0".into()));
+    q.set_stored("rho", 1, Err(Error::io("store.h5", std::io::Error::other("no space left"))));
+    assert!(matches!(q.poll("rho", 0), Some(JobState::Written { location, .. }) if location == "store:/rho/0"));
+    let e = q.wait(None).unwrap_err();
+    assert!(e.to_string().contains("step 1") && e.to_string().contains("no space"), "{e}");
+}

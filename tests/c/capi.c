@@ -2,7 +2,8 @@
  * particles, models written, read back, decoded and evaluated; and the
  * error paths of every function (NULL handles and pointers, bad sizes and
  * enum values, NaN data, wrong call order, unwritable folders, foreign
- * files). Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
+ * files); and the background queue: pushes copy, failures are reported
+ * by wait and poll, a full queue under each policy, cancel. Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
 #include <math.h>
 #include <stddef.h>
 #include <stdio.h>
@@ -300,6 +301,67 @@ int main(void) {
     EXPECT(gsenc_push_grid(enc, "rho", 0, 0.0, &grid), GSENC_STATUS_OK);
     EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_IO);
     gsenc_encoder_destroy(enc);
+
+    /* Pushes copy: the solver overwrites its array right after the push and
+     * the model still encodes what was pushed. */
+    cfg.output_dir = NULL;
+    cfg.warm_start = GSENC_WARM_OFF;
+    EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
+    fill_grid(a, 0);
+    EXPECT(gsenc_push_grid(enc, "copy", 0, 0.0, &grid), GSENC_STATUS_OK);
+    for (size_t i = 0; i < sizeof a / sizeof a[0]; i++) a[i] = 1000.0;
+    EXPECT(gsenc_wait(enc, "copy"), GSENC_STATUS_OK);
+    snprintf(path, sizeof path, "%s/copy.gsm", dir);
+    EXPECT(gsenc_encoder_write_model(enc, "copy", path), GSENC_STATUS_OK);
+    EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_OK);
+    double centre_and_corner[6] = {-1.0 + 8.5 * 0.5, 8.5 * 0.5, 2.0 + 6.5 * 0.5, -1.0 + 0.25, 0.25, 2.0 + 0.25};
+    float v2[2];
+    EXPECT(gsenc_model_evaluate(model, centre_and_corner, 2, v2), GSENC_STATUS_OK);
+    CHECK(v2[0] > 4.0f && v2[0] < 7.0f && fabsf(v2[1] - 1.0f) < 0.5f, "the pushed blob, not the overwrite: %g, %g", v2[0], v2[1]);
+    gsenc_model_destroy(model);
+    gsenc_encoder_destroy(enc);
+
+    /* A full queue (a long encode holds it) under each policy, then cancel. */
+    gsenc_config q = cfg;
+    q.iterations = 1000000;
+    q.queue_bytes = 1; /* every step is larger: only an empty queue takes one */
+    fill_grid(a, 0);
+    for (int policy = GSENC_QUEUE_SKIP; policy <= GSENC_QUEUE_BUSY; policy++) {
+        q.when_full = policy;
+        EXPECT(gsenc_encoder_create(&q, &enc), GSENC_STATUS_OK);
+        EXPECT(gsenc_push_grid(enc, "slow", 0, 0.0, &grid), GSENC_STATUS_OK);
+        if (policy == GSENC_QUEUE_SKIP) {
+            EXPECT(gsenc_push_grid(enc, "slow", 1, 0.0, &grid), GSENC_STATUS_SKIPPED);
+            EXPECT(gsenc_poll(enc, "slow", 1, &job), GSENC_STATUS_OK);
+            CHECK(job.state == GSENC_JOB_SKIPPED, "skipped step: state %d", job.state);
+        } else {
+            EXPECT(gsenc_push_grid(enc, "slow", 1, 0.0, &grid), GSENC_STATUS_BUSY);
+            CHECK(strstr(last_error(), "full") != NULL, "busy message");
+            EXPECT(gsenc_poll(enc, "slow", 1, &job), GSENC_STATUS_CALL_ORDER); /* nothing queued */
+        }
+        EXPECT(gsenc_poll(enc, "slow", 0, &job), GSENC_STATUS_OK);
+        CHECK(job.state == GSENC_JOB_QUEUED || job.state == GSENC_JOB_RUNNING, "the long step is in flight: %d", job.state);
+        EXPECT(gsenc_encoder_cancel(enc), GSENC_STATUS_OK);
+        EXPECT(gsenc_poll(enc, "slow", 0, &job), GSENC_STATUS_OK);
+        CHECK(job.state == GSENC_JOB_CANCELLED, "cancelled: state %d", job.state);
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+        gsenc_encoder_destroy(enc);
+    }
+    q = cfg;
+    q.when_full = 7;
+    EXPECT(gsenc_encoder_create(&q, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    q = cfg;
+    q.queue_bytes = 0;
+    EXPECT(gsenc_encoder_create(&q, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    q = cfg;
+    q.output_format = GSENC_OUTPUT_HDF5; /* refused unless built with HDF5 (tests/capi_hdf5.rs covers that) */
+    snprintf(path, sizeof path, "%s/capi-store.h5", dir);
+    q.output_dir = path;
+    gsenc_status hs = gsenc_encoder_create(&q, &enc);
+    CHECK(hs == GSENC_STATUS_OK || (hs == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "HDF5")), "HDF5 output: %s",
+          gsenc_status_string(hs));
+    if (hs == GSENC_STATUS_OK) gsenc_encoder_destroy(enc);
+    EXPECT(gsenc_encoder_cancel(NULL), GSENC_STATUS_NULL_POINTER);
 
     /* Foreign and missing files. */
     EXPECT(gsenc_model_read("/nonexistent-dir/m.gsm", &model), GSENC_STATUS_IO);
