@@ -261,6 +261,20 @@ module gsenc
         module procedure push_hexahedra_r4, push_hexahedra_r8
     end interface
 
+    ! How a caller's array lies in memory: its first element, its count and
+    ! strides in elements. Built by the kind-specific `*_r4`/`*_r8`
+    ! functions below (the only code that sees the array's type), used by
+    ! the kind-free push procedures.
+    type :: scalars_t
+        type(c_ptr) :: first = c_null_ptr
+        integer(c_int64_t) :: count = 0, stride = 1
+    end type
+    ! A (components, count) array of tuples.
+    type :: tuples_t
+        type(c_ptr) :: first = c_null_ptr
+        integer(c_int64_t) :: components = 0, count = 0, stride = 1, component_stride = 1
+    end type
+
 contains
 
     !> A NUL-terminated copy of a Fortran string (trailing blanks dropped).
@@ -329,6 +343,40 @@ contains
         encoder = c_null_ptr
     end subroutine
 
+    type(scalars_t) function scalars_r4(a) result(d)
+        real(real32), intent(in), target :: a(:)
+        d%count = size(a, kind=c_int64_t)
+        if (d%count > 0) d%first = c_loc(a(1))
+        if (d%count > 1) d%stride = elements(d%first, c_loc(a(2)), 4)
+    end function
+
+    type(scalars_t) function scalars_r8(a) result(d)
+        real(real64), intent(in), target :: a(:)
+        d%count = size(a, kind=c_int64_t)
+        if (d%count > 0) d%first = c_loc(a(1))
+        if (d%count > 1) d%stride = elements(d%first, c_loc(a(2)), 8)
+    end function
+
+    type(tuples_t) function tuples_r4(a) result(d)
+        real(real32), intent(in), target :: a(:, :)
+        d%components = size(a, 1, kind=c_int64_t)
+        d%count = size(a, 2, kind=c_int64_t)
+        if (size(a) == 0) return
+        d%first = c_loc(a(1, 1))
+        if (d%components > 1) d%component_stride = elements(d%first, c_loc(a(2, 1)), 4)
+        if (d%count > 1) d%stride = elements(d%first, c_loc(a(1, 2)), 4)
+    end function
+
+    type(tuples_t) function tuples_r8(a) result(d)
+        real(real64), intent(in), target :: a(:, :)
+        d%components = size(a, 1, kind=c_int64_t)
+        d%count = size(a, 2, kind=c_int64_t)
+        if (size(a) == 0) return
+        d%first = c_loc(a(1, 1))
+        if (d%components > 1) d%component_stride = elements(d%first, c_loc(a(2, 1)), 8)
+        if (d%count > 1) d%stride = elements(d%first, c_loc(a(1, 2)), 8)
+    end function
+
     integer(c_int) function push_grid_r4(encoder, field, step, values, origin, spacing, time) result(status)
         type(c_ptr), intent(in) :: encoder
         character(len=*), intent(in) :: field
@@ -336,16 +384,12 @@ contains
         real(real32), intent(in), target :: values(:, :, :)
         real(c_double), intent(in) :: origin(3), spacing
         real(c_double), intent(in), optional :: time
-        type(gsenc_grid) :: g
-        g = grid_of(GSENC_DTYPE_FLOAT32, shape(values, kind=c_int64_t), origin, spacing)
-        if (size(values) == 0) then
-            g%data = c_null_ptr
-        else
-            g%data = c_loc(values(1, 1, 1))
-            g%strides = grid_strides(g%extents, 4, g%data, c_loc(values(min(2, size(values, 1)), 1, 1)), &
-                c_loc(values(1, min(2, size(values, 2)), 1)), c_loc(values(1, 1, min(2, size(values, 3)))))
-        end if
-        status = gsenc_push_grid_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), g)
+        type(c_ptr) :: corners(4)
+        corners = c_null_ptr
+        if (size(values) > 0) corners = [c_loc(values(1, 1, 1)), c_loc(values(min(2, size(values, 1)), 1, 1)), &
+            c_loc(values(1, min(2, size(values, 2)), 1)), c_loc(values(1, 1, min(2, size(values, 3))))]
+        status = push_grid_any(encoder, field, step, GSENC_DTYPE_FLOAT32, 4, shape(values, kind=c_int64_t), corners, &
+            origin, spacing, time)
     end function
 
     integer(c_int) function push_grid_r8(encoder, field, step, values, origin, spacing, time) result(status)
@@ -355,58 +399,43 @@ contains
         real(real64), intent(in), target :: values(:, :, :)
         real(c_double), intent(in) :: origin(3), spacing
         real(c_double), intent(in), optional :: time
-        type(gsenc_grid) :: g
-        g = grid_of(GSENC_DTYPE_FLOAT64, shape(values, kind=c_int64_t), origin, spacing)
-        if (size(values) == 0) then
-            g%data = c_null_ptr
-        else
-            g%data = c_loc(values(1, 1, 1))
-            g%strides = grid_strides(g%extents, 8, g%data, c_loc(values(min(2, size(values, 1)), 1, 1)), &
-                c_loc(values(1, min(2, size(values, 2)), 1)), c_loc(values(1, 1, min(2, size(values, 3)))))
-        end if
-        status = gsenc_push_grid_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), g)
+        type(c_ptr) :: corners(4)
+        corners = c_null_ptr
+        if (size(values) > 0) corners = [c_loc(values(1, 1, 1)), c_loc(values(min(2, size(values, 1)), 1, 1)), &
+            c_loc(values(1, min(2, size(values, 2)), 1)), c_loc(values(1, 1, min(2, size(values, 3))))]
+        status = push_grid_any(encoder, field, step, GSENC_DTYPE_FLOAT64, 8, shape(values, kind=c_int64_t), corners, &
+            origin, spacing, time)
     end function
 
-    type(gsenc_grid) function grid_of(dtype, extents, origin, spacing) result(g)
+    !> A grid push from the addresses of elements (1,1,1), (2,1,1), (1,2,1)
+    !> and (1,1,2): their differences are the memory strides. An axis of
+    !> extent 1 gets stride 1 (never used), not the "all zero" default.
+    integer(c_int) function push_grid_any(encoder, field, step, dtype, size, extents, corners, origin, spacing, time) &
+            result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
         integer(c_int32_t), intent(in) :: dtype
+        integer, intent(in) :: size
         integer(c_int64_t), intent(in) :: extents(3)
+        type(c_ptr), intent(in) :: corners(4)
         real(c_double), intent(in) :: origin(3), spacing
+        real(c_double), intent(in), optional :: time
+        type(gsenc_grid) :: g
+        integer :: a
         g%struct_size = c_sizeof(g)
         g%dtype = dtype
         g%extents = extents
         g%origin = origin
         g%spacing = spacing
-    end function
-
-    !> Memory strides (elements) of a 3D array from the addresses of its
-    !> elements (1,1,1), (2,1,1), (1,2,1), (1,1,2); an axis of extent 1 gets
-    !> stride 1 (never used), which is not the "all zero: contiguous" default.
-    function grid_strides(extents, size, p000, p100, p010, p001) result(strides)
-        integer(c_int64_t), intent(in) :: extents(3)
-        integer, intent(in) :: size
-        type(c_ptr), intent(in) :: p000, p100, p010, p001
-        integer(c_int64_t) :: strides(3)
-        strides = [elements(p000, p100, size), elements(p000, p010, size), elements(p000, p001, size)]
-        where (extents <= 1) strides = 1
-    end function
-
-    !> Tuple and component strides of a (3, n) array.
-    subroutine tuple_strides(n, size, p11, p21, p12, tuple, component)
-        integer(c_int64_t), intent(in) :: n
-        integer, intent(in) :: size
-        type(c_ptr), intent(in) :: p11, p21, p12
-        integer(c_int64_t), intent(out) :: tuple, component
-        component = elements(p11, p21, size)
-        tuple = 1
-        if (n > 1) tuple = elements(p11, p12, size)
-    end subroutine
-
-    integer(c_int64_t) function scalar_stride(n, size, p1, p2)
-        integer(c_int64_t), intent(in) :: n
-        integer, intent(in) :: size
-        type(c_ptr), intent(in) :: p1, p2
-        scalar_stride = 1
-        if (n > 1) scalar_stride = elements(p1, p2, size)
+        g%data = corners(1)
+        g%strides = 1
+        if (c_associated(corners(1))) then
+            do a = 1, 3
+                if (extents(a) > 1) g%strides(a) = elements(corners(1), corners(a + 1), size)
+            end do
+        end if
+        status = gsenc_push_grid_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), g)
     end function
 
     !> Whether two array lengths agree; records `what` as the error if not.
@@ -423,6 +452,15 @@ contains
         call gsenc_set_last_error_c(c_string(what))
     end subroutine
 
+    !> Whether `t` is (3, n), n the values' count; records the error if not.
+    logical function triples_of(what, t, n)
+        character(len=*), intent(in) :: what
+        type(tuples_t), intent(in) :: t
+        integer(c_int64_t), intent(in) :: n
+        triples_of = t%components == 3 .and. t%count == n
+        if (.not. triples_of) call set_error(what)
+    end function
+
     integer(c_int) function push_particles_r4(encoder, field, step, positions, smoothing_length, values, mass, time) &
             result(status)
         type(c_ptr), intent(in) :: encoder
@@ -431,37 +469,10 @@ contains
         real(real32), intent(in), target :: positions(:, :), smoothing_length(:), values(:)
         real(real32), intent(in), target, optional :: mass(:)
         real(c_double), intent(in), optional :: time
-        type(gsenc_particles) :: p
-        integer(c_int64_t) :: n
-        p%struct_size = c_sizeof(p)
-        p%dtype = GSENC_DTYPE_FLOAT32
-        n = size(values, kind=c_int64_t)
-        status = GSENC_STATUS_INVALID_ARGUMENT
-        if (size(positions, 1) /= 3) then
-            call set_error("gsenc_push_particles: positions must be (3, n)")
-            return
-        end if
-        if (.not. shapes_agree("gsenc_push_particles: positions, smoothing_length and values differ in length", &
-                n, size(positions, 2, kind=c_int64_t))) return
-        if (.not. shapes_agree("gsenc_push_particles: smoothing_length and values differ in length", &
-                n, size(smoothing_length, kind=c_int64_t))) return
-        p%count = n
-        if (n > 0) then
-            p%positions = c_loc(positions(1, 1))
-            call tuple_strides(n, 4, p%positions, c_loc(positions(2, 1)), c_loc(positions(1, min(2_c_int64_t, n))), &
-                p%position_stride, p%position_component_stride)
-            p%smoothing_length = c_loc(smoothing_length(1))
-            p%smoothing_length_stride = scalar_stride(n, 4, p%smoothing_length, c_loc(smoothing_length(min(2_c_int64_t, n))))
-            p%values = c_loc(values(1))
-            p%value_stride = scalar_stride(n, 4, p%values, c_loc(values(min(2_c_int64_t, n))))
-            if (present(mass)) then
-                if (.not. shapes_agree("gsenc_push_particles: mass and values differ in length", &
-                        n, size(mass, kind=c_int64_t))) return
-                p%mass = c_loc(mass(1))
-                p%mass_stride = scalar_stride(n, 4, p%mass, c_loc(mass(min(2_c_int64_t, n))))
-            end if
-        end if
-        status = gsenc_push_particles_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), p)
+        type(scalars_t) :: m
+        if (present(mass)) m = scalars_r4(mass)
+        status = push_particles_any(encoder, field, step, GSENC_DTYPE_FLOAT32, tuples_r4(positions), &
+            scalars_r4(smoothing_length), scalars_r4(values), present(mass), m, time)
     end function
 
     integer(c_int) function push_particles_r8(encoder, field, step, positions, smoothing_length, values, mass, time) &
@@ -472,35 +483,44 @@ contains
         real(real64), intent(in), target :: positions(:, :), smoothing_length(:), values(:)
         real(real64), intent(in), target, optional :: mass(:)
         real(c_double), intent(in), optional :: time
+        type(scalars_t) :: m
+        if (present(mass)) m = scalars_r8(mass)
+        status = push_particles_any(encoder, field, step, GSENC_DTYPE_FLOAT64, tuples_r8(positions), &
+            scalars_r8(smoothing_length), scalars_r8(values), present(mass), m, time)
+    end function
+
+    integer(c_int) function push_particles_any(encoder, field, step, dtype, positions, h, values, has_mass, mass, time) &
+            result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        integer(c_int32_t), intent(in) :: dtype
+        type(tuples_t), intent(in) :: positions
+        type(scalars_t), intent(in) :: h, values, mass
+        logical, intent(in) :: has_mass
+        real(c_double), intent(in), optional :: time
         type(gsenc_particles) :: p
-        integer(c_int64_t) :: n
-        p%struct_size = c_sizeof(p)
-        p%dtype = GSENC_DTYPE_FLOAT64
-        n = size(values, kind=c_int64_t)
         status = GSENC_STATUS_INVALID_ARGUMENT
-        if (size(positions, 1) /= 3) then
-            call set_error("gsenc_push_particles: positions must be (3, n)")
+        if (.not. triples_of("gsenc_push_particles: positions must be (3, n), n the values' count", positions, values%count)) &
             return
+        if (.not. shapes_agree("gsenc_push_particles: smoothing_length and values differ in length", values%count, h%count)) &
+            return
+        if (has_mass) then
+            if (.not. shapes_agree("gsenc_push_particles: mass and values differ in length", values%count, mass%count)) return
         end if
-        if (.not. shapes_agree("gsenc_push_particles: positions, smoothing_length and values differ in length", &
-                n, size(positions, 2, kind=c_int64_t))) return
-        if (.not. shapes_agree("gsenc_push_particles: smoothing_length and values differ in length", &
-                n, size(smoothing_length, kind=c_int64_t))) return
-        p%count = n
-        if (n > 0) then
-            p%positions = c_loc(positions(1, 1))
-            call tuple_strides(n, 8, p%positions, c_loc(positions(2, 1)), c_loc(positions(1, min(2_c_int64_t, n))), &
-                p%position_stride, p%position_component_stride)
-            p%smoothing_length = c_loc(smoothing_length(1))
-            p%smoothing_length_stride = scalar_stride(n, 8, p%smoothing_length, c_loc(smoothing_length(min(2_c_int64_t, n))))
-            p%values = c_loc(values(1))
-            p%value_stride = scalar_stride(n, 8, p%values, c_loc(values(min(2_c_int64_t, n))))
-            if (present(mass)) then
-                if (.not. shapes_agree("gsenc_push_particles: mass and values differ in length", &
-                        n, size(mass, kind=c_int64_t))) return
-                p%mass = c_loc(mass(1))
-                p%mass_stride = scalar_stride(n, 8, p%mass, c_loc(mass(min(2_c_int64_t, n))))
-            end if
+        p%struct_size = c_sizeof(p)
+        p%dtype = dtype
+        p%count = values%count
+        p%positions = positions%first
+        p%position_stride = positions%stride
+        p%position_component_stride = positions%component_stride
+        p%smoothing_length = h%first
+        p%smoothing_length_stride = h%stride
+        p%values = values%first
+        p%value_stride = values%stride
+        if (has_mass) then
+            p%mass = mass%first
+            p%mass_stride = mass%stride
         end if
         status = gsenc_push_particles_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), p)
     end function
@@ -511,31 +531,8 @@ contains
         integer(int64), intent(in) :: step
         real(real32), intent(in), target :: centres(:, :), edges(:, :), values(:)
         real(c_double), intent(in), optional :: time
-        type(gsenc_cells) :: c
-        integer(c_int64_t) :: n
-        c%struct_size = c_sizeof(c)
-        c%dtype = GSENC_DTYPE_FLOAT32
-        c%layout = GSENC_CELLS_BOXES
-        n = size(values, kind=c_int64_t)
-        status = GSENC_STATUS_INVALID_ARGUMENT
-        if (size(centres, 1) /= 3 .or. size(edges, 1) /= 3) then
-            call set_error("gsenc_push_cells_boxes: centres and edges must be (3, n)")
-            return
-        end if
-        if (.not. shapes_agree("gsenc_push_cells_boxes: centres, edges and values differ in length", n, &
-                merge(size(centres, 2, kind=c_int64_t), -1_c_int64_t, size(centres, 2) == size(edges, 2)))) return
-        c%count = n
-        if (n > 0) then
-            c%centres = c_loc(centres(1, 1))
-            call tuple_strides(n, 4, c%centres, c_loc(centres(2, 1)), c_loc(centres(1, min(2_c_int64_t, n))), &
-                c%centre_stride, c%centre_component_stride)
-            c%edges = c_loc(edges(1, 1))
-            call tuple_strides(n, 4, c%edges, c_loc(edges(2, 1)), c_loc(edges(1, min(2_c_int64_t, n))), &
-                c%edge_stride, c%edge_component_stride)
-            c%values = c_loc(values(1))
-            c%value_stride = scalar_stride(n, 4, c%values, c_loc(values(min(2_c_int64_t, n))))
-        end if
-        status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
+        status = push_boxes_any(encoder, field, step, GSENC_DTYPE_FLOAT32, tuples_r4(centres), tuples_r4(edges), &
+            scalars_r4(values), time)
     end function
 
     integer(c_int) function push_boxes_r8(encoder, field, step, centres, edges, values, time) result(status)
@@ -544,30 +541,35 @@ contains
         integer(int64), intent(in) :: step
         real(real64), intent(in), target :: centres(:, :), edges(:, :), values(:)
         real(c_double), intent(in), optional :: time
+        status = push_boxes_any(encoder, field, step, GSENC_DTYPE_FLOAT64, tuples_r8(centres), tuples_r8(edges), &
+            scalars_r8(values), time)
+    end function
+
+    integer(c_int) function push_boxes_any(encoder, field, step, dtype, centres, edges, values, time) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        integer(c_int32_t), intent(in) :: dtype
+        type(tuples_t), intent(in) :: centres, edges
+        type(scalars_t), intent(in) :: values
+        real(c_double), intent(in), optional :: time
         type(gsenc_cells) :: c
-        integer(c_int64_t) :: n
-        c%struct_size = c_sizeof(c)
-        c%dtype = GSENC_DTYPE_FLOAT64
-        c%layout = GSENC_CELLS_BOXES
-        n = size(values, kind=c_int64_t)
         status = GSENC_STATUS_INVALID_ARGUMENT
-        if (size(centres, 1) /= 3 .or. size(edges, 1) /= 3) then
-            call set_error("gsenc_push_cells_boxes: centres and edges must be (3, n)")
+        if (.not. triples_of("gsenc_push_cells_boxes: centres must be (3, n), n the values' count", centres, values%count)) &
             return
-        end if
-        if (.not. shapes_agree("gsenc_push_cells_boxes: centres, edges and values differ in length", n, &
-                merge(size(centres, 2, kind=c_int64_t), -1_c_int64_t, size(centres, 2) == size(edges, 2)))) return
-        c%count = n
-        if (n > 0) then
-            c%centres = c_loc(centres(1, 1))
-            call tuple_strides(n, 8, c%centres, c_loc(centres(2, 1)), c_loc(centres(1, min(2_c_int64_t, n))), &
-                c%centre_stride, c%centre_component_stride)
-            c%edges = c_loc(edges(1, 1))
-            call tuple_strides(n, 8, c%edges, c_loc(edges(2, 1)), c_loc(edges(1, min(2_c_int64_t, n))), &
-                c%edge_stride, c%edge_component_stride)
-            c%values = c_loc(values(1))
-            c%value_stride = scalar_stride(n, 8, c%values, c_loc(values(min(2_c_int64_t, n))))
-        end if
+        if (.not. triples_of("gsenc_push_cells_boxes: edges must be (3, n), n the values' count", edges, values%count)) return
+        c%struct_size = c_sizeof(c)
+        c%dtype = dtype
+        c%layout = GSENC_CELLS_BOXES
+        c%count = values%count
+        c%centres = centres%first
+        c%centre_stride = centres%stride
+        c%centre_component_stride = centres%component_stride
+        c%edges = edges%first
+        c%edge_stride = edges%stride
+        c%edge_component_stride = edges%component_stride
+        c%values = values%first
+        c%value_stride = values%stride
         status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
     end function
 
@@ -578,31 +580,8 @@ contains
         real(real32), intent(in), target :: points(:, :), values(:)
         integer(c_int64_t), intent(in), target, contiguous :: connectivity(:, :)
         real(c_double), intent(in), optional :: time
-        type(gsenc_cells) :: c
-        integer(c_int64_t) :: n, np
-        c%struct_size = c_sizeof(c)
-        c%dtype = GSENC_DTYPE_FLOAT32
-        c%layout = GSENC_CELLS_HEXAHEDRA
-        n = size(values, kind=c_int64_t)
-        np = size(points, 2, kind=c_int64_t)
-        status = GSENC_STATUS_INVALID_ARGUMENT
-        if (size(points, 1) /= 3 .or. size(connectivity, 1) /= 8) then
-            call set_error("gsenc_push_cells_hexahedra: points must be (3, np) and connectivity (8, n)")
-            return
-        end if
-        if (.not. shapes_agree("gsenc_push_cells_hexahedra: connectivity and values differ in length", &
-                n, size(connectivity, 2, kind=c_int64_t))) return
-        c%count = n
-        c%point_count = np
-        if (n > 0) c%connectivity = c_loc(connectivity(1, 1))
-        if (n > 0) c%values = c_loc(values(1))
-        if (n > 0) c%value_stride = scalar_stride(n, 4, c%values, c_loc(values(min(2_c_int64_t, n))))
-        if (np > 0) then
-            c%points = c_loc(points(1, 1))
-            call tuple_strides(np, 4, c%points, c_loc(points(2, 1)), c_loc(points(1, min(2_c_int64_t, np))), &
-                c%point_stride, c%point_component_stride)
-        end if
-        status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
+        status = push_hexahedra_any(encoder, field, step, GSENC_DTYPE_FLOAT32, tuples_r4(points), connectivity, &
+            scalars_r4(values), time)
     end function
 
     integer(c_int) function push_hexahedra_r8(encoder, field, step, points, connectivity, values, time) result(status)
@@ -612,30 +591,39 @@ contains
         real(real64), intent(in), target :: points(:, :), values(:)
         integer(c_int64_t), intent(in), target, contiguous :: connectivity(:, :)
         real(c_double), intent(in), optional :: time
+        status = push_hexahedra_any(encoder, field, step, GSENC_DTYPE_FLOAT64, tuples_r8(points), connectivity, &
+            scalars_r8(values), time)
+    end function
+
+    integer(c_int) function push_hexahedra_any(encoder, field, step, dtype, points, connectivity, values, time) &
+            result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        integer(c_int32_t), intent(in) :: dtype
+        type(tuples_t), intent(in) :: points
+        integer(c_int64_t), intent(in), target, contiguous :: connectivity(:, :)
+        type(scalars_t), intent(in) :: values
+        real(c_double), intent(in), optional :: time
         type(gsenc_cells) :: c
-        integer(c_int64_t) :: n, np
-        c%struct_size = c_sizeof(c)
-        c%dtype = GSENC_DTYPE_FLOAT64
-        c%layout = GSENC_CELLS_HEXAHEDRA
-        n = size(values, kind=c_int64_t)
-        np = size(points, 2, kind=c_int64_t)
         status = GSENC_STATUS_INVALID_ARGUMENT
-        if (size(points, 1) /= 3 .or. size(connectivity, 1) /= 8) then
+        if (points%components /= 3 .or. size(connectivity, 1) /= 8) then
             call set_error("gsenc_push_cells_hexahedra: points must be (3, np) and connectivity (8, n)")
             return
         end if
         if (.not. shapes_agree("gsenc_push_cells_hexahedra: connectivity and values differ in length", &
-                n, size(connectivity, 2, kind=c_int64_t))) return
-        c%count = n
-        c%point_count = np
-        if (n > 0) c%connectivity = c_loc(connectivity(1, 1))
-        if (n > 0) c%values = c_loc(values(1))
-        if (n > 0) c%value_stride = scalar_stride(n, 8, c%values, c_loc(values(min(2_c_int64_t, n))))
-        if (np > 0) then
-            c%points = c_loc(points(1, 1))
-            call tuple_strides(np, 8, c%points, c_loc(points(2, 1)), c_loc(points(1, min(2_c_int64_t, np))), &
-                c%point_stride, c%point_component_stride)
-        end if
+                values%count, size(connectivity, 2, kind=c_int64_t))) return
+        c%struct_size = c_sizeof(c)
+        c%dtype = dtype
+        c%layout = GSENC_CELLS_HEXAHEDRA
+        c%count = values%count
+        c%point_count = points%count
+        c%points = points%first
+        c%point_stride = points%stride
+        c%point_component_stride = points%component_stride
+        if (values%count > 0) c%connectivity = c_loc(connectivity(1, 1))
+        c%values = values%first
+        c%value_stride = values%stride
         status = gsenc_push_cells_c(encoder, c_string(field), int(step, c_int64_t), time_or_nan(time), c)
     end function
 
