@@ -101,7 +101,7 @@ pub extern "C" fn gsenc_version_string() -> *const std::os::raw::c_char {
 #[cfg(test)]
 mod tests {
     use super::config::*;
-    use super::encoder::{gsenc_cells, gsenc_grid, gsenc_particles};
+    use super::encoder::*;
     use super::model::gsenc_model_info;
     use super::status::gsenc_status;
     use std::mem::{offset_of, size_of};
@@ -187,7 +187,6 @@ mod tests {
         assert_eq!([super::GSENC_DTYPE_FLOAT32, super::GSENC_DTYPE_FLOAT64], [0, 1]);
         assert_eq!([GSENC_QUEUE_BLOCK, GSENC_QUEUE_SKIP, GSENC_QUEUE_BUSY], [0, 1, 2]);
         assert_eq!([GSENC_OUTPUT_FOLDER, GSENC_OUTPUT_HDF5], [0, 1]);
-        use super::encoder::*;
         assert_eq!(size_of::<gsenc_job>(), 32);
         assert_eq!(
             [offset_of!(gsenc_job, state), offset_of!(gsenc_job, iteration), offset_of!(gsenc_job, iterations), offset_of!(gsenc_job, error), offset_of!(gsenc_job, psnr)],

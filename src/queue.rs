@@ -293,13 +293,17 @@ impl BackgroundEncoder {
             }
         }
         st.last_pushed.insert(job.field.clone(), job.step);
-        st.jobs.insert(key, JobState::Queued);
+        st.jobs.insert(key.clone(), JobState::Queued);
         st.in_flight += 1;
         st.bytes += bytes;
         drop(st);
         let sent = self.jobs.as_ref().map(|tx| tx.send(job));
         if !matches!(sent, Some(Ok(()))) {
-            // Only after a worker panic outside its guard; never silently lose a step.
+            // Only after a worker panic outside its guard: undo, and say so.
+            let mut st = self.shared.state.lock();
+            st.jobs.insert(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))));
+            st.in_flight -= 1;
+            st.bytes -= bytes;
             return Err(Error::arg("the encode thread has stopped"));
         }
         Ok(Pushed::Queued)
