@@ -35,6 +35,7 @@ pub mod encoder;
 pub mod error;
 pub mod field;
 pub mod format;
+pub mod global;
 pub mod io;
 pub mod kernel;
 pub mod loss;

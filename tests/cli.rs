@@ -523,3 +523,56 @@ fn encode_series_into_a_store() {
     assert_eq!(entries[1]["schedule"], "warm-dense");
     assert_eq!(entries[1]["iterations"], 1500);
 }
+
+#[test]
+fn decode_of_several_pieces_writes_one_global_field() {
+    use gsenc::field::{IndexFrame, Transform, ValueRange};
+    use gsenc::model::{Model, ModelMeta};
+    let dir = tmpdir("pieces");
+    let range = ValueRange::new(2.0, 12.0, Transform::Linear).unwrap();
+    // Two pieces of one lattice (voxel 0.5), the second 10 voxels along x.
+    let piece = |x0: f64, seed: u64| {
+        let g = blobs([14, 8, 6], seed, 2);
+        let mut cfg = gsenc::encoder::EncodeConfig::new(30, gsenc::encoder::Schedule::Short);
+        cfg.iterations = Some(30);
+        let samples = gsenc::samples::GridSamples { grid: &g };
+        let target = gsenc::encoder::Target { reference: &g, samples: &samples };
+        let out = gsenc::encoder::encode(&target, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+        let mut meta = ModelMeta::new(IndexFrame { dims: g.dims, bmin: [x0, 0.0, 0.0], gamma: 2.0 }, range);
+        meta.field = "rho".into();
+        Model { meta, params: out.params }
+    };
+    let (a, b) = (piece(0.0, 1), piece(5.0, 2));
+    let (pa, pb) = (dir.join("rho_r0.gsm"), dir.join("rho_r1.gsm"));
+    std::fs::write(&pa, gsenc::format::write_model(&a).unwrap()).unwrap();
+    std::fs::write(&pb, gsenc::format::write_model(&b).unwrap()).unwrap();
+    let (sa, sb) = (pa.to_str().unwrap(), pb.to_str().unwrap());
+    let out = dir.join("global.raw");
+    let (code, _, err) = gsenc(&["decode", sa, sb, "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    // The global field is the library's merged decode, in data units.
+    let merged = gsenc::global::merge(&[a.clone(), b.clone()]).unwrap();
+    assert_eq!(merged.meta.frame.dims, [24, 8, 6]);
+    let want = merged.decode(&mut CpuBackend::new(), None).unwrap();
+    let got = std::fs::read(&out).unwrap().chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect::<Vec<f32>>();
+    assert_eq!(got.len(), want.values.len());
+    for (g, w) in got.iter().zip(&want.values) {
+        assert!((g - range.denormalize(*w) as f32).abs() < 1e-4, "{g} vs {w}");
+    }
+    // One piece's region alone: its cells of the global field.
+    let (code, _, err) = gsenc(&["decode", sa, sb, "--piece", "1", "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let part = std::fs::read(&out).unwrap().chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect::<Vec<f32>>();
+    assert_eq!(part.len(), 14 * 8 * 6);
+    assert_eq!(part[0], got[10], "piece 1 starts 10 voxels along x");
+    // Pieces that do not fit together, and a piece that is not there.
+    let (code, _, err) = gsenc(&["decode", sa, sb, "--piece", "2", "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    let mut c = b.clone();
+    c.meta.frame.bmin[0] = 5.25; // half a voxel off the lattice
+    let pc = dir.join("rho_off.gsm");
+    std::fs::write(&pc, gsenc::format::write_model(&c).unwrap()).unwrap();
+    let (code, _, err) = gsenc(&["decode", sa, pc.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 2);
+    assert!(err.contains("lattice"), "{err}");
+}

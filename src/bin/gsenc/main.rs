@@ -328,7 +328,14 @@ pub struct OutputFlags {
 
 #[derive(Args)]
 struct DecodeArgs {
-    model: PathBuf,
+    /// A model, or the models of a domain's pieces (per-rank models of one
+    /// step on one lattice): decoded together as one global field.
+    #[arg(required = true)]
+    model: Vec<PathBuf>,
+    /// With several models: decode only the region of the I-th (0-based)
+    /// of the global field.
+    #[arg(long, conflicts_with = "sub_box")]
+    piece: Option<usize>,
     /// Lattice dims X,Y,Z covering the model's box (default: its reference dims).
     #[arg(long, value_parser = parse_dims)]
     dims: Option<[usize; 3]>,
@@ -754,12 +761,20 @@ fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], nam
 
 fn cmd_decode(a: DecodeArgs) -> Result<()> {
     let t = Instant::now();
-    let model = read_model(&a.model)?;
+    let pieces = a.model.iter().map(|p| read_model(p)).collect::<Result<Vec<_>>>()?;
+    let model = gsenc::global::merge(&pieces)?;
     let f = &model.meta.frame;
     let dims = a.dims.unwrap_or(f.dims);
-    let region = match a.sub_box {
-        Some([x0, y0, z0, x1, y1, z1]) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
-        None => IndexBox::whole(dims),
+    let region = match (a.sub_box, a.piece) {
+        (Some([x0, y0, z0, x1, y1, z1]), _) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
+        (None, Some(i)) => {
+            let piece = pieces.get(i).ok_or_else(|| Error::arg(format!("--piece {i}: only {} models given", pieces.len())))?;
+            if dims != f.dims {
+                return Err(Error::arg("--piece decodes on the models' own lattice; leave out --dims"));
+            }
+            gsenc::global::piece_box(f, &piece.meta.frame)?
+        }
+        (None, None) => IndexBox::whole(dims),
     };
     let spacing = [0, 1, 2].map(|i| f.dims[i] as f64 / dims[i] as f64 / f.gamma);
     let origin = [0, 1, 2].map(|i| f.bmin[i] + (region.lo[i] as f64 + 0.5) * spacing[i]);
