@@ -8,8 +8,10 @@
  *    smoothing length, value), handed over in place through tuple strides;
  *  - AMR cells in float32, a 16^3 base level refined twice near the blobs.
  * At every output step it pushes all three forms as the fields "grid",
- * "tracers" and "amr", encodes them (each warm-started from its previous
- * step) and gsenc writes OUTPUT_DIR/FIELD_STEP.gsm.
+ * "tracers" and "amr"; gsenc's thread encodes them (each warm-started from
+ * its previous step) and writes OUTPUT_DIR/FIELD_STEP.gsm. This mock then
+ * waits (gsenc_wait) to print each step's PSNR; a production code would
+ * push and go on (see benches/insitu.c).
  *
  * usage: mock_solver OUTPUT_DIR [STEPS [BUDGET [ITERATIONS [WARM_ITERATIONS]]]]
  * (defaults 20 steps, 3000 Gaussians, the schedules' iterations). */
