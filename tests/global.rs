@@ -1,7 +1,7 @@
 //! One global field from the models of a domain's pieces: the merged model
-//! decodes each piece's region as that piece does away from the cut, blends
-//! across the cut, and scores within 1 dB of one model of the whole domain
-//! with the same total budget. Pieces that do not share a lattice, a voxel
+//! places each piece exactly, blends across the cut without a seam, and
+//! (with an 8-voxel halo) scores within 1 dB of one model of the whole
+//! domain with the same total budget. Pieces that do not share a lattice, a voxel
 //! size or a range are refused.
 
 mod common;
@@ -16,9 +16,11 @@ use gsenc::samples::GridSamples;
 use gsenc::Error;
 
 const DIMS: [usize; 3] = [40, 24, 20];
-/// The cut along x, and the halo each piece keeps beyond it.
+/// The cut along x, and the halo each piece keeps beyond it. The halo
+/// decides the seam: 3 voxels scored 2.5 dB below one model of the whole,
+/// 5 voxels 1.1 dB, 6 voxels 0.6 dB, 8 voxels 0.4 dB (docs/DESIGN.md).
 const CUT: usize = 20;
-const HALO: usize = 3;
+const HALO: usize = 8;
 
 fn range() -> ValueRange {
     ValueRange::new(0.0, 1.0, Transform::Linear).unwrap()
@@ -67,29 +69,27 @@ fn merged_pieces_decode_one_seamless_field() {
     let decoded = global.decode(&mut cpu, None).unwrap();
     let single_decoded = single.decode(&mut cpu, None).unwrap();
     let (merged_psnr, single_psnr) = (voxel_psnr(&decoded.values, &whole.values), voxel_psnr(&single_decoded.values, &whole.values));
-    // Issue 8 asks for the merged pieces within 1 dB of one model of the
-    // whole with the same budget; not reached yet (see docs/DESIGN.md,
-    // "Pieces of a domain"). Held here: the pieces together are no worse
-    // than 4 dB below, so a regression in merging shows.
-    assert!(merged_psnr > single_psnr - 4.0, "merged pieces {merged_psnr:.2} dB, one model {single_psnr:.2} dB");
+    // Issue 8: within 1 dB of one model of the whole with the same budget.
+    assert!(merged_psnr > single_psnr - 1.0, "merged pieces {merged_psnr:.2} dB, one model {single_psnr:.2} dB");
 
-    let [_, ny, nz] = DIMS;
-    // No seam: the error within two voxels of the cut is no larger than the
-    // error elsewhere (with a margin for a 4-voxel-wide sample).
-    let near: Vec<usize> = (CUT - 2..CUT + 2).collect();
-    let (mut e_near, mut e_far) = ((vec![], vec![]), (vec![], vec![]));
-    for k in 0..nz {
-        for j in 0..ny {
-            for i in 0..DIMS[0] {
-                let at = (k * ny + j) * DIMS[0] + i;
-                let bucket = if near.contains(&i) { &mut e_near } else { &mut e_far };
-                bucket.0.push(decoded.values[at]);
-                bucket.1.push(whole.values[at]);
+    // No seam: within two voxels of the cut, the merged pieces err no more
+    // than the model of the whole domain does there (the cut runs through
+    // the blobs, so that band is harder than the rest for both).
+    let band = |values: &[f32]| {
+        let (mut got, mut want) = (vec![], vec![]);
+        let [nx, ny, nz] = DIMS;
+        for k in 0..nz {
+            for j in 0..ny {
+                for i in CUT - 2..CUT + 2 {
+                    got.push(values[(k * ny + j) * nx + i]);
+                    want.push(whole.values[(k * ny + j) * nx + i]);
+                }
             }
         }
-    }
-    let (near_mse, far_mse) = (mse(&e_near.0, &e_near.1), mse(&e_far.0, &e_far.1));
-    assert!(near_mse <= 1.5 * far_mse, "error at the cut {near_mse:.3e}, elsewhere {far_mse:.3e}");
+        mse(&got, &want)
+    };
+    let (merged_cut, single_cut) = (band(&decoded.values), band(&single_decoded.values));
+    assert!(merged_cut <= 1.25 * single_cut, "error at the cut: merged pieces {merged_cut:.3e}, one model {single_cut:.3e}");
 
     // One piece's region of the global lattice.
     let bb = piece_box(&global.meta.frame, &pb.meta.frame).unwrap();
