@@ -39,7 +39,7 @@ struct FolderSink {
 
 impl ModelSink for FolderSink {
     fn store(&mut self, model: &Model) -> crate::Result<Option<String>> {
-        let path = self.dir.join(model_file_name(model));
+        let path = self.dir.join(crate::io::model_file_name(&model.meta));
         write_atomic(&path, &write_model_as(model, self.payload)?)?;
         Ok(Some(path.display().to_string()))
     }
@@ -623,14 +623,6 @@ pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gs
         enc.flush();
         Ok(())
     })
-}
-
-/// `FIELD_STEP.gsm`, with `_rRANK` on ranks other than 0.
-fn model_file_name(m: &Model) -> String {
-    match m.meta.rank {
-        0 => format!("{}_{:06}.gsm", m.meta.field, m.meta.step),
-        r => format!("{}_{:06}_r{r}.gsm", m.meta.field, m.meta.step),
-    }
 }
 
 /// Writes the last encoded model of `field` to `path` (through a temporary

@@ -153,6 +153,6 @@ pub unsafe extern "C" fn gsenc_set_last_error(message: *const c_char) {
             // SAFETY: a non-null `message` is NUL-terminated.
             false => unsafe { std::ffi::CStr::from_ptr(message) }.to_string_lossy().into_owned(),
         };
-        LAST_ERROR.with(|e| *e.borrow_mut() = msg);
+        set_last_error(msg);
     });
 }

@@ -241,14 +241,18 @@ pub fn check_finite_serial(values: &[f32]) -> Result<()> {
         return Ok(());
     }
     let pos = values.iter().position(|v| !v.is_finite()).expect("a non-finite value was seen");
-    Err(Error::data(format!("value {} at index {pos} is not finite", values[pos])))
+    Err(not_finite(values, pos))
 }
 
 pub fn check_finite(values: &[f32]) -> Result<()> {
     if let Some(pos) = values.par_iter().position_first(|v| !v.is_finite()) {
-        return Err(Error::data(format!("value {} at index {pos} is not finite", values[pos])));
+        return Err(not_finite(values, pos));
     }
     Ok(())
+}
+
+fn not_finite(values: &[f32], pos: usize) -> Error {
+    Error::data(format!("value {} at index {pos} is not finite", values[pos]))
 }
 
 /// Where the index frame sits in the world: `u = (x - bmin) * gamma - 0.5`.

@@ -1,5 +1,9 @@
 //! Voxel and sampled PSNR (SPEC.md "Metrics"), on fields in `[0, 1]`.
 
+use crate::backend::{Backend, Lattice};
+use crate::error::Result;
+use crate::format::Payload;
+use crate::kernel::Primitive;
 use crate::loss::MASK_REF;
 use crate::rng::Rng;
 
@@ -12,6 +16,16 @@ pub const SAMPLED_PSNR_SEED: u64 = 0x5eed_0f_9505;
 /// so that the figure stays finite in JSON.
 pub fn psnr_from_mse(mse: f64) -> f64 {
     10.0 * (1.0 / mse.max(1e-20)).log10()
+}
+
+/// The decode an encode's PSNR is measured on: `params` as a reader of the
+/// model stored with `payload` sees them, decoded on the reference lattice
+/// of `dims`. Fails on parameters the payload cannot store.
+pub fn decode_as_stored(payload: Payload, params: &[Primitive], dims: [usize; 3], backend: &mut dyn Backend) -> Result<Vec<f32>> {
+    let stored = payload.round_trip(params)?;
+    let mut decoded = vec![0f32; dims.iter().product()];
+    backend.decode_lattice(&stored, &Lattice::reference(dims), &mut decoded);
+    Ok(decoded)
 }
 
 /// PSNR over every voxel.

@@ -19,13 +19,12 @@ use crate::encoder::Cancel;
 use crate::error::{Error, Result};
 use crate::field::{Grid, IndexFrame};
 use crate::format::Payload;
-use crate::metrics::voxel_psnr;
+use crate::metrics::{decode_as_stored, voxel_psnr};
 use crate::model::Model;
 use crate::particles::Particles;
 use crate::reference::Placement;
 use crate::series::{SeriesConfig, SeriesEncoder, StepInput};
 use crate::backend::cpu::CpuBackend;
-use crate::backend::{Backend, Lattice};
 use crossbeam_channel::{unbounded, Receiver, Sender};
 use parking_lot::{Condvar, Mutex};
 use std::collections::BTreeMap;
@@ -486,9 +485,7 @@ impl Worker {
                     shared.state.lock().jobs.insert(key.clone(), running);
                 })
             })?;
-            let stored = payload.round_trip(&r.model.params)?;
-            let mut decoded = vec![0f32; r.reference.len()];
-            cpu.decode_lattice(&stored, &Lattice::reference(r.reference.dims), &mut decoded);
+            let decoded = decode_as_stored(payload, &r.model.params, r.reference.dims, &mut cpu)?;
             let psnr = voxel_psnr(&decoded, &r.reference.values);
             r.model.meta.encode_psnr = Some(psnr);
             r.model.meta.rank = rank;

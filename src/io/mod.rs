@@ -12,6 +12,15 @@ pub mod vti;
 
 pub use atomic::{write_atomic, AtomicFile};
 
+/// The file name of a model in a folder of a series: `FIELD_STEP.gsm`,
+/// with `_rRANK` on ranks other than 0.
+pub fn model_file_name(meta: &crate::model::ModelMeta) -> String {
+    match meta.rank {
+        0 => format!("{}_{:06}.gsm", meta.field, meta.step),
+        r => format!("{}_{:06}_r{r}.gsm", meta.field, meta.step),
+    }
+}
+
 /// Checks a field name: it names an HDF5 group of a store and a part of
 /// model file names.
 pub fn check_field_name(field: &str) -> crate::Result<()> {

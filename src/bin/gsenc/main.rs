@@ -522,12 +522,8 @@ fn run_encode(input: &EncodeInputData, o: &EncodeOptions, t_total: Instant) -> R
         })?;
         let evals = backend.kernel_evaluations();
         // Score the parameters as they will be stored.
-        let stored = payload.round_trip(&out.params)?;
         let t_dec = Instant::now();
-        let mut model_backend = CpuBackend::new();
-        let lattice = gsenc::backend::Lattice::reference(reference.dims);
-        let mut decoded = vec![0f32; reference.len()];
-        gsenc::backend::Backend::decode_lattice(&mut model_backend, &stored, &lattice, &mut decoded);
+        let decoded = gsenc::metrics::decode_as_stored(payload, &out.params, reference.dims, &mut CpuBackend::new())?;
         Ok((out, (decoded, t_dec.elapsed().as_secs_f64()), evals))
     })??;
     pb.finish_and_clear();

@@ -5,11 +5,10 @@
 use super::{peak_rss_bytes, print_result, progress_bar, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
 use clap::Args;
 use gsenc::backend::cpu::CpuBackend;
-use gsenc::backend::{Backend, Lattice};
 use gsenc::encoder::with_threads;
 use gsenc::format::{self, Payload};
 use gsenc::io::{raw, write_atomic, AtomicFile};
-use gsenc::metrics::{occupied_psnr, voxel_psnr};
+use gsenc::metrics::{decode_as_stored, occupied_psnr, voxel_psnr};
 use gsenc::model::Model;
 use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange, StepInput, WarmStart};
 use gsenc::{Error, Result};
@@ -119,7 +118,7 @@ impl Sink {
     fn put(&mut self, model: &Model, payload: Payload) -> Result<String> {
         match self {
             Sink::Folder(dir) => {
-                let path = dir.join(format!("{}_{:06}.gsm", model.meta.field, model.meta.step));
+                let path = dir.join(gsenc::io::model_file_name(&model.meta));
                 write_atomic(&path, &format::write_model_as(model, payload)?)?;
                 Ok(path.display().to_string())
             }
@@ -198,9 +197,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
                 pb.set_position(p.iteration as u64);
             })?;
             // Score the parameters as they will be stored.
-            let stored = payload.round_trip(&r.model.params)?;
-            let mut decoded = vec![0f32; r.reference.len()];
-            cpu.decode_lattice(&stored, &Lattice::reference(r.reference.dims), &mut decoded);
+            let decoded = decode_as_stored(payload, &r.model.params, r.reference.dims, &mut cpu)?;
             let psnr = voxel_psnr(&decoded, &r.reference.values);
             let occupied = occupied_psnr(&decoded, &r.reference.values);
             Ok((r, psnr, occupied))
