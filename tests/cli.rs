@@ -483,6 +483,30 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
     let (code, _, err) = gsenc(&["plot-series", pos.to_str().unwrap(), "-o", png.to_str().unwrap()]);
     assert_eq!(code, 4, "{err}");
 
+    // Resumed from its stored step 1, the series' step 2 is the unbroken one's.
+    let resumed = dir.join("resumed");
+    let step1 = out.join("rho_000001.gsm");
+    let mut args = common.to_vec();
+    args.extend(["--steps", "2..3", "--warm", "coarse", "--resume-from", step1.to_str().unwrap(), "-o", resumed.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 0, "{err}");
+    let again = gsenc::format::read_model(&std::fs::read(resumed.join("rho_000002.gsm")).unwrap()).unwrap();
+    assert_eq!(again.params, models[2].params, "a resumed series must continue as the unbroken one");
+    assert_eq!(again.meta.schedule, "warm-coarse");
+    // Resuming from another field, or from a step not before the first to encode, is refused.
+    let mut args = common.to_vec();
+    args.extend(["--steps", "2..3", "--resume-from", step1.to_str().unwrap(), "-o", resumed.to_str().unwrap()]);
+    let field_at = args.iter().position(|a| *a == "rho").unwrap();
+    args[field_at] = "temp";
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("holds field 'rho'"), "{err}");
+    let mut args = common.to_vec();
+    args.extend(["--steps", "1..3", "--resume-from", step1.to_str().unwrap(), "-o", resumed.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("must come after"), "{err}");
+
     // A step the input does not hold is a clear error, before any work.
     let mut args = common.to_vec();
     let other = dir.join("other");
