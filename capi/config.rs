@@ -106,6 +106,10 @@ pub struct gsenc_config {
     /// in `gsenc_wait`, `gsenc_poll` and destroy, since HDF5 is not
     /// thread-safe and the host may use it too).
     pub output_format: i32,
+    /// Encoders made by `gsenc_encoder_create_mpi`: voxels each rank's
+    /// piece reaches past its own region (default 8), so that neighbouring
+    /// pieces overlap and blend. Ignored by a serial encoder.
+    pub halo: u32,
 }
 
 /// The bytes of `gsenc_config` this version reads.
@@ -138,6 +142,7 @@ impl gsenc_config {
             when_full: GSENC_QUEUE_BLOCK,
             queue_bytes: 1 << 30,
             output_format: GSENC_OUTPUT_FOLDER,
+            halo: 8,
         }
     }
 }
@@ -175,6 +180,8 @@ pub(crate) struct Settings {
     pub queue_bytes: usize,
     pub output_format: OutputFormat,
     pub rank: u32,
+    #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
+    pub halo: usize,
     /// The folder or store models go to.
     pub output: Option<std::path::PathBuf>,
 }
@@ -269,6 +276,7 @@ impl Settings {
             queue_bytes,
             output_format,
             rank: c.rank,
+            halo: c.halo as usize,
             output,
         })
     }

@@ -12,13 +12,12 @@ use super::handles::Kind;
 use super::status::{fail, gsenc_status, guard, Failure};
 use super::{c_str, DType};
 use crate::field::{Grid, IndexFrame};
-use crate::format::{write_model_as, Payload};
-use crate::io::write_atomic;
+use crate::format::write_model_as;
+use crate::io::{write_atomic, ModelFolder};
 use crate::model::Model;
 use crate::queue::{BackgroundEncoder, CallerStores, Job, JobState, ModelSink, Pushed, QueueConfig, StepData};
 use crate::reference::Placement;
 use std::os::raw::{c_char, c_void};
-use std::path::PathBuf;
 
 /// Opaque encoder; create with `gsenc_encoder_create`, free with
 /// `gsenc_encoder_destroy`.
@@ -29,20 +28,10 @@ pub struct gsenc_encoder {
     /// synchronising calls (`gsenc_wait`, `gsenc_poll`, destroy).
     #[cfg(feature = "hdf5")]
     store: Option<crate::io::store::Store>,
-}
-
-/// Writes each model as `FIELD_STEP.gsm` into a folder, on the worker.
-struct FolderSink {
-    dir: PathBuf,
-    payload: Payload,
-}
-
-impl ModelSink for FolderSink {
-    fn store(&mut self, model: &Model) -> crate::Result<Option<String>> {
-        let path = self.dir.join(crate::io::model_file_name(&model.meta));
-        write_atomic(&path, &write_model_as(model, self.payload)?)?;
-        Ok(Some(path.display().to_string()))
-    }
+    /// Set by `gsenc_encoder_create_mpi`: pushes are collective, each rank
+    /// encodes its piece of the domain.
+    #[cfg(feature = "mpi")]
+    ranks: Option<crate::mpi::Decomposition>,
 }
 
 /// Keeps models in memory only (no output configured).
@@ -229,12 +218,77 @@ pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: 
     })
 }
 
+/// Creates one rank's encoder of a domain-decomposed run, over the
+/// communicator whose Fortran handle is `comm` (`MPI_Comm_c2f(comm)` in C;
+/// `integer :: comm` in Fortran), so that this header needs no `mpi.h`.
+/// **Collective** over `comm`, as are every push and
+/// `gsenc_encoder_destroy` of the encoder it makes; `gsenc_wait`,
+/// `gsenc_poll` and the other calls are local. MPI must be initialised at
+/// `MPI_THREAD_FUNNELED` or above, and collective calls must come from the
+/// thread that initialised it (the encoder's own threads never call MPI).
+/// The communicator is duplicated here and the duplicate freed at destroy;
+/// the caller's is never freed.
+///
+/// Each rank pushes its own part of the domain; at a field's first step the
+/// ranks agree one global lattice (a grid's spacing, or `dims` over
+/// `bounds` or the union of every rank's particles or cells), each rank's
+/// piece of it (its data's box grown by `config.halo` voxels) and the value
+/// range, fixed for the series. Every push then sends each rank the data its
+/// piece needs, and the rank encodes `config.budget` Gaussians over it.
+/// Models go to `output_dir` as `FIELD_STEP.gsm` (rank 0) and
+/// `FIELD_STEP_rRANK.gsm`, with rank 0's step index `FIELD_STEP.gsi`;
+/// `gsenc decode FIELD_STEP.gsi` gives the global field. Ranks pushing
+/// different fields, steps or forms get `GSENC_STATUS_MPI` together.
+/// `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_encoder_create_mpi(config: *const gsenc_config, comm: i32, out: *mut *mut gsenc_encoder) -> gsenc_status {
+    guard(|| {
+        if out.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_encoder_create_mpi: out is NULL");
+        }
+        // SAFETY: non-null pointer to the caller's handle slot.
+        unsafe { *out = std::ptr::null_mut() };
+        // SAFETY: the caller passes a config of at least its struct_size bytes.
+        let settings = unsafe { Settings::from_c(config) }?;
+        let enc = create_mpi(settings, comm)?;
+        let raw = Box::into_raw(Box::new(enc));
+        super::handles::register(raw, Kind::Encoder);
+        // SAFETY: as above.
+        unsafe { *out = raw };
+        Ok(())
+    })
+}
+
+#[cfg(feature = "mpi")]
+fn create_mpi(mut settings: Settings, comm: i32) -> Result<gsenc_encoder, Failure> {
+    use crate::mpi::{Decomposition, DecompositionConfig};
+    if settings.output.is_some() && settings.output_format == OutputFormat::Hdf5 {
+        return fail(
+            gsenc_status::InvalidArgument,
+            "an MPI encoder writes a folder of per-rank model files and step indexes; HDF5 output is for serial encoders",
+        );
+    }
+    let cfg = DecompositionConfig { dims: settings.dims, bounds: settings.bounds, halo: settings.halo, range: settings.series.range };
+    let ranks = Decomposition::from_fortran(comm, cfg)?;
+    settings.rank = ranks.rank() as u32;
+    let mut enc = gsenc_encoder::new(settings)?;
+    enc.ranks = Some(ranks);
+    Ok(enc)
+}
+
+#[cfg(not(feature = "mpi"))]
+fn create_mpi(_: Settings, _: i32) -> Result<gsenc_encoder, Failure> {
+    fail(gsenc_status::Mpi, "this gsenc was built without MPI (cargo feature mpi; CMake -DGSENC_CARGO_FEATURES=mpi)")
+}
+
 /// Drains the queue (every pushed step is encoded and written; call
 /// `gsenc_encoder_cancel` first to drop them instead), then frees the
 /// encoder and everything it holds. Failures of the drained jobs are not
 /// reported: call `gsenc_wait` first to see them. NULL, and a handle
 /// destroyed already, are ignored; other calls with it afterwards fail with
 /// `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
+/// Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
+/// duplicated communicator).
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
     if !encoder.is_null() && super::handles::release(encoder, Kind::Encoder) {
@@ -293,7 +347,7 @@ impl gsenc_encoder {
     fn new(settings: Settings) -> Result<gsenc_encoder, Failure> {
         let sink: Box<dyn ModelSink> = match (&settings.output, settings.output_format) {
             (None, _) => Box::new(KeepInMemory),
-            (Some(dir), OutputFormat::Folder) => Box::new(FolderSink { dir: dir.clone(), payload: settings.payload }),
+            (Some(dir), OutputFormat::Folder) => Box::new(ModelFolder { dir: dir.clone(), payload: settings.payload }),
             (Some(_), OutputFormat::Hdf5) => Box::new(CallerStores),
         };
         #[cfg(feature = "hdf5")]
@@ -324,16 +378,37 @@ impl gsenc_encoder {
             queue,
             #[cfg(feature = "hdf5")]
             store,
+            #[cfg(feature = "mpi")]
+            ranks: None,
         })
     }
 
     fn push(&mut self, field: String, step: u64, time: f64, data: StepData) -> Result<(), Failure> {
-        let full = || format!("field '{field}' step {step}: the queue is full (queue_bytes {})", self.settings.queue_bytes);
-        match self.queue.push(Job { field: field.clone(), step, time: time_of(time), data })? {
+        let queue_bytes = self.settings.queue_bytes;
+        let full = || format!("field '{field}' step {step}: the queue is full (queue_bytes {queue_bytes})");
+        let job = Job { field: field.clone(), step, time: time_of(time), data, range: None };
+        match self.push_job(job)? {
             Pushed::Queued => Ok(()),
             Pushed::Skipped => fail(gsenc_status::Skipped, format!("{}; the step was skipped", full())),
             Pushed::Busy => fail(gsenc_status::Busy, format!("{}; nothing was queued, push it again later", full())),
         }
+    }
+
+    /// Queues a job: on this encoder alone, or across the ranks (then rank 0
+    /// also writes the step's index beside the models).
+    fn push_job(&mut self, job: Job) -> Result<Pushed, Failure> {
+        #[cfg(feature = "mpi")]
+        if let Some(ranks) = self.ranks.as_mut() {
+            let (field, step) = (job.field.clone(), job.step);
+            let done = ranks.push(&self.queue, job, &|rank| crate::io::model_file_name(&field, step, rank))?;
+            if let (Some(index), Some(dir)) = (done.index, self.settings.output.as_ref()) {
+                if done.pushed == Pushed::Queued {
+                    write_atomic(dir.join(crate::io::step_index_file_name(&field, step)), index.to_json().as_bytes())?;
+                }
+            }
+            return Ok(done.pushed);
+        }
+        Ok(self.queue.push(job)?)
     }
 
     /// Appends the models the worker left for the caller's thread (HDF5).

@@ -31,7 +31,7 @@ module gsenc
         GSENC_STATUS_INVALID_ARGUMENT = 2, GSENC_STATUS_INVALID_DATA = 3, GSENC_STATUS_FORMAT = 4, &
         GSENC_STATUS_VERSION = 5, GSENC_STATUS_IO = 6, GSENC_STATUS_CALL_ORDER = 7, &
         GSENC_STATUS_STRUCT_SIZE = 8, GSENC_STATUS_INTERNAL = 9, GSENC_STATUS_BUSY = 10, &
-        GSENC_STATUS_SKIPPED = 11, GSENC_STATUS_CANCELLED = 12
+        GSENC_STATUS_SKIPPED = 11, GSENC_STATUS_CANCELLED = 12, GSENC_STATUS_MPI = 13
     integer(c_int32_t), parameter, public :: GSENC_DTYPE_FLOAT32 = 0, GSENC_DTYPE_FLOAT64 = 1
     integer(c_int32_t), parameter, public :: GSENC_SCHEDULE_FULL = 0, GSENC_SCHEDULE_MATCHED = 1, &
         GSENC_SCHEDULE_SHORT = 2
@@ -66,6 +66,7 @@ module gsenc
         integer(c_int32_t) :: when_full = 0
         integer(c_int64_t) :: queue_bytes = 0
         integer(c_int32_t) :: output_format = 0
+        integer(c_int32_t) :: halo = 0
     end type
 
     ! gsenc_job: where one pushed step is (gsenc_poll).
@@ -136,6 +137,12 @@ module gsenc
         integer(c_int) function gsenc_encoder_create_c(config, out) bind(c, name="gsenc_encoder_create")
             import :: c_int, c_ptr, gsenc_config
             type(gsenc_config), intent(in) :: config
+            type(c_ptr), intent(out) :: out
+        end function
+        integer(c_int) function gsenc_encoder_create_mpi_c(config, comm, out) bind(c, name="gsenc_encoder_create_mpi")
+            import :: c_int, c_int32_t, c_ptr, gsenc_config
+            type(gsenc_config), intent(in) :: config
+            integer(c_int32_t), value :: comm
             type(c_ptr), intent(out) :: out
         end function
         subroutine gsenc_encoder_destroy_c(encoder) bind(c, name="gsenc_encoder_destroy")
@@ -232,6 +239,7 @@ module gsenc
     end interface
 
     public :: gsenc_version, gsenc_encoder_cancel
+    public :: gsenc_encoder_create_mpi_c, gsenc_encoder_create_mpi
     public :: gsenc_config_init_c, gsenc_encoder_create_c, gsenc_wait_c, gsenc_poll_c, gsenc_encoder_destroy_c, gsenc_push_grid_c, &
         gsenc_push_particles_c, gsenc_push_cells_c, gsenc_encoder_write_model_c, gsenc_encoder_last_step_c, &
         gsenc_model_read_c, gsenc_model_destroy_c, gsenc_model_info_get_c, gsenc_model_decode_c, &
@@ -326,6 +334,17 @@ contains
         character(len=*), intent(in), optional :: output_dir
         type(gsenc_config) :: c
         character(kind=c_char), allocatable, target :: dir(:)
+        call with_output_dir(config, output_dir, c, dir)
+        status = gsenc_encoder_create_c(c, encoder)
+    end function
+
+    !> `config` with `output_dir` (when present) as a C string in `dir`,
+    !> which must live until the create call returns.
+    subroutine with_output_dir(config, output_dir, c, dir)
+        type(gsenc_config), intent(in) :: config
+        character(len=*), intent(in), optional :: output_dir
+        type(gsenc_config), intent(out) :: c
+        character(kind=c_char), allocatable, target, intent(inout) :: dir(:)
         c = config
         c%output_dir = c_null_ptr
         if (present(output_dir)) then
@@ -333,7 +352,22 @@ contains
             dir(:) = c_string(output_dir)
             c%output_dir = c_loc(dir)
         end if
-        status = gsenc_encoder_create_c(c, encoder)
+    end subroutine
+
+    !> Creates one rank's encoder of a domain-decomposed run over `comm`
+    !> (an MPI communicator as the integer of `use mpi`, or `comm%MPI_VAL`
+    !> of `use mpi_f08`). Collective, as are every push and
+    !> gsenc_encoder_destroy of this encoder. Rank 0 writes each step's
+    !> index FIELD_STEP.gsi into `output_dir`.
+    integer(c_int) function gsenc_encoder_create_mpi(config, comm, encoder, output_dir) result(status)
+        type(gsenc_config), intent(in) :: config
+        integer, intent(in) :: comm
+        type(c_ptr), intent(out) :: encoder
+        character(len=*), intent(in), optional :: output_dir
+        type(gsenc_config) :: c
+        character(kind=c_char), allocatable, target :: dir(:)
+        call with_output_dir(config, output_dir, c, dir)
+        status = gsenc_encoder_create_mpi_c(c, int(comm, c_int32_t), encoder)
     end function
 
     !> Frees the encoder and sets the handle to c_null_ptr.

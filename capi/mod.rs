@@ -136,6 +136,7 @@ mod tests {
             (offset_of!(gsenc_config, when_full), 164),
             (offset_of!(gsenc_config, queue_bytes), 168),
             (offset_of!(gsenc_config, output_format), 176),
+            (offset_of!(gsenc_config, halo), 180),
         ];
         for (i, (got, want)) in c.iter().enumerate() {
             assert_eq!(got, want, "gsenc_config field {i}");
@@ -176,6 +177,7 @@ mod tests {
             gsenc_status::Busy,
             gsenc_status::Skipped,
             gsenc_status::Cancelled,
+            gsenc_status::Mpi,
         ];
         for (i, s) in statuses.iter().enumerate() {
             assert_eq!(*s as i32, i as i32);

@@ -42,6 +42,12 @@ pub enum gsenc_status {
     Skipped = 11,
     /// The work was cancelled (`gsenc_encoder_cancel`).
     Cancelled = 12,
+    /// MPI: this gsenc was built without it, MPI is not initialised or
+    /// already finalised, its thread level is below `MPI_THREAD_FUNNELED`,
+    /// a collective call came from another thread, or the ranks' calls
+    /// disagree (different fields, steps or forms pushed; another rank's
+    /// data refused). Every rank of the call gets this status together.
+    Mpi = 13,
 }
 
 thread_local! {
@@ -60,6 +66,7 @@ impl From<Error> for Failure {
             Error::Version(_) => gsenc_status::Version,
             Error::Io { .. } | Error::Hdf5 { .. } => gsenc_status::Io,
             Error::Cancelled(_) => gsenc_status::Cancelled,
+            Error::Mpi(_) => gsenc_status::Mpi,
         };
         Failure(status, e.to_string())
     }
@@ -136,6 +143,7 @@ pub extern "C" fn gsenc_status_string(status: i32) -> *const c_char {
         10 => "GSENC_STATUS_BUSY\0",
         11 => "GSENC_STATUS_SKIPPED\0",
         12 => "GSENC_STATUS_CANCELLED\0",
+        13 => "GSENC_STATUS_MPI\0",
         _ => "GSENC_STATUS_UNKNOWN\0",
     };
     s.as_ptr().cast()

@@ -184,6 +184,14 @@ typedef enum {
    The work was cancelled (`gsenc_encoder_cancel`).
    */
   GSENC_STATUS_CANCELLED = 12,
+  /*
+   MPI: this gsenc was built without it, MPI is not initialised or
+   already finalised, its thread level is below `MPI_THREAD_FUNNELED`,
+   a collective call came from another thread, or the ranks' calls
+   disagree (different fields, steps or forms pushed; another rank's
+   data refused). Every rank of the call gets this status together.
+   */
+  GSENC_STATUS_MPI = 13,
 } gsenc_status;
 
 /*
@@ -295,6 +303,12 @@ typedef struct {
    thread-safe and the host may use it too).
    */
   int32_t output_format;
+  /*
+   Encoders made by `gsenc_encoder_create_mpi`: voxels each rank's
+   piece reaches past its own region (default 8), so that neighbouring
+   pieces overlap and blend. Ignored by a serial encoder.
+   */
+  uint32_t halo;
 } gsenc_config;
 
 /*
@@ -500,12 +514,42 @@ gsenc_status gsenc_config_init(gsenc_config *config);
 gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **out);
 
 /*
+ Creates one rank's encoder of a domain-decomposed run, over the
+ communicator whose Fortran handle is `comm` (`MPI_Comm_c2f(comm)` in C;
+ `integer :: comm` in Fortran), so that this header needs no `mpi.h`.
+ **Collective** over `comm`, as are every push and
+ `gsenc_encoder_destroy` of the encoder it makes; `gsenc_wait`,
+ `gsenc_poll` and the other calls are local. MPI must be initialised at
+ `MPI_THREAD_FUNNELED` or above, and collective calls must come from the
+ thread that initialised it (the encoder's own threads never call MPI).
+ The communicator is duplicated here and the duplicate freed at destroy;
+ the caller's is never freed.
+
+ Each rank pushes its own part of the domain; at a field's first step the
+ ranks agree one global lattice (a grid's spacing, or `dims` over
+ `bounds` or the union of every rank's particles or cells), each rank's
+ piece of it (its data's box grown by `config.halo` voxels) and the value
+ range, fixed for the series. Every push then sends each rank the data its
+ piece needs, and the rank encodes `config.budget` Gaussians over it.
+ Models go to `output_dir` as `FIELD_STEP.gsm` (rank 0) and
+ `FIELD_STEP_rRANK.gsm`, with rank 0's step index `FIELD_STEP.gsi`;
+ `gsenc decode FIELD_STEP.gsi` gives the global field. Ranks pushing
+ different fields, steps or forms get `GSENC_STATUS_MPI` together.
+ `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
+ */
+gsenc_status gsenc_encoder_create_mpi(const gsenc_config *config,
+                                      int32_t comm,
+                                      gsenc_encoder **out);
+
+/*
  Drains the queue (every pushed step is encoded and written; call
  `gsenc_encoder_cancel` first to drop them instead), then frees the
  encoder and everything it holds. Failures of the drained jobs are not
  reported: call `gsenc_wait` first to see them. NULL, and a handle
  destroyed already, are ignored; other calls with it afterwards fail with
  `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
+ Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
+ duplicated communicator).
  */
 void gsenc_encoder_destroy(gsenc_encoder *encoder);
 

@@ -28,6 +28,10 @@ pub enum Error {
     /// The HDF5 library refused an operation on a store.
     #[error("HDF5 error on {path}: {message}")]
     Hdf5 { path: String, message: String },
+    /// MPI is missing, not initialised, at too low a thread level, or the
+    /// ranks' calls disagree (a collective call made differently on them).
+    #[error("MPI: {0}")]
+    Mpi(String),
     /// The encode was cancelled (`queue::BackgroundEncoder::cancel`).
     #[error("cancelled: {0}")]
     Cancelled(String),
@@ -60,6 +64,7 @@ impl Error {
                 Error::Io { path: with(path), source: std::io::Error::new(source.kind(), source.to_string()) }
             }
             Error::Hdf5 { path, message } => Error::Hdf5 { path: with(path), message: message.clone() },
+            Error::Mpi(m) => Error::Mpi(with(m)),
             Error::Cancelled(m) => Error::Cancelled(with(m)),
         }
     }

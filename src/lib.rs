@@ -12,6 +12,8 @@
 //!   the encoder itself, on memory only;
 //! - [`series`], [`queue`]: time series with warm starts, and the background
 //!   queue that encodes them beside a running simulation;
+//! - [`global`], [`halo`], `mpi` (feature `mpi`): per-rank pieces of a
+//!   decomposed domain, the data each needs, and one global model from them;
 //! - [`model`], [`format`], [`metrics`]: models, their file format and scores;
 //! - [`io`]: files (raw arrays, VTK ImageData, crash-safe writes), used by the
 //!   command-line tool and the C API, never by the core.
@@ -36,6 +38,7 @@ pub mod error;
 pub mod field;
 pub mod format;
 pub mod global;
+pub mod halo;
 pub mod io;
 pub mod kernel;
 pub mod loss;
@@ -52,6 +55,8 @@ pub mod samples;
 pub mod seeding;
 pub mod queue;
 pub mod series;
+#[cfg(feature = "mpi")]
+pub mod mpi;
 
 #[path = "../capi/mod.rs"]
 pub mod capi;

@@ -17,7 +17,7 @@
 use crate::cells::{CellSize, Cells};
 use crate::encoder::Cancel;
 use crate::error::{Error, Result};
-use crate::field::{Grid, IndexFrame};
+use crate::field::{Grid, IndexFrame, ValueRange};
 use crate::format::Payload;
 use crate::metrics::{decode_as_stored, voxel_psnr};
 use crate::model::Model;
@@ -131,6 +131,9 @@ pub struct Job {
     /// Simulation time, when known.
     pub time: Option<f64>,
     pub data: StepData,
+    /// The value range of the field's series, when it was agreed elsewhere
+    /// (across MPI ranks) rather than taken from this first step's data.
+    pub range: Option<ValueRange>,
 }
 
 /// Where a job is.
@@ -262,12 +265,16 @@ impl BackgroundEncoder {
     /// policy. Refuses at once what cannot be encoded: non-finite values,
     /// a step that does not follow the field's last pushed one.
     pub fn push(&self, job: Job) -> Result<Pushed> {
+        self.check(&job)?;
+        self.push_checked(job, true)
+    }
+
+    /// What `push` refuses before it queues anything: a bad field name,
+    /// non-finite values, a step that does not follow the field's last.
+    pub fn check(&self, job: &Job) -> Result<()> {
         crate::io::check_field_name(&job.field)?;
         job.data.check_finite()?;
-        let bytes = job.data.bytes();
-        let key = (job.field.clone(), job.step);
-        let mut st = self.shared.state.lock();
-        if let Some(&last) = st.last_pushed.get(&job.field) {
+        if let Some(&last) = self.shared.state.lock().last_pushed.get(&job.field) {
             if job.step <= last {
                 return Err(Error::arg(format!(
                     "field '{}': step {} does not follow step {last} (steps of a field must increase)",
@@ -275,8 +282,25 @@ impl BackgroundEncoder {
                 )));
             }
         }
+        Ok(())
+    }
+
+    /// Whether a job of `bytes` would be queued now without waiting.
+    pub fn has_room(&self, bytes: usize) -> bool {
+        let st = self.shared.state.lock();
+        st.in_flight == 0 || st.bytes + bytes <= self.cfg.max_bytes
+    }
+
+    /// `push` of a job that passed [`BackgroundEncoder::check`]. With
+    /// `others_have_room` false the queue counts as full whatever its own
+    /// room (the ranks of an MPI run decide together, so that all of them
+    /// queue, skip or refuse the same step); `Block` then waits for its own.
+    pub fn push_checked(&self, job: Job, others_have_room: bool) -> Result<Pushed> {
+        let bytes = job.data.bytes();
+        let key = (job.field.clone(), job.step);
+        let mut st = self.shared.state.lock();
         let fits = |st: &State| st.in_flight == 0 || st.bytes + bytes <= self.cfg.max_bytes;
-        if !fits(&st) {
+        if !fits(&st) || !others_have_room {
             match self.cfg.when_full {
                 WhenFull::Block => {
                     while !fits(&st) {
@@ -478,6 +502,9 @@ impl Worker {
         let key = (job.field.clone(), job.step);
         let (model, psnr) = self.pool.install(|| -> Result<(Model, f64)> {
             let mut cpu = CpuBackend::new();
+            if let Some(range) = job.range {
+                series.set_range(&job.field, range);
+            }
             let mut r = job.data.with_input(|input| {
                 series.encode_step(&job.field, job.step, job.time, input, &mut cpu, &mut |p| {
                     // Progress is cheap to record: one lock per iteration.

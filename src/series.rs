@@ -143,6 +143,8 @@ struct FieldState {
 pub struct SeriesEncoder {
     cfg: SeriesConfig,
     fields: BTreeMap<String, FieldState>,
+    /// Ranges agreed elsewhere (across MPI ranks) for fields not begun yet.
+    agreed_ranges: BTreeMap<String, ValueRange>,
 }
 
 impl SeriesEncoder {
@@ -150,12 +152,21 @@ impl SeriesEncoder {
         if cfg.validation_points > 0 && cfg.validation_every == 0 {
             return Err(Error::arg("validation needs a positive interval"));
         }
-        Ok(SeriesEncoder { cfg, fields: BTreeMap::new() })
+        Ok(SeriesEncoder { cfg, fields: BTreeMap::new(), agreed_ranges: BTreeMap::new() })
     }
 
     /// The range of `field`'s series, once its first step is encoded.
     pub fn range(&self, field: &str) -> Option<ValueRange> {
         self.fields.get(field).map(|f| f.range)
+    }
+
+    /// Sets the range of `field`'s series before its first step (a range
+    /// agreed across the ranks of an MPI run). A field with steps keeps the
+    /// range it has.
+    pub fn set_range(&mut self, field: &str, range: ValueRange) {
+        if !self.fields.contains_key(field) {
+            self.agreed_ranges.insert(field.to_owned(), range);
+        }
     }
 
     /// The last model of `field`.
@@ -209,6 +220,7 @@ impl SeriesEncoder {
         }
         let range_spec = match (state, self.cfg.range) {
             (Some(s), _) => RangeSpec::Fixed(s.range),
+            (None, _) if self.agreed_ranges.contains_key(field) => RangeSpec::Fixed(self.agreed_ranges[field]),
             (None, SeriesRange::Fixed(r)) => RangeSpec::Fixed(r),
             (None, SeriesRange::FirstStep(t)) => RangeSpec::FromData(t),
         };

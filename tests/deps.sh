@@ -16,6 +16,8 @@ command -v h5dump >/dev/null || need_apt+=(hdf5-tools)
 command -v valgrind >/dev/null || need_apt+=(valgrind)
 command -v cmake >/dev/null || need_apt+=(cmake make)
 command -v gfortran >/dev/null || need_apt+=(gfortran)
+command -v mpicc >/dev/null && command -v mpirun >/dev/null || need_apt+=(libopenmpi-dev openmpi-bin)
+[ -e /usr/lib/llvm-14/lib/libclang.so ] || ls /usr/lib/llvm-*/lib/libclang.so >/dev/null 2>&1 || need_apt+=(libclang-dev)
 if [ ${#need_apt[@]} -gt 0 ]; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
         echo "installing ${need_apt[*]}" >&2

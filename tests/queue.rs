@@ -51,7 +51,7 @@ fn queue_config(max_jobs: usize, when_full: WhenFull) -> QueueConfig {
 }
 
 fn job(field: &str, step: u64) -> Job {
-    Job { field: field.into(), step, time: None, data: StepData::Grid { grid: step_grid(step), frame: frame() } }
+    Job { field: field.into(), step, time: None, data: StepData::Grid { grid: step_grid(step), frame: frame() }, range: None }
 }
 
 /// Stores models in memory, each only once the test lets it through the
@@ -248,7 +248,7 @@ fn bad_pushes_are_refused_at_once() {
     let (q, _open, _) = gated(queue_config(8, WhenFull::Block), vec![]);
     let mut g = step_grid(0);
     g.values[5] = f32::NAN;
-    let bad = Job { field: "rho".into(), step: 0, time: None, data: StepData::Grid { grid: g, frame: frame() } };
+    let bad = Job { field: "rho".into(), step: 0, time: None, data: StepData::Grid { grid: g, frame: frame() }, range: None };
     assert!(matches!(q.push(bad), Err(Error::InvalidData(_))));
     assert!(matches!(q.push(job("a/b", 0)), Err(Error::InvalidArgument(_))));
     assert!(q.poll("rho", 0).is_none());

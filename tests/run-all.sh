@@ -36,6 +36,9 @@ GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --show-leak-kinds=definite,i
 # The installed CMake package: C and Fortran mock solvers as a separate project.
 bash tests/package.sh
 
+# The MPI layer under mpirun -n 1, 2, 4: C, Fortran, CLI and the mock solver.
+bash tests/mpi.sh
+
 # The store read with h5py alone, against the models gsenc extracts from it.
 cargo build --release --locked --features hdf5 --bin gsenc
 python3 tests/store_h5py.py target/release/gsenc

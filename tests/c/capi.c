@@ -39,7 +39,7 @@ int main(void) {
     char path[512];
 
     /* The ABI as this C compiler lays it out: the values capi/mod.rs pins. */
-    CHECK(sizeof(gsenc_config) == 184 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
+    CHECK(sizeof(gsenc_config) == 184 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
               && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144, "gsenc_config layout");
     CHECK(sizeof(gsenc_grid) == 104 && offsetof(gsenc_grid, strides) == 48 && offsetof(gsenc_grid, spacing) == 96, "gsenc_grid layout");
@@ -47,7 +47,7 @@ int main(void) {
     CHECK(sizeof(gsenc_cells) == 128 && offsetof(gsenc_cells, connectivity) == 104 && offsetof(gsenc_cells, value_stride) == 120, "gsenc_cells layout");
     CHECK(sizeof(gsenc_model_info) == 112 && offsetof(gsenc_model_info, rank) == 88 && offsetof(gsenc_model_info, warm_started) == 96 && offsetof(gsenc_model_info, encode_psnr) == 104, "gsenc_model_info layout");
     CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8 && GSENC_STATUS_BUSY == 10
-              && GSENC_STATUS_SKIPPED == 11 && GSENC_STATUS_CANCELLED == 12, "gsenc_status values");
+              && GSENC_STATUS_SKIPPED == 11 && GSENC_STATUS_CANCELLED == 12 && GSENC_STATUS_MPI == 13, "gsenc_status values");
     CHECK(sizeof(gsenc_job) == 32 && offsetof(gsenc_job, error) == 20 && offsetof(gsenc_job, psnr) == 24 && GSENC_JOB_CANCELLED == 5,
           "gsenc_job layout");
 
@@ -85,6 +85,10 @@ int main(void) {
     bad = cfg;
     bad.struct_size = 8;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_STRUCT_SIZE);
+    /* This library is built without MPI: the MPI create says so, and leaves nothing. */
+    enc = (gsenc_encoder *)1;
+    EXPECT(gsenc_encoder_create_mpi(&cfg, 0, &enc), GSENC_STATUS_MPI);
+    CHECK(enc == NULL && strstr(last_error(), "without MPI") != NULL, "MPI create of a serial build: %s", last_error());
     EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
 
     /* A grid with ghost layers, passed with strides. */

@@ -328,12 +328,13 @@ pub struct OutputFlags {
 
 #[derive(Args)]
 struct DecodeArgs {
-    /// A model, or the models of a domain's pieces (per-rank models of one
-    /// step on one lattice): decoded together as one global field.
+    /// A model; or the models of a domain's pieces (per-rank models of one
+    /// step on one lattice), or the step index (`FIELD_STEP.gsi`) that names
+    /// them: decoded together as one global field.
     #[arg(required = true)]
     model: Vec<PathBuf>,
-    /// With several models: decode only the region of the I-th (0-based)
-    /// of the global field.
+    /// With several models or an index: decode only the region of the I-th
+    /// (0-based; the rank, for an index) of the global field.
     #[arg(long, conflicts_with = "sub_box")]
     piece: Option<usize>,
     /// Lattice dims X,Y,Z covering the model's box (default: its reference dims).
@@ -476,12 +477,7 @@ fn read_model(path: &Path) -> Result<Model> {
 }
 
 pub fn read_model_file(path: &Path) -> Result<format::ModelFile> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    format::read_model_file(&bytes).map_err(|e| match e {
-        Error::Format(m) => Error::Format(format!("{}: {m}", path.display())),
-        Error::Version(m) => Error::Version(format!("{}: {m}", path.display())),
-        other => other,
-    })
+    gsenc::io::read_model_file(path)
 }
 
 impl ValueArgs {
@@ -757,7 +753,11 @@ fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], nam
 
 fn cmd_decode(a: DecodeArgs) -> Result<()> {
     let t = Instant::now();
-    let pieces = a.model.iter().map(|p| read_model(p)).collect::<Result<Vec<_>>>()?;
+    // One step index names every rank's model of a step; else the models given.
+    let pieces = match a.model.as_slice() {
+        [index] if index.extension().is_some_and(|e| e == "gsi") => gsenc::io::read_step(index)?.1,
+        models => models.iter().map(|p| read_model(p)).collect::<Result<Vec<_>>>()?,
+    };
     let model = gsenc::global::merge(&pieces)?;
     let f = &model.meta.frame;
     let dims = a.dims.unwrap_or(f.dims);
@@ -931,7 +931,7 @@ fn main() {
             Error::InvalidData(_) => 3,
             Error::Format(_) | Error::Version(_) => 4,
             Error::Io { .. } | Error::Hdf5 { .. } => 5,
-            Error::Cancelled(_) => 6,
+            Error::Cancelled(_) | Error::Mpi(_) => 6,
         });
     }
 }

@@ -118,7 +118,7 @@ impl Sink {
     fn put(&mut self, model: &Model, payload: Payload) -> Result<String> {
         match self {
             Sink::Folder(dir) => {
-                let path = dir.join(gsenc::io::model_file_name(&model.meta));
+                let path = dir.join(gsenc::io::model_file_name(&model.meta.field, model.meta.step, model.meta.rank));
                 write_atomic(&path, &format::write_model_as(model, payload)?)?;
                 Ok(path.display().to_string())
             }

@@ -1,0 +1,151 @@
+/* The MPI side of the C API, run under mpirun -n 1, 2 and 4 (tests/mpi.sh):
+ * errors before MPI_Init, a collective create over MPI_Comm_c2f, each rank
+ * pushing its slab of a grid and its particles for two steps, the step index
+ * and every rank's model written, misuse reported on every rank, and the
+ * caller's communicator untouched after destroy. */
+#include "gsenc.h"
+#include <math.h>
+#include <mpi.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int failures = 0, passes = 0, rank = 0;
+#define CHECK(cond, ...) do { if (cond) { passes++; } else { failures++; fprintf(stderr, "rank %d FAIL line %d: ", rank, __LINE__); fprintf(stderr, __VA_ARGS__); fputc('\n', stderr); } } while (0)
+#define EXPECT(call, status) do { gsenc_status s_ = (call); CHECK(s_ == (status), "%s gave %s, expected %s: %s", #call, gsenc_status_string(s_), gsenc_status_string(status), last_error()); } while (0)
+
+static const char *last_error(void) {
+    static char buf[1024];
+    gsenc_last_error(buf, sizeof buf);
+    return buf;
+}
+
+#define N 24
+
+static float blob(double x, double y, double z, int step) {
+    double dx = x - 0.4 - 0.05 * step, dy = y - 0.5, dz = z - 0.5;
+    return (float)exp(-(dx * dx + dy * dy + dz * dz) / 0.02);
+}
+
+int main(int argc, char **argv) {
+    if (argc < 2) {
+        fprintf(stderr, "usage: capi_mpi OUTPUT_DIR\n");
+        return 2;
+    }
+    gsenc_config cfg;
+    cfg.struct_size = sizeof cfg;
+    gsenc_config_init(&cfg);
+    cfg.budget = 150;
+    cfg.iterations = 60;
+    cfg.warm_iterations = 30;
+    cfg.dims[0] = cfg.dims[1] = cfg.dims[2] = N;
+    cfg.halo = 4;
+    cfg.output_dir = argv[1];
+    CHECK(cfg.halo == 4, "halo is a config field");
+
+    /* Before MPI_Init: a clear error, no handle. */
+    gsenc_encoder *enc = (gsenc_encoder *)1;
+    EXPECT(gsenc_encoder_create_mpi(&cfg, 0, &enc), GSENC_STATUS_MPI);
+    CHECK(enc == NULL && strstr(last_error(), "not initialised") != NULL, "before MPI_Init: %s", last_error());
+
+    int provided = 0;
+    MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
+    int size = 1;
+    MPI_Comm_rank(MPI_COMM_WORLD, &rank);
+    MPI_Comm_size(MPI_COMM_WORLD, &size);
+    CHECK(provided >= MPI_THREAD_FUNNELED, "MPI gave thread level %d", provided);
+    /* The world's duplicate, to show that gsenc frees only its own. */
+    MPI_Comm comm;
+    MPI_Comm_dup(MPI_COMM_WORLD, &comm);
+    EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), NULL), GSENC_STATUS_NULL_POINTER);
+    EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
+
+    /* Slabs along x: rank r owns x cells [r*N/size, (r+1)*N/size). */
+    int x0 = rank * N / size, x1 = (rank + 1) * N / size, nx = x1 - x0;
+    float *slab = malloc(sizeof(float) * (size_t)nx * N * N);
+    double *pos = malloc(sizeof(double) * 3 * 4096), *hh = malloc(sizeof(double) * 4096), *val = malloc(sizeof(double) * 4096);
+    for (int step = 1; step <= 2; step++) {
+        for (int k = 0; k < N; k++)
+            for (int j = 0; j < N; j++)
+                for (int i = 0; i < nx; i++)
+                    slab[i + nx * (j + N * k)] = blob((x0 + i + 0.5) / N, (j + 0.5) / N, (k + 0.5) / N, step);
+        gsenc_grid g = {sizeof g, GSENC_DTYPE_FLOAT32, slab, {(uint64_t)nx, N, N}, {0, 0, 0}, {(double)x0 / N, 0, 0}, 1.0 / N};
+        EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)step, step * 0.1, &g), GSENC_STATUS_OK);
+        /* Particles on a lattice, each rank its own x range. */
+        int np = 0;
+        for (int k = 0; k < 16; k++)
+            for (int j = 0; j < 16; j++)
+                for (int i = 0; i < 16; i++) {
+                    double x = (i + 0.5) / 16, y = (j + 0.5) / 16, z = (k + 0.5) / 16;
+                    if (x * size < rank || x * size >= rank + 1) continue;
+                    pos[3 * np] = x, pos[3 * np + 1] = y, pos[3 * np + 2] = z;
+                    hh[np] = 1.3 / 16;
+                    val[np] = blob(x, y, z, step);
+                    np++;
+                }
+        gsenc_particles p;
+        memset(&p, 0, sizeof p);
+        p.struct_size = sizeof p;
+        p.dtype = GSENC_DTYPE_FLOAT64;
+        p.count = (uint64_t)np;
+        p.positions = pos;
+        p.smoothing_length = hh;
+        p.values = val;
+        EXPECT(gsenc_push_particles(enc, "tracer", (uint64_t)step, step * 0.1, &p), GSENC_STATUS_OK);
+    }
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+
+    /* Misuse: the ranks push different steps; every rank hears of it. */
+    if (size > 1) {
+        gsenc_grid g = {sizeof g, GSENC_DTYPE_FLOAT32, slab, {(uint64_t)nx, N, N}, {0, 0, 0}, {(double)x0 / N, 0, 0}, 1.0 / N};
+        EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)(3 + rank), 0.3, &g), GSENC_STATUS_MPI);
+        CHECK(strstr(last_error(), "different") != NULL, "misuse message: %s", last_error());
+        /* One rank's NaN: that rank gets INVALID_DATA, the others MPI naming it. */
+        if (rank == size - 1) slab[5] = NAN;
+        gsenc_status s = gsenc_push_grid(enc, "rho", 3, 0.3, &g);
+        if (rank == size - 1)
+            CHECK(s == GSENC_STATUS_INVALID_DATA, "NaN rank got %s", gsenc_status_string(s));
+        else
+            CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "refused") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+        slab[5] = 0.0f;
+        /* The encoder goes on: step 3 again, everywhere. */
+        EXPECT(gsenc_push_grid(enc, "rho", 3, 0.3, &g), GSENC_STATUS_OK);
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+    }
+    gsenc_encoder_destroy(enc);
+
+    /* The caller's communicator still works, and is the caller's to free. */
+    int one = 1, sum = 0;
+    CHECK(MPI_Allreduce(&one, &sum, 1, MPI_INT, MPI_SUM, comm) == MPI_SUCCESS && sum == size, "the caller's communicator after destroy");
+    MPI_Comm_free(&comm);
+
+    /* Every rank's model of step 2 is there, as that rank's, warm-started. */
+    char path[1024];
+    if (rank == 0)
+        snprintf(path, sizeof path, "%s/rho_000002.gsm", argv[1]);
+    else
+        snprintf(path, sizeof path, "%s/rho_000002_r%d.gsm", argv[1], rank);
+    gsenc_model *m = NULL;
+    EXPECT(gsenc_model_read(path, &m), GSENC_STATUS_OK);
+    if (m) {
+        gsenc_model_info info;
+        info.struct_size = sizeof info;
+        EXPECT(gsenc_model_info_get(m, &info), GSENC_STATUS_OK);
+        CHECK(info.rank == (uint32_t)rank && info.step == 2 && info.warm_started == 1 && info.count == 150, "model of rank %d: rank %u step %llu warm %d count %llu",
+              rank, info.rank, (unsigned long long)info.step, info.warm_started, (unsigned long long)info.count);
+        gsenc_model_destroy(m);
+    }
+    if (rank == 0) {
+        snprintf(path, sizeof path, "%s/rho_000002.gsi", argv[1]);
+        FILE *f = fopen(path, "r");
+        CHECK(f != NULL, "rank 0 wrote the step index %s", path);
+        if (f) fclose(f);
+    }
+    free(slab), free(pos), free(hh), free(val);
+
+    int mine[2] = {passes, failures}, all[2] = {0, 0};
+    MPI_Reduce(mine, all, 2, MPI_INT, MPI_SUM, 0, MPI_COMM_WORLD);
+    if (rank == 0) printf("c-mpi (%d ranks): %d passed, %d failed\n", size, all[0], all[1]);
+    MPI_Finalize();
+    return failures == 0 ? 0 : 1;
+}

@@ -1,0 +1,198 @@
+//! Routing a decomposed domain's data to its pieces, without MPI: P "ranks"
+//! in one process split their parts, each piece joins what it receives, and
+//! its deposit must equal the serial deposit of all the data on the piece's
+//! voxels; the step index round-trips and refuses what is not one.
+
+use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
+use gsenc::global::StepIndex;
+use gsenc::halo::{covering_box, data_bounds, frame_of, join, split, Kind};
+use gsenc::model::IndexBox;
+use gsenc::queue::StepData;
+use gsenc::reference::{prepare_cells, prepare_particles, Placement, RangeSpec};
+use gsenc::{cells::CellSize, cells::Cells, particles::Particles};
+
+fn field(x: [f64; 3]) -> f32 {
+    let r2: f64 = (0..3).map(|a| (x[a] - [0.45, 0.55, 0.5][a]).powi(2)).sum();
+    (-r2 / 0.03).exp() as f32 + 0.1 * x[0] as f32
+}
+
+/// Pseudo-random points in the unit cube.
+fn points(n: usize) -> Vec<[f64; 3]> {
+    let mut s = 0x9e37_79b9_7f4a_7c15u64;
+    let mut next = || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    (0..n).map(|_| [next(), next(), next()]).collect()
+}
+
+/// Rank r of 4 owns the quarter (x < 1/2 or not, y < 1/2 or not).
+fn owner(x: &[f64; 3]) -> usize {
+    (x[0] >= 0.5) as usize + 2 * (x[1] >= 0.5) as usize
+}
+
+/// Splits each rank's part, joins per piece, and compares each piece's
+/// deposit with the serial reference on its voxels.
+/// `allowed` is the fraction of voxels that may differ: cell stamps whose
+/// edge falls exactly on a voxel boundary can round to the other side in a
+/// piece's frame (its corner is the global one moved by whole voxels, in
+/// floating point).
+fn check_pieces(parts: Vec<StepData>, global_ref: &Grid, global: &IndexFrame, halo: usize, allowed: f64, prepare: &dyn Fn(&StepData) -> Grid) {
+    let pieces: Vec<IndexBox> = parts
+        .iter()
+        .map(|d| {
+            let b = data_bounds(d);
+            covering_box(global, b.min, b.max, halo)
+        })
+        .collect();
+    let kind = Kind::of(&parts[0]);
+    let sent: Vec<Vec<Vec<f64>>> = parts.iter().map(|d| split(d, global, &pieces).unwrap()).collect();
+    for (p, piece) in pieces.iter().enumerate() {
+        let received: Vec<&[f64]> = sent.iter().map(|s| s[p].as_slice()).collect();
+        let joined = join(kind, &received, global, piece).unwrap();
+        let reference = prepare(&joined);
+        assert_eq!(reference.dims, piece.dims());
+        let mut differing = 0;
+        for (i, &v) in reference.values.iter().enumerate() {
+            let [x, y, z] = reference.coords(i);
+            let g = global_ref.values[global_ref.index(x + piece.lo[0], y + piece.lo[1], z + piece.lo[2])];
+            differing += ((v - g).abs() > 1e-5) as usize;
+        }
+        let fraction = differing as f64 / reference.values.len() as f64;
+        println!("piece {p}: {differing} voxels ({fraction:.4}) differ from the serial deposit");
+        assert!(fraction <= allowed, "piece {p} ({:?}..{:?}): {differing} voxels differ from the serial deposit", piece.lo, piece.hi);
+        // The halo reaches past the rank's own quarter, into its neighbours'.
+        assert!(piece.dims()[0] > global.dims[0] / 2 && piece.dims()[0] <= global.dims[0] / 2 + halo + 1, "piece {p}: {:?}", piece);
+    }
+}
+
+#[test]
+fn particle_pieces_deposit_the_serial_reference() {
+    let pos = points(6000);
+    let h = vec![0.06; pos.len()];
+    let mass: Vec<f32> = (0..pos.len()).map(|j| 0.5 + (j % 3) as f32 * 0.25).collect();
+    let values: Vec<f32> = pos.iter().map(|&p| field(p)).collect();
+    let range = ValueRange::from_data(&values, Transform::Linear).unwrap();
+    let p = Particles { positions: &pos, smoothing_length: &h, mass: &mass, values: &values };
+    let serial = prepare_particles(&p, &Placement { dims: [24; 3], bounds: None }, &RangeSpec::Fixed(range)).unwrap();
+    let parts: Vec<StepData> = (0..4)
+        .map(|r| {
+            let mine: Vec<usize> = (0..pos.len()).filter(|&j| owner(&pos[j]) == r).collect();
+            StepData::Particles {
+                positions: mine.iter().map(|&j| pos[j]).collect(),
+                smoothing_length: mine.iter().map(|&j| h[j]).collect(),
+                mass: mine.iter().map(|&j| mass[j]).collect(),
+                values: mine.iter().map(|&j| values[j]).collect(),
+                placement: Placement { dims: [24; 3], bounds: None },
+            }
+        })
+        .collect();
+    check_pieces(parts, &serial.reference, &serial.frame, 3, 0.0, &|d| match d {
+        StepData::Particles { positions, smoothing_length, mass, values, placement } => {
+            let p = Particles { positions, smoothing_length, mass, values };
+            prepare_particles(&p, placement, &RangeSpec::Fixed(range)).unwrap().reference
+        }
+        _ => unreachable!(),
+    });
+}
+
+#[test]
+fn cell_pieces_deposit_the_serial_reference() {
+    // Cells of 1/12, the ones near the blob split in eight.
+    let (mut centres, mut edges) = (vec![], vec![]);
+    for c in (0..12 * 12 * 12).map(|i| [(i % 12) as f64, ((i / 12) % 12) as f64, (i / 144) as f64].map(|v| (v + 0.5) / 12.0)) {
+        if field(c) > 0.5 {
+            for o in 0..8 {
+                centres.push(std::array::from_fn(|a| c[a] + (((o >> a) & 1) as f64 - 0.5) / 24.0));
+                edges.push([1.0 / 24.0; 3]);
+            }
+        } else {
+            centres.push(c);
+            edges.push([1.0 / 12.0; 3]);
+        }
+    }
+    let values: Vec<f32> = centres.iter().map(|&c| field(c)).collect();
+    let range = ValueRange::from_data(&values, Transform::Linear).unwrap();
+    let cells = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &values };
+    let serial = prepare_cells(&cells, &Placement { dims: [24; 3], bounds: None }, &RangeSpec::Fixed(range)).unwrap();
+    let parts: Vec<StepData> = (0..4)
+        .map(|r| {
+            let mine: Vec<usize> = (0..centres.len()).filter(|&j| owner(&centres[j]) == r).collect();
+            StepData::Cells {
+                centres: mine.iter().map(|&j| centres[j]).collect(),
+                edges: mine.iter().map(|&j| edges[j]).collect(),
+                volumes: Vec::new(),
+                values: mine.iter().map(|&j| values[j]).collect(),
+                placement: Placement { dims: [24; 3], bounds: None },
+            }
+        })
+        .collect();
+    check_pieces(parts, &serial.reference, &serial.frame, 3, 0.08, &|d| match d {
+        StepData::Cells { centres, edges, values, placement, .. } => {
+            let c = Cells { centres, size: CellSize::Edges(edges), values };
+            prepare_cells(&c, placement, &RangeSpec::Fixed(range)).unwrap().reference
+        }
+        _ => unreachable!(),
+    });
+}
+
+#[test]
+fn grid_pieces_are_the_global_grid_with_halo_and_must_tile_it() {
+    let n = 20;
+    let global = IndexFrame { dims: [n; 3], bmin: [0.0; 3], gamma: n as f64 };
+    let values: Vec<f32> = (0..n * n * n).map(|i| i as f32).collect();
+    let whole = Grid::new([n; 3], values).unwrap();
+    // Two ranks, cut at x = 8 (uneven).
+    let part = |x0: usize, x1: usize| {
+        let mut v = vec![];
+        for k in 0..n {
+            for j in 0..n {
+                v.extend((x0..x1).map(|i| whole.values[whole.index(i, j, k)]));
+            }
+        }
+        let dims = [x1 - x0, n, n];
+        StepData::Grid { grid: Grid::new(dims, v).unwrap(), frame: IndexFrame { dims, bmin: [x0 as f64 / n as f64, 0.0, 0.0], gamma: n as f64 } }
+    };
+    let parts = [part(0, 8), part(8, n)];
+    let pieces = [IndexBox { lo: [0, 0, 0], hi: [11, n, n] }, IndexBox { lo: [5, 0, 0], hi: [n, n, n] }];
+    let sent: Vec<Vec<Vec<f64>>> = parts.iter().map(|d| split(d, &global, &pieces).unwrap()).collect();
+    for (p, piece) in pieces.iter().enumerate() {
+        let received: Vec<&[f64]> = sent.iter().map(|s| s[p].as_slice()).collect();
+        let StepData::Grid { grid, frame } = join(Kind::Grid, &received, &global, piece).unwrap() else { panic!() };
+        assert_eq!(frame, frame_of(&global, piece));
+        for (i, &v) in grid.values.iter().enumerate() {
+            let [x, y, z] = grid.coords(i);
+            assert_eq!(v, whole.values[whole.index(x + piece.lo[0], y, z)], "piece {p} voxel {x},{y},{z}");
+        }
+    }
+    // Rank 1's grid alone does not cover piece 0: refused, with the count.
+    let lone: Vec<&[f64]> = vec![&sent[1][0]];
+    let Err(err) = join(Kind::Grid, &lone, &global, &pieces[0]) else { panic!("an uncovered piece was joined") };
+    let err = err.to_string();
+    assert!(err.contains(&format!("{} voxels", 8 * n * n)) && err.contains("tile"), "{err}");
+    // A grid off the lattice is refused when split.
+    let StepData::Grid { grid, mut frame } = part(0, 8) else { panic!() };
+    frame.bmin[1] += 0.3 / n as f64;
+    let Err(err) = split(&StepData::Grid { grid, frame }, &global, &pieces) else { panic!("a grid off the lattice was split") };
+    assert!(err.to_string().contains("lattice"), "{err}");
+}
+
+#[test]
+fn step_index_round_trips_and_refuses_other_json() {
+    let global = IndexFrame { dims: [32, 16, 16], bmin: [-1.0, 0.0, 0.5], gamma: 16.0 };
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [20, 16, 16] }, IndexBox { lo: [12, 0, 0], hi: [32, 16, 16] }];
+    let range = ValueRange::new(0.1, 7.5, Transform::Log10).unwrap();
+    let index = StepIndex::new("rho", 4, Some(0.25), &range, &global, &boxes, vec!["rho_000004.gsm".into(), "rho_000004_r1.gsm".into()]);
+    let text = index.to_json();
+    assert_eq!(StepIndex::from_json(&text).unwrap(), index);
+    assert_eq!(index.pieces[1].world_min[0], -1.0 + 12.0 / 16.0);
+    assert_eq!(index.pieces[1].world_max[0], 1.0);
+    assert!(matches!(StepIndex::from_json("{\"format\": \"other\"}"), Err(gsenc::Error::Format(_))));
+    assert!(matches!(StepIndex::from_json("not json"), Err(gsenc::Error::Format(_))));
+    let newer = text.replace("\"version\": 1", "\"version\": 9");
+    assert!(matches!(StepIndex::from_json(&newer), Err(gsenc::Error::Version(_))));
+    let missing_rank = text.replace("\"ranks\": 2", "\"ranks\": 3");
+    assert!(StepIndex::from_json(&missing_rank).unwrap_err().to_string().contains("ranks"));
+}
