@@ -6,8 +6,10 @@
 //! and keeps its own part of the unit cube; each step every rank pushes its
 //! part, collectively, and encodes `budget / N` Gaussians over its piece.
 //! Rank 0 then reads the step index, decodes the global field from all
-//! pieces, and scores it against the global reference (the serial deposit
-//! of all the data); it prints one JSON line per form and step.
+//! pieces (blended, `gsenc::global::blend`; the additive decode of all
+//! primitives together is printed beside it), and scores it against the
+//! global reference (the serial deposit of all the data); it prints one JSON
+//! line per form and step.
 //!
 //! With `--baseline FILE` (written by the `-n 1` run with
 //! `--write-baseline`), rank 0 checks that the global PSNR is within
@@ -27,7 +29,9 @@ use gsenc::encoder::{EncodeConfig, Schedule};
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 use gsenc::format::Payload;
 use gsenc::io::{read_step, step_index_file_name, write_atomic, ModelFolder};
+use gsenc::global::blend;
 use gsenc::metrics::voxel_psnr;
+use gsenc::model::IndexBox;
 use gsenc::mpi::{Decomposition, DecompositionConfig};
 use gsenc::particles::Particles;
 use gsenc::queue::{BackgroundEncoder, Job, QueueConfig, StepData, WhenFull};
@@ -49,6 +53,7 @@ struct Args {
     steps: u64,
     halo: usize,
     tolerance_db: f64,
+    forms: Vec<String>,
 }
 
 fn args() -> Args {
@@ -63,6 +68,7 @@ fn args() -> Args {
         steps: 3,
         halo: 8,
         tolerance_db: 1.0,
+        forms: vec!["grid".into(), "particles".into(), "cells".into()],
     };
     let mut it = std::env::args().skip(1);
     while let Some(k) = it.next() {
@@ -78,6 +84,7 @@ fn args() -> Args {
             "--steps" => a.steps = v().parse().unwrap(),
             "--halo" => a.halo = v().parse().unwrap(),
             "--tolerance-db" => a.tolerance_db = v().parse().unwrap(),
+            "--forms" => a.forms = v().split(',').map(String::from).collect(),
             _ => panic!("unknown argument {k}"),
         }
     }
@@ -299,7 +306,7 @@ fn main() {
 
     let baseline: Option<serde_json::Value> = a.baseline.as_ref().map(|p| serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap());
     let mut results = serde_json::Map::new();
-    for form in ["grid", "particles", "cells"] {
+    for form in a.forms.iter().map(String::as_str) {
         for step in 1..=a.steps {
             let (data, reference) = step_data(form, &a, step, rank, n, rank == 0);
             world.barrier();
@@ -320,18 +327,21 @@ fn main() {
             let Some((reference, frame)) = reference else { continue };
             // Rank 0: the global field from every piece.
             let t_decode = Instant::now();
-            let (_, pieces) = read_step(&a.out.join(step_index_file_name(form, step))).unwrap();
-            let global = gsenc::global::merge(&pieces).unwrap();
-            let decoded = global.decode(&mut CpuBackend::new(), Some(frame.dims)).unwrap();
+            let (index, pieces) = read_step(&a.out.join(step_index_file_name(form, step))).unwrap();
+            let (global, boxes) = index.layout();
+            assert_eq!(global.dims, frame.dims);
+            assert!((0..3).all(|i| (global.bmin[i] - frame.bmin[i]).abs() < 1e-9), "global frame {global:?} vs {frame:?}");
+            let decoded = blend(&global, &pieces, &boxes, index.halo, frame.dims, IndexBox::whole(frame.dims), &mut CpuBackend::new()).unwrap();
             let decode_seconds = t_decode.elapsed().as_secs_f64();
-            assert_eq!(global.meta.frame.dims, frame.dims);
-            assert!((0..3).all(|i| (global.meta.frame.bmin[i] - frame.bmin[i]).abs() < 1e-9), "global frame {:?} vs {:?}", global.meta.frame, frame);
             let psnr = voxel_psnr(&decoded.values, &reference.values);
+            // The additive decode of every piece's primitives together, for comparison.
+            let additive = gsenc::global::merge(&pieces).unwrap().decode(&mut CpuBackend::new(), Some(frame.dims)).unwrap();
+            let additive_psnr = voxel_psnr(&additive.values, &reference.values);
             let (cut, inside) = cut_and_inside_rmse(&decoded.values, &reference, &frame);
             let warm = pieces.iter().all(|p| p.meta.schedule.starts_with("warm"));
             let line = serde_json::json!({
                 "form": form, "step": step, "ranks": n, "budget_per_rank": a.budget / n, "halo": a.halo,
-                "global_psnr": psnr, "cut_rmse": cut, "inside_rmse": inside, "all_warm": warm,
+                "global_psnr": psnr, "additive_psnr": additive_psnr, "cut_rmse": cut, "inside_rmse": inside, "all_warm": warm,
                 "seconds_per_step": slowest[0], "push_seconds_rank0": push_seconds, "decode_seconds": decode_seconds,
                 "peak_rss_mb_max_rank": max_rss[0] as f64 / 1024.0,
                 "pieces_primitives": pieces.iter().map(|p| p.params.len()).collect::<Vec<_>>(),

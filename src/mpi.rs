@@ -244,7 +244,7 @@ impl Decomposition {
         let data = joined?;
         let index = (self.rank == 0).then(|| {
             let models = (0..self.size as u32).map(model_file).collect();
-            StepIndex::new(&job.field, job.step, job.time, &layout.range, &layout.global, &layout.pieces, models)
+            StepIndex::new(&job.field, job.step, job.time, &layout.range, &layout.global, &layout.pieces, self.cfg.halo, models)
         });
         let range = Some(layout.range);
         let pushed = queue.push_checked(Job { data, range, ..job }, all_room[0] == 1)?;

@@ -135,3 +135,69 @@ fn pieces_off_one_lattice_are_refused() {
     assert!(merge(&[]).is_err());
     assert_eq!(merge(&[p.clone()]).unwrap().params, p.params);
 }
+
+/// One model re-expressed in two overlapping pieces' frames: each piece
+/// decodes to the whole model there, so the blend must reproduce the
+/// model's own decode exactly (weights sum to one), at the reference dims
+/// and resampled, whole and in slabs.
+#[test]
+fn blend_of_a_model_cut_into_pieces_is_the_model() {
+    use gsenc::global::blend;
+    use gsenc::model::IndexBox;
+    let whole = blobs(DIMS, 7, 5);
+    let model = encode_model(&whole, 0, 200);
+    let global = model.meta.frame;
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [CUT + 4, DIMS[1], DIMS[2]] }, IndexBox { lo: [CUT - 4, 0, 0], hi: DIMS }];
+    let pieces: Vec<Model> = boxes
+        .iter()
+        .map(|b| {
+            let mut m = model.clone();
+            m.meta.frame = gsenc::halo::frame_of(&global, b);
+            for q in &mut m.params {
+                q[0] -= b.lo[0] as f32;
+            }
+            m
+        })
+        .collect();
+    for dims in [DIMS, [33, 17, 11]] {
+        let direct = model.decode(&mut CpuBackend::new(), Some(dims)).unwrap();
+        let blended = blend(&global, &pieces, &boxes, 4, dims, IndexBox::whole(dims), &mut CpuBackend::new()).unwrap();
+        let worst = direct.values.iter().zip(&blended.values).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-5, "dims {dims:?}: blend differs from the model by {worst}");
+        // A slab of z layers is the same voxels of the whole.
+        let slab = IndexBox { lo: [3, 2, 4], hi: [dims[0] - 1, dims[1], 7] };
+        let part = blend(&global, &pieces, &boxes, 4, dims, slab, &mut CpuBackend::new()).unwrap();
+        for (i, &v) in part.values.iter().enumerate() {
+            let [x, y, z] = part.coords(i);
+            assert!((v - blended.values[blended.index(x + 3, y + 2, z + 4)]).abs() < 1e-6);
+        }
+    }
+}
+
+/// Two different pieces: where only one has weight the blend is that
+/// piece's own decode; halfway across the overlap it is between them.
+#[test]
+fn blend_uses_each_piece_only_inside_its_box() {
+    use gsenc::global::blend;
+    use gsenc::model::IndexBox;
+    let whole = blobs(DIMS, 7, 5);
+    let a = encode_model(&slab(&whole, 0, CUT + 6), 0, 150);
+    let b = encode_model(&slab(&whole, CUT - 6, DIMS[0]), CUT - 6, 150);
+    let global = IndexFrame { dims: DIMS, bmin: a.meta.frame.bmin, gamma: 2.0 };
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [CUT + 6, DIMS[1], DIMS[2]] }, IndexBox { lo: [CUT - 6, 0, 0], hi: DIMS }];
+    let g = blend(&global, &[a.clone(), b.clone()], &boxes, 6, DIMS, IndexBox::whole(DIMS), &mut CpuBackend::new()).unwrap();
+    let da = a.decode(&mut CpuBackend::new(), None).unwrap();
+    let db = b.decode(&mut CpuBackend::new(), None).unwrap();
+    for k in 0..DIMS[2] {
+        for j in 0..DIMS[1] {
+            // Only a's box: a alone.
+            assert_eq!(g.values[g.index(5, j, k)], da.values[da.index(5, j, k)]);
+            // Only b's box: b alone.
+            assert_eq!(g.values[g.index(CUT + 10, j, k)], db.values[db.index(CUT + 10 - (CUT - 6), j, k)]);
+            // In the overlap, between the two.
+            let (va, vb) = (da.values[da.index(CUT, j, k)], db.values[db.index(6, j, k)]);
+            let v = g.values[g.index(CUT, j, k)];
+            assert!(v >= va.min(vb) - 1e-6 && v <= va.max(vb) + 1e-6, "{v} not between {va} and {vb}");
+        }
+    }
+}

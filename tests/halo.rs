@@ -184,7 +184,7 @@ fn step_index_round_trips_and_refuses_other_json() {
     let global = IndexFrame { dims: [32, 16, 16], bmin: [-1.0, 0.0, 0.5], gamma: 16.0 };
     let boxes = [IndexBox { lo: [0, 0, 0], hi: [20, 16, 16] }, IndexBox { lo: [12, 0, 0], hi: [32, 16, 16] }];
     let range = ValueRange::new(0.1, 7.5, Transform::Log10).unwrap();
-    let index = StepIndex::new("rho", 4, Some(0.25), &range, &global, &boxes, vec!["rho_000004.gsm".into(), "rho_000004_r1.gsm".into()]);
+    let index = StepIndex::new("rho", 4, Some(0.25), &range, &global, &boxes, 4, vec!["rho_000004.gsm".into(), "rho_000004_r1.gsm".into()]);
     let text = index.to_json();
     assert_eq!(StepIndex::from_json(&text).unwrap(), index);
     assert_eq!(index.pieces[1].world_min[0], -1.0 + 12.0 / 16.0);

@@ -337,6 +337,12 @@ struct DecodeArgs {
     /// (0-based; the rank, for an index) of the global field.
     #[arg(long, conflicts_with = "sub_box")]
     piece: Option<usize>,
+    /// With a step index: decode every rank's primitives together
+    /// (`sum n / max(sum rho, eps)`) instead of blending each piece's own
+    /// decode across the halos; kernels that reach past a piece's box then
+    /// leak into its neighbours (for comparison).
+    #[arg(long)]
+    additive: bool,
     /// Lattice dims X,Y,Z covering the model's box (default: its reference dims).
     #[arg(long, value_parser = parse_dims)]
     dims: Option<[usize; 3]>,
@@ -754,9 +760,12 @@ fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], nam
 fn cmd_decode(a: DecodeArgs) -> Result<()> {
     let t = Instant::now();
     // One step index names every rank's model of a step; else the models given.
-    let pieces = match a.model.as_slice() {
-        [index] if index.extension().is_some_and(|e| e == "gsi") => gsenc::io::read_step(index)?.1,
-        models => models.iter().map(|p| read_model(p)).collect::<Result<Vec<_>>>()?,
+    let (index, pieces) = match a.model.as_slice() {
+        [index] if index.extension().is_some_and(|e| e == "gsi") => {
+            let (index, pieces) = gsenc::io::read_step(index)?;
+            (Some(index), pieces)
+        }
+        models => (None, models.iter().map(|p| read_model(p)).collect::<Result<Vec<_>>>()?),
     };
     let model = gsenc::global::merge(&pieces)?;
     let f = &model.meta.frame;
@@ -782,12 +791,25 @@ fn cmd_decode(a: DecodeArgs) -> Result<()> {
     }
     let mut bytes = Vec::new();
     let unit = output_unit(&model.meta.range, a.output.normalized);
-    with_threads(a.output.threads, || {
-        model.decode_streaming(&mut CpuBackend::new(), dims, region, a.slab_voxels, &mut |slab| {
-            bytes.clear();
-            bytes.extend(slab.iter().flat_map(|&v| unit(v).to_le_bytes()));
-            file.write(&bytes)
-        })
+    let mut write = |slab: &[f32]| {
+        bytes.clear();
+        bytes.extend(slab.iter().flat_map(|&v| unit(v).to_le_bytes()));
+        file.write(&bytes)
+    };
+    with_threads(a.output.threads, || match index.as_ref().filter(|_| !a.additive) {
+        // A step's pieces, each decoded on its own box and blended, in slabs of z layers.
+        Some(index) => {
+            let (global, boxes) = index.layout();
+            let layers = (a.slab_voxels / (region.dims()[0] * region.dims()[1]).max(1)).max(1);
+            let mut z = region.lo[2];
+            while z < region.hi[2] {
+                let slab = IndexBox { lo: [region.lo[0], region.lo[1], z], hi: [region.hi[0], region.hi[1], (z + layers).min(region.hi[2])] };
+                write(&gsenc::global::blend(&global, &pieces, &boxes, index.halo, dims, slab, &mut CpuBackend::new())?.values)?;
+                z = slab.hi[2];
+            }
+            Ok(())
+        }
+        None => model.decode_streaming(&mut CpuBackend::new(), dims, region, a.slab_voxels, &mut write),
     })??;
     if is_vti {
         file.write(vti::VTI_SUFFIX)?;
