@@ -210,6 +210,14 @@ struct State {
     recycled: Vec<Vec<f32>>,
 }
 
+impl State {
+    /// Whether `bytes` more fit in `max_bytes` (a job is always taken when
+    /// nothing is in flight, so that no step can never be encoded).
+    fn fits(&self, bytes: usize, max_bytes: usize) -> bool {
+        self.in_flight == 0 || self.bytes + bytes <= max_bytes
+    }
+}
+
 /// Buffers kept for reuse (beyond the queue's budget: at most this many
 /// grids): enough for a push while one job runs and one waits.
 const RECYCLED_BUFFERS: usize = 2;
@@ -287,8 +295,7 @@ impl BackgroundEncoder {
 
     /// Whether a job of `bytes` would be queued now without waiting.
     pub fn has_room(&self, bytes: usize) -> bool {
-        let st = self.shared.state.lock();
-        st.in_flight == 0 || st.bytes + bytes <= self.cfg.max_bytes
+        self.shared.state.lock().fits(bytes, self.cfg.max_bytes)
     }
 
     /// `push` of a job that passed [`BackgroundEncoder::check`]. With
@@ -299,7 +306,7 @@ impl BackgroundEncoder {
         let bytes = job.data.bytes();
         let key = (job.field.clone(), job.step);
         let mut st = self.shared.state.lock();
-        let fits = |st: &State| st.in_flight == 0 || st.bytes + bytes <= self.cfg.max_bytes;
+        let fits = |st: &State| st.fits(bytes, self.cfg.max_bytes);
         if !fits(&st) || !others_have_room {
             match self.cfg.when_full {
                 WhenFull::Block => {

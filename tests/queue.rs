@@ -274,3 +274,24 @@ fn a_caller_stored_model_waits_for_the_caller() {
     let e = q.wait(None).unwrap_err();
     assert!(e.to_string().contains("step 1") && e.to_string().contains("no space"), "{e}");
 }
+
+/// The ranks of an MPI run decide a full queue together: another rank's
+/// full queue makes this one skip or report busy although it has room, and
+/// under `Block` it queues (it waits only for its own room).
+#[test]
+fn another_ranks_full_queue_counts_as_full() {
+    for (policy, want) in [(WhenFull::Skip, Pushed::Skipped), (WhenFull::Busy, Pushed::Busy), (WhenFull::Block, Pushed::Queued)] {
+        let (q, open, stored) = gated(queue_config(4, policy), vec![]);
+        let j = job("rho", 0);
+        q.check(&j).unwrap();
+        assert!(q.has_room(j.data.bytes()));
+        assert_eq!(q.push_checked(j, false).unwrap(), want, "{policy:?}");
+        assert_eq!(q.push_checked(job("rho", 1), true).unwrap(), Pushed::Queued, "{policy:?}: with room everywhere");
+        for _ in 0..2 {
+            let _ = open.send(());
+        }
+        q.wait(None).unwrap();
+        let expect: &[u64] = if want == Pushed::Queued { &[0, 1] } else { &[1] };
+        assert_eq!(steps_stored(&stored), expect, "{policy:?}");
+    }
+}
