@@ -201,21 +201,34 @@ fn item_count(count: u64, what: &str) -> Result<usize, Failure> {
 /// On failure `*out` is NULL. Thread-safe.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: *mut *mut gsenc_encoder) -> gsenc_status {
-    guard(|| {
-        if out.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_encoder_create: out is NULL");
-        }
-        // SAFETY: non-null pointer to the caller's handle slot.
-        unsafe { *out = std::ptr::null_mut() };
-        // SAFETY: the caller passes a config of at least its struct_size bytes.
-        let settings = unsafe { Settings::from_c(config) }?;
-        let enc = Box::new(gsenc_encoder::new(settings)?);
-        // SAFETY: as above.
-        let raw = Box::into_raw(enc);
-        super::handles::register(raw, Kind::Encoder);
-        unsafe { *out = raw };
-        Ok(())
-    })
+    // SAFETY: per this function's contract.
+    guard(|| unsafe { create_into(config, out, "gsenc_encoder_create", gsenc_encoder::new) })
+}
+
+/// Creates an encoder by `make` from `*config` into `*out` (NULL on
+/// failure) and registers its handle.
+///
+/// # Safety
+/// `config` is NULL or a caller's config of at least its `struct_size`
+/// bytes; `out` is NULL or the caller's handle slot.
+unsafe fn create_into(
+    config: *const gsenc_config,
+    out: *mut *mut gsenc_encoder,
+    what: &str,
+    make: impl FnOnce(Settings) -> Result<gsenc_encoder, Failure>,
+) -> Result<(), Failure> {
+    if out.is_null() {
+        return fail(gsenc_status::NullPointer, format!("{what}: out is NULL"));
+    }
+    // SAFETY: non-null pointer to the caller's handle slot.
+    unsafe { *out = std::ptr::null_mut() };
+    // SAFETY: the caller passes a config of at least its struct_size bytes.
+    let settings = unsafe { Settings::from_c(config) }?;
+    let raw = Box::into_raw(Box::new(make(settings)?));
+    super::handles::register(raw, Kind::Encoder);
+    // SAFETY: as above.
+    unsafe { *out = raw };
+    Ok(())
 }
 
 /// Creates one rank's encoder of a domain-decomposed run, over the
@@ -242,21 +255,8 @@ pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: 
 /// `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_create_mpi(config: *const gsenc_config, comm: i32, out: *mut *mut gsenc_encoder) -> gsenc_status {
-    guard(|| {
-        if out.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_encoder_create_mpi: out is NULL");
-        }
-        // SAFETY: non-null pointer to the caller's handle slot.
-        unsafe { *out = std::ptr::null_mut() };
-        // SAFETY: the caller passes a config of at least its struct_size bytes.
-        let settings = unsafe { Settings::from_c(config) }?;
-        let enc = create_mpi(settings, comm)?;
-        let raw = Box::into_raw(Box::new(enc));
-        super::handles::register(raw, Kind::Encoder);
-        // SAFETY: as above.
-        unsafe { *out = raw };
-        Ok(())
-    })
+    // SAFETY: per this function's contract.
+    guard(|| unsafe { create_into(config, out, "gsenc_encoder_create_mpi", |settings| create_mpi(settings, comm)) })
 }
 
 #[cfg(feature = "mpi")]

@@ -89,7 +89,9 @@ pub fn piece_box(global: &IndexFrame, piece: &IndexFrame) -> Result<IndexBox> {
     for a in 0..3 {
         let voxels = (piece.bmin[a] - global.bmin[a]) * global.gamma;
         if voxels < -LATTICE_TOLERANCE || (voxels - voxels.round()).abs() > LATTICE_TOLERANCE {
-            return Err(Error::arg("the piece is not on the global lattice"));
+            return Err(Error::arg(format!(
+                "the piece starts {voxels} voxels from the global corner along axis {a}: it is not on the global lattice"
+            )));
         }
         lo[a] = voxels.round() as usize;
         hi[a] = lo[a] + piece.dims[a];
@@ -245,7 +247,7 @@ impl StepIndex {
                     lo: b.lo,
                     hi: b.hi,
                     world_min: f.bmin,
-                    world_max: std::array::from_fn(|a| f.bmin[a] + f.dims[a] as f64 / f.gamma),
+                    world_max: crate::halo::world_box(&f).max,
                 }
             })
             .collect();

@@ -12,14 +12,12 @@
 //! Pure computation on flat `f64` records; the MPI layer (`crate::mpi`)
 //! moves them between ranks.
 
+use crate::cells::{CellSize, Cells};
 use crate::error::{Error, Result};
 use crate::field::{Grid, IndexFrame};
 use crate::model::IndexBox;
 use crate::queue::StepData;
 use crate::reference::{Bounds, Placement};
-
-/// How far (in voxels) a grid's origin may sit from the global lattice.
-const LATTICE_TOLERANCE: f64 = 1e-6;
 
 /// The voxels of `global` whose cells meet the world box `min..max`, grown by
 /// `halo` voxels on every side and clipped to the lattice (never empty).
@@ -43,7 +41,7 @@ pub fn frame_of(global: &IndexFrame, b: &IndexBox) -> IndexFrame {
 }
 
 /// The world box of a frame's lattice.
-fn world_box(f: &IndexFrame) -> Bounds {
+pub(crate) fn world_box(f: &IndexFrame) -> Bounds {
     Bounds { min: f.bmin, max: std::array::from_fn(|a| f.bmin[a] + f.dims[a] as f64 / f.gamma) }
 }
 
@@ -53,26 +51,14 @@ pub fn placement_of(frame: &IndexFrame) -> Placement {
 }
 
 /// The box of a grid whose voxel centres are `frame`'s in the lattice of
-/// `global`, or an error when it is off that lattice or outside it.
+/// `global`, or an error when it has another spacing, is off that lattice
+/// or reaches outside it.
 pub fn grid_box(global: &IndexFrame, frame: &IndexFrame) -> Result<IndexBox> {
     if ((frame.gamma - global.gamma) / global.gamma).abs() > 1e-9 {
         return Err(Error::arg(format!("the grid's spacing {} is not the other ranks' {}", 1.0 / frame.gamma, 1.0 / global.gamma)));
     }
-    let mut b = IndexBox { lo: [0; 3], hi: [0; 3] };
-    for a in 0..3 {
-        let voxels = (frame.bmin[a] - global.bmin[a]) * global.gamma;
-        if (voxels - voxels.round()).abs() > LATTICE_TOLERANCE || voxels.round() < 0.0 {
-            return Err(Error::arg(format!(
-                "the grid's origin is {voxels} voxels from the domain's corner along axis {a}: the ranks' grids must sit on one lattice"
-            )));
-        }
-        b.lo[a] = voxels.round() as usize;
-        b.hi[a] = b.lo[a] + frame.dims[a];
-        if b.hi[a] > global.dims[a] {
-            return Err(Error::arg("the grid reaches outside the domain the ranks agreed at the field's first step"));
-        }
-    }
-    Ok(b)
+    crate::global::piece_box(global, frame)
+        .map_err(|e| e.in_context("this rank's grid, in the domain the ranks agreed at the field's first step (their grids must sit on one lattice)"))
 }
 
 /// The overlap of two boxes, if any.
@@ -118,15 +104,15 @@ impl Kind {
 /// The world box of a rank's own data: particle positions, cell extents, or
 /// the grid's cells.
 pub fn data_bounds(data: &StepData) -> Bounds {
-    use rayon::prelude::*;
     match data {
         StepData::Grid { frame, .. } => world_box(frame),
-        StepData::Particles { positions, .. } => Bounds::enclosing(positions.par_iter().map(|p| (*p, *p))),
-        StepData::Cells { centres, edges, volumes, .. } => Bounds::enclosing((0..centres.len()).into_par_iter().map(|j| {
-            let h = if volumes.is_empty() { edges[j].map(|e| 0.5 * e) } else { [0.5 * volumes[j].cbrt(); 3] };
-            let c = centres[j];
-            (std::array::from_fn(|a| c[a] - h[a]), std::array::from_fn(|a| c[a] + h[a]))
-        })),
+        StepData::Particles { positions, smoothing_length, mass, values, .. } => {
+            crate::particles::Particles { positions, smoothing_length, mass, values }.bounds()
+        }
+        StepData::Cells { centres, edges, volumes, values, .. } => {
+            let size = if volumes.is_empty() { CellSize::Edges(edges) } else { CellSize::Volumes(volumes) };
+            Cells { centres, size, values }.bounds()
+        }
     }
 }
 

@@ -156,12 +156,6 @@ impl Decomposition {
         self.size
     }
 
-    /// The pieces of `field` (rank order) in its global lattice, once its
-    /// first step is pushed.
-    pub fn pieces(&self, field: &str) -> Option<(IndexFrame, Vec<IndexBox>)> {
-        self.fields.get(field).map(|l| (l.global, l.pieces.clone()))
-    }
-
     fn check_thread(&self) -> Result<()> {
         check_environment()?;
         if self.funneled {
@@ -175,15 +169,23 @@ impl Decomposition {
         Ok(())
     }
 
-    /// Every rank's `local` outcome: the first failing rank's error on
-    /// that rank, an `Mpi` error naming it on the others. Collective.
-    fn agree<T>(&self, local: Result<T>, what: &str) -> Result<T> {
-        let mine = [if local.is_err() { self.rank as u64 + 1 } else { 0 }];
-        let mut any = [0u64];
-        self.comm.all_reduce_into(&mine[..], &mut any[..], SystemOperation::max());
-        match (local, any[0]) {
+    /// Every rank's `local` outcome, in one allreduce that also compares
+    /// `key` (what this rank is doing; `pushed` says it in words) across
+    /// the ranks: different keys give every rank an `Mpi` error; otherwise
+    /// the first failing rank gets its own error, the others an `Mpi` error
+    /// naming it (it `refused` something). Collective.
+    fn agree<T>(&self, local: Result<T>, key: u64, pushed: &str, refused: &str) -> Result<T> {
+        let mine = [if local.is_err() { self.rank as u64 + 1 } else { 0 }, key, !key];
+        let mut all = [0u64; 3];
+        self.comm.all_reduce_into(&mine[..], &mut all[..], SystemOperation::max());
+        if all[1] != key || all[2] != !key {
+            return Err(Error::Mpi(format!(
+                "the ranks pushed different steps: this rank pushed {pushed}, another a different field, step or form; every rank must push the same ones in the same order"
+            )));
+        }
+        match (local, all[0]) {
             (Err(e), _) => Err(e),
-            (Ok(_), r) if r > 0 => Err(Error::Mpi(format!("rank {} refused {what} (its own error says why); no rank queued it", r - 1))),
+            (Ok(_), r) if r > 0 => Err(Error::Mpi(format!("rank {} refused {refused} (its own error says why); no rank queued the step", r - 1))),
             (Ok(v), _) => Ok(v),
         }
     }
@@ -198,28 +200,13 @@ impl Decomposition {
         self.check_thread()?;
         let kind = Kind::of(&job.data);
         let what = format!("field '{}' step {}", job.field, job.step);
-        let local = queue.check(&job).and_then(|()| self.check_local(&job, kind));
+        let pushed = format!("{what} as {}", kind_name(kind));
         let key = fingerprint(&job.field, job.step, kind);
-        let mine = [if local.is_err() { self.rank as u64 + 1 } else { 0 }, key, !key];
-        let mut all = [0u64; 3];
-        self.comm.all_reduce_into(&mine[..], &mut all[..], SystemOperation::max());
-        if all[1] != key || all[2] != !key {
-            return Err(Error::Mpi(format!(
-                "the ranks pushed different steps: this rank pushed {what} as {}, another a different field, step or form; every rank must push the same ones in the same order",
-                kind_name(kind)
-            )));
-        }
-        match (local, all[0]) {
-            (Err(e), _) => return Err(e),
-            (Ok(_), r) if r > 0 => {
-                return Err(Error::Mpi(format!("rank {} refused its data for {what} (its own error says why); no rank queued the step", r - 1)))
-            }
-            (Ok(stats), _) => {
-                if !self.fields.contains_key(&job.field) {
-                    let layout = self.agree_layout(&job.data, kind, stats, &what)?;
-                    self.fields.insert(job.field.clone(), layout);
-                }
-            }
+        let local = queue.check(&job).and_then(|()| self.check_local(&job, kind));
+        let stats = self.agree(local, key, &pushed, &format!("its data for {what}"))?;
+        if !self.fields.contains_key(&job.field) {
+            let layout = self.agree_layout(&job.data, kind, stats, &what)?;
+            self.fields.insert(job.field.clone(), layout);
         }
         let layout = &self.fields[&job.field];
         let split = halo::split(&job.data, &layout.global, &layout.pieces).and_then(|bufs| {
@@ -231,7 +218,7 @@ impl Decomposition {
                     None => Err(Error::arg(format!("{what}: more than 2^31 values to send in one step"))),
                 })
         });
-        let (bufs, counts) = self.agree(split, &format!("to split its data of {what}"))?;
+        let (bufs, counts) = self.agree(split, key, &pushed, &format!("to split its data of {what}"))?;
         let received = self.exchange(&bufs, &counts);
         drop(bufs);
         let received: Vec<&[f64]> = received.0.iter().map(|r| &received.1[r.clone()]).collect();
@@ -326,8 +313,9 @@ impl Decomposition {
             }),
             _ => {
                 // This rank's region, clipped to the global box.
-                let lo = std::array::from_fn(|a| b.min[a].clamp(global.bmin[a], global.bmin[a] + global.dims[a] as f64 / global.gamma));
-                let hi = std::array::from_fn(|a| b.max[a].clamp(global.bmin[a], global.bmin[a] + global.dims[a] as f64 / global.gamma));
+                let g = halo::world_box(&global);
+                let lo = std::array::from_fn(|a| b.min[a].clamp(g.min[a], g.max[a]));
+                let hi = std::array::from_fn(|a| b.max[a].clamp(g.min[a], g.max[a]));
                 Ok(halo::covering_box(&global, lo, hi, self.cfg.halo))
             }
         };

@@ -479,11 +479,7 @@ pub fn print_result(json_out: bool, value: serde_json::Value) {
 }
 
 fn read_model(path: &Path) -> Result<Model> {
-    read_model_file(path).map(|f| f.model)
-}
-
-pub fn read_model_file(path: &Path) -> Result<format::ModelFile> {
-    gsenc::io::read_model_file(path)
+    gsenc::io::read_model_file(path).map(|f| f.model)
 }
 
 impl ValueArgs {
@@ -859,7 +855,7 @@ fn cmd_info(a: InfoArgs) -> Result<()> {
     if store::is_hdf5_file(&a.model) {
         return store::info(&a.model, a.json);
     }
-    let file = read_model_file(&a.model)?;
+    let file = gsenc::io::read_model_file(&a.model)?;
     let m = &file.model;
     let bytes = std::fs::metadata(&a.model).map_err(|e| Error::io(&a.model, e))?.len();
     let meta = &m.meta;
@@ -901,7 +897,7 @@ fn cmd_convert(a: ConvertArgs) -> Result<()> {
     if same {
         return Err(Error::arg("convert writes a new file; give an output other than the input"));
     }
-    let mut file = read_model_file(&a.model)?;
+    let mut file = gsenc::io::read_model_file(&a.model)?;
     // The stored encode PSNR stays true only when no precision is lost.
     if payload != file.payload && payload != format::Payload::Float32 {
         file.model.meta.encode_psnr = None;

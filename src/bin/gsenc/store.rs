@@ -88,7 +88,8 @@ mod imp {
 
 #[cfg(feature = "hdf5")]
 mod imp {
-    use super::super::{print_result, read_model_file};
+    use super::super::print_result;
+    use gsenc::io::read_model_file;
     use super::*;
     use gsenc::backend::cpu::CpuBackend;
     use gsenc::encoder::with_threads;
