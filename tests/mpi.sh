@@ -32,7 +32,18 @@ if "$gsenc" decode "$out/c4/rho_000002.gsi" -o "$out/x.raw" 2>"$out/err"; then
     exit 1
 fi
 grep -q "rank 2's model" "$out/err" || { cat "$out/err" >&2; exit 1; }
-echo "cli-mpi: 3 passed"
+# A piece that is not the one the index names (another step's model) is refused.
+cp "$out/c4/rho_000001_r2.gsm" "$out/c4/rho_000002_r2.gsm"
+if "$gsenc" decode "$out/c4/rho_000002.gsi" -o "$out/x.raw" 2>"$out/err"; then
+    echo "decoding an index with another step's piece succeeded" >&2
+    exit 1
+fi
+grep -q "the index names field 'rho' step 2 rank 2" "$out/err" || { cat "$out/err" >&2; exit 1; }
+echo "cli-mpi: 4 passed"
+
+# MPI at MPI_THREAD_SINGLE, and after MPI_Finalize: clear errors, no handle.
+mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi_levels.c "$lib" -lpthread -ldl -lm -o "$out/capi_mpi_levels"
+run 1 "$out/capi_mpi_levels"
 
 # The mock solver: grid, particles and cells on 1, 2 and 4 ranks with the same
 # total budget; 2 and 4 ranks are checked against the single rank's run: the

@@ -58,6 +58,11 @@ int main(int argc, char **argv) {
     MPI_Comm comm;
     MPI_Comm_dup(MPI_COMM_WORLD, &comm);
     EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), NULL), GSENC_STATUS_NULL_POINTER);
+    /* MPI encoders write folders; an HDF5 store is refused on every rank. */
+    gsenc_config h5 = cfg;
+    h5.output_format = GSENC_OUTPUT_HDF5;
+    EXPECT(gsenc_encoder_create_mpi(&h5, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(enc == NULL && strstr(last_error(), "HDF5") != NULL, "HDF5 output of an MPI encoder: %s", last_error());
     EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
 
     /* Slabs along x: rank r owns x cells [r*N/size, (r+1)*N/size). */
@@ -94,6 +99,28 @@ int main(int argc, char **argv) {
         EXPECT(gsenc_push_particles(enc, "tracer", (uint64_t)step, step * 0.1, &p), GSENC_STATUS_OK);
     }
     EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+
+    /* A field keeps its form: rho came as a grid, particles are refused on every rank. */
+    {
+        gsenc_particles p;
+        memset(&p, 0, sizeof p);
+        p.struct_size = sizeof p;
+        p.dtype = GSENC_DTYPE_FLOAT64;
+        p.count = 1;
+        p.positions = pos;
+        p.smoothing_length = hh;
+        p.values = val;
+        pos[0] = pos[1] = pos[2] = (rank + 0.5) / size;
+        hh[0] = 0.1, val[0] = 1.0;
+        EXPECT(gsenc_push_particles(enc, "rho", 3, 0.3, &p), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(strstr(last_error(), "came as a grid") != NULL, "form change: %s", last_error());
+    }
+    /* Grids of different spacings cannot share one lattice: every rank hears of it. */
+    if (size > 1) {
+        gsenc_grid g = {sizeof g, GSENC_DTYPE_FLOAT32, slab, {(uint64_t)nx, N, N}, {0, 0, 0}, {(double)x0 / N, 0, 0}, 1.0 / (N + rank)};
+        EXPECT(gsenc_push_grid(enc, "spacing", 1, 0.0, &g), GSENC_STATUS_MPI);
+        CHECK(strstr(last_error(), "spacings") != NULL, "spacing mismatch: %s", last_error());
+    }
 
     /* Misuse: the ranks push different steps; every rank hears of it. */
     if (size > 1) {
