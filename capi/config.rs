@@ -1,14 +1,14 @@
 //! The encoder's configuration as C sees it: one struct that starts with its
 //! own size, filled with defaults by `gsenc_config_init`.
 
-use super::status::{fail, gsenc_status, guard, Failure};
-use crate::encoder::{EncodeConfig, Schedule};
-use crate::field::{Transform, ValueRange};
-use crate::format::Payload;
-use crate::quantize::CentreCoding;
-use crate::reference::Bounds;
-use crate::queue::WhenFull;
-use crate::series::{SeriesConfig, SeriesRange, WarmStart};
+use crate::ffi::{c_str, read_sized};
+use crate::status::{fail, gsenc_status, guard, Failure};
+use gsenc::encode::{EncodeConfig, Schedule, WarmStart};
+use gsenc::field::{Bounds, Transform, ValueRange};
+use gsenc::format::quantize::CentreCoding;
+use gsenc::format::Payload;
+use gsenc::series::queue::WhenFull;
+use gsenc::series::{SeriesConfig, SeriesRange};
 use std::os::raw::c_char;
 
 /// Schedules (`gsenc_config.schedule`).
@@ -171,15 +171,14 @@ pub unsafe extern "C" fn gsenc_config_init(config: *mut gsenc_config) -> gsenc_s
 
 /// A checked copy of a caller's configuration.
 pub(crate) struct Settings {
+    /// Everything that decides the models, their payload and rank included.
     pub series: SeriesConfig,
     pub dims: [usize; 3],
     pub bounds: Option<Bounds>,
-    pub payload: Payload,
     pub threads: usize,
     pub when_full: WhenFull,
     pub queue_bytes: usize,
     pub output_format: OutputFormat,
-    pub rank: u32,
     #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
     pub halo: usize,
     /// The folder or store models go to.
@@ -191,7 +190,7 @@ impl Settings {
     /// `c` points to a caller's `gsenc_config` of at least `struct_size` bytes.
     pub unsafe fn from_c(c: *const gsenc_config) -> Result<Settings, Failure> {
         // SAFETY: per the contract.
-        let c = unsafe { super::encoder::read_sized(c, "config") }?;
+        let c = unsafe { read_sized(c, "config") }?;
         let bad = |what: String| Failure(gsenc_status::InvalidArgument, what);
         let schedule = match c.schedule {
             GSENC_SCHEDULE_FULL => Schedule::Full,
@@ -261,21 +260,21 @@ impl Settings {
         let output = match c.output_dir.is_null() {
             true => None,
             // SAFETY: a non-null `output_dir` is a NUL-terminated string.
-            false => Some(std::path::PathBuf::from(unsafe { super::c_str(c.output_dir, "output_dir")? })),
+            false => Some(std::path::PathBuf::from(unsafe { c_str(c.output_dir, "output_dir")? })),
         };
         let mut series = SeriesConfig::new(encode, warm, range);
         series.validation_points = 0; // no per-iteration log in situ: gsenc_poll reports progress
         series.warm_iterations = (c.warm_iterations > 0).then_some(c.warm_iterations as usize);
+        series.payload = payload;
+        series.rank = c.rank;
         Ok(Settings {
             series,
             dims: c.dims.map(|d| d as usize),
             bounds,
-            payload,
             threads,
             when_full,
             queue_bytes,
             output_format,
-            rank: c.rank,
             halo: c.halo as usize,
             output,
         })

@@ -5,7 +5,7 @@
 //! undefined behaviour. An address reused by a newer handle of the same kind
 //! cannot be told apart; that is the limit of "where detectable".
 
-use super::status::{fail, gsenc_status, Failure};
+use crate::status::{fail, gsenc_status, Failure};
 use std::collections::BTreeMap;
 use std::sync::Mutex;
 

@@ -2,13 +2,14 @@
 //! caller's buffer, or at arbitrary world points. A model handle is
 //! read-only: any number of threads may decode and evaluate it at once.
 
-use super::handles::Kind;
-use super::status::{fail, gsenc_status, guard, Failure};
-use super::{c_str, extents};
-use crate::backend::cpu::CpuBackend;
-use crate::backend::Backend;
-use crate::loss::v_eval;
-use crate::model::Model;
+use crate::ffi::{c_str, check_sized, extents};
+use crate::handles::Kind;
+use crate::status::{fail, gsenc_status, guard, Failure};
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::backend::Backend;
+use gsenc::field::IndexBox;
+use gsenc::math::loss::v_eval;
+use gsenc::model::{Model, DEFAULT_SLAB_VOXELS};
 use std::os::raw::c_char;
 
 /// Opaque model; read with `gsenc_model_read`, free with `gsenc_model_destroy`.
@@ -42,7 +43,7 @@ pub struct gsenc_model_info {
 }
 
 fn model_ref<'a>(model: *const gsenc_model, what: &str) -> Result<&'a Model, Failure> {
-    super::handles::check(model, Kind::Model, what)?;
+    crate::handles::check(model, Kind::Model, what)?;
     // SAFETY: a live handle from gsenc_model_read.
     Ok(unsafe { &(*model).model })
 }
@@ -60,14 +61,14 @@ pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gs
         unsafe { *out = std::ptr::null_mut() };
         // SAFETY: NUL-terminated string or NULL (refused).
         let path = unsafe { c_str(path, "path") }?;
-        let bytes = std::fs::read(&path).map_err(|e| crate::Error::io(&path, e))?;
-        let model = crate::format::read_model(&bytes).map_err(|e| match e {
-            crate::Error::Format(m) => crate::Error::Format(format!("{path}: {m}")),
+        let bytes = std::fs::read(&path).map_err(|e| gsenc::Error::io(&path, e))?;
+        let model = gsenc::format::read_model(&bytes).map_err(|e| match e {
+            gsenc::Error::Format(m) => gsenc::Error::Format(format!("{path}: {m}")),
             other => other,
         })?;
         // SAFETY: as above.
         let raw = Box::into_raw(Box::new(gsenc_model { model }));
-        super::handles::register(raw, Kind::Model);
+        crate::handles::register(raw, Kind::Model);
         unsafe { *out = raw };
         Ok(())
     })
@@ -78,7 +79,7 @@ pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gs
 /// Not concurrently with other calls on it.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
-    if !model.is_null() && super::handles::release(model, Kind::Model) {
+    if !model.is_null() && crate::handles::release(model, Kind::Model) {
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             // SAFETY: made by Box::into_raw in gsenc_model_read, live until
             // now (released above, so never freed twice).
@@ -94,7 +95,7 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
     guard(|| {
         let m = model_ref(model, "gsenc_model_info_get")?;
         // SAFETY: NULL or the caller's gsenc_model_info, to be filled.
-        unsafe { super::encoder::check_sized(info.cast_const(), "gsenc_model_info_get: info") }?;
+        unsafe { check_sized(info.cast_const(), "gsenc_model_info_get: info") }?;
         let want = std::mem::size_of::<gsenc_model_info>();
         let f = &m.meta.frame;
         let value = gsenc_model_info {
@@ -140,7 +141,7 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
         let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
         let mut at = 0;
         let range = m.meta.range;
-        m.decode_streaming(&mut CpuBackend::new(), dims, crate::model::IndexBox::whole(dims), crate::model::DEFAULT_SLAB_VOXELS, &mut |slab| {
+        m.decode_streaming(&mut CpuBackend::new(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
             for (o, &v) in out[at..at + slab.len()].iter_mut().zip(slab) {
                 *o = range.denormalize(v) as f32;
             }

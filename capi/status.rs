@@ -2,7 +2,7 @@
 //! entry point runs its body in: it turns errors and panics into a status,
 //! so nothing unwinds into C and nothing is printed.
 
-use crate::error::Error;
+use gsenc::error::Error;
 use std::cell::RefCell;
 use std::os::raw::c_char;
 use std::panic::{catch_unwind, AssertUnwindSafe};

@@ -6,7 +6,7 @@
 //! and keeps its own part of the unit cube; each step every rank pushes its
 //! part, collectively, and encodes `budget / N` Gaussians over its piece.
 //! Rank 0 then reads the step index, decodes the global field from all
-//! pieces (blended, `gsenc::global::blend`; the additive decode of all
+//! pieces (blended, `gsenc::domain::pieces::blend`; the additive decode of all
 //! primitives together is printed beside it), and scores it against the
 //! global reference (the serial deposit of all the data); it prints one JSON
 //! line per form and step.
@@ -24,19 +24,19 @@
 //! ```
 
 use gsenc::backend::cpu::CpuBackend;
-use gsenc::cells::{CellSize, Cells};
-use gsenc::encoder::{EncodeConfig, Schedule};
-use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
-use gsenc::format::Payload;
-use gsenc::io::{read_step, step_index_file_name, write_atomic, ModelFolder};
-use gsenc::global::blend;
-use gsenc::metrics::voxel_psnr;
-use gsenc::model::IndexBox;
-use gsenc::mpi::{Decomposition, DecompositionConfig};
-use gsenc::particles::Particles;
-use gsenc::queue::{BackgroundEncoder, Job, QueueConfig, StepData, WhenFull};
-use gsenc::reference::{prepare_cells, prepare_particles, Placement, RangeSpec};
-use gsenc::series::{SeriesConfig, SeriesRange, WarmStart};
+use gsenc::domain::mpi::{Decomposition, DecompositionConfig};
+use gsenc::domain::pieces::blend;
+use gsenc::encode::{EncodeConfig, Schedule, WarmStart};
+use gsenc::field::{Grid, IndexBox, IndexFrame, Transform, ValueRange};
+use gsenc::format::{model_file_name, step_index_file_name, Payload};
+use gsenc::input::cells::{CellSize, Cells};
+use gsenc::input::particles::Particles;
+use gsenc::input::prepare::{prepare_cells, prepare_particles, Placement, RangeSpec};
+use gsenc::input::StepData;
+use gsenc::io::{read_step, write_atomic, ModelFolder};
+use gsenc::model::metrics::voxel_psnr;
+use gsenc::series::queue::{BackgroundEncoder, Job, QueueConfig, WhenFull};
+use gsenc::series::{SeriesConfig, SeriesRange};
 use gsenc::Error;
 use mpi::traits::*;
 use std::path::PathBuf;
@@ -279,7 +279,8 @@ fn main() {
     let mut series = SeriesConfig::new(encode, WarmStart::Dense, SeriesRange::FirstStep(Transform::Linear));
     series.validation_points = 0;
     series.warm_iterations = Some(a.iterations / 2);
-    let queue_cfg = QueueConfig { series, max_bytes: 1 << 30, when_full: WhenFull::Block, threads: 1, payload: Payload::Float32, rank: rank as u32 };
+    series.rank = rank as u32;
+    let queue_cfg = QueueConfig { series, max_bytes: 1 << 30, when_full: WhenFull::Block, threads: 1 };
     let queue = BackgroundEncoder::new(queue_cfg, Box::new(ModelFolder { dir: a.out.clone(), payload: Payload::Float32 })).unwrap();
     let cfg = DecompositionConfig { dims: [a.grid; 3], bounds: None, halo: a.halo, range: SeriesRange::FirstStep(Transform::Linear) };
     let mut ranks = Decomposition::new(&world, cfg).unwrap();
@@ -288,7 +289,7 @@ fn main() {
     if n > 1 {
         let (data, _) = step_data("grid", &a, 0, rank, n, false);
         let job = Job { field: format!("misuse{rank}"), step: 0, time: None, data, range: None };
-        match ranks.push(&queue, job, &|r| gsenc::io::model_file_name("misuse", 0, r)) {
+        match ranks.push(&queue, job, &|r| model_file_name("misuse", 0, r)) {
             Err(Error::Mpi(m)) if m.contains("different") => {}
             other => failures.push(format!("rank {rank}: different fields gave {:?}", other.map(|d| d.pushed))),
         }
@@ -297,7 +298,7 @@ fn main() {
             grid.values[7] = f32::NAN;
         }
         let job = Job { field: "misuse".into(), step: 0, time: None, data, range: None };
-        match (rank, ranks.push(&queue, job, &|r| gsenc::io::model_file_name("misuse", 0, r))) {
+        match (rank, ranks.push(&queue, job, &|r| model_file_name("misuse", 0, r))) {
             (1, Err(Error::InvalidData(_))) => {}
             (r, Err(Error::Mpi(m))) if r != 1 && m.contains("rank 1") => {}
             (_, other) => failures.push(format!("rank {rank}: NaN on rank 1 gave {:?}", other.map(|d| d.pushed))),
@@ -312,7 +313,7 @@ fn main() {
             world.barrier();
             let t = Instant::now();
             let job = Job { field: form.into(), step, time: Some(step as f64), data, range: None };
-            let done = ranks.push(&queue, job, &|r| gsenc::io::model_file_name(form, step, r)).unwrap_or_else(|e| panic!("rank {rank}: {e}"));
+            let done = ranks.push(&queue, job, &|r| model_file_name(form, step, r)).unwrap_or_else(|e| panic!("rank {rank}: {e}"));
             if let Some(index) = done.index {
                 write_atomic(a.out.join(step_index_file_name(form, step)), index.to_json().as_bytes()).unwrap();
             }
@@ -335,7 +336,7 @@ fn main() {
             let decode_seconds = t_decode.elapsed().as_secs_f64();
             let psnr = voxel_psnr(&decoded.values, &reference.values);
             // The additive decode of every piece's primitives together, for comparison.
-            let additive = gsenc::global::merge(&pieces).unwrap().decode(&mut CpuBackend::new(), Some(frame.dims)).unwrap();
+            let additive = gsenc::domain::pieces::merge(&pieces).unwrap().decode(&mut CpuBackend::new(), Some(frame.dims)).unwrap();
             let additive_psnr = voxel_psnr(&additive.values, &reference.values);
             let (cut, inside) = cut_and_inside_rmse(&decoded.values, &reference, &frame);
             let warm = pieces.iter().all(|p| p.meta.schedule.starts_with("warm"));

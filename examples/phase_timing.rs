@@ -3,10 +3,9 @@
 use gsenc::backend::{cpu::CpuBackend, Backend};
 use gsenc::field::{Grid, Transform, ValueRange};
 use gsenc::io::raw::{read_raw, DType, Order};
-use gsenc::kernel::Primitive;
-use gsenc::loss::LossWeights;
-use gsenc::points::PointSampler;
-use gsenc::samples::GridSamples;
+use gsenc::math::kernel::Primitive;
+use gsenc::math::loss::LossWeights;
+use gsenc::encode::points::PointSampler;
 use std::time::Instant;
 
 fn main() {
@@ -17,10 +16,9 @@ fn main() {
     let points: usize = a[7].parse().unwrap();
     let r = ValueRange::from_data(&g.values, Transform::Linear).unwrap();
     let reference = Grid::new(dims, r.normalize(&g.values).unwrap().values).unwrap();
-    let samples = GridSamples { grid: &reference };
-    let seeded = gsenc::seeding::seed(&samples, dims, budget, 0).unwrap();
+    let seeded = gsenc::encode::seeding::seed(&reference, dims, budget, 0).unwrap();
     // The order the encoder trains in.
-    let order = gsenc::encoder::spatial_order(&seeded.params);
+    let order = gsenc::encode::spatial_order(&seeded.params);
     let params: Vec<Primitive> = order.iter().map(|&i| seeded.params[i]).collect();
     let mut sampler = PointSampler::new(&reference, 1);
     let mut be = CpuBackend::new();
@@ -29,7 +27,7 @@ fn main() {
     let w = LossWeights::default();
     let reps = 50;
     let t = Instant::now();
-    let batches: Vec<_> = (0..reps).map(|_| sampler.draw(points, &reference, &samples)).collect();
+    let batches: Vec<_> = (0..reps).map(|_| sampler.draw(points, &reference, &reference)).collect();
     println!("draw      {:8.3} ms", t.elapsed().as_secs_f64() * 1e3 / reps as f64);
     let t = Instant::now();
     let mut st = (0, 0);

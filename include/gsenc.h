@@ -20,13 +20,6 @@
 #include <stdlib.h>
 
 /*
- Element types of pushed arrays.
- */
-#define GSENC_DTYPE_FLOAT32 0
-
-#define GSENC_DTYPE_FLOAT64 1
-
-/*
  Major version of the library (changes break the ABI).
  */
 #define GSENC_VERSION_MAJOR 0
@@ -92,6 +85,13 @@
 #define GSENC_OUTPUT_FOLDER 0
 
 #define GSENC_OUTPUT_HDF5 1
+
+/*
+ Element types of pushed arrays.
+ */
+#define GSENC_DTYPE_FLOAT32 0
+
+#define GSENC_DTYPE_FLOAT64 1
 
 /*
  Cell layouts (`gsenc_cells.layout`).

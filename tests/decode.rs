@@ -2,8 +2,9 @@
 
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::field::{IndexFrame, Transform, ValueRange};
-use gsenc::model::{IndexBox, Model, ModelMeta};
-use gsenc::rng::Rng;
+use gsenc::field::IndexBox;
+use gsenc::model::{Model, ModelMeta};
+use gsenc::math::rng::Rng;
 
 fn model() -> Model {
     let mut rng = Rng::new(7);

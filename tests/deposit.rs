@@ -3,12 +3,13 @@
 //! determinism and bad inputs.
 
 mod common;
-use gsenc::cells::{stamp_box, CellSize, Cells};
-use gsenc::encoder::with_threads;
+use gsenc::input::cells::{stamp_box, CellSize, Cells};
+use gsenc::encode::with_threads;
 use gsenc::field::{Transform, ValueRange};
-use gsenc::particles::Particles;
-use gsenc::reference::{prepare_cells, prepare_particles, Bounds, Placement, Prepared, RangeSpec};
-use gsenc::rng::Rng;
+use gsenc::input::particles::Particles;
+use gsenc::field::Bounds;
+use gsenc::input::prepare::{prepare_cells, prepare_particles, Placement, Prepared, RangeSpec};
+use gsenc::math::rng::Rng;
 use gsenc::Error;
 
 /// Owned particle arrays, for building test sets.
@@ -101,11 +102,11 @@ fn particle_deposit_matches_brute_force() {
     let expect = brute_force_deposit(&p, [32, 24, 16]);
     let err = max_abs_diff(&prep.reference.values, &expect);
     assert!(err < 1e-6, "max deviation from brute force {err}");
-    assert_eq!(prep.deposit.outside, 1);
-    assert_eq!(prep.deposit.outside_dropped, 0);
-    assert_eq!(prep.samples.q.len(), 60);
+    assert_eq!(prep.deposit.unwrap().outside, 1);
+    assert_eq!(prep.deposit.unwrap().outside_dropped, 0);
+    assert_eq!(prep.samples.as_ref().unwrap().q.len(), 60);
     let empty = expect.iter().filter(|&&v| v == 0.0).count();
-    assert_eq!(prep.deposit.empty_voxels, empty);
+    assert_eq!(prep.deposit.unwrap().empty_voxels, empty);
     assert!(empty > 0 && empty < expect.len(), "test set should leave some voxels empty: {empty}");
 }
 
@@ -144,14 +145,14 @@ fn particle_smaller_than_a_voxel_goes_into_its_nearest_voxel() {
     // u = (10.3, 5.8, 3.2): the support radius 2 * 0.01 * 16 = 0.32 holds no centre.
     p.push([10.8 / 16.0, 6.3 / 16.0, 3.7 / 16.0], 0.01, 1.0, 6.0);
     let prep = prepare_particles(&p.view(), &placement(), &unit_range()).unwrap();
-    assert_eq!(prep.deposit.nearest_voxel, 1);
+    assert_eq!(prep.deposit.unwrap().nearest_voxel, 1);
     let at = 10 + 32 * (6 + 24 * 3);
     for (i, &v) in prep.reference.values.iter().enumerate() {
         let want = if i == at { 0.6 } else { 0.0 };
         assert!((v - want).abs() < 1e-7, "voxel {i}: {v}");
     }
     // Samples keep the particle's own scale: 0.8 hh gamma.
-    assert!((prep.samples.h[0] - 0.8 * 0.01 * 16.0).abs() < 1e-6);
+    assert!((prep.samples.as_ref().unwrap().h[0] - 0.8 * 0.01 * 16.0).abs() < 1e-6);
 }
 
 #[test]
@@ -160,10 +161,10 @@ fn particles_outside_the_bounds_are_counted() {
     p.push([5.0, 0.5, 0.5], 0.05, 1.0, 9.0); // far outside: reaches nothing
     p.push([1.0, 1.52, 0.5], 0.05, 1.0, 9.0); // just outside y: support reaches in
     let prep = prepare_particles(&p.view(), &placement(), &unit_range()).unwrap();
-    assert_eq!(prep.deposit.items, 22);
-    assert_eq!(prep.deposit.outside, 2);
-    assert_eq!(prep.deposit.outside_dropped, 1);
-    assert_eq!(prep.samples.q.len(), 20);
+    assert_eq!(prep.deposit.unwrap().items, 22);
+    assert_eq!(prep.deposit.unwrap().outside, 2);
+    assert_eq!(prep.deposit.unwrap().outside_dropped, 1);
+    assert_eq!(prep.samples.as_ref().unwrap().q.len(), 20);
     // The reaching particle shows in the top y plane near x = 1.
     let v = prep.reference.values[15 + 32 * (23 + 24 * 7)];
     assert!(v > 0.0, "{v}");
@@ -173,7 +174,7 @@ fn particles_outside_the_bounds_are_counted() {
 fn computed_bounds_enclose_the_data() {
     let p = random_parts(9, 50, (0.05, 0.1));
     let prep = prepare_particles(&p.view(), &Placement { dims: [16, 16, 16], bounds: None }, &unit_range()).unwrap();
-    assert_eq!(prep.deposit.outside, 0);
+    assert_eq!(prep.deposit.unwrap().outside, 0);
     let (lo, hi) = p.pos.iter().fold(([f64::MAX; 3], [f64::MIN; 3]), |(lo, hi), x| {
         ([0, 1, 2].map(|a| lo[a].min(x[a])), [0, 1, 2].map(|a| hi[a].max(x[a])))
     });
@@ -225,8 +226,8 @@ fn single_cell_stamps_exactly_its_box() {
     assert_eq!(v.iter().filter(|&&x| x != 0.0).count(), 27);
     assert!(v.iter().all(|&x| x == 0.0 || (x - 0.4).abs() < 1e-7));
     assert_eq!(box_of(v, [16; 3], |x| x != 0.0), ([3, 5, 1], [6, 8, 4]));
-    assert_eq!(prep.samples.h[0], 0.5);
-    assert_eq!(prep.samples.m[0], 1.0);
+    assert_eq!(prep.samples.as_ref().unwrap().h[0], 0.5);
+    assert_eq!(prep.samples.as_ref().unwrap().m[0], 1.0);
 }
 
 #[test]
@@ -252,7 +253,7 @@ fn two_overlapping_cells_follow_eq_6() {
     let prep_v = prepare_cells(&cv, &cell_placement(), &unit_range()).unwrap();
     assert_eq!(prep_v.reference.values, prep.reference.values);
     // Importance: volumes relative to the largest.
-    assert_eq!(prep.samples.m, vec![0.125, 1.0]);
+    assert_eq!(prep.samples.as_ref().unwrap().m, vec![0.125, 1.0]);
 }
 
 #[test]
@@ -266,7 +267,7 @@ fn stamp_box_is_clamped_and_never_empty_inside() {
     let edges = [[0.04; 3]];
     let c = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &[5.0] };
     let prep = prepare_cells(&c, &cell_placement(), &unit_range()).unwrap();
-    assert_eq!(prep.deposit.nearest_voxel, 1);
+    assert_eq!(prep.deposit.unwrap().nearest_voxel, 1);
     assert!((prep.reference.values[0 + 16 * (3 + 16 * 3)] - 0.5).abs() < 1e-7);
 }
 
@@ -344,7 +345,7 @@ fn log10_of_non_positive_values_errors_or_floors() {
     // With a fixed range the value is floored to the range minimum: 0, not NaN.
     let fixed = RangeSpec::Fixed(ValueRange::new(-1.0, 1.0, Transform::Log10).unwrap());
     let prep = prepare_particles(&p.view(), &pl, &fixed).unwrap();
-    assert_eq!(prep.samples.v[6], 0.0);
+    assert_eq!(prep.samples.as_ref().unwrap().v[6], 0.0);
     assert!(prep.clamped_values >= 1);
     assert!(prep.reference.values.iter().all(|v| v.is_finite()));
 }
@@ -378,9 +379,9 @@ mod real_data {
     use common::shared_data;
     use gsenc::backend::cpu::CpuBackend;
     use gsenc::backend::{Backend, Lattice};
-    use gsenc::encoder::{encode, EncodeConfig, Schedule};
+    use gsenc::encode::{encode, EncodeConfig, Schedule};
     use gsenc::io::raw::{read_items, DType, Rows};
-    use gsenc::metrics::voxel_psnr;
+    use gsenc::model::metrics::voxel_psnr;
 
     fn read(name: &str, comps: usize) -> Vec<f64> {
         read_items(shared_data(name), DType::F32, comps, Rows { count: None, row: 0 }).unwrap()
@@ -404,9 +405,9 @@ mod real_data {
         let seeding = out.seeding.as_ref().unwrap();
         // Every seed sits on its sample (no jitter: more samples than seeds).
         for (p, &s) in seeding.params.iter().zip(&seeding.sample) {
-            assert_eq!([p[0], p[1], p[2]], prep.samples.q[s]);
+            assert_eq!([p[0], p[1], p[2]], prep.samples.as_ref().unwrap().q[s]);
         }
-        let psnr = |params: &[gsenc::kernel::Primitive]| {
+        let psnr = |params: &[gsenc::math::kernel::Primitive]| {
             let mut d = vec![0f32; prep.reference.len()];
             CpuBackend::new().decode_lattice(params, &Lattice::reference(prep.reference.dims), &mut d);
             voxel_psnr(&d, &prep.reference.values)
@@ -422,7 +423,7 @@ mod real_data {
         let rho = f32s(read("dm_halo_particles.density.float32", 1));
         let p = Particles { positions: &pos, smoothing_length: &hh, mass: &mass, values: &rho };
         let prep = prepare_particles(&p, &Placement { dims: [40; 3], bounds: None }, &RangeSpec::FromData(Transform::Log10)).unwrap();
-        assert_eq!(prep.samples.q.len(), pos.len());
+        assert_eq!(prep.samples.as_ref().unwrap().q.len(), pos.len());
         let (seeded, encoded) = encode_prepared(&prep, true);
         assert!(encoded > 33.5 && encoded > seeded + 5.0, "seeded {seeded:.2} dB, encoded {encoded:.2} dB");
     }
@@ -434,7 +435,7 @@ mod real_data {
         let rho = f32s(read("enzo_amr_cells.density.float32", 1));
         let c = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &rho };
         let prep = prepare_cells(&c, &Placement { dims: [40; 3], bounds: None }, &RangeSpec::FromData(Transform::Log10)).unwrap();
-        assert_eq!(prep.deposit.empty_voxels, 0, "AMR leaves tile the box");
+        assert_eq!(prep.deposit.unwrap().empty_voxels, 0, "AMR leaves tile the box");
         let (seeded, encoded) = encode_prepared(&prep, false);
         assert!(encoded > 41.0 && encoded > seeded + 5.0, "seeded {seeded:.2} dB, encoded {encoded:.2} dB");
     }

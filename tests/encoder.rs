@@ -4,17 +4,18 @@
 mod common;
 use common::*;
 use gsenc::backend::{cpu::CpuBackend, Backend, Lattice};
-use gsenc::encoder::{encode, validate, with_threads, EncodeConfig, Schedule, Target};
+use gsenc::encode::{encode, validate, with_threads, EncodeConfig, Schedule};
+use gsenc::input::samples::SampleSet;
+use gsenc::input::Target;
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 use gsenc::format::{read_model, write_model};
-use gsenc::kernel::{isotropic, layout, sigmoid, Primitive};
-use gsenc::metrics::voxel_psnr;
+use gsenc::math::kernel::{isotropic, layout, sigmoid, Primitive};
+use gsenc::model::metrics::voxel_psnr;
 use gsenc::model::{Model, ModelMeta};
-use gsenc::optim::Adam;
-use gsenc::points::PointBatch;
-use gsenc::relocate::{effective_support, relocate};
-use gsenc::samples::GridSamples;
-use gsenc::seeding::{seed, Stream};
+use gsenc::math::optim::Adam;
+use gsenc::backend::PointBatch;
+use gsenc::encode::relocate::{effective_support, relocate};
+use gsenc::encode::seeding::{seed, Stream};
 
 fn quick(budget: usize, iters: usize, points: usize) -> EncodeConfig {
     let mut c = EncodeConfig::new(budget, Schedule::Short);
@@ -42,8 +43,7 @@ fn a_field_that_is_one_gaussian_is_recovered() {
         }
     }
     let g = Grid::new(dims, v).unwrap();
-    let s = GridSamples { grid: &g };
-    let t = Target { reference: &g, samples: &s };
+    let t = Target { reference: &g, samples: &g };
     let out = encode(&t, &quick(200, 400, 4096), None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
     let dec = decode_ref(&out.params, dims);
     let psnr = voxel_psnr(&dec, &g.values);
@@ -60,9 +60,8 @@ fn a_field_that_is_one_gaussian_is_recovered() {
 fn seeding_obeys_stream_shares_scales_and_weights() {
     let dims = [32, 32, 32];
     let g = blobs(dims, 7, 5);
-    let s = GridSamples { grid: &g };
     let n = 2000;
-    let sd = seed(&s, dims, n, 0).unwrap();
+    let sd = seed(&g, dims, n, 0).unwrap();
     assert_eq!(sd.params.len(), n);
     assert_eq!(sd.count(Stream::Importance), 900);
     let peaks = sd.count(Stream::Peak);
@@ -72,7 +71,7 @@ fn seeding_obeys_stream_shares_scales_and_weights() {
     let mut seen = std::collections::HashSet::new();
     for i in 0..n {
         let p = &sd.params[i];
-        let smp = s.get_sample(sd.sample[i]);
+        let smp = g.get(sd.sample[i]);
         let (sigma, weight) = if sd.stream[i] == Stream::Peak { (0.5f32.clamp(0.35, 2.5), 0.6) } else { (spread, 0.35) };
         for a in 0..3 {
             assert!((p[layout::LOG_SCALE + a].exp() - sigma).abs() < 1e-5);
@@ -97,7 +96,7 @@ fn seeding_obeys_stream_shares_scales_and_weights() {
         }
     }
     // Peak seeds are the highest-valued qualifying bins.
-    let min_peak = (0..n).filter(|&i| sd.stream[i] == Stream::Peak).map(|i| s.get_sample(sd.sample[i]).v).fold(1.0f32, f32::min);
+    let min_peak = (0..n).filter(|&i| sd.stream[i] == Stream::Peak).map(|i| g.get(sd.sample[i]).v).fold(1.0f32, f32::min);
     assert!(min_peak > 0.55);
 }
 
@@ -108,20 +107,10 @@ fn unused_peak_share_goes_to_the_uniform_stream() {
     for (i, v) in [(100usize, 0.9f32), (2000, 0.8), (3000, 0.7)] {
         g.values[i] = v;
     }
-    let s = GridSamples { grid: &g };
-    let sd = seed(&s, dims, 400, 3).unwrap();
+    let sd = seed(&g, dims, 400, 3).unwrap();
     assert_eq!(sd.count(Stream::Peak), 3);
     assert_eq!(sd.count(Stream::Importance), 180);
     assert_eq!(sd.count(Stream::Uniform), 400 - 180 - 3);
-}
-
-trait SampleAt {
-    fn get_sample(&self, i: usize) -> gsenc::samples::Sample;
-}
-impl SampleAt for GridSamples<'_> {
-    fn get_sample(&self, i: usize) -> gsenc::samples::Sample {
-        gsenc::samples::SampleSet::get(self, i)
-    }
 }
 
 #[test]
@@ -183,7 +172,7 @@ fn relocation_keeps_n_and_moves_the_smallest_to_the_largest_errors() {
 fn decode_is_resolution_independent() {
     // A smooth model: broad, rotated primitives with values over [0, 1].
     let dims = [24, 20, 16];
-    let mut rng = gsenc::rng::Rng::new(9);
+    let mut rng = gsenc::math::rng::Rng::new(9);
     let params: Vec<Primitive> = (0..40)
         .map(|_| {
             let mut p = isotropic([0, 1, 2].map(|a| rng.range(0.0, dims[a] as f64) as f32), 1.0, rng.uniform() as f32, 0.5);
@@ -236,8 +225,7 @@ fn decode_is_resolution_independent() {
 fn small_model_bytes(threads: usize) -> Vec<u8> {
     let dims = [24, 20, 16];
     let g = blobs(dims, 3, 4);
-    let s = GridSamples { grid: &g };
-    let t = Target { reference: &g, samples: &s };
+    let t = Target { reference: &g, samples: &g };
     let cfg = quick(400, 60, 3000);
     assert_eq!(cfg.relocation_iterations(), vec![21, 33, 45]);
     let out = with_threads(Some(threads), || encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {})).unwrap().unwrap();
@@ -269,21 +257,18 @@ fn same_seeds_give_byte_identical_models_with_1_and_2_threads() {
 fn bad_inputs_give_clear_errors() {
     let dims = [8, 8, 8];
     let g = blobs(dims, 1, 2);
-    let s = GridSamples { grid: &g };
-    let t = Target { reference: &g, samples: &s };
+    let t = Target { reference: &g, samples: &g };
     let err = |cfg: EncodeConfig| validate(&t, &cfg, None).unwrap_err().to_string();
     assert!(err(quick(0, 10, 10)).contains("at least 1"));
     assert!(err(quick(513, 10, 10)).contains("exceeds the 512 voxels"));
     assert!(err(quick(10, 10, 0)).contains("points"));
     let mut nan = g.clone();
     nan.values[77] = f32::NAN;
-    let sn = GridSamples { grid: &nan };
-    let e = validate(&Target { reference: &nan, samples: &sn }, &quick(10, 10, 10), None).unwrap_err().to_string();
+    let e = validate(&Target { reference: &nan, samples: &nan }, &quick(10, 10, 10), None).unwrap_err().to_string();
     assert!(e.contains("index 77") && e.contains("not finite"), "{e}");
     let mut out_of_range = g.clone();
     out_of_range.values[5] = 3.0;
-    let so = GridSamples { grid: &out_of_range };
-    assert!(validate(&Target { reference: &out_of_range, samples: &so }, &quick(10, 10, 10), None).is_err());
+    assert!(validate(&Target { reference: &out_of_range, samples: &out_of_range }, &quick(10, 10, 10), None).is_err());
     // Wrong-size data and NaN data are refused before any encoder sees them.
     assert!(Grid::new(dims, vec![0.0; 511]).unwrap_err().to_string().contains("needs 512 values, got 511"));
     assert!(ValueRange::from_data(&[1.0, f32::INFINITY], Transform::Linear).is_err());
@@ -302,8 +287,7 @@ fn hydrogen_atom_reaches_the_reference_quality() {
     let raw = gsenc::io::raw::read_raw(shared_data("hydrogen_atom.float32"), [64, 64, 64], gsenc::io::raw::DType::F32, gsenc::io::raw::Order::XFastest).unwrap();
     let r = ValueRange::from_data(&raw.values, Transform::Linear).unwrap();
     let g = Grid::new(raw.dims, r.normalize(&raw.values).unwrap().values).unwrap();
-    let s = GridSamples { grid: &g };
-    let t = Target { reference: &g, samples: &s };
+    let t = Target { reference: &g, samples: &g };
     let mut cfg = EncodeConfig::new(4096, Schedule::Matched);
     cfg.iterations = Some(300);
     let out = encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();

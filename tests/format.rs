@@ -1,10 +1,12 @@
-//! The model file: round trips and rejection of damaged or foreign files.
+//! The file formats: round trips of the model file and rejection of
+//! damaged or foreign files; the step index.
 
-use gsenc::field::{IndexFrame, Transform, ValueRange};
+use gsenc::field::{IndexBox, IndexFrame, Transform, ValueRange};
+use gsenc::format::StepIndex;
 use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Payload, BYTES_PER_PRIMITIVE};
-use gsenc::quantize::CentreCoding;
+use gsenc::format::quantize::CentreCoding;
 use gsenc::model::{Model, ModelMeta};
-use gsenc::rng::Rng;
+use gsenc::math::rng::Rng;
 use gsenc::Error;
 
 fn model(n: usize) -> Model {
@@ -238,4 +240,22 @@ fn non_finite_parameters_behind_a_valid_checksum_are_refused() {
     b[n - 4..].copy_from_slice(&crc.to_le_bytes());
     let e = read_model(&b).unwrap_err();
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("non-finite"), "{e}");
+}
+
+#[test]
+fn step_index_round_trips_and_refuses_other_json() {
+    let global = IndexFrame { dims: [32, 16, 16], bmin: [-1.0, 0.0, 0.5], gamma: 16.0 };
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [20, 16, 16] }, IndexBox { lo: [12, 0, 0], hi: [32, 16, 16] }];
+    let range = ValueRange::new(0.1, 7.5, Transform::Log10).unwrap();
+    let index = StepIndex::new("rho", 4, Some(0.25), &range, &global, &boxes, 4, vec!["rho_000004.gsm".into(), "rho_000004_r1.gsm".into()]);
+    let text = index.to_json();
+    assert_eq!(StepIndex::from_json(&text).unwrap(), index);
+    assert_eq!(index.pieces[1].world_min[0], -1.0 + 12.0 / 16.0);
+    assert_eq!(index.pieces[1].world_max[0], 1.0);
+    assert!(matches!(StepIndex::from_json("{\"format\": \"other\"}"), Err(gsenc::Error::Format(_))));
+    assert!(matches!(StepIndex::from_json("not json"), Err(gsenc::Error::Format(_))));
+    let newer = text.replace("\"version\": 1", "\"version\": 9");
+    assert!(matches!(StepIndex::from_json(&newer), Err(gsenc::Error::Version(_))));
+    let missing_rank = text.replace("\"ranks\": 2", "\"ranks\": 3");
+    assert!(StepIndex::from_json(&missing_rank).unwrap_err().to_string().contains("ranks"));
 }

@@ -7,12 +7,13 @@
 mod common;
 use common::blobs;
 use gsenc::backend::cpu::CpuBackend;
-use gsenc::encoder::{encode, EncodeConfig, Schedule, Target};
+use gsenc::encode::{encode, EncodeConfig, Schedule};
+use gsenc::input::Target;
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
-use gsenc::global::{merge, piece_box};
-use gsenc::metrics::voxel_psnr;
+use gsenc::domain::pieces::merge;
+use gsenc::field::IndexBox;
+use gsenc::model::metrics::voxel_psnr;
 use gsenc::model::{Model, ModelMeta};
-use gsenc::samples::GridSamples;
 use gsenc::Error;
 
 const DIMS: [usize; 3] = [40, 24, 20];
@@ -42,8 +43,7 @@ fn encode_model(g: &Grid, x0: usize, budget: usize) -> Model {
     let mut cfg = EncodeConfig::new(budget, Schedule::Short);
     cfg.iterations = Some(400);
     cfg.points = Some(2048);
-    let samples = GridSamples { grid: g };
-    let out = encode(&Target { reference: g, samples: &samples }, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+    let out = encode(&Target { reference: g, samples: g }, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
     let frame = IndexFrame { dims: g.dims, bmin: [x0 as f64 * 0.5, -1.0, 2.0], gamma: 2.0 };
     let mut meta = ModelMeta::new(frame, range());
     meta.field = "rho".into();
@@ -92,7 +92,7 @@ fn merged_pieces_decode_one_seamless_field() {
     assert!(merged_cut <= 1.25 * single_cut, "error at the cut: merged pieces {merged_cut:.3e}, one model {single_cut:.3e}");
 
     // One piece's region of the global lattice.
-    let bb = piece_box(&global.meta.frame, &pb.meta.frame).unwrap();
+    let bb = global.meta.frame.box_of(&pb.meta.frame).unwrap();
     assert_eq!((bb.lo, bb.hi), ([CUT - HALO, 0, 0], DIMS));
 }
 
@@ -107,7 +107,7 @@ fn merging_moves_each_piece_into_the_global_frame_exactly() {
     assert_eq!(global.meta.frame.dims, [82, 12, 10]);
     let mut cpu = CpuBackend::new();
     for p in [&pa, &pb] {
-        let region = piece_box(&global.meta.frame, &p.meta.frame).unwrap();
+        let region = global.meta.frame.box_of(&p.meta.frame).unwrap();
         let part = global.decode_box(&mut cpu, global.meta.frame.dims, region).unwrap();
         let alone = p.decode(&mut cpu, None).unwrap();
         assert_eq!(part.dims, alone.dims);
@@ -142,8 +142,7 @@ fn pieces_off_one_lattice_are_refused() {
 /// and resampled, whole and in slabs.
 #[test]
 fn blend_of_a_model_cut_into_pieces_is_the_model() {
-    use gsenc::global::blend;
-    use gsenc::model::IndexBox;
+    use gsenc::domain::pieces::blend;
     let whole = blobs(DIMS, 7, 5);
     let model = encode_model(&whole, 0, 200);
     let global = model.meta.frame;
@@ -152,7 +151,7 @@ fn blend_of_a_model_cut_into_pieces_is_the_model() {
         .iter()
         .map(|b| {
             let mut m = model.clone();
-            m.meta.frame = gsenc::halo::frame_of(&global, b);
+            m.meta.frame = global.sub_frame(b);
             for q in &mut m.params {
                 q[0] -= b.lo[0] as f32;
             }
@@ -178,8 +177,7 @@ fn blend_of_a_model_cut_into_pieces_is_the_model() {
 /// piece's own decode; halfway across the overlap it is between them.
 #[test]
 fn blend_uses_each_piece_only_inside_its_box() {
-    use gsenc::global::blend;
-    use gsenc::model::IndexBox;
+    use gsenc::domain::pieces::blend;
     let whole = blobs(DIMS, 7, 5);
     let a = encode_model(&slab(&whole, 0, CUT + 6), 0, 150);
     let b = encode_model(&slab(&whole, CUT - 6, DIMS[0]), CUT - 6, 150);

@@ -4,10 +4,10 @@
 mod common;
 use common::*;
 use gsenc::backend::{cpu::CpuBackend, Backend};
-use gsenc::kernel::Primitive;
-use gsenc::loss::{regularizers, LossWeights};
-use gsenc::points::PointBatch;
-use gsenc::rng::Rng;
+use gsenc::math::kernel::Primitive;
+use gsenc::math::loss::{regularizers, LossWeights};
+use gsenc::backend::PointBatch;
+use gsenc::math::rng::Rng;
 
 /// A small random model whose primitives overlap a 12^3 box, with some scales
 /// outside the penalty band and some strongly anisotropic, so that every

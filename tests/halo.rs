@@ -4,12 +4,12 @@
 //! voxels; the step index round-trips and refuses what is not one.
 
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
-use gsenc::global::StepIndex;
-use gsenc::halo::{covering_box, data_bounds, frame_of, join, split, Kind};
-use gsenc::model::IndexBox;
-use gsenc::queue::StepData;
-use gsenc::reference::{prepare_cells, prepare_particles, Placement, RangeSpec};
-use gsenc::{cells::CellSize, cells::Cells, particles::Particles};
+use gsenc::domain::halo::{data_bounds, join, split, Kind};
+use gsenc::field::IndexBox;
+use gsenc::input::cells::{CellSize, Cells};
+use gsenc::input::particles::Particles;
+use gsenc::input::prepare::{prepare_cells, prepare_particles, Placement, RangeSpec};
+use gsenc::input::StepData;
 
 fn field(x: [f64; 3]) -> f32 {
     let r2: f64 = (0..3).map(|a| (x[a] - [0.45, 0.55, 0.5][a]).powi(2)).sum();
@@ -44,7 +44,7 @@ fn check_pieces(parts: Vec<StepData>, global_ref: &Grid, global: &IndexFrame, ha
         .iter()
         .map(|d| {
             let b = data_bounds(d);
-            covering_box(global, b.min, b.max, halo)
+            global.covering_box(b.min, b.max, halo)
         })
         .collect();
     let kind = Kind::of(&parts[0]);
@@ -161,7 +161,7 @@ fn grid_pieces_are_the_global_grid_with_halo_and_must_tile_it() {
     for (p, piece) in pieces.iter().enumerate() {
         let received: Vec<&[f64]> = sent.iter().map(|s| s[p].as_slice()).collect();
         let StepData::Grid { grid, frame } = join(Kind::Grid, &received, &global, piece).unwrap() else { panic!() };
-        assert_eq!(frame, frame_of(&global, piece));
+        assert_eq!(frame, global.sub_frame(piece));
         for (i, &v) in grid.values.iter().enumerate() {
             let [x, y, z] = grid.coords(i);
             assert_eq!(v, whole.values[whole.index(x + piece.lo[0], y, z)], "piece {p} voxel {x},{y},{z}");
@@ -177,22 +177,4 @@ fn grid_pieces_are_the_global_grid_with_halo_and_must_tile_it() {
     frame.bmin[1] += 0.3 / n as f64;
     let Err(err) = split(&StepData::Grid { grid, frame }, &global, &pieces) else { panic!("a grid off the lattice was split") };
     assert!(err.to_string().contains("lattice"), "{err}");
-}
-
-#[test]
-fn step_index_round_trips_and_refuses_other_json() {
-    let global = IndexFrame { dims: [32, 16, 16], bmin: [-1.0, 0.0, 0.5], gamma: 16.0 };
-    let boxes = [IndexBox { lo: [0, 0, 0], hi: [20, 16, 16] }, IndexBox { lo: [12, 0, 0], hi: [32, 16, 16] }];
-    let range = ValueRange::new(0.1, 7.5, Transform::Log10).unwrap();
-    let index = StepIndex::new("rho", 4, Some(0.25), &range, &global, &boxes, 4, vec!["rho_000004.gsm".into(), "rho_000004_r1.gsm".into()]);
-    let text = index.to_json();
-    assert_eq!(StepIndex::from_json(&text).unwrap(), index);
-    assert_eq!(index.pieces[1].world_min[0], -1.0 + 12.0 / 16.0);
-    assert_eq!(index.pieces[1].world_max[0], 1.0);
-    assert!(matches!(StepIndex::from_json("{\"format\": \"other\"}"), Err(gsenc::Error::Format(_))));
-    assert!(matches!(StepIndex::from_json("not json"), Err(gsenc::Error::Format(_))));
-    let newer = text.replace("\"version\": 1", "\"version\": 9");
-    assert!(matches!(StepIndex::from_json(&newer), Err(gsenc::Error::Version(_))));
-    let missing_rank = text.replace("\"ranks\": 2", "\"ranks\": 3");
-    assert!(StepIndex::from_json(&missing_rank).unwrap_err().to_string().contains("ranks"));
 }

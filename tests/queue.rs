@@ -8,12 +8,14 @@
 mod common;
 use common::blobs;
 use gsenc::backend::cpu::CpuBackend;
-use gsenc::encoder::{EncodeConfig, Schedule};
+use gsenc::encode::{EncodeConfig, Schedule};
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
-use gsenc::format::Payload;
 use gsenc::model::Model;
-use gsenc::queue::{BackgroundEncoder, Job, JobState, ModelSink, Pushed, QueueConfig, StepData, WhenFull};
-use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange, StepInput, WarmStart};
+use gsenc::input::StepData;
+use gsenc::series::queue::{BackgroundEncoder, Job, JobState, ModelSink, Pushed, QueueConfig, WhenFull};
+use gsenc::encode::WarmStart;
+use gsenc::input::Input;
+use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange};
 use gsenc::Error;
 use std::sync::mpsc::{channel, Receiver, Sender};
 use std::sync::{Arc, Mutex};
@@ -45,8 +47,6 @@ fn queue_config(max_jobs: usize, when_full: WhenFull) -> QueueConfig {
         max_bytes: max_jobs * DIMS.iter().product::<usize>() * 4,
         when_full,
         threads: 1,
-        payload: Payload::Float32,
-        rank: 0,
     }
 }
 
@@ -98,9 +98,9 @@ fn queued_models_equal_the_series_encoders() {
     assert_eq!(queued.len(), 3);
     for (k, m) in queued.iter().enumerate() {
         let g = step_grid(k as u64);
-        let r = direct.encode_step("rho", k as u64, None, StepInput::Grid { values: &g, frame: frame() }, &mut cpu, &mut |_| {}).unwrap();
-        assert_eq!(m.params, r.model.params, "step {k}: the queue's model differs from the series encoder's");
-        assert_eq!(m.meta.schedule, r.model.meta.schedule);
+        let r = direct.encode_step("rho", k as u64, None, Input::Grid { values: &g, frame: frame() }, &mut cpu, &mut |_| {}).unwrap();
+        assert_eq!(m.params, r.encoded.model.params, "step {k}: the queue's model differs from the series encoder's");
+        assert_eq!(m.meta.schedule, r.encoded.model.meta.schedule);
     }
     match q.poll("rho", 2) {
         Some(JobState::Written { psnr, location }) => {
@@ -254,12 +254,12 @@ fn bad_pushes_are_refused_at_once() {
     assert!(q.poll("rho", 0).is_none());
     let mut cfg = queue_config(8, WhenFull::Block);
     cfg.threads = 0;
-    assert!(BackgroundEncoder::new(cfg, Box::new(gsenc::queue::CallerStores)).is_err());
+    assert!(BackgroundEncoder::new(cfg, Box::new(gsenc::series::queue::CallerStores)).is_err());
 }
 
 #[test]
 fn a_caller_stored_model_waits_for_the_caller() {
-    let q = BackgroundEncoder::new(queue_config(8, WhenFull::Block), Box::new(gsenc::queue::CallerStores)).unwrap();
+    let q = BackgroundEncoder::new(queue_config(8, WhenFull::Block), Box::new(gsenc::series::queue::CallerStores)).unwrap();
     q.push(job("rho", 0)).unwrap();
     q.push(job("rho", 1)).unwrap();
     q.wait(None).unwrap();

@@ -2,8 +2,8 @@
 //! replacement proportional to m^0.6 (statistical tests with fixed seeds), and
 //! the peak stream works on sample positions.
 
-use gsenc::samples::{Sample, SampleArrays};
-use gsenc::seeding::{seed, Stream};
+use gsenc::input::samples::{Sample, SampleArrays};
+use gsenc::encode::seeding::{seed, Stream};
 
 const MASSES: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 

@@ -5,10 +5,12 @@
 mod common;
 use common::blobs;
 use gsenc::backend::cpu::CpuBackend;
-use gsenc::encoder::{encode, EncodeConfig, Schedule, Target, Validation};
+use gsenc::encode::{encode, EncodeConfig, Schedule, Validation};
+use gsenc::input::Target;
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
-use gsenc::samples::GridSamples;
-use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange, StepInput, WarmStart};
+use gsenc::encode::WarmStart;
+use gsenc::input::Input;
+use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange};
 use gsenc::Error;
 
 const DIMS: [usize; 3] = [24, 20, 16];
@@ -52,7 +54,7 @@ fn psnr_at_validation_points(model: &gsenc::model::Model, reference: &Grid) -> f
             ((decoded.values[i] - r) as f64).powi(2)
         })
         .sum();
-    gsenc::metrics::psnr_from_mse(se / v.points.len() as f64)
+    gsenc::model::metrics::psnr_from_mse(se / v.points.len() as f64)
 }
 
 #[test]
@@ -60,28 +62,28 @@ fn a_warm_start_begins_at_the_previous_models_psnr() {
     let mut s = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
     let g = step_grid(0, DIMS);
     let mut cpu = CpuBackend::new();
-    let first = s.encode_step("rho", 0, None, StepInput::Grid { values: &g, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    assert!(!first.warm_started);
+    let first = s.encode_step("rho", 0, None, Input::Grid { values: &g, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert!(!first.encoded.warm_started);
     // The same field again: a warm start scores, before its first update,
     // exactly what the previous model scores.
-    let second = s.encode_step("rho", 1, Some(0.5), StepInput::Grid { values: &g, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    assert!(second.warm_started);
-    assert_eq!(second.output.iterations, 1000, "coarse stride: 1000 iterations");
-    assert!(second.output.relocations.is_empty(), "coarse stride: no relocation");
-    assert!(second.output.seeding.is_none(), "a warm start does not seed");
-    assert_eq!(second.model.len(), first.model.len());
+    let second = s.encode_step("rho", 1, Some(0.5), Input::Grid { values: &g, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert!(second.encoded.warm_started);
+    assert_eq!(second.encoded.output.iterations, 1000, "coarse stride: 1000 iterations");
+    assert!(second.encoded.output.relocations.is_empty(), "coarse stride: no relocation");
+    assert!(second.encoded.output.seeding.is_none(), "a warm start does not seed");
+    assert_eq!(second.encoded.model.len(), first.encoded.model.len());
     // Independently: decode the first model and score it on the same points.
     let range = s.range("rho").unwrap();
     let reference = Grid::new(DIMS, range.normalize(&g.values).unwrap().values).unwrap();
-    let want = psnr_at_validation_points(&first.model, &reference);
-    let (t0, p0) = second.output.validation[0];
+    let want = psnr_at_validation_points(&first.encoded.model, &reference);
+    let (t0, p0) = second.encoded.output.validation[0];
     assert_eq!(t0, 0);
     assert!((p0 - want).abs() < 1e-3, "warm start begins at {p0} dB, the previous model scores {want} dB");
-    assert!((first.output.validation.last().unwrap().1 - want).abs() < 1e-3);
+    assert!((first.encoded.output.validation.last().unwrap().1 - want).abs() < 1e-3);
     // A seeded start begins far lower.
-    assert!(first.output.validation[0].1 < p0 - 3.0, "{:?}", first.output.validation);
+    assert!(first.encoded.output.validation[0].1 < p0 - 3.0, "{:?}", first.encoded.output.validation);
     // And the log covers the run: 0, every 20, and the end.
-    let its: Vec<usize> = second.output.validation.iter().map(|&(t, _)| t).collect();
+    let its: Vec<usize> = second.encoded.output.validation.iter().map(|&(t, _)| t).collect();
     assert_eq!(its, (0..1000).step_by(20).chain([1000]).collect::<Vec<_>>());
 }
 
@@ -90,30 +92,30 @@ fn the_series_range_is_the_first_steps_and_later_values_are_clamped() {
     let mut s = series(WarmStart::Dense, SeriesRange::FirstStep(Transform::Linear));
     let mut cpu = CpuBackend::new();
     let g0 = step_grid(0, DIMS);
-    let r0 = s.encode_step("rho", 0, None, StepInput::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    let r0 = s.encode_step("rho", 0, None, Input::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
     let want = ValueRange::from_data(&g0.values, Transform::Linear).unwrap();
-    assert_eq!(r0.model.meta.range, want);
-    assert_eq!(r0.clamped_values, 0);
+    assert_eq!(r0.encoded.model.meta.range, want);
+    assert_eq!(r0.prepared.clamped_values, 0);
     // Step 1 spans [0, 24]: outside the series' range on both sides.
     let g1 = Grid::new(DIMS, step_grid(1, DIMS).values.iter().map(|v| (v - 2.0) * 2.4).collect()).unwrap();
     let outside = g1.values.iter().filter(|&&v| (v as f64) < want.vmin || (v as f64) > want.vmax).count();
     assert!(outside > 0);
-    let r1 = s.encode_step("rho", 5, None, StepInput::Grid { values: &g1, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    assert_eq!(r1.model.meta.range, want, "the range is the series', not the step's");
-    assert_eq!(r1.clamped_values, outside);
-    assert_eq!(r1.output.iterations, 1500, "dense stride: 1500 iterations");
-    assert_eq!(r1.output.relocations.len(), 3, "dense stride: relocation on");
-    assert_eq!(r1.model.meta.step, 5);
+    let r1 = s.encode_step("rho", 5, None, Input::Grid { values: &g1, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert_eq!(r1.encoded.model.meta.range, want, "the range is the series', not the step's");
+    assert_eq!(r1.prepared.clamped_values, outside);
+    assert_eq!(r1.encoded.output.iterations, 1500, "dense stride: 1500 iterations");
+    assert_eq!(r1.encoded.output.relocations.len(), 3, "dense stride: relocation on");
+    assert_eq!(r1.encoded.model.meta.step, 5);
     // Validation scores each step against its own reference, on the first
     // step's points.
     let ref1 = Grid::new(DIMS, want.normalize(&g1.values).unwrap().values).unwrap();
-    let p1 = psnr_at_validation_points(&r1.model, &ref1);
-    assert!((r1.output.validation.last().unwrap().1 - p1).abs() < 1e-3, "{:?} vs {p1}", r1.output.validation.last());
+    let p1 = psnr_at_validation_points(&r1.encoded.model, &ref1);
+    assert!((r1.encoded.output.validation.last().unwrap().1 - p1).abs() < 1e-3, "{:?} vs {p1}", r1.encoded.output.validation.last());
     // A fixed range is used from the first step on.
     let fixed = ValueRange::new(0.0, 30.0, Transform::Linear).unwrap();
     let mut s = series(WarmStart::Dense, SeriesRange::Fixed(fixed));
-    let r = s.encode_step("rho", 0, None, StepInput::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    assert_eq!(r.model.meta.range, fixed);
+    let r = s.encode_step("rho", 0, None, Input::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert_eq!(r.encoded.model.meta.range, fixed);
 }
 
 #[test]
@@ -122,14 +124,13 @@ fn independent_steps_equal_standalone_encodes() {
     let mut cpu = CpuBackend::new();
     let g0 = step_grid(0, DIMS);
     let g1 = step_grid(1, DIMS);
-    s.encode_step("rho", 0, None, StepInput::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    let r1 = s.encode_step("rho", 1, None, StepInput::Grid { values: &g1, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    assert!(!r1.warm_started);
+    s.encode_step("rho", 0, None, Input::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    let r1 = s.encode_step("rho", 1, None, Input::Grid { values: &g1, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert!(!r1.encoded.warm_started);
     let range = s.range("rho").unwrap();
     let reference = Grid::new(DIMS, range.normalize(&g1.values).unwrap().values).unwrap();
-    let samples = GridSamples { grid: &reference };
-    let alone = encode(&Target { reference: &reference, samples: &samples }, &base(), None, &mut cpu, &mut |_| {}).unwrap();
-    assert_eq!(r1.model.params, alone.params, "validation scoring must not change the model");
+    let alone = encode(&Target { reference: &reference, samples: &reference }, &base(), None, &mut cpu, &mut |_| {}).unwrap();
+    assert_eq!(r1.encoded.model.params, alone.params, "validation scoring must not change the model");
 }
 
 #[test]
@@ -137,31 +138,31 @@ fn steps_that_do_not_fit_the_series_are_refused() {
     let mut s = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
     let mut cpu = CpuBackend::new();
     let g0 = step_grid(0, DIMS);
-    s.encode_step("rho", 3, None, StepInput::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    s.encode_step("rho", 3, None, Input::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
     // Another lattice.
     let other = [20, 20, 16];
     let g = step_grid(1, other);
-    let e = s.encode_step("rho", 4, None, StepInput::Grid { values: &g, frame: frame(other) }, &mut cpu, &mut |_| {});
+    let e = s.encode_step("rho", 4, None, Input::Grid { values: &g, frame: frame(other) }, &mut cpu, &mut |_| {});
     assert!(matches!(&e, Err(Error::InvalidArgument(m)) if m.contains("lattice")), "{:?}", e.err());
     // A step that does not follow the last one.
-    let e = s.encode_step("rho", 3, None, StepInput::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {});
+    let e = s.encode_step("rho", 3, None, Input::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {});
     assert!(matches!(&e, Err(Error::InvalidArgument(m)) if m.contains("does not follow")), "{:?}", e.err());
     // Values and frame that disagree, a missing field name, NaN values.
-    let e = s.encode_step("rho", 9, None, StepInput::Grid { values: &g0, frame: frame(other) }, &mut cpu, &mut |_| {});
+    let e = s.encode_step("rho", 9, None, Input::Grid { values: &g0, frame: frame(other) }, &mut cpu, &mut |_| {});
     assert!(matches!(e, Err(Error::InvalidArgument(_))));
-    let e = s.encode_step("", 9, None, StepInput::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {});
+    let e = s.encode_step("", 9, None, Input::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {});
     assert!(matches!(e, Err(Error::InvalidArgument(_))));
     let mut bad = g0.clone();
     bad.values[17] = f32::NAN;
-    let e = s.encode_step("rho", 9, None, StepInput::Grid { values: &bad, frame: frame(DIMS) }, &mut cpu, &mut |_| {});
+    let e = s.encode_step("rho", 9, None, Input::Grid { values: &bad, frame: frame(DIMS) }, &mut cpu, &mut |_| {});
     assert!(matches!(e, Err(Error::InvalidData(_))));
     // None of these touched the series: step 4 on the series' lattice works
     // and warm-starts from step 3.
-    let r = s.encode_step("rho", 4, None, StepInput::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    assert!(r.warm_started);
+    let r = s.encode_step("rho", 4, None, Input::Grid { values: &g0, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert!(r.encoded.warm_started);
     // Another field starts its own series.
-    let r = s.encode_step("temp", 0, None, StepInput::Grid { values: &g, frame: frame(other) }, &mut cpu, &mut |_| {}).unwrap();
-    assert!(!r.warm_started);
+    let r = s.encode_step("temp", 0, None, Input::Grid { values: &g, frame: frame(other) }, &mut cpu, &mut |_| {}).unwrap();
+    assert!(!r.encoded.warm_started);
 }
 
 #[test]
@@ -171,23 +172,23 @@ fn a_resumed_series_continues_exactly_as_an_unbroken_one() {
     let mut unbroken = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
     let mut models = Vec::new();
     for (k, g) in steps.iter().enumerate() {
-        let r = unbroken.encode_step("rho", k as u64, None, StepInput::Grid { values: g, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+        let r = unbroken.encode_step("rho", k as u64, None, Input::Grid { values: g, frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
         models.push(r);
     }
     // Stop after step 1 (its model stored and read back), start again.
-    let stored = gsenc::format::read_model(&gsenc::format::write_model(&models[1].model).unwrap()).unwrap();
+    let stored = gsenc::format::read_model(&gsenc::format::write_model(&models[1].encoded.model).unwrap()).unwrap();
     let mut resumed = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
     resumed.resume(stored.clone()).unwrap();
     assert_eq!(resumed.range("rho"), unbroken.range("rho"));
-    let r = resumed.encode_step("rho", 2, None, StepInput::Grid { values: &steps[2], frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
-    assert!(r.warm_started);
-    assert_eq!(r.model.params, models[2].model.params, "the resumed step differs from the unbroken series'");
-    assert_eq!(r.output.validation, models[2].output.validation, "the validation points differ");
+    let r = resumed.encode_step("rho", 2, None, Input::Grid { values: &steps[2], frame: frame(DIMS) }, &mut cpu, &mut |_| {}).unwrap();
+    assert!(r.encoded.warm_started);
+    assert_eq!(r.encoded.model.params, models[2].encoded.model.params, "the resumed step differs from the unbroken series'");
+    assert_eq!(r.encoded.output.validation, models[2].encoded.output.validation, "the validation points differ");
     // A step on a shifted box is refused, as is resuming a field twice.
     let mut shifted = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
     shifted.resume(stored.clone()).unwrap();
     let moved = IndexFrame { bmin: [0.5, 0.0, 0.0], ..frame(DIMS) };
-    let e = shifted.encode_step("rho", 2, None, StepInput::Grid { values: &steps[2], frame: moved }, &mut cpu, &mut |_| {});
+    let e = shifted.encode_step("rho", 2, None, Input::Grid { values: &steps[2], frame: moved }, &mut cpu, &mut |_| {});
     assert!(matches!(&e, Err(Error::InvalidArgument(m)) if m.contains("box")), "{:?}", e.err());
     assert!(matches!(shifted.resume(stored), Err(Error::InvalidArgument(_))));
 }

@@ -17,9 +17,9 @@
 //! of bricks is one parallel task that writes its own slice of the output.
 
 use super::{Backend, Lattice, PointLoss};
-use crate::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
-use crate::loss::{point_terms, v_eval, LossWeights, PointNorm};
-use crate::points::PointBatch;
+use crate::math::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
+use crate::math::loss::{point_terms, v_eval, LossWeights, PointNorm};
+use crate::backend::PointBatch;
 use rayon::prelude::*;
 
 /// Work chunks per batch: enough for load balance on many cores; fixed so that
@@ -87,7 +87,7 @@ fn block_kernels(blk: &Block, x: [f32; 3]) -> (Lane, [Lane; 3]) {
         let u1 = a[3][l] * dx + a[4][l] * dy + a[5][l] * dz;
         let u2 = a[6][l] * dx + a[7][l] * dy + a[8][l] * dz;
         let d2 = u0 * u0 + u1 * u1 + u2 * u2;
-        let e = crate::kernel::exp_neg_half(d2);
+        let e = crate::math::kernel::exp_neg_half(d2);
         k[l] = if d2 < CUTOFF_D2 { e } else { 0.0 };
         y[0][l] = u0;
         y[1][l] = u1;
@@ -348,13 +348,6 @@ impl CpuBackend {
         Self::default()
     }
 
-    /// Kernels `K(x)` evaluated by the point passes since creation: pairs of a
-    /// point and a candidate primitive, counted by the 8-lane blocks actually
-    /// evaluated (blocks whose box misses the point are skipped, not counted).
-    pub fn kernel_evaluations(&self) -> u64 {
-        self.evaluations
-    }
-
     #[doc(hidden)]
     pub fn profile_bin(&mut self, params: &[Primitive], pos: &[[f32; 3]]) -> (usize, usize) {
         self.prep.update(params);
@@ -604,6 +597,12 @@ impl Backend for CpuBackend {
         "cpu".into()
     }
 
+    /// Counted by the 8-lane blocks actually evaluated (blocks whose box
+    /// misses the point are skipped, not counted).
+    fn kernel_evaluations(&self) -> u64 {
+        self.evaluations
+    }
+
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) {
         assert!(rho.len() == pos.len() && n.len() == pos.len());
         if pos.is_empty() {
@@ -766,7 +765,7 @@ impl Backend for CpuBackend {
                                     let u1 = a[1][0] * dx + c[1];
                                     let u2 = a[2][0] * dx + c[2];
                                     let d2 = u0 * u0 + u1 * u1 + u2 * u2;
-                                    let e = crate::kernel::exp_neg_half(d2);
+                                    let e = crate::math::kernel::exp_neg_half(d2);
                                     let wk = f.w * if d2 < CUTOFF_D2 { e } else { 0.0 };
                                     *r += wk;
                                     *n += wk * f.s;
@@ -792,8 +791,8 @@ impl Backend for CpuBackend {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernel::isotropic;
-    use crate::rng::Rng;
+    use crate::math::kernel::isotropic;
+    use crate::math::rng::Rng;
 
     fn random_prims(rng: &mut Rng, n: usize) -> Vec<Primitive> {
         (0..n)

@@ -7,14 +7,29 @@
 //!
 //! Data layout for devices without float atomics: the point pass writes each
 //! point's `(g_rho, g_n)`, and a primitive pass gathers, for each primitive,
-//! the pair sums of [`crate::kernel::GradAcc`] over the points in its box. No
+//! the pair sums of [`crate::math::kernel::GradAcc`] over the points in its box. No
 //! two threads ever add into one location.
 
 pub mod cpu;
 
-use crate::kernel::Primitive;
-use crate::loss::LossWeights;
-use crate::points::PointBatch;
+use crate::math::kernel::Primitive;
+use crate::math::loss::LossWeights;
+
+/// Points and their reference values.
+#[derive(Clone, Debug, Default)]
+pub struct PointBatch {
+    pub pos: Vec<[f32; 3]>,
+    pub vref: Vec<f32>,
+}
+
+impl PointBatch {
+    pub fn len(&self) -> usize {
+        self.pos.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.pos.is_empty()
+    }
+}
 
 /// The unweighted point terms of the loss over a batch.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -71,13 +86,17 @@ pub trait Backend: Send {
     /// A human-readable name ("cpu", "wgpu:<adapter>").
     fn name(&self) -> String;
 
+    /// Kernels `K(x)` evaluated by the point passes since creation: pairs of
+    /// a point and a candidate primitive (for throughput figures).
+    fn kernel_evaluations(&self) -> u64;
+
     /// Mixture density `rho` and numerator `n` at each point.
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]);
 
     /// The point terms L_val and L_cov over `batch`, and the gradient of their
     /// weighted sum with respect to every parameter, written into `grad` (one
-    /// entry per primitive): the pair sums of [`crate::kernel::GradAcc`] turned
-    /// into parameter gradients by [`crate::kernel::Frame::finalize`]. The
+    /// entry per primitive): the pair sums of [`crate::math::kernel::GradAcc`] turned
+    /// into parameter gradients by [`crate::math::kernel::Frame::finalize`]. The
     /// result must not depend on the thread count.
     fn point_loss_grad(
         &mut self,

@@ -92,10 +92,20 @@ pub fn parse_raw(bytes: &[u8], dims: [usize; 3], dtype: DType, order: Order) -> 
     Grid::new(dims, vals)
 }
 
-pub fn read_raw(path: impl AsRef<Path>, dims: [usize; 3], dtype: DType, order: Order) -> Result<Grid> {
+/// The bytes of a raw array file; a file named `*.zst` is one or more zstd
+/// frames, decompressed here (how the repository's `data/` is stored).
+pub fn read_bytes(path: impl AsRef<Path>) -> Result<Vec<u8>> {
     let path = path.as_ref();
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse_raw(&bytes, dims, dtype, order)
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zst")) {
+        return Ok(bytes);
+    }
+    zstd::stream::decode_all(bytes.as_slice())
+        .map_err(|e| Error::data(format!("{}: not a complete zstd-compressed file ({e})", path.display())))
+}
+
+pub fn read_raw(path: impl AsRef<Path>, dims: [usize; 3], dtype: DType, order: Order) -> Result<Grid> {
+    parse_raw(&read_bytes(path)?, dims, dtype, order)
 }
 
 /// Which rows of a per-item array file to read: `count` items starting at
@@ -145,8 +155,7 @@ pub fn parse_items(bytes: &[u8], dtype: DType, comps: usize, rows: Rows, what: &
 /// Reads per-item arrays from a file (see [`parse_items`]).
 pub fn read_items(path: impl AsRef<Path>, dtype: DType, comps: usize, rows: Rows) -> Result<Vec<f64>> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    parse_items(&bytes, dtype, comps, rows, &path.display().to_string())
+    parse_items(&read_bytes(path)?, dtype, comps, rows, &path.display().to_string())
 }
 
 /// A grid as little-endian float32, x fastest.
@@ -168,6 +177,31 @@ mod tests {
         assert_eq!(parse_raw(&b, [2, 1, 1], DType::F64, Order::XFastest).unwrap().values, vec![1.5, -2.0]);
         let err = parse_raw(&b, [3, 1, 1], DType::F64, Order::XFastest).unwrap_err();
         assert!(err.to_string().contains("16 bytes"), "{err}");
+    }
+
+    #[test]
+    fn zst_files_read_as_their_content() {
+        let dir = std::env::temp_dir().join(format!("gsenc-raw-zst-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let values: Vec<f32> = (0..60).map(|i| (i as f32).sin()).collect();
+        let plain = to_f32_bytes(&values);
+        let packed = zstd::stream::encode_all(plain.as_slice(), 3).unwrap();
+        std::fs::write(dir.join("g.f32.zst"), &packed).unwrap();
+        let g = read_raw(dir.join("g.f32.zst"), [5, 4, 3], DType::F32, Order::XFastest).unwrap();
+        assert_eq!(g.values, values);
+        let items = read_items(dir.join("g.f32.zst"), DType::F32, 3, Rows { count: None, row: 0 }).unwrap();
+        assert_eq!(items.len(), 60);
+        // A truncated file, and raw bytes under a .zst name, are refused by name.
+        std::fs::write(dir.join("cut.f32.zst"), &packed[..packed.len() / 2]).unwrap();
+        std::fs::write(dir.join("plain.f32.zst"), &plain).unwrap();
+        for bad in ["cut.f32.zst", "plain.f32.zst"] {
+            let e = read_raw(dir.join(bad), [5, 4, 3], DType::F32, Order::XFastest).unwrap_err();
+            assert!(matches!(&e, Error::InvalidData(m) if m.contains(bad) && m.contains("zstd")), "{e}");
+        }
+        // Without the name, the compressed bytes are raw data (of the wrong size).
+        std::fs::write(dir.join("g.f32"), &packed).unwrap();
+        assert!(read_raw(dir.join("g.f32"), [5, 4, 3], DType::F32, Order::XFastest).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

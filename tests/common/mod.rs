@@ -5,8 +5,8 @@
 
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 use gsenc::model::{Model, ModelMeta};
-use gsenc::kernel::Primitive;
-use gsenc::rng::Rng;
+use gsenc::math::kernel::Primitive;
+use gsenc::math::rng::Rng;
 
 pub fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())

@@ -1,0 +1,159 @@
+//! What every C entry point shares: element types of caller arrays, the
+//! caller's structs that start with their own size, strings, and copies
+//! of strided arrays out of the caller's memory.
+
+use crate::status::{fail, gsenc_status, Failure};
+use std::os::raw::{c_char, c_void};
+
+/// Element types of pushed arrays.
+pub const GSENC_DTYPE_FLOAT32: i32 = 0;
+pub const GSENC_DTYPE_FLOAT64: i32 = 1;
+
+#[derive(Clone, Copy)]
+pub(crate) enum DType {
+    F32,
+    F64,
+}
+
+impl DType {
+    pub(crate) fn from_c(code: i32) -> Result<DType, Failure> {
+        match code {
+            GSENC_DTYPE_FLOAT32 => Ok(DType::F32),
+            GSENC_DTYPE_FLOAT64 => Ok(DType::F64),
+            d => fail(gsenc_status::InvalidArgument, format!("unknown dtype {d} (GSENC_DTYPE_FLOAT32 or _FLOAT64)")),
+        }
+    }
+
+    /// Element `at` of an array of this type.
+    ///
+    /// # Safety
+    /// `data` holds at least `at + 1` elements of this type.
+    pub(crate) unsafe fn read(self, data: *const c_void, at: isize) -> f64 {
+        // SAFETY: per the contract; unaligned reads tolerate any caller buffer.
+        unsafe {
+            match self {
+                DType::F32 => data.cast::<f32>().offset(at).read_unaligned() as f64,
+                DType::F64 => data.cast::<f64>().offset(at).read_unaligned(),
+            }
+        }
+    }
+}
+
+/// A caller's NUL-terminated UTF-8 string.
+///
+/// # Safety
+/// `s` is NULL or points to a NUL-terminated string.
+pub(crate) unsafe fn c_str(s: *const c_char, what: &str) -> Result<String, Failure> {
+    if s.is_null() {
+        return fail(gsenc_status::NullPointer, format!("{what} is NULL"));
+    }
+    // SAFETY: per the contract.
+    let c = unsafe { std::ffi::CStr::from_ptr(s) };
+    c.to_str().map(str::to_owned).map_err(|_| Failure(gsenc_status::InvalidArgument, format!("{what} is not UTF-8")))
+}
+
+/// Grid extents as dims, each positive and their product bounded.
+pub(crate) fn extents(e: [u64; 3]) -> Result<[usize; 3], Failure> {
+    let dims = e.map(|d| usize::try_from(d).unwrap_or(usize::MAX));
+    let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n > 0 && n <= 1 << 34);
+    match n {
+        Some(_) => Ok(dims),
+        None => fail(gsenc_status::InvalidArgument, format!("extents {e:?} must be positive with at most 2^34 cells")),
+    }
+}
+
+/// Checks that a caller's struct, which starts with `size_t struct_size`,
+/// holds at least this version's fields. Reads the size only.
+///
+/// # Safety
+/// `p` is NULL or points to such a struct.
+pub(crate) unsafe fn check_sized<T>(p: *const T, what: &str) -> Result<(), Failure> {
+    if p.is_null() {
+        return fail(gsenc_status::NullPointer, format!("{what} is NULL"));
+    }
+    // SAFETY: per the contract, the first field is a usize.
+    let size = unsafe { p.cast::<usize>().read_unaligned() };
+    let want = std::mem::size_of::<T>();
+    if size < want {
+        return fail(gsenc_status::StructSize, format!("{what}: struct_size is {size}, this gsenc needs {want}"));
+    }
+    Ok(())
+}
+
+/// A copy of a caller's struct after [`check_sized`].
+///
+/// # Safety
+/// As for [`check_sized`], and the struct is initialised.
+pub(crate) unsafe fn read_sized<T: Copy>(p: *const T, what: &str) -> Result<T, Failure> {
+    // SAFETY: per the contract; then it holds at least size_of::<T>() bytes.
+    unsafe {
+        check_sized(p, what)?;
+        Ok(p.read_unaligned())
+    }
+}
+
+/// `n` tuples of three from a caller's array (strides in elements, 0 = default).
+///
+/// # Safety
+/// `ptr` holds every element the count and strides name.
+pub(crate) unsafe fn read_tuples(dtype: DType, ptr: *const c_void, n: usize, stride: i64, component: i64) -> Vec<[f64; 3]> {
+    let (ts, cs) = (if stride == 0 { 3 } else { stride }, if component == 0 { 1 } else { component });
+    // SAFETY: per the contract.
+    (0..n as i64).map(|i| std::array::from_fn(|c| unsafe { dtype.read(ptr, (i * ts + c as i64 * cs) as isize) })).collect()
+}
+
+/// `n` scalars from a caller's array (stride in elements, 0 = 1).
+///
+/// # Safety
+/// `ptr` holds every element the count and stride name.
+pub(crate) unsafe fn read_scalars(dtype: DType, ptr: *const c_void, n: usize, stride: i64) -> Vec<f64> {
+    let s = if stride == 0 { 1 } else { stride };
+    // SAFETY: per the contract.
+    (0..n as i64).map(|i| unsafe { dtype.read(ptr, (i * s) as isize) }).collect()
+}
+
+/// The values of a strided grid, x fastest, as float32, into `values`
+/// (a recycled buffer: no page faults for a fresh allocation). Rows with unit
+/// stride are copied as slices (a 128^3 float push is a few memcpy-speed
+/// milliseconds, the solver's only wait); other layouts element by element.
+///
+/// # Safety
+/// `ptr` holds every element that `dims` and `strides` name.
+pub(crate) unsafe fn copy_grid(dtype: DType, ptr: *const c_void, dims: [usize; 3], strides: [i64; 3], mut values: Vec<f32>) -> Vec<f32> {
+    values.clear();
+    values.reserve(dims.iter().product());
+    // Slices need aligned data; a misaligned caller buffer takes the slow path.
+    let unit = match dtype {
+        DType::F32 if ptr.cast::<f32>().is_aligned() => strides[0] == 1,
+        DType::F64 if ptr.cast::<f64>().is_aligned() => strides[0] == 1,
+        _ => false,
+    };
+    for k in 0..dims[2] as i64 {
+        for j in 0..dims[1] as i64 {
+            let row = j * strides[1] + k * strides[2];
+            // SAFETY (all three arms): per the contract, the row's elements exist.
+            match (dtype, unit) {
+                (DType::F32, true) => values.extend_from_slice(unsafe {
+                    std::slice::from_raw_parts(ptr.cast::<f32>().offset(row as isize), dims[0])
+                }),
+                (DType::F64, true) => values.extend(
+                    unsafe { std::slice::from_raw_parts(ptr.cast::<f64>().offset(row as isize), dims[0]) }.iter().map(|&v| v as f32),
+                ),
+                _ => values.extend((0..dims[0] as i64).map(|i| unsafe { dtype.read(ptr, (row + i * strides[0]) as isize) } as f32)),
+            }
+        }
+    }
+    values
+}
+
+pub(crate) fn item_count(count: u64, what: &str) -> Result<usize, Failure> {
+    usize::try_from(count)
+        .ok()
+        .filter(|&n| n > 0 && n <= 1 << 40)
+        .ok_or_else(|| Failure(gsenc_status::InvalidArgument, format!("{what} count {count} must be 1..2^40")))
+}
+
+/// A caller's time: NaN (or any non-finite value) means unknown.
+pub(crate) fn time_of(time: f64) -> Option<f64> {
+    time.is_finite().then_some(time)
+}

@@ -1,0 +1,70 @@
+//! The C API writing an HDF5 store (cargo feature `hdf5`): models are
+//! appended at the synchronising calls, on the caller's thread, and read
+//! back equal to the encoder's own.
+
+#[path = "../tests/common/mod.rs"]
+mod common;
+use crate::config::{gsenc_config, gsenc_config_init, GSENC_OUTPUT_HDF5, GSENC_SCHEDULE_SHORT};
+use crate::encoder::*;
+use crate::inputs::gsenc_grid;
+use crate::jobs::*;
+use crate::status::gsenc_status;
+use common::blobs;
+use gsenc::io::store::{EntryKey, Store};
+use std::ffi::CString;
+
+#[test]
+fn the_c_api_appends_every_step_to_an_hdf5_store() {
+    let _hdf5 = common::hdf5_serial();
+    let dir = std::env::temp_dir().join(format!("gsenc-capi-h5-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("run.h5");
+    let _ = std::fs::remove_file(&path);
+    let c_path = CString::new(path.to_str().unwrap()).unwrap();
+    let field = CString::new("rho").unwrap();
+    unsafe {
+        let mut cfg: gsenc_config = std::mem::zeroed();
+        cfg.struct_size = std::mem::size_of::<gsenc_config>();
+        assert_eq!(gsenc_config_init(&mut cfg), gsenc_status::Ok);
+        cfg.budget = 40;
+        cfg.schedule = GSENC_SCHEDULE_SHORT;
+        cfg.iterations = 40;
+        cfg.warm_iterations = 20;
+        cfg.points = 256;
+        cfg.output_format = GSENC_OUTPUT_HDF5;
+        cfg.output_dir = c_path.as_ptr();
+        let mut enc = std::ptr::null_mut();
+        assert_eq!(gsenc_encoder_create(&cfg, &mut enc), gsenc_status::Ok);
+        let dims = [12usize, 10, 8];
+        let mut psnr = [0.0; 3];
+        for step in 0..3u64 {
+            let g = blobs(dims, 90 + step, 3);
+            let mut grid: gsenc_grid = std::mem::zeroed();
+            grid.struct_size = std::mem::size_of::<gsenc_grid>();
+            grid.dtype = crate::GSENC_DTYPE_FLOAT32;
+            grid.data = g.values.as_ptr().cast();
+            grid.extents = dims.map(|d| d as u64);
+            grid.spacing = 0.1;
+            assert_eq!(crate::inputs::gsenc_push_grid(enc, field.as_ptr(), step, 0.5 * step as f64, &grid), gsenc_status::Ok);
+            assert_eq!(gsenc_wait(enc, field.as_ptr()), gsenc_status::Ok);
+            let mut s = 0;
+            assert_eq!(gsenc_encoder_last_step(enc, field.as_ptr(), &mut s, &mut psnr[step as usize]), gsenc_status::Ok);
+            assert_eq!(s, step);
+        }
+        // Every step is in the store once the wait returned.
+        {
+            let store = Store::open_read(&path).unwrap();
+            let keys: Vec<u64> = store.entries().unwrap().iter().map(|e| e.key.step).collect();
+            assert_eq!(keys, [0, 1, 2]);
+            let (m, _) = store.read(&EntryKey { field: "rho".into(), step: 2, rank: 0 }).unwrap();
+            assert_eq!(m.meta.encode_psnr, Some(psnr[2]));
+            assert_eq!(m.meta.schedule, "warm-dense");
+            let mut job: gsenc_job = std::mem::zeroed();
+            job.struct_size = std::mem::size_of::<gsenc_job>();
+            assert_eq!(gsenc_poll(enc, field.as_ptr(), 2, &mut job), gsenc_status::Ok);
+            assert_eq!((job.state, job.psnr), (GSENC_JOB_DONE, psnr[2]));
+        }
+        gsenc_encoder_destroy(enc);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

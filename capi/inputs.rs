@@ -1,0 +1,256 @@
+//! The three input forms as they lie in a caller's memory (grids with
+//! strides, particles as tuples or separate arrays, cells as boxes or
+//! hexahedra), and the pushes that copy one field of a step out of them
+//! into the encoder's queue.
+
+use crate::encoder::{encoder_mut, gsenc_encoder};
+use crate::ffi::{c_str, copy_grid, extents, item_count, read_scalars, read_sized, read_tuples, DType};
+use crate::status::{fail, gsenc_status, guard};
+use gsenc::field::{Grid, IndexFrame};
+use gsenc::input::StepData;
+use std::os::raw::{c_char, c_void};
+
+/// Cell layouts (`gsenc_cells.layout`).
+pub const GSENC_CELLS_BOXES: i32 = 0;
+pub const GSENC_CELLS_HEXAHEDRA: i32 = 1;
+
+/// Hexahedral cells as they lie in memory, with one value each, in one of
+/// two layouts:
+/// - `GSENC_CELLS_BOXES` (AMR codes): axis-aligned boxes, `centres` and
+///   `edges` (edge lengths along x, y, z) as tuples like particle positions;
+/// - `GSENC_CELLS_HEXAHEDRA` (unstructured meshes): `points` (`point_count`
+///   tuples) and `connectivity`, eight 0-based point indices per cell in VTK
+///   order (0-1-2-3 one face, 4-5-6-7 the opposite, `i + 4` above `i`);
+///   gsenc computes each cell's centre and volume.
+///
+/// Tuple strides default to 3 and component strides to 1 (0 selects them).
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_cells {
+    /// `sizeof(gsenc_cells)`.
+    pub struct_size: usize,
+    /// `GSENC_DTYPE_*` of every floating-point array.
+    pub dtype: i32,
+    /// `GSENC_CELLS_BOXES` or `GSENC_CELLS_HEXAHEDRA`.
+    pub layout: i32,
+    /// Number of cells.
+    pub count: u64,
+    pub centres: *const c_void,
+    pub centre_stride: i64,
+    pub centre_component_stride: i64,
+    pub edges: *const c_void,
+    pub edge_stride: i64,
+    pub edge_component_stride: i64,
+    pub points: *const c_void,
+    pub point_count: u64,
+    pub point_stride: i64,
+    pub point_component_stride: i64,
+    pub connectivity: *const i64,
+    pub values: *const c_void,
+    pub value_stride: i64,
+}
+
+/// A regular grid as it lies in the caller's memory: value `(i, j, k)` is
+/// element `i * strides[0] + j * strides[1] + k * strides[2]` of `data`.
+/// Strides are in elements; all zero means contiguous with i fastest
+/// (C `[nz][ny][nx]`, Fortran `(nx, ny, nz)`). Strides larger than the
+/// extents skip ghost layers without a copy.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_grid {
+    /// `sizeof(gsenc_grid)`.
+    pub struct_size: usize,
+    /// `GSENC_DTYPE_FLOAT32` or `GSENC_DTYPE_FLOAT64`.
+    pub dtype: i32,
+    pub data: *const c_void,
+    /// Cells along x, y, z.
+    pub extents: [u64; 3],
+    pub strides: [i64; 3],
+    /// World position of the lower corner of cell (0, 0, 0), and the edge of
+    /// every (cubic) cell. Values are cell-centred.
+    pub origin: [f64; 3],
+    pub spacing: f64,
+}
+
+/// SPH particles as they lie in memory. Component `c` of particle `p`'s
+/// position is element `p * position_stride + c * position_component_stride`
+/// of `positions` (defaults 3 and 1: interleaved xyz; give 1 and `count` for
+/// separate x, y, z arrays); a scalar array's element `p` is
+/// `p * stride` (default 1, or the tuple size to pick one component of a
+/// vector field). Strides are in elements; 0 selects the default.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_particles {
+    /// `sizeof(gsenc_particles)`.
+    pub struct_size: usize,
+    /// `GSENC_DTYPE_FLOAT32` or `GSENC_DTYPE_FLOAT64`, for every array.
+    pub dtype: i32,
+    pub count: u64,
+    pub positions: *const c_void,
+    pub position_stride: i64,
+    pub position_component_stride: i64,
+    /// SPH smoothing length `hh` (support radius `2 hh`).
+    pub smoothing_length: *const c_void,
+    pub smoothing_length_stride: i64,
+    /// Masses; NULL for equal masses.
+    pub mass: *const c_void,
+    pub mass_stride: i64,
+    /// The field's values.
+    pub values: *const c_void,
+    pub value_stride: i64,
+}
+
+/// Hands over one field of step `step` (simulation time `time`; NaN when
+/// unknown) on a regular grid. The values and `field` are copied before
+/// the call returns: the caller keeps ownership and may reuse its buffers
+/// at once. The step is queued for the background encode (see
+/// `gsenc_config.when_full` for a full queue: `GSENC_STATUS_BUSY` or
+/// `GSENC_STATUS_SKIPPED`); `gsenc_wait` and `gsenc_poll` follow it.
+/// Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_push_grid(
+    encoder: *mut gsenc_encoder,
+    field: *const c_char,
+    step: u64,
+    time: f64,
+    grid: *const gsenc_grid,
+) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_push_grid")?;
+        // SAFETY: a NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        // SAFETY: NULL or the caller's gsenc_grid.
+        let g = unsafe { read_sized(grid, "gsenc_push_grid: grid") }?;
+        let dtype = DType::from_c(g.dtype)?;
+        if g.data.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_push_grid: data is NULL");
+        }
+        let dims = extents(g.extents)?;
+        if !(g.spacing.is_finite() && g.spacing > 0.0) || g.origin.iter().any(|o| !o.is_finite()) {
+            return fail(gsenc_status::InvalidArgument, format!("origin {:?} and spacing {} must be finite, spacing positive", g.origin, g.spacing));
+        }
+        let strides = if g.strides == [0; 3] {
+            [1, dims[0] as i64, (dims[0] * dims[1]) as i64]
+        } else {
+            g.strides
+        };
+        if strides.iter().any(|&s| s <= 0) {
+            return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
+        }
+        // SAFETY: the caller's array holds every element its extents and strides name.
+        let buffer = enc.queue.recycled_buffer(dims.iter().product());
+        // SAFETY: as above.
+        let values = unsafe { copy_grid(dtype, g.data, dims, strides, buffer) };
+        let frame = IndexFrame { dims, bmin: g.origin, gamma: 1.0 / g.spacing };
+        enc.push(field, step, time, StepData::Grid { grid: Grid::new(dims, values)?, frame })
+    })
+}
+
+/// Hands over one field of step `step` as SPH particles (see
+/// `gsenc_particles`), deposited on the configured `dims` and bounds. The
+/// arrays and `field` are copied before the call returns.
+/// Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_push_particles(
+    encoder: *mut gsenc_encoder,
+    field: *const c_char,
+    step: u64,
+    time: f64,
+    particles: *const gsenc_particles,
+) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_push_particles")?;
+        // SAFETY: a NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        // SAFETY: NULL or the caller's gsenc_particles.
+        let p = unsafe { read_sized(particles, "gsenc_push_particles: particles") }?;
+        let dtype = DType::from_c(p.dtype)?;
+        let n = item_count(p.count, "particle")?;
+        for (ptr, name) in [(p.positions, "positions"), (p.smoothing_length, "smoothing_length"), (p.values, "values")] {
+            if ptr.is_null() {
+                return fail(gsenc_status::NullPointer, format!("gsenc_push_particles: {name} is NULL"));
+            }
+        }
+        // SAFETY (every read below): the caller's arrays hold every element
+        // that `count` and the strides name.
+        let positions = unsafe { read_tuples(dtype, p.positions, n, p.position_stride, p.position_component_stride) };
+        let smoothing_length = unsafe { read_scalars(dtype, p.smoothing_length, n, p.smoothing_length_stride) };
+        let values = unsafe { read_scalars(dtype, p.values, n, p.value_stride) }.into_iter().map(|v| v as f32).collect();
+        let mass = if p.mass.is_null() {
+            vec![1.0; n]
+        } else {
+            unsafe { read_scalars(dtype, p.mass, n, p.mass_stride) }.into_iter().map(|v| v as f32).collect()
+        };
+        let placement = enc.placement();
+        enc.push(field, step, time, StepData::Particles { positions, smoothing_length, mass, values, placement })
+    })
+}
+
+/// Hands over one field of step `step` on hexahedral cells (see
+/// `gsenc_cells`), deposited on the configured `dims` and bounds
+/// (volume-weighted). The arrays and `field` are copied before the call
+/// returns.
+/// Not thread-safe on one encoder (one thread at a time); different
+/// encoders are independent.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_push_cells(
+    encoder: *mut gsenc_encoder,
+    field: *const c_char,
+    step: u64,
+    time: f64,
+    cells: *const gsenc_cells,
+) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_push_cells")?;
+        // SAFETY: a NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        // SAFETY: NULL or the caller's gsenc_cells.
+        let c = unsafe { read_sized(cells, "gsenc_push_cells: cells") }?;
+        let dtype = DType::from_c(c.dtype)?;
+        let n = item_count(c.count, "cell")?;
+        if c.values.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_push_cells: values is NULL");
+        }
+        // SAFETY (every read below): the caller's arrays hold every element
+        // that the counts and strides name.
+        let values: Vec<f32> = unsafe { read_scalars(dtype, c.values, n, c.value_stride) }.into_iter().map(|v| v as f32).collect();
+        let data = match c.layout {
+            GSENC_CELLS_BOXES => {
+                if c.centres.is_null() || c.edges.is_null() {
+                    return fail(gsenc_status::NullPointer, "gsenc_push_cells: centres or edges is NULL");
+                }
+                let centres = unsafe { read_tuples(dtype, c.centres, n, c.centre_stride, c.centre_component_stride) };
+                let edges = unsafe { read_tuples(dtype, c.edges, n, c.edge_stride, c.edge_component_stride) };
+                StepData::Cells { centres, edges, volumes: Vec::new(), values, placement: enc.placement() }
+            }
+            GSENC_CELLS_HEXAHEDRA => {
+                if c.points.is_null() || c.connectivity.is_null() {
+                    return fail(gsenc_status::NullPointer, "gsenc_push_cells: points or connectivity is NULL");
+                }
+                let np = item_count(c.point_count, "point")?;
+                let points = unsafe { read_tuples(dtype, c.points, np, c.point_stride, c.point_component_stride) };
+                // SAFETY: 8 indices per cell.
+                let conn = unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) };
+                if let Some(i) = conn.iter().position(|&k| k < 0 || k as u64 >= np as u64) {
+                    return fail(
+                        gsenc_status::InvalidArgument,
+                        format!("connectivity entry {i} (cell {}) is {}, outside 0..{np}", i / 8, conn[i]),
+                    );
+                }
+                let (centres, volumes) = conn
+                    .chunks_exact(8)
+                    .map(|k| gsenc::input::cells::hexahedron_centre_volume(&std::array::from_fn(|j| points[k[j] as usize])))
+                    .unzip();
+                StepData::Cells { centres, edges: Vec::new(), volumes, values, placement: enc.placement() }
+            }
+            l => return fail(gsenc_status::InvalidArgument, format!("unknown cell layout {l}")),
+        };
+        enc.push(field, step, time, data)
+    })
+}
+

@@ -1,0 +1,178 @@
+//! Following the background queue: wait for pushed steps, poll one,
+//! cancel, and the last model of a field (its step and PSNR, or written to
+//! a file).
+
+use crate::encoder::{encoder_mut, gsenc_encoder};
+use crate::ffi::{c_str, check_sized};
+use crate::status::{fail, gsenc_status, guard, Failure};
+use gsenc::format::write_model_as;
+use gsenc::io::write_atomic;
+use gsenc::series::queue::JobState;
+use std::os::raw::c_char;
+
+/// Blocks until every pushed step of `field` (NULL: of every field) is
+/// encoded and written. Returns the first failure not reported before
+/// (its message names the field and step; later steps were still encoded),
+/// else `GSENC_STATUS_OK`. Models bound for an HDF5 store are written here,
+/// on the caller's thread. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_wait(encoder: *mut gsenc_encoder, field: *const c_char) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_wait")?;
+        // SAFETY: NULL or a NUL-terminated string.
+        let field = if field.is_null() { None } else { Some(unsafe { c_str(field, "field") }?) };
+        if let Some(f) = &field {
+            gsenc::format::check_field_name(f)?;
+        }
+        let waited = enc.queue.wait(field.as_deref());
+        enc.flush();
+        waited?;
+        // A store write that failed in the flush is a failure of this wait too.
+        enc.queue.wait(field.as_deref())?;
+        Ok(())
+    })
+}
+
+/// Job states (`gsenc_job.state`).
+pub const GSENC_JOB_QUEUED: i32 = 0;
+pub const GSENC_JOB_RUNNING: i32 = 1;
+/// Encoded, and written when an output is configured.
+pub const GSENC_JOB_DONE: i32 = 2;
+pub const GSENC_JOB_FAILED: i32 = 3;
+/// Dropped by the `GSENC_QUEUE_SKIP` policy.
+pub const GSENC_JOB_SKIPPED: i32 = 4;
+/// Dropped by `gsenc_encoder_cancel`.
+pub const GSENC_JOB_CANCELLED: i32 = 5;
+
+/// Where one pushed step is. Set `struct_size` to `sizeof(gsenc_job)`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug)]
+#[allow(non_camel_case_types)]
+pub struct gsenc_job {
+    pub struct_size: usize,
+    /// `GSENC_JOB_*`.
+    pub state: i32,
+    /// While running: the optimisation iteration reached, of `iterations`
+    /// (both 0 while depositing and seeding).
+    pub iteration: u32,
+    pub iterations: u32,
+    /// When failed: the failure's status (its message is then the calling
+    /// thread's `gsenc_last_error`); else `GSENC_STATUS_OK`.
+    pub error: i32,
+    /// When done: the voxel PSNR (dB) of the model as stored; else NaN.
+    pub psnr: f64,
+}
+
+/// Fills `*job` with the state of `field`'s step `step`, without waiting.
+/// `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
+/// for an HDF5 store are written here. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c_char, step: u64, job: *mut gsenc_job) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_poll")?;
+        // SAFETY: a NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        // SAFETY: NULL or the caller's gsenc_job.
+        unsafe { check_sized(job.cast_const(), "gsenc_poll: job") }?;
+        enc.flush();
+        let Some(state) = enc.queue.poll(&field, step) else {
+            return fail(gsenc_status::CallOrder, format!("field '{field}' step {step} was never pushed"));
+        };
+        let mut out = gsenc_job {
+            struct_size: std::mem::size_of::<gsenc_job>(),
+            state: GSENC_JOB_QUEUED,
+            iteration: 0,
+            iterations: 0,
+            error: gsenc_status::Ok as i32,
+            psnr: f64::NAN,
+        };
+        let mut message = None;
+        match state {
+            JobState::Queued => {}
+            JobState::Running { iteration, iterations } => {
+                out.state = GSENC_JOB_RUNNING;
+                out.iteration = iteration as u32;
+                out.iterations = iterations as u32;
+            }
+            JobState::Written { psnr, .. } | JobState::Encoded { psnr } => {
+                out.state = GSENC_JOB_DONE;
+                out.psnr = psnr;
+            }
+            JobState::Failed(e) => {
+                out.state = GSENC_JOB_FAILED;
+                let f = Failure::from(e.in_context(&format!("field '{field}' step {step}")));
+                out.error = f.0 as i32;
+                message = Some(f.1);
+            }
+            JobState::Skipped => out.state = GSENC_JOB_SKIPPED,
+            JobState::Cancelled => out.state = GSENC_JOB_CANCELLED,
+        }
+        // SAFETY: as above.
+        unsafe { job.write(out) };
+        if let Some(m) = message {
+            crate::status::set_last_error(m);
+        }
+        Ok(())
+    })
+}
+
+/// Drops every queued step and stops the running one at its next
+/// iteration; returns when the worker is idle. Their states become
+/// `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
+/// encoded one. The encoder stays usable. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_encoder_cancel")?;
+        enc.queue.cancel();
+        enc.flush();
+        Ok(())
+    })
+}
+
+/// Writes the last encoded model of `field` to `path` (through a temporary
+/// file and a rename), with the configured payload. Does not wait for
+/// queued steps (call `gsenc_wait` first for the newest). Strings are read
+/// during the call only. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, field: *const c_char, path: *const c_char) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_encoder_write_model")?;
+        // SAFETY: NUL-terminated strings or NULL (refused).
+        let (field, path) = unsafe { (c_str(field, "field")?, c_str(path, "path")?) };
+        let Some((model, _)) = enc.queue.last(&field) else {
+            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
+        };
+        write_atomic(&path, &write_model_as(&model, enc.settings.series.payload)?)?;
+        Ok(())
+    })
+}
+
+/// The last encoded step of `field` and the voxel PSNR (dB) of its model as
+/// stored, against the reference it was fitted to. Does not wait for queued
+/// steps. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_encoder_last_step(
+    encoder: *mut gsenc_encoder,
+    field: *const c_char,
+    step: *mut u64,
+    psnr: *mut f64,
+) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_encoder_last_step")?;
+        // SAFETY: NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        if step.is_null() || psnr.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_encoder_last_step: step or psnr is NULL");
+        }
+        let Some((model, p)) = enc.queue.last(&field) else {
+            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
+        };
+        // SAFETY: non-null out pointers.
+        unsafe {
+            *step = model.meta.step;
+            *psnr = p;
+        }
+        Ok(())
+    })
+}

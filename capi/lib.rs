@@ -1,0 +1,181 @@
+//! The C ABI of gsenc (`libgsenc`, header `include/gsenc.h`): a thin layer
+//! over the library's Rust API. Every function is `extern "C"`, returns a
+//! `gsenc_status` (or nothing, for destroy), never unwinds into C (each body
+//! runs in `status::guard`) and never prints; the message of a failure is
+//! the calling thread's `gsenc_last_error`.
+//!
+//! One file per concept of the C surface:
+//! - `status`: codes, the thread's last error, the panic guard;
+//! - `handles`: the live handles, so misused ones are refused;
+//! - `ffi`: what every entry point shares (sized structs, strings, strided
+//!   copies of the caller's arrays);
+//! - `config`: the encoder's settings;
+//! - `encoder`: the encoder's life cycle (create, MPI create, destroy);
+//! - `inputs`: the grid, particle and cell forms and their pushes;
+//! - `jobs`: following the queue (wait, poll, cancel) and its results;
+//! - `model`: read a model file, decode it, evaluate it.
+//!
+//! The Fortran module `gsenc` (capi/gsenc.f90) binds these functions.
+//! Inside this crate `gsenc::` is the library it wraps.
+
+#![allow(non_camel_case_types)]
+
+pub mod config;
+pub mod encoder;
+mod ffi;
+mod handles;
+pub mod inputs;
+pub mod jobs;
+pub mod model;
+pub mod status;
+
+#[cfg(all(test, feature = "hdf5"))]
+mod hdf5_tests;
+
+pub use ffi::{GSENC_DTYPE_FLOAT32, GSENC_DTYPE_FLOAT64};
+
+/// Major version of the library (changes break the ABI).
+pub const GSENC_VERSION_MAJOR: u32 = 0;
+/// Minor version (append-only additions).
+pub const GSENC_VERSION_MINOR: u32 = 1;
+/// Patch version.
+pub const GSENC_VERSION_PATCH: u32 = 0;
+
+/// The run-time library version as `major * 10000 + minor * 100 + patch`, to
+/// compare with the compile-time `GSENC_VERSION_*` macros. Thread-safe.
+#[no_mangle]
+pub extern "C" fn gsenc_version() -> u32 {
+    GSENC_VERSION_MAJOR * 10000 + GSENC_VERSION_MINOR * 100 + GSENC_VERSION_PATCH
+}
+
+/// The run-time library version as a static NUL-terminated string
+/// ("0.1.0"); owned by the library, never freed by the caller. Thread-safe.
+#[no_mangle]
+pub extern "C" fn gsenc_version_string() -> *const std::os::raw::c_char {
+    concat!(env!("CARGO_PKG_VERSION"), "\0").as_ptr().cast()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::config::*;
+    use super::inputs::*;
+    use super::jobs::*;
+    use super::model::gsenc_model_info;
+    use super::status::gsenc_status;
+    use std::mem::{offset_of, size_of};
+
+    /// The ABI, frozen: sizes, offsets and values may only be appended to
+    /// (x86_64 and aarch64 Linux, LP64).
+    #[test]
+    fn abi_is_pinned() {
+        assert_eq!(size_of::<gsenc_config>(), 184);
+        let c = [
+            (offset_of!(gsenc_config, struct_size), 0),
+            (offset_of!(gsenc_config, budget), 8),
+            (offset_of!(gsenc_config, schedule), 16),
+            (offset_of!(gsenc_config, warm_start), 20),
+            (offset_of!(gsenc_config, iterations), 24),
+            (offset_of!(gsenc_config, points), 28),
+            (offset_of!(gsenc_config, transform), 32),
+            (offset_of!(gsenc_config, fixed_range), 36),
+            (offset_of!(gsenc_config, value_min), 40),
+            (offset_of!(gsenc_config, value_max), 48),
+            (offset_of!(gsenc_config, dims), 56),
+            (offset_of!(gsenc_config, has_bounds), 68),
+            (offset_of!(gsenc_config, bounds_min), 72),
+            (offset_of!(gsenc_config, bounds_max), 96),
+            (offset_of!(gsenc_config, payload), 120),
+            (offset_of!(gsenc_config, threads), 124),
+            (offset_of!(gsenc_config, seed_init), 128),
+            (offset_of!(gsenc_config, seed_sample), 136),
+            (offset_of!(gsenc_config, rank), 144),
+            (offset_of!(gsenc_config, output_dir), 152),
+            (offset_of!(gsenc_config, warm_iterations), 160),
+            (offset_of!(gsenc_config, when_full), 164),
+            (offset_of!(gsenc_config, queue_bytes), 168),
+            (offset_of!(gsenc_config, output_format), 176),
+            (offset_of!(gsenc_config, halo), 180),
+        ];
+        for (i, (got, want)) in c.iter().enumerate() {
+            assert_eq!(got, want, "gsenc_config field {i}");
+        }
+        assert_eq!(size_of::<gsenc_grid>(), 104);
+        assert_eq!(
+            [offset_of!(gsenc_grid, dtype), offset_of!(gsenc_grid, data), offset_of!(gsenc_grid, extents), offset_of!(gsenc_grid, strides), offset_of!(gsenc_grid, origin), offset_of!(gsenc_grid, spacing)],
+            [8, 16, 24, 48, 72, 96]
+        );
+        assert_eq!(size_of::<gsenc_particles>(), 96);
+        assert_eq!(
+            [offset_of!(gsenc_particles, count), offset_of!(gsenc_particles, positions), offset_of!(gsenc_particles, position_stride), offset_of!(gsenc_particles, position_component_stride), offset_of!(gsenc_particles, smoothing_length), offset_of!(gsenc_particles, smoothing_length_stride), offset_of!(gsenc_particles, mass), offset_of!(gsenc_particles, mass_stride), offset_of!(gsenc_particles, values), offset_of!(gsenc_particles, value_stride)],
+            [16, 24, 32, 40, 48, 56, 64, 72, 80, 88]
+        );
+        assert_eq!(size_of::<gsenc_cells>(), 128);
+        assert_eq!(
+            [offset_of!(gsenc_cells, layout), offset_of!(gsenc_cells, count), offset_of!(gsenc_cells, centres), offset_of!(gsenc_cells, edges), offset_of!(gsenc_cells, points), offset_of!(gsenc_cells, point_count), offset_of!(gsenc_cells, connectivity), offset_of!(gsenc_cells, values), offset_of!(gsenc_cells, value_stride)],
+            [12, 16, 24, 48, 72, 80, 104, 112, 120]
+        );
+        assert_eq!([GSENC_CELLS_BOXES, GSENC_CELLS_HEXAHEDRA], [0, 1]);
+        assert_eq!(size_of::<gsenc_model_info>(), 112);
+        assert_eq!(
+            [offset_of!(gsenc_model_info, count), offset_of!(gsenc_model_info, dims), offset_of!(gsenc_model_info, origin), offset_of!(gsenc_model_info, spacing), offset_of!(gsenc_model_info, step), offset_of!(gsenc_model_info, time), offset_of!(gsenc_model_info, rank), offset_of!(gsenc_model_info, iterations), offset_of!(gsenc_model_info, warm_started), offset_of!(gsenc_model_info, encode_psnr)],
+            [8, 16, 40, 64, 72, 80, 88, 92, 96, 104]
+        );
+        assert_eq!(size_of::<gsenc_status>(), 4);
+        let statuses = [
+            gsenc_status::Ok,
+            gsenc_status::NullPointer,
+            gsenc_status::InvalidArgument,
+            gsenc_status::InvalidData,
+            gsenc_status::Format,
+            gsenc_status::Version,
+            gsenc_status::Io,
+            gsenc_status::CallOrder,
+            gsenc_status::StructSize,
+            gsenc_status::Internal,
+            gsenc_status::Busy,
+            gsenc_status::Skipped,
+            gsenc_status::Cancelled,
+            gsenc_status::Mpi,
+        ];
+        for (i, s) in statuses.iter().enumerate() {
+            assert_eq!(*s as i32, i as i32);
+        }
+        assert_eq!([GSENC_SCHEDULE_FULL, GSENC_SCHEDULE_MATCHED, GSENC_SCHEDULE_SHORT], [0, 1, 2]);
+        assert_eq!([GSENC_WARM_OFF, GSENC_WARM_COARSE, GSENC_WARM_DENSE], [0, 1, 2]);
+        assert_eq!([GSENC_TRANSFORM_LINEAR, GSENC_TRANSFORM_LOG10], [0, 1]);
+        assert_eq!([GSENC_PAYLOAD_F32, GSENC_PAYLOAD_8BIT, GSENC_PAYLOAD_8BIT_U16], [0, 1, 2]);
+        assert_eq!([super::GSENC_DTYPE_FLOAT32, super::GSENC_DTYPE_FLOAT64], [0, 1]);
+        assert_eq!([GSENC_QUEUE_BLOCK, GSENC_QUEUE_SKIP, GSENC_QUEUE_BUSY], [0, 1, 2]);
+        assert_eq!([GSENC_OUTPUT_FOLDER, GSENC_OUTPUT_HDF5], [0, 1]);
+        assert_eq!(size_of::<gsenc_job>(), 32);
+        assert_eq!(
+            [offset_of!(gsenc_job, state), offset_of!(gsenc_job, iteration), offset_of!(gsenc_job, iterations), offset_of!(gsenc_job, error), offset_of!(gsenc_job, psnr)],
+            [8, 12, 16, 20, 24]
+        );
+        assert_eq!(
+            [GSENC_JOB_QUEUED, GSENC_JOB_RUNNING, GSENC_JOB_DONE, GSENC_JOB_FAILED, GSENC_JOB_SKIPPED, GSENC_JOB_CANCELLED],
+            [0, 1, 2, 3, 4, 5]
+        );
+    }
+
+    /// A panic inside an entry point becomes GSENC_STATUS_INTERNAL with a
+    /// message, never an unwind into C.
+    #[test]
+    fn panics_become_internal_errors() {
+        let s = super::status::guard(|| panic!("boom"));
+        assert_eq!(s, gsenc_status::Internal);
+        let mut buf = [0 as std::os::raw::c_char; 128];
+        let n = unsafe { super::status::gsenc_last_error(buf.as_mut_ptr(), buf.len()) };
+        let msg = unsafe { std::ffi::CStr::from_ptr(buf.as_ptr()) }.to_str().unwrap();
+        assert_eq!(n, msg.len());
+        assert!(msg.contains("boom"), "{msg}");
+    }
+
+    #[test]
+    fn version_macros_match_the_crate_version() {
+        let v: Vec<u32> = env!("CARGO_PKG_VERSION").split('.').map(|x| x.parse().unwrap()).collect();
+        assert_eq!(super::gsenc_version(), v[0] * 10000 + v[1] * 100 + v[2]);
+        let s = unsafe { std::ffi::CStr::from_ptr(super::gsenc_version_string()) };
+        assert_eq!(s.to_str().unwrap(), env!("CARGO_PKG_VERSION"));
+    }
+}

@@ -1,0 +1,124 @@
+//! `gsenc decode`: a model, the models of a domain's pieces, or a step
+//! index, decoded onto any lattice (or a sub-box of it) and streamed in
+//! slabs into a `.vti` or raw float32 file.
+
+use crate::args::{parse_box, parse_dims, GridOutput};
+use crate::output::{is_vti, output_unit, peak_rss_bytes, print_result};
+use clap::Args;
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::domain::pieces::{blend, merge};
+use gsenc::encode::with_threads;
+use gsenc::field::IndexBox;
+use gsenc::io::{read_model_file, read_step, vti, AtomicFile};
+use gsenc::{Error, Result};
+use serde_json::json;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Args)]
+pub struct DecodeArgs {
+    /// A model; or the models of a domain's pieces (per-rank models of one
+    /// step on one lattice), or the step index (`FIELD_STEP.gsi`) that names
+    /// them: decoded together as one global field.
+    #[arg(required = true)]
+    model: Vec<PathBuf>,
+    /// With several models or an index: decode only the region of the I-th
+    /// (0-based; the rank, for an index) of the global field.
+    #[arg(long, conflicts_with = "sub_box")]
+    piece: Option<usize>,
+    /// With a step index: decode every rank's primitives together
+    /// (`sum n / max(sum rho, eps)`) instead of blending each piece's own
+    /// decode across the halos; kernels that reach past a piece's box then
+    /// leak into its neighbours (for comparison).
+    #[arg(long)]
+    additive: bool,
+    /// Lattice dims X,Y,Z covering the model's box (default: its reference dims).
+    #[arg(long, value_parser = parse_dims)]
+    dims: Option<[usize; 3]>,
+    /// Decode only the voxels X0,Y0,Z0,X1,Y1,Z1 (half-open index ranges of
+    /// that lattice); the .vti keeps their world position.
+    #[arg(long = "box", value_parser = parse_box)]
+    sub_box: Option<[usize; 6]>,
+    /// Voxels decoded at once (memory: 4 bytes each, twice).
+    #[arg(long, default_value_t = gsenc::model::DEFAULT_SLAB_VOXELS, hide = true)]
+    slab_voxels: usize,
+    #[command(flatten)]
+    output: GridOutput,
+}
+
+pub fn decode(a: DecodeArgs) -> Result<()> {
+    let t = Instant::now();
+    // One step index names every rank's model of a step; else the models given.
+    let (index, pieces) = match a.model.as_slice() {
+        [index] if index.extension().is_some_and(|e| e == "gsi") => {
+            let (index, pieces) = read_step(index)?;
+            (Some(index), pieces)
+        }
+        models => (None, models.iter().map(|p| read_model_file(p).map(|f| f.model)).collect::<Result<Vec<_>>>()?),
+    };
+    let model = merge(&pieces)?;
+    let f = &model.meta.frame;
+    let dims = a.dims.unwrap_or(f.dims);
+    let region = match (a.sub_box, a.piece) {
+        (Some([x0, y0, z0, x1, y1, z1]), _) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
+        (None, Some(i)) => {
+            let piece = pieces.get(i).ok_or_else(|| Error::arg(format!("--piece {i}: only {} models given", pieces.len())))?;
+            if dims != f.dims {
+                return Err(Error::arg("--piece decodes on the models' own lattice; leave out --dims"));
+            }
+            f.box_of(&piece.meta.frame)?
+        }
+        (None, None) => IndexBox::whole(dims),
+    };
+    let spacing = [0, 1, 2].map(|i| f.dims[i] as f64 / dims[i] as f64 / f.gamma);
+    let origin = [0, 1, 2].map(|i| f.bmin[i] + (region.lo[i] as f64 + 0.5) * spacing[i]);
+    let out_path = &a.output.output;
+    let is_vti = is_vti(out_path);
+    let mut file = AtomicFile::create(out_path)?;
+    if is_vti {
+        file.write(&vti::vti_prefix(region.dims(), origin, spacing, &model.meta.field))?;
+    }
+    let mut bytes = Vec::new();
+    let unit = output_unit(&model.meta.range, a.output.normalized);
+    let mut write = |slab: &[f32]| {
+        bytes.clear();
+        bytes.extend(slab.iter().flat_map(|&v| unit(v).to_le_bytes()));
+        file.write(&bytes)
+    };
+    with_threads(a.output.threads, || match index.as_ref().filter(|_| !a.additive) {
+        // A step's pieces, each decoded on its own box and blended, in slabs of z layers.
+        Some(index) => {
+            let (global, boxes) = index.layout();
+            let layers = (a.slab_voxels / (region.dims()[0] * region.dims()[1]).max(1)).max(1);
+            let mut z = region.lo[2];
+            while z < region.hi[2] {
+                let slab = IndexBox { lo: [region.lo[0], region.lo[1], z], hi: [region.hi[0], region.hi[1], (z + layers).min(region.hi[2])] };
+                write(&blend(&global, &pieces, &boxes, index.halo, dims, slab, &mut CpuBackend::new())?.values)?;
+                z = slab.hi[2];
+            }
+            Ok(())
+        }
+        None => model.decode_streaming(&mut CpuBackend::new(), dims, region, a.slab_voxels, &mut write),
+    })??;
+    if is_vti {
+        file.write(vti::VTI_SUFFIX)?;
+    }
+    file.commit()?;
+    let seconds = t.elapsed().as_secs_f64();
+    let voxels: usize = region.dims().iter().product();
+    print_result(
+        a.output.out.json,
+        json!({
+            "dims": dims,
+            "box_min": region.lo,
+            "box_max": region.hi,
+            "voxels": voxels,
+            "seconds": seconds,
+            "voxels_per_second": voxels as f64 / seconds.max(1e-9),
+            "peak_rss_bytes": peak_rss_bytes(),
+            "output": out_path.display().to_string(),
+        }),
+    );
+    Ok(())
+}
+

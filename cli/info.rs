@@ -1,0 +1,54 @@
+//! `gsenc info`: every header field of a model file, or every entry of an
+//! HDF5 store.
+
+use crate::output::print_result;
+use crate::store;
+use clap::Args;
+use gsenc::{Error, Result};
+use serde_json::json;
+use std::path::PathBuf;
+
+#[derive(Args)]
+pub struct InfoArgs {
+    model: PathBuf,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn info(a: InfoArgs) -> Result<()> {
+    if store::is_hdf5_file(&a.model) {
+        return store::info(&a.model, a.json);
+    }
+    let file = gsenc::io::read_model_file(&a.model)?;
+    let m = &file.model;
+    let bytes = std::fs::metadata(&a.model).map_err(|e| Error::io(&a.model, e))?.len();
+    let meta = &m.meta;
+    print_result(
+        a.json,
+        json!({
+            "format": format!("gsenc model {}.{}", file.version.0, file.version.1),
+            "payload": file.payload.name(),
+            "primitives": m.len(),
+            "bytes": bytes,
+            "bytes_per_primitive": bytes as f64 / m.len().max(1) as f64,
+            "field": meta.field,
+            "step": meta.step,
+            "time": meta.time,
+            "rank": meta.rank,
+            "encode_psnr": meta.encode_psnr,
+            "dims": meta.frame.dims,
+            "bounds_min": meta.frame.bmin,
+            "gamma": meta.frame.gamma,
+            "value_min": meta.range.vmin,
+            "value_max": meta.range.vmax,
+            "transform": meta.range.transform.name(),
+            "schedule": meta.schedule,
+            "iterations": meta.iterations,
+            "points": meta.points,
+            "seed_init": meta.seed_init,
+            "seed_sample": meta.seed_sample,
+        }),
+    );
+    Ok(())
+}
+

@@ -1,0 +1,90 @@
+//! What commands print and write: results as text or JSON, the progress bar,
+//! grids written as `.vti` or raw float32, and the process's peak memory.
+
+use gsenc::field::{Grid, ValueRange};
+use gsenc::input::Prepared;
+use gsenc::io::{raw, vti, write_atomic};
+use gsenc::Result;
+use serde_json::{json, Map, Value};
+use std::io::IsTerminal;
+use std::path::Path;
+
+pub fn progress_bar(quiet: bool, len: u64) -> indicatif::ProgressBar {
+    if quiet || !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let pb = indicatif::ProgressBar::new(len);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:40}] {pos}/{len} it  loss {msg}  eta {eta}")
+            .expect("a valid template")
+            .progress_chars("=> "),
+    );
+    pb
+}
+
+/// Prints one JSON object, or its keys as aligned text.
+pub fn print_result(json_out: bool, value: Value) {
+    if json_out {
+        println!("{value}");
+    } else if let Value::Object(map) = value {
+        for (k, v) in map {
+            match v {
+                Value::Number(n) if n.is_f64() => println!("{k:>24}: {:.4}", n.as_f64().unwrap_or(f64::NAN)),
+                Value::String(s) => println!("{k:>24}: {s}"),
+                other => println!("{k:>24}: {other}"),
+            }
+        }
+    }
+}
+
+/// The keys of a JSON object literal.
+pub fn keys(value: Value) -> Map<String, Value> {
+    match value {
+        Value::Object(map) => map,
+        _ => unreachable!("keys() takes an object literal"),
+    }
+}
+
+/// The process's peak resident memory (Linux `VmHWM`), when known.
+pub fn peak_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// The keys particle and cell commands add: what the deposit saw and cost.
+pub fn deposit_keys(p: &Prepared) -> Map<String, Value> {
+    let d = p.deposit.clone().unwrap_or_default();
+    keys(json!({
+        "items": d.items,
+        "samples": p.samples.as_ref().map_or(0, |s| s.q.len()),
+        "outside": d.outside,
+        "outside_dropped": d.outside_dropped,
+        "nearest_voxel": d.nearest_voxel,
+        "empty_voxels": d.empty_voxels,
+        "clamped_values": p.clamped_values,
+        "deposit_seconds": d.seconds,
+        "deposit_peak_bytes": d.peak_bytes,
+        "bounds_min": p.frame.bmin,
+        "gamma": p.frame.gamma,
+        "value_min": p.range.vmin,
+        "value_max": p.range.vmax,
+    }))
+}
+
+/// How a normalised value is written: kept, or mapped back to data units.
+pub fn output_unit(range: &ValueRange, normalized: bool) -> impl Fn(f32) -> f32 + '_ {
+    move |v| if normalized { v } else { range.denormalize(v) as f32 }
+}
+
+/// Whether an output path names a `.vti` file (otherwise raw float32).
+pub fn is_vti(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("vti"))
+}
+
+/// Writes a grid as .vti (when the name says so) or raw float32, atomically.
+pub fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3], name: &str) -> Result<()> {
+    let bytes = if is_vti(path) { vti::write_vti_bytes(grid, origin, spacing, name) } else { raw::to_f32_bytes(&grid.values) };
+    write_atomic(path, &bytes)
+}

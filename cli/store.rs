@@ -1,0 +1,230 @@
+//! The HDF5 store commands: `store add`, `store extract`, `decode-series`,
+//! and `info` on a store. Without the cargo feature `hdf5` they exist but
+//! say how to get them.
+
+use crate::args::{one_of, OutputFlags};
+use clap::{Args, Subcommand};
+use gsenc::format::Payload;
+use gsenc::{Error, Result};
+use std::path::{Path, PathBuf};
+
+#[derive(Subcommand)]
+pub enum StoreCommand {
+    /// Append model files to a store (created when missing), each as
+    /// /<field>/<step>/rank_<r>; an entry that exists is refused.
+    Add(StoreAddArgs),
+    /// Copy one model of a store out to a model file.
+    Extract(StoreExtractArgs),
+}
+
+#[derive(Args)]
+pub struct StoreAddArgs {
+    store: PathBuf,
+    #[arg(required = true)]
+    models: Vec<PathBuf>,
+    /// Payload in the store: f32, 8bit or 8bit-u16 (default: each model's own).
+    #[arg(long, value_parser = one_of(&Payload::ALL, Payload::name))]
+    payload: Option<Payload>,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Args)]
+pub struct StoreExtractArgs {
+    store: PathBuf,
+    /// FIELD/STEP/RANK of the model.
+    entry: String,
+    /// Output model file.
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Payload of the output (default: the one it is stored with).
+    #[arg(long, value_parser = one_of(&Payload::ALL, Payload::name))]
+    payload: Option<Payload>,
+}
+
+#[derive(Args)]
+pub struct DecodeSeriesArgs {
+    store: PathBuf,
+    /// Output HDF5 file; the XDMF file is written beside it (same name, .xmf).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Field to decode (needed when the store holds several).
+    #[arg(long)]
+    field: Option<String>,
+    /// Lattice of each model: its reference dims times this factor.
+    #[arg(long, default_value_t = 1.0)]
+    scale: f64,
+    /// Keep values normalised to [0, 1] instead of data units.
+    #[arg(long)]
+    normalized: bool,
+    #[arg(long)]
+    threads: Option<usize>,
+    #[command(flatten)]
+    out: OutputFlags,
+}
+
+/// Whether `path` starts with HDF5's signature (then `info` reads it as a store).
+pub fn is_hdf5_file(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok() && &head == b"\x89HDF\r\n\x1a\n"
+}
+
+#[cfg(not(feature = "hdf5"))]
+mod imp {
+    use super::*;
+    fn missing() -> Error {
+        Error::arg("this gsenc was built without HDF5 support; rebuild with `cargo build --release --features hdf5` (needs libhdf5-dev)")
+    }
+    pub fn store(_: StoreCommand) -> Result<()> {
+        Err(missing())
+    }
+    pub fn decode_series(_: DecodeSeriesArgs) -> Result<()> {
+        Err(missing())
+    }
+    pub fn info(_: &Path, _: bool) -> Result<()> {
+        Err(missing())
+    }
+}
+
+#[cfg(feature = "hdf5")]
+mod imp {
+    use super::*;
+    use crate::output::print_result;
+    use gsenc::backend::cpu::CpuBackend;
+    use gsenc::encode::with_threads;
+    use gsenc::format;
+    use gsenc::io::read_model_file;
+    use gsenc::io::series::{write_decoded_series, SeriesOptions};
+    use gsenc::io::store::{EntryKey, Store};
+    use gsenc::io::write_atomic;
+    use serde_json::json;
+    use std::time::Instant;
+
+    pub fn store(cmd: StoreCommand) -> Result<()> {
+        match cmd {
+            StoreCommand::Add(a) => add(a),
+            StoreCommand::Extract(a) => extract(a),
+        }
+    }
+
+    fn add(a: StoreAddArgs) -> Result<()> {
+        let payload = a.payload;
+        // Every model is read and checked before the store is touched.
+        let files = a.models.iter().map(|p| read_model_file(p)).collect::<Result<Vec<_>>>()?;
+        let mut store = Store::open_append(&a.store)?;
+        let mut added = Vec::new();
+        for f in &files {
+            let chosen = payload.unwrap_or(f.payload);
+            let mut model = f.model.clone();
+            if chosen != f.payload && chosen != Payload::Float32 {
+                model.meta.encode_psnr = None; // no longer the PSNR of what is stored
+            }
+            store.append(&model, chosen)?;
+            added.push(EntryKey::of(&model.meta).path());
+        }
+        print_result(a.json, json!({ "store": a.store.display().to_string(), "added": added }));
+        Ok(())
+    }
+
+    /// `FIELD/STEP/RANK`, also as `/FIELD/STEP/rank_RANK`.
+    fn parse_entry(s: &str) -> Result<EntryKey> {
+        let bad = || Error::arg(format!("entry '{s}' is not FIELD/STEP/RANK"));
+        let mut it = s.trim_start_matches('/').rsplitn(3, '/');
+        let rank = it.next().ok_or_else(bad)?;
+        let rank = rank.strip_prefix("rank_").unwrap_or(rank).parse().map_err(|_| bad())?;
+        let step = it.next().ok_or_else(bad)?.parse().map_err(|_| bad())?;
+        let field = it.next().ok_or_else(bad)?.to_owned();
+        Ok(EntryKey { field, step, rank })
+    }
+
+    fn extract(a: StoreExtractArgs) -> Result<()> {
+        let store = Store::open_read(&a.store)?;
+        let (model, stored) = store.read(&parse_entry(&a.entry)?)?;
+        let payload = a.payload.unwrap_or(stored);
+        write_atomic(&a.output, &format::write_model_as(&model, payload)?)
+    }
+
+    pub fn decode_series(a: DecodeSeriesArgs) -> Result<()> {
+        let t = Instant::now();
+        let store = Store::open_read(&a.store)?;
+        let opts = SeriesOptions {
+            field: a.field.as_deref(),
+            scale: a.scale,
+            normalized: a.normalized,
+            slab_voxels: gsenc::model::DEFAULT_SLAB_VOXELS,
+        };
+        let s = with_threads(a.threads, || write_decoded_series(&store, &a.output, &opts, &mut CpuBackend::new()))??;
+        let seconds = t.elapsed().as_secs_f64();
+        for (key, why) in &s.skipped {
+            eprintln!("gsenc: skipped {}: {why}", key.path());
+        }
+        print_result(
+            a.out.json,
+            json!({
+                "field": s.field,
+                "grids": s.pieces.len(),
+                "steps": s.pieces.iter().map(|p| p.key.step).collect::<std::collections::BTreeSet<_>>().len(),
+                "skipped": s.skipped.len(),
+                "voxels": s.voxels,
+                "seconds": seconds,
+                "voxels_per_second": s.voxels as f64 / seconds.max(1e-9),
+                "hdf5": a.output.display().to_string(),
+                "xdmf": s.xdmf.display().to_string(),
+            }),
+        );
+        Ok(())
+    }
+
+    pub fn info(path: &Path, json_out: bool) -> Result<()> {
+        let store = Store::open_read(path)?;
+        let entries = store.entries()?;
+        let bytes = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+        let list: Vec<serde_json::Value> = entries
+            .iter()
+            .map(|e| match &e.content {
+                Ok(i) => json!({
+                    "entry": e.key.path(),
+                    "payload": i.payload.name(),
+                    "primitives": i.count,
+                    "stored_bytes": i.stored_bytes,
+                    "time": i.meta.time,
+                    "encode_psnr": i.meta.encode_psnr,
+                    "dims": i.meta.frame.dims,
+                    "bounds_min": i.meta.frame.bmin,
+                    "gamma": i.meta.frame.gamma,
+                    "value_min": i.meta.range.vmin,
+                    "value_max": i.meta.range.vmax,
+                    "transform": i.meta.range.transform.name(),
+                    "schedule": i.meta.schedule,
+                    "iterations": i.meta.iterations,
+                    "points": i.meta.points,
+                    "seed_init": i.meta.seed_init,
+                    "seed_sample": i.meta.seed_sample,
+                }),
+                Err(why) => json!({ "entry": e.key.path(), "error": why.to_string() }),
+            })
+            .collect();
+        if json_out {
+            println!("{}", json!({ "format": "gsenc HDF5 store", "bytes": bytes, "entries": list }));
+            return Ok(());
+        }
+        println!("{}: gsenc HDF5 store, {} entries, {bytes} bytes", path.display(), entries.len());
+        for e in &entries {
+            match &e.content {
+                Ok(i) => println!(
+                    "  {:<32} {:>9} primitives  {:<8} time {:<12} psnr {}",
+                    e.key.path(),
+                    i.count,
+                    i.payload.name(),
+                    i.meta.time.map_or("-".into(), |t| format!("{t}")),
+                    i.meta.encode_psnr.map_or("-".into(), |p| format!("{p:.2} dB")),
+                ),
+                Err(why) => println!("  {:<32} unreadable: {why}", e.key.path()),
+            }
+        }
+        Ok(())
+    }
+}
+
+pub use imp::{decode_series, info, store};

@@ -1,0 +1,602 @@
+//! The command-line tool end to end: encode, eval, info, decode, and its errors.
+
+#[path = "../../tests/common/mod.rs"]
+mod common;
+use common::*;
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::io::vti;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn gsenc(args: &[&str]) -> (i32, String, String) {
+    let out = Command::new(env!("CARGO_BIN_EXE_gsenc")).args(args).output().unwrap();
+    (out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stdout).into(), String::from_utf8_lossy(&out.stderr).into())
+}
+
+fn json(s: &str) -> serde_json::Value {
+    serde_json::from_str(s.trim()).unwrap_or_else(|e| panic!("not JSON ({e}): {s}"))
+}
+
+/// A 20x16x12 float32 field scaled to [2, 12] (so that normalisation matters).
+fn write_input(dir: &Path) -> (PathBuf, Vec<f32>) {
+    let g = blobs([20, 16, 12], 5, 4);
+    let vals: Vec<f32> = g.values.iter().map(|v| 2.0 + 10.0 * v).collect();
+    let p = dir.join("field.f32");
+    std::fs::write(&p, gsenc::io::raw::to_f32_bytes(&vals)).unwrap();
+    (p, vals)
+}
+
+#[test]
+fn encode_eval_info_decode_round_trip() {
+    let dir = tmpdir("roundtrip");
+    let (input, vals) = write_input(&dir);
+    let model = dir.join("m.gsm");
+    let (inp, m) = (input.to_str().unwrap(), model.to_str().unwrap());
+    let (code, out, err) = gsenc(&[
+        "encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "300", "--schedule", "short",
+        "--iters", "120", "--points", "2048", "--field", "temp", "--step", "4", "-o", m, "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let e = json(&out);
+    for key in ["primitives", "bytes", "voxel_psnr", "sampled_psnr", "seconds", "total_seconds"] {
+        assert!(e.get(key).is_some(), "missing {key} in {out}");
+    }
+    assert_eq!(e["primitives"], 300);
+    assert_eq!(e["bytes"].as_u64().unwrap(), std::fs::metadata(&model).unwrap().len());
+    let vpsnr = e["voxel_psnr"].as_f64().unwrap();
+    assert!(vpsnr > 25.0, "{vpsnr}");
+    assert!(e["seconds"].as_f64().unwrap() <= e["total_seconds"].as_f64().unwrap());
+
+    let (code, out, err) = gsenc(&["eval", m, "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert!((json(&out)["voxel_psnr"].as_f64().unwrap() - vpsnr).abs() < 1e-9);
+
+    let (code, out, _) = gsenc(&["info", m, "--json"]);
+    assert_eq!(code, 0);
+    let i = json(&out);
+    assert_eq!(i["field"], "temp");
+    assert_eq!(i["step"], 4);
+    assert_eq!(i["primitives"], 300);
+    assert_eq!(i["dims"], serde_json::json!([20, 16, 12]));
+    assert_eq!(i["value_min"].as_f64().unwrap(), *vals.iter().min_by(|a, b| a.total_cmp(b)).unwrap() as f64);
+
+    // A .vti decode parses back and equals the library's decode in data units.
+    let out_vti = dir.join("d.vti");
+    let (code, _, err) = gsenc(&["decode", m, "-o", out_vti.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    let parsed = vti::read_vti(&out_vti, None).unwrap();
+    let lib_model = gsenc::format::read_model(&std::fs::read(&model).unwrap()).unwrap();
+    let lib = lib_model.decode(&mut CpuBackend::new(), None).unwrap();
+    assert_eq!(parsed.grid.dims, [20, 16, 12]);
+    assert_eq!(parsed.origin, [0.0; 3]);
+    assert_eq!(parsed.spacing, [1.0; 3]);
+    for (a, b) in parsed.grid.values.iter().zip(&lib.values) {
+        assert_eq!(*a, lib_model.meta.range.denormalize(*b) as f32);
+    }
+    // The decoded field is close to the input in data units.
+    let rms = (parsed.grid.values.iter().zip(&vals).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
+    assert!(rms < 0.5, "rms {rms}");
+
+    // Any resolution: a 2x raw decode has 8x the voxels; a .vti input encodes too.
+    let out_raw = dir.join("d2.raw");
+    let (code, _, _) = gsenc(&["decode", m, "--dims", "40,32,24", "-o", out_raw.to_str().unwrap()]);
+    assert_eq!(code, 0);
+    assert_eq!(std::fs::metadata(&out_raw).unwrap().len(), 40 * 32 * 24 * 4);
+    let m2 = dir.join("m2.gsm");
+    let (code, out, err) = gsenc(&["encode", "grid", "--input", out_vti.to_str().unwrap(), "--budget", "200", "--iters", "40", "--points", "1024", "-o", m2.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["primitives"], 200);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_inputs_fail_with_codes_and_messages() {
+    let dir = tmpdir("errors");
+    let (input, mut vals) = write_input(&dir);
+    let inp = input.to_str().unwrap();
+    let m = dir.join("m.gsm");
+    let ms = m.to_str().unwrap();
+    let enc = |extra: &[&str], dims: &str, file: &str| {
+        let mut a = vec!["encode", "grid", "--input", file, "--dims", dims, "--dtype", "f32", "--iters", "5", "--points", "256", "-o", ms, "--quiet"];
+        a.extend_from_slice(extra);
+        gsenc(&a)
+    };
+    let (code, _, err) = enc(&["--budget", "10"], "20,16,13", inp);
+    assert_eq!(code, 3);
+    assert!(err.contains("bytes"), "{err}");
+    let (code, _, err) = enc(&["--budget", "0"], "20,16,12", inp);
+    assert_eq!(code, 2);
+    assert!(err.contains("at least 1"), "{err}");
+    let (code, _, err) = enc(&["--budget", "4000"], "20,16,12", inp);
+    assert_eq!(code, 2);
+    assert!(err.contains("exceeds the 3840 voxels"), "{err}");
+    vals[123] = f32::NAN;
+    let nan = dir.join("nan.f32");
+    std::fs::write(&nan, gsenc::io::raw::to_f32_bytes(&vals)).unwrap();
+    let (code, _, err) = enc(&["--budget", "10"], "20,16,12", nan.to_str().unwrap());
+    assert_eq!(code, 3);
+    assert!(err.contains("index 123") && err.contains("not finite"), "{err}");
+    assert!(!m.exists(), "a failed encode must not leave a model behind");
+
+    // A good model, then damaged copies.
+    let (code, _, err) = enc(&["--budget", "10"], "20,16,12", inp);
+    assert_eq!(code, 0, "{err}");
+    let bytes = std::fs::read(&m).unwrap();
+    let cut = dir.join("cut.gsm");
+    std::fs::write(&cut, &bytes[..bytes.len() - 7]).unwrap();
+    let (code, _, err) = gsenc(&["info", cut.to_str().unwrap()]);
+    assert_eq!(code, 4);
+    assert!(err.contains("truncated"), "{err}");
+    let (code, _, err) = gsenc(&["info", inp]);
+    assert_eq!(code, 4);
+    assert!(err.contains("not a gsenc model"), "{err}");
+    let (code, _, err) = gsenc(&["decode", ms, "--dims", "0,4,4", "-o", dir.join("x.raw").to_str().unwrap()]);
+    assert_ne!(code, 0);
+    assert!(err.contains("dims"), "{err}");
+    let (code, _, err) = gsenc(&["decode", ms, "-o", dir.join("no/such/dir/x.raw").to_str().unwrap()]);
+    assert_eq!(code, 5, "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+fn write_f32(path: &Path, v: &[f32]) {
+    std::fs::write(path, gsenc::io::raw::to_f32_bytes(v)).unwrap();
+}
+
+/// Two steps of 600 particles in [0, 3] x [0, 2] x [0, 1], one file per array,
+/// one row per step (the layout of dambreak3d_particles); values in [1, 100].
+fn write_particles(dir: &Path) -> [PathBuf; 4] {
+    let mut rng = gsenc::math::rng::Rng::new(8);
+    let (mut pos, mut hh, mut mass, mut val) = (vec![], vec![], vec![], vec![]);
+    for _ in 0..2 * 600 {
+        let p = [rng.range(0.0, 3.0), rng.range(0.0, 2.0), rng.range(0.0, 1.0)];
+        pos.extend(p.map(|c| c as f32));
+        hh.push(rng.range(0.12, 0.25) as f32);
+        mass.push(rng.range(0.5, 1.5) as f32);
+        val.push((1.0 + 99.0 * (-(p[0] - 1.5).powi(2) - (p[1] - 1.0).powi(2)).exp()) as f32);
+    }
+    let names = ["pos.f32", "hh.f32", "mass.f32", "val.f32"].map(|n| dir.join(n));
+    for (p, v) in names.iter().zip([&pos, &hh, &mass, &val]) {
+        write_f32(p, v);
+    }
+    names
+}
+
+#[test]
+fn particles_encode_deposit_and_eval_agree() {
+    let dir = tmpdir("particles");
+    let [pos, hh, mass, val] = write_particles(&dir);
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let inputs = [
+        "--positions", &s(&pos), "--smoothing-length", &s(&hh), "--mass", &s(&mass), "--values", &s(&val),
+        "--count", "600", "--row", "1", "--dims", "24,16,8", "--log10",
+    ];
+    let m = dir.join("p.gsm");
+    let mut a = vec!["encode", "particles"];
+    a.extend_from_slice(&inputs);
+    a.extend_from_slice(&["--budget", "400", "--schedule", "short", "--iters", "100", "--points", "2048", "-o", m.to_str().unwrap(), "--json"]);
+    let (code, out, err) = gsenc(&a);
+    assert_eq!(code, 0, "{err}");
+    let e = json(&out);
+    // Every key of a grid encode, plus what the deposit did.
+    let (gcode, gout, gerr) = gsenc(&[
+        "encode", "grid", "--input", &s(&write_input(&dir).0), "--dims", "20,16,12", "--dtype", "f32", "--budget", "50",
+        "--iters", "3", "--points", "256", "-o", dir.join("g.gsm").to_str().unwrap(), "--json",
+    ]);
+    assert_eq!(gcode, 0, "{gerr}");
+    for key in json(&gout).as_object().unwrap().keys() {
+        assert!(e.get(key).is_some(), "particle encode lacks grid key {key}: {out}");
+    }
+    for key in ["items", "samples", "outside", "deposit_seconds", "deposit_peak_bytes", "peak_rss_bytes"] {
+        assert!(e.get(key).is_some(), "missing {key}: {out}");
+    }
+    assert_eq!(e["items"], 600);
+    assert_eq!(e["outside"], 0);
+    assert_eq!(e["dims"], serde_json::json!([24, 16, 8]));
+    let psnr = e["voxel_psnr"].as_f64().unwrap();
+    assert!(psnr > 25.0, "{psnr}");
+
+    // The deposit in data units, as .vti, scores the model as the encode did.
+    let dep = dir.join("dep.vti");
+    let mut a = vec!["deposit", "particles"];
+    a.extend_from_slice(&inputs);
+    a.extend_from_slice(&["-o", dep.to_str().unwrap(), "--json"]);
+    let (code, out, err) = gsenc(&a);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["voxels"], 24 * 16 * 8);
+    let parsed = vti::read_vti(&dep, None).unwrap();
+    let gamma = e["gamma"].as_f64().unwrap();
+    assert!((parsed.spacing[0] - 1.0 / gamma).abs() < 1e-9);
+    let (code, out, err) = gsenc(&["eval", m.to_str().unwrap(), "--input", dep.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0, "{err}");
+    let eval_psnr = json(&out)["voxel_psnr"].as_f64().unwrap();
+    assert!((eval_psnr - psnr).abs() < 0.05, "eval {eval_psnr} vs encode {psnr}");
+
+    // The value range is that of row 1 of the two-step files.
+    let (code, out, _) = gsenc(&["info", m.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0);
+    let vmax = json(&out)["value_max"].as_f64().unwrap();
+    let vals = gsenc::io::raw::read_items(&val, gsenc::io::raw::DType::F32, 1, gsenc::io::raw::Rows { count: Some(600), row: 1 }).unwrap();
+    // (serde_json's default float parsing may be one ulp off)
+    assert!((vmax - vals.iter().fold(f64::MIN, |a, &b| a.max(b.log10()))).abs() < 1e-12);
+
+    // Errors: mismatched arrays, a row past the end, zero smoothing length.
+    let short_hh = dir.join("hh_short.f32");
+    write_f32(&short_hh, &[0.1; 599]);
+    let (code, _, err) = gsenc(&[
+        "deposit", "particles", "--positions", &s(&pos), "--smoothing-length", &s(&short_hh), "--values", &s(&val),
+        "--count", "600", "--dims", "8", "-o", dir.join("x.raw").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("not whole rows of 600"), "{err}");
+    let (code, _, err) = gsenc(&[
+        "deposit", "particles", "--positions", &s(&pos), "--smoothing-length", &s(&hh), "--values", &s(&val),
+        "--count", "600", "--row", "2", "--dims", "8", "-o", dir.join("x.raw").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("row 2"), "{err}");
+    let zero_hh = dir.join("hh_zero.f32");
+    write_f32(&zero_hh, &[0.0; 1200]);
+    let (code, _, err) = gsenc(&[
+        "encode", "particles", "--positions", &s(&pos), "--smoothing-length", &s(&zero_hh), "--values", &s(&val),
+        "--count", "600", "--dims", "8", "--budget", "10", "-o", dir.join("z.gsm").to_str().unwrap(),
+    ]);
+    assert_eq!(code, 3, "{err}");
+    assert!(err.contains("smoothing length 0"), "{err}");
+    assert!(!dir.join("z.gsm").exists() && !dir.join("x.raw").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn cells_encode_and_deposit() {
+    let dir = tmpdir("cells");
+    // A 2-level AMR-like tiling of [0, 1]^3: 8 coarse cells, one of them split.
+    let (mut c, mut e, mut v) = (vec![], vec![], vec![]);
+    for k in 0..2 {
+        for j in 0..2 {
+            for i in 0..2 {
+                let centre = [0.25 + 0.5 * i as f32, 0.25 + 0.5 * j as f32, 0.25 + 0.5 * k as f32];
+                if (i, j, k) == (1, 1, 0) {
+                    for s in 0..8 {
+                        let o = [(s & 1) as f32, ((s >> 1) & 1) as f32, ((s >> 2) & 1) as f32];
+                        c.extend([0, 1, 2].map(|a| centre[a] - 0.125 + 0.25 * o[a]));
+                        e.extend([0.25f32; 3]);
+                        v.push(10.0 + s as f32);
+                    }
+                } else {
+                    c.extend(centre);
+                    e.extend([0.5f32; 3]);
+                    v.push(1.0 + (i + 2 * j + 4 * k) as f32);
+                }
+            }
+        }
+    }
+    let files = ["c.f32", "e.f32", "v.f32"].map(|n| dir.join(n));
+    for (p, x) in files.iter().zip([&c, &e, &v]) {
+        write_f32(p, x);
+    }
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let m = dir.join("c.gsm");
+    let (code, out, err) = gsenc(&[
+        "encode", "cells", "--centers", &s(&files[0]), "--sizes", &s(&files[1]), "--values", &s(&files[2]), "--dims", "16",
+        "--budget", "12", "--iters", "60", "--points", "1024", "-o", m.to_str().unwrap(), "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let r = json(&out);
+    assert_eq!(r["items"], 15);
+    assert_eq!(r["empty_voxels"], 0);
+    assert_eq!(r["gamma"].as_f64().unwrap(), 16.0);
+    let dep = dir.join("dep.raw");
+    let (code, _, err) = gsenc(&[
+        "deposit", "cells", "--centers", &s(&files[0]), "--sizes", &s(&files[1]), "--values", &s(&files[2]), "--dims", "16",
+        "-o", dep.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let d = gsenc::io::raw::read_raw(&dep, [16; 3], gsenc::io::raw::DType::F32, gsenc::io::raw::Order::XFastest).unwrap();
+    // Voxel (0,0,0) lies only in the first coarse cell's stamp: its value, 1.
+    assert!((d.values[0] - 1.0).abs() < 1e-5, "{}", d.values[0]);
+    let (code, _, err) = gsenc(&["deposit", "cells", "--centers", &s(&files[0]), "--values", &s(&files[2]), "--dims", "16", "-o", dep.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("--sizes") || err.contains("--volumes"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn payloads_convert_info_and_sub_box_decode() {
+    let dir = tmpdir("payloads");
+    let (input, _) = write_input(&dir);
+    let inp = input.to_str().unwrap();
+    let p = |name: &str| dir.join(name).to_str().unwrap().to_string();
+    let grid_args = ["--input", inp, "--dims", "20,16,12", "--dtype", "f32"];
+    let encode = |payload: &str, out: &str| {
+        let mut args = vec!["encode", "grid"];
+        args.extend(grid_args);
+        args.extend(["--budget", "300", "--iters", "100", "--points", "2048", "--time", "2.5", "--payload", payload, "-o", out, "--json", "--quiet"]);
+        let (code, out, err) = gsenc(&args);
+        assert_eq!(code, 0, "{err}");
+        json(&out)
+    };
+    let eval = |model: &str| {
+        let mut args = vec!["eval", model];
+        args.extend(grid_args);
+        args.push("--json");
+        let (code, out, err) = gsenc(&args);
+        assert_eq!(code, 0, "{err}");
+        json(&out)["voxel_psnr"].as_f64().unwrap()
+    };
+    let info = |model: &str| {
+        let (code, out, err) = gsenc(&["info", model, "--json"]);
+        assert_eq!(code, 0, "{err}");
+        json(&out)
+    };
+
+    // The same encode stored both ways: the 8-bit file is about 4x smaller,
+    // and the PSNR it reports (and stores) is that of the file as read back.
+    let (f32m, eightm) = (p("f32.gsm"), p("8.gsm"));
+    let e32 = encode("f32", &f32m);
+    let e8 = encode("8bit", &eightm);
+    assert_eq!(e8["payload"], "8bit");
+    assert!(e8["bytes"].as_u64().unwrap() * 3 < e32["bytes"].as_u64().unwrap(), "{e8} vs {e32}");
+    let psnr8 = eval(&eightm);
+    assert!((psnr8 - e8["voxel_psnr"].as_f64().unwrap()).abs() < 1e-9);
+    assert!((eval(&f32m) - psnr8).abs() < 0.5, "8-bit costs little PSNR");
+    let i8 = info(&eightm);
+    assert_eq!((i8["payload"].as_str(), i8["format"].as_str()), (Some("8bit"), Some("gsenc model 1.1")));
+    assert!((i8["encode_psnr"].as_f64().unwrap() - psnr8).abs() < 1e-9);
+    assert_eq!(i8["time"].as_f64(), Some(2.5));
+
+    // convert: f32 -> 8bit-u16 -> f32; the PSNR of a lossy conversion is no
+    // longer known, and going back to f32 loses nothing more.
+    let (u16m, back) = (p("u16.gsm"), p("back.gsm"));
+    let (code, out, err) = gsenc(&["convert", &f32m, "--payload", "8bit-u16", "-o", &u16m, "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["to"], "8bit-u16");
+    assert!(info(&u16m)["encode_psnr"].is_null());
+    let (code, _, err) = gsenc(&["convert", &u16m, "--payload", "f32", "-o", &back]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(eval(&back), eval(&u16m));
+    assert_eq!(info(&back)["payload"], "f32");
+    let (code, _, err) = gsenc(&["convert", &f32m, "--payload", "8bit", "-o", &f32m]);
+    assert_eq!(code, 2, "{err}");
+    let (code, _, err) = gsenc(&["convert", &f32m, "--payload", "4bit", "-o", &p("x.gsm")]);
+    assert!(code == 2 && err.contains("8bit-u16"), "{err}");
+
+    // A sub-box decode, at twice the resolution, is that part of the whole
+    // decode, and its .vti places it in the world.
+    let whole = p("whole.raw");
+    let (code, _, err) = gsenc(&["decode", &eightm, "--dims", "40,32,24", "-o", &whole, "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    let whole: Vec<f32> = std::fs::read(&whole).unwrap().chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+    let part = p("part.vti");
+    let (code, out, err) = gsenc(&["decode", &eightm, "--dims", "40,32,24", "--box", "5,6,7,25,30,19", "-o", &part, "--json", "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(json(&out)["voxels"], 20 * 24 * 12);
+    let v = vti::read_vti(std::path::Path::new(&part), None).unwrap();
+    assert_eq!(v.grid.dims, [20, 24, 12]);
+    assert_eq!(v.spacing, [0.5; 3]);
+    assert_eq!(v.origin, [5.0 * 0.5 - 0.25, 6.0 * 0.5 - 0.25, 7.0 * 0.5 - 0.25]);
+    let mut i = 0;
+    for z in 7..19 {
+        for y in 6..30 {
+            for x in 5..25 {
+                let w = whole[(z * 32 + y) * 40 + x];
+                assert!((v.grid.values[i] - w).abs() <= 1e-5 * w.abs().max(1.0), "({x},{y},{z}): {} vs {w}", v.grid.values[i]);
+                i += 1;
+            }
+        }
+    }
+    let (code, _, err) = gsenc(&["decode", &eightm, "--box", "0,0,0,21,16,12", "-o", &p("bad.raw")]);
+    assert!(code == 2 && err.contains("sub-box"), "{err}");
+    assert!(!dir.join("bad.raw").exists());
+    assert!(std::fs::read_dir(&dir).unwrap().all(|e| !e.unwrap().file_name().to_string_lossy().contains(".tmp-")));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A build without the `hdf5` feature keeps the store commands, which say
+/// how to get them instead of failing obscurely.
+#[cfg(not(feature = "hdf5"))]
+#[test]
+fn store_commands_without_hdf5_say_how_to_get_them() {
+    let dir = tmpdir("nohdf5");
+    let store = dir.join("s.h5");
+    let (s, m) = (store.to_str().unwrap(), dir.join("m.gsm"));
+    for args in [
+        vec!["store", "add", s, m.to_str().unwrap()],
+        vec!["store", "extract", s, "rho/1/0", "-o", "x.gsm"],
+        vec!["decode-series", s, "-o", "x.h5"],
+    ] {
+        let (code, _, err) = gsenc(&args);
+        assert_eq!(code, 2, "{args:?}: {err}");
+        assert!(err.contains("--features hdf5"), "{args:?}: {err}");
+    }
+    assert!(!store.exists());
+}
+
+/// Writes a 3-step particle series (rows of 300 particles drifting in x):
+/// positions, smoothing lengths and values as little-endian f32.
+fn write_particle_series(dir: &Path, steps: usize) -> [PathBuf; 3] {
+    let n = 300;
+    let mut rng = gsenc::math::rng::Rng::new(9);
+    let base: Vec<[f64; 3]> = (0..n).map(|_| [rng.range(0.2, 0.8), rng.range(0.2, 0.8), rng.range(0.2, 0.8)]).collect();
+    let (mut pos, mut hh, mut val) = (Vec::new(), Vec::new(), Vec::new());
+    for s in 0..steps {
+        for (i, p) in base.iter().enumerate() {
+            pos.extend([p[0] + 0.02 * s as f64, p[1], p[2]].map(|c| c as f32));
+            hh.push(0.06f32);
+            val.push(1.0 + (i % 7) as f32 + s as f32);
+        }
+    }
+    let bytes = |v: &[f32]| v.iter().flat_map(|x| x.to_le_bytes()).collect::<Vec<u8>>();
+    let paths = [dir.join("pos.f32"), dir.join("hh.f32"), dir.join("val.f32")];
+    for (p, v) in paths.iter().zip([&pos, &hh, &val]) {
+        std::fs::write(p, bytes(v)).unwrap();
+    }
+    paths
+}
+
+#[test]
+fn encode_series_warm_starts_writes_models_csv_and_plot() {
+    let dir = tmpdir("series");
+    let [pos, hh, val] = write_particle_series(&dir, 3);
+    let (out, csv, png) = (dir.join("models"), dir.join("psnr.csv"), dir.join("psnr.png"));
+    let common = [
+        "encode-series", "--positions", pos.to_str().unwrap(), "--smoothing-length", hh.to_str().unwrap(),
+        "--values", val.to_str().unwrap(), "--count", "300", "--dims", "16", "--bounds", "0,0,0,1.2,1,1",
+        "--budget", "60", "--schedule", "short", "--iters", "200", "--points", "512", "--validation-every", "100",
+        "--validation-points", "2000", "--field", "rho", "--quiet",
+    ];
+    let mut args = common.to_vec();
+    args.extend(["--warm", "coarse", "-o", out.to_str().unwrap(), "--csv", csv.to_str().unwrap(), "--plot", png.to_str().unwrap(), "--json"]);
+    let (code, stdout, err) = gsenc(&args);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<serde_json::Value> = stdout.lines().map(json).collect();
+    assert_eq!(lines.len(), 4, "three steps and a summary: {stdout}");
+    assert_eq!(lines[0]["start"], "independent");
+    assert_eq!(lines[1]["start"], "coarse");
+    assert_eq!(lines[2]["iterations"], 1000);
+    assert_eq!(lines[2]["outside_items"], 0, "--bounds covers the drift");
+    // Every step is a complete model on the first step's range and frame.
+    let models: Vec<gsenc::model::Model> = (0..3)
+        .map(|s| gsenc::format::read_model(&std::fs::read(out.join(format!("rho_{s:06}.gsm"))).unwrap()).unwrap())
+        .collect();
+    for (s, m) in models.iter().enumerate() {
+        assert_eq!(m.meta.step, s as u64);
+        assert_eq!(m.meta.range, models[0].meta.range, "one range per series");
+        assert_eq!(m.meta.frame, models[0].meta.frame);
+        assert_eq!(m.len(), 60);
+        assert!((m.meta.encode_psnr.unwrap() - lines[s]["voxel_psnr"].as_f64().unwrap()).abs() < 1e-9);
+    }
+    assert_eq!(models[1].meta.schedule, "warm-coarse");
+    // Later steps hold values beyond the first step's range: clamped and counted.
+    assert_eq!(lines[0]["clamped_values"], 0);
+    assert!(lines[2]["clamped_values"].as_u64().unwrap() > 0);
+    // The CSV logs every step from iteration 0 to its end.
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let rows: Vec<Vec<&str>> = text.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    let its = |step: &str| rows.iter().filter(|r| r[1] == step).map(|r| r[3].parse::<usize>().unwrap()).collect::<Vec<_>>();
+    assert_eq!(its("0"), [0, 100, 200]);
+    assert_eq!(its("2"), (0..=1000).step_by(100).collect::<Vec<_>>());
+    let last = rows.iter().rfind(|r| r[1] == "2").unwrap();
+    assert!((last[4].parse::<f64>().unwrap() - lines[2]["validation_psnr"].as_f64().unwrap()).abs() < 1e-3);
+    assert_eq!(&std::fs::read(&png).unwrap()[..8], b"\x89PNG\r\n\x1a\n");
+    // plot-series draws several CSVs; a foreign CSV is refused.
+    let (code, _, err) = gsenc(&["plot-series", csv.to_str().unwrap(), csv.to_str().unwrap(), "-o", png.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let (code, _, err) = gsenc(&["plot-series", pos.to_str().unwrap(), "-o", png.to_str().unwrap()]);
+    assert_eq!(code, 4, "{err}");
+
+    // Resumed from its stored step 1, the series' step 2 is the unbroken one's.
+    let resumed = dir.join("resumed");
+    let step1 = out.join("rho_000001.gsm");
+    let mut args = common.to_vec();
+    args.extend(["--steps", "2..3", "--warm", "coarse", "--resume-from", step1.to_str().unwrap(), "-o", resumed.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 0, "{err}");
+    let again = gsenc::format::read_model(&std::fs::read(resumed.join("rho_000002.gsm")).unwrap()).unwrap();
+    assert_eq!(again.params, models[2].params, "a resumed series must continue as the unbroken one");
+    assert_eq!(again.meta.schedule, "warm-coarse");
+    // Resuming from another field, or from a step not before the first to encode, is refused.
+    let mut args = common.to_vec();
+    args.extend(["--steps", "2..3", "--resume-from", step1.to_str().unwrap(), "-o", resumed.to_str().unwrap()]);
+    let field_at = args.iter().position(|a| *a == "rho").unwrap();
+    args[field_at] = "temp";
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("holds field 'rho'"), "{err}");
+    let mut args = common.to_vec();
+    args.extend(["--steps", "1..3", "--resume-from", step1.to_str().unwrap(), "-o", resumed.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("must come after"), "{err}");
+
+    // A step the input does not hold is a clear error, before any work.
+    let mut args = common.to_vec();
+    let other = dir.join("other");
+    args.extend(["--steps", "1..5", "-o", other.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("step 3 is missing"), "{err}");
+    assert!(!other.exists());
+}
+
+/// With the `hdf5` feature the series goes into one store, a complete model
+/// per step, readable like any store entry.
+#[cfg(feature = "hdf5")]
+#[test]
+fn encode_series_into_a_store() {
+    let dir = tmpdir("series-store");
+    let [pos, hh, val] = write_particle_series(&dir, 2);
+    let store = dir.join("run.h5");
+    let (code, _, err) = gsenc(&[
+        "encode-series", "--positions", pos.to_str().unwrap(), "--smoothing-length", hh.to_str().unwrap(),
+        "--values", val.to_str().unwrap(), "--count", "300", "--dims", "12", "--budget", "40", "--schedule", "short",
+        "--iters", "100", "--points", "256", "--validation-points", "500", "--warm", "dense", "--as-grid",
+        "--payload", "8bit", "--field", "rho", "--quiet", "-o", store.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let (code, stdout, err) = gsenc(&["info", "--json", store.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let v = json(&stdout);
+    let entries = v["entries"].as_array().unwrap();
+    let names: Vec<&str> = entries.iter().map(|e| e["entry"].as_str().unwrap()).collect();
+    assert_eq!(names, ["/rho/0/rank_0", "/rho/1/rank_0"]);
+    for e in entries {
+        assert_eq!(e["payload"], "8bit");
+        assert_eq!(e["primitives"], 40);
+        assert_eq!(e["value_min"], entries[0]["value_min"]);
+        assert_eq!(e["value_max"], entries[0]["value_max"]);
+    }
+    assert_eq!(entries[1]["schedule"], "warm-dense");
+    assert_eq!(entries[1]["iterations"], 1500);
+}
+
+#[test]
+fn decode_of_several_pieces_writes_one_global_field() {
+    use gsenc::field::{IndexFrame, Transform, ValueRange};
+    use gsenc::model::{Model, ModelMeta};
+    let dir = tmpdir("pieces");
+    let range = ValueRange::new(2.0, 12.0, Transform::Linear).unwrap();
+    // Two pieces of one lattice (voxel 0.5), the second 10 voxels along x.
+    let piece = |x0: f64, seed: u64| {
+        let g = blobs([14, 8, 6], seed, 2);
+        let mut cfg = gsenc::encode::EncodeConfig::new(30, gsenc::encode::Schedule::Short);
+        cfg.iterations = Some(30);
+        let target = gsenc::input::Target { reference: &g, samples: &g };
+        let out = gsenc::encode::encode(&target, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+        let mut meta = ModelMeta::new(IndexFrame { dims: g.dims, bmin: [x0, 0.0, 0.0], gamma: 2.0 }, range);
+        meta.field = "rho".into();
+        Model { meta, params: out.params }
+    };
+    let (a, b) = (piece(0.0, 1), piece(5.0, 2));
+    let (pa, pb) = (dir.join("rho_r0.gsm"), dir.join("rho_r1.gsm"));
+    std::fs::write(&pa, gsenc::format::write_model(&a).unwrap()).unwrap();
+    std::fs::write(&pb, gsenc::format::write_model(&b).unwrap()).unwrap();
+    let (sa, sb) = (pa.to_str().unwrap(), pb.to_str().unwrap());
+    let out = dir.join("global.raw");
+    let (code, _, err) = gsenc(&["decode", sa, sb, "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    // The global field is the library's merged decode, in data units.
+    let merged = gsenc::domain::pieces::merge(&[a.clone(), b.clone()]).unwrap();
+    assert_eq!(merged.meta.frame.dims, [24, 8, 6]);
+    let want = merged.decode(&mut CpuBackend::new(), None).unwrap();
+    let got = std::fs::read(&out).unwrap().chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect::<Vec<f32>>();
+    assert_eq!(got.len(), want.values.len());
+    for (g, w) in got.iter().zip(&want.values) {
+        assert!((g - range.denormalize(*w) as f32).abs() < 1e-4, "{g} vs {w}");
+    }
+    // One piece's region alone: its cells of the global field.
+    let (code, _, err) = gsenc(&["decode", sa, sb, "--piece", "1", "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let part = std::fs::read(&out).unwrap().chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect::<Vec<f32>>();
+    assert_eq!(part.len(), 14 * 8 * 6);
+    assert_eq!(part[0], got[10], "piece 1 starts 10 voxels along x");
+    // Pieces that do not fit together, and a piece that is not there.
+    let (code, _, err) = gsenc(&["decode", sa, sb, "--piece", "2", "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 2, "{err}");
+    let mut c = b.clone();
+    c.meta.frame.bmin[0] = 5.25; // half a voxel off the lattice
+    let pc = dir.join("rho_off.gsm");
+    std::fs::write(&pc, gsenc::format::write_model(&c).unwrap()).unwrap();
+    let (code, _, err) = gsenc(&["decode", sa, pc.to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert_eq!(code, 2);
+    assert!(err.contains("lattice"), "{err}");
+}

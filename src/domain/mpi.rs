@@ -1,0 +1,369 @@
+//! One rank's side of a domain-decomposed encode, on the simulation's own
+//! MPI (cargo feature `mpi`).
+//!
+//! Each rank keeps its own background queue and model per field and step;
+//! this layer agrees, on the caller's thread and at the field's first step,
+//! one global lattice (the voxel size and corner every rank uses), each
+//! rank's piece of it (its own region grown by a halo) and the value range,
+//! then at every push sends each rank the data its piece needs
+//! ([`crate::domain::halo`]). The background worker never calls MPI, so
+//! `MPI_THREAD_FUNNELED` suffices.
+//!
+//! The library never initialises or finalises MPI and never frees the
+//! caller's communicator: it works on a duplicate, made at create and freed
+//! on drop (both collective).
+
+use crate::domain::halo::{self, Kind};
+use crate::error::{Error, Result};
+use crate::field::{Bounds, IndexBox, IndexFrame, Transform, ValueRange};
+use crate::format::StepIndex;
+use crate::input::StepData;
+use crate::series::queue::{BackgroundEncoder, Job, Pushed};
+use crate::series::SeriesRange;
+use mpi::collective::SystemOperation;
+use mpi::datatype::{Partition, PartitionMut};
+use mpi::environment::Threading;
+use mpi::ffi;
+use mpi::topology::SimpleCommunicator;
+use mpi::traits::*;
+use std::collections::BTreeMap;
+use std::mem::ManuallyDrop;
+
+/// How the ranks place their pieces.
+#[derive(Clone, Debug)]
+pub struct DecompositionConfig {
+    /// Voxels of the global lattice of particles and cells (grids bring
+    /// their own spacing).
+    pub dims: [usize; 3],
+    /// The global box of particles and cells; `None`: the union of every
+    /// rank's data at the field's first step.
+    pub bounds: Option<Bounds>,
+    /// Voxels each piece reaches past its rank's own region.
+    pub halo: usize,
+    /// The series' range: given, or agreed from every rank's first step.
+    pub range: SeriesRange,
+}
+
+/// A field's decomposition, fixed at its first step.
+struct Layout {
+    kind: Kind,
+    global: IndexFrame,
+    /// Every rank's piece, in rank order.
+    pieces: Vec<IndexBox>,
+    range: ValueRange,
+}
+
+/// What a collective push did.
+pub struct Distributed {
+    pub pushed: Pushed,
+    /// On rank 0: the step's index, for the caller to write beside the models.
+    pub index: Option<StepIndex>,
+}
+
+/// One rank of a decomposed encode: its duplicate of the communicator and
+/// the layouts of its fields.
+pub struct Decomposition {
+    /// Freed on drop unless MPI is finalised by then.
+    comm: ManuallyDrop<SimpleCommunicator>,
+    rank: usize,
+    size: usize,
+    /// Only the main thread may call MPI (`MPI_THREAD_FUNNELED`).
+    funneled: bool,
+    cfg: DecompositionConfig,
+    fields: BTreeMap<String, Layout>,
+}
+
+/// Checks that MPI is initialised, not finalised, and at
+/// `MPI_THREAD_FUNNELED` or above; returns whether it is exactly funneled.
+fn check_environment() -> Result<bool> {
+    if !mpi::environment::is_initialized() {
+        return Err(Error::Mpi("MPI is not initialised: call MPI_Init_thread (MPI_THREAD_FUNNELED or above) before gsenc".into()));
+    }
+    if mpi::environment::is_finalized() {
+        return Err(Error::Mpi("MPI is already finalised".into()));
+    }
+    match mpi::environment::threading_support() {
+        Threading::Single => Err(Error::Mpi(
+            "MPI provides MPI_THREAD_SINGLE; gsenc encodes on its own threads and needs MPI_THREAD_FUNNELED or above (MPI_Init_thread)".into(),
+        )),
+        Threading::Funneled => Ok(true),
+        _ => Ok(false),
+    }
+}
+
+/// FNV-1a, to compare what the ranks pushed in one `u64`.
+fn fingerprint(field: &str, step: u64, kind: Kind) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for b in field.bytes().chain(step.to_le_bytes()).chain([kind as u8]) {
+        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    h
+}
+
+fn kind_name(kind: Kind) -> &'static str {
+    match kind {
+        Kind::Grid => "a grid",
+        Kind::Particles => "particles",
+        Kind::CellBoxes => "cells as boxes",
+        Kind::CellVolumes => "cells as hexahedra",
+    }
+}
+
+impl Decomposition {
+    /// Duplicates `comm` (collective over it).
+    pub fn new(comm: &impl Communicator, cfg: DecompositionConfig) -> Result<Decomposition> {
+        let funneled = check_environment()?;
+        Self::with(comm.duplicate(), funneled, cfg)
+    }
+
+    /// Duplicates the communicator whose Fortran handle is `handle`
+    /// (`MPI_Comm_c2f` in C, `integer :: comm` in Fortran); collective.
+    pub fn from_fortran(handle: i32, cfg: DecompositionConfig) -> Result<Decomposition> {
+        let funneled = check_environment()?;
+        // SAFETY: MPI is initialised; f2c of any integer is defined (an
+        // invalid one gives MPI_COMM_NULL or an MPI error).
+        let raw = unsafe { ffi::RSMPI_Comm_f2c(handle) };
+        // SAFETY: reads an MPI constant.
+        if raw == unsafe { ffi::RSMPI_COMM_NULL } {
+            return Err(Error::Mpi(format!("communicator handle {handle} is MPI_COMM_NULL")));
+        }
+        let mut dup = raw;
+        // SAFETY: `raw` is the caller's live communicator; the duplicate is
+        // ours, and only ours is ever freed.
+        let rc = unsafe { ffi::MPI_Comm_dup(raw, &mut dup) };
+        if rc != 0 {
+            return Err(Error::Mpi(format!("MPI_Comm_dup failed with code {rc}")));
+        }
+        // SAFETY: a live intra-communicator we own.
+        let comm = unsafe { SimpleCommunicator::from_raw(dup) };
+        Self::with(comm, funneled, cfg)
+    }
+
+    fn with(comm: SimpleCommunicator, funneled: bool, cfg: DecompositionConfig) -> Result<Decomposition> {
+        if cfg.dims.contains(&0) {
+            return Err(Error::arg(format!("dims {:?} must be positive", cfg.dims)));
+        }
+        let (rank, size) = (comm.rank() as usize, comm.size() as usize);
+        Ok(Decomposition { comm: ManuallyDrop::new(comm), rank, size, funneled, cfg, fields: BTreeMap::new() })
+    }
+
+    pub fn rank(&self) -> usize {
+        self.rank
+    }
+
+    pub fn size(&self) -> usize {
+        self.size
+    }
+
+    fn check_thread(&self) -> Result<()> {
+        check_environment()?;
+        if self.funneled {
+            let mut main = 0;
+            // SAFETY: MPI is initialised (checked above).
+            unsafe { ffi::MPI_Is_thread_main(&mut main) };
+            if main == 0 {
+                return Err(Error::Mpi("MPI is at MPI_THREAD_FUNNELED and this is not its main thread: call gsenc's collective functions from the thread that initialised MPI".into()));
+            }
+        }
+        Ok(())
+    }
+
+    /// Every rank's `local` outcome, in one allreduce that also compares
+    /// `key` (what this rank is doing; `pushed` says it in words) across
+    /// the ranks: different keys give every rank an `Mpi` error; otherwise
+    /// the first failing rank gets its own error, the others an `Mpi` error
+    /// naming it (it `refused` something). Collective.
+    fn agree<T>(&self, local: Result<T>, key: u64, pushed: &str, refused: &str) -> Result<T> {
+        let mine = [if local.is_err() { self.rank as u64 + 1 } else { 0 }, key, !key];
+        let mut all = [0u64; 3];
+        self.comm.all_reduce_into(&mine[..], &mut all[..], SystemOperation::max());
+        if all[1] != key || all[2] != !key {
+            return Err(Error::Mpi(format!(
+                "the ranks pushed different steps: this rank pushed {pushed}, another a different field, step or form; every rank must push the same ones in the same order"
+            )));
+        }
+        match (local, all[0]) {
+            (Err(e), _) => Err(e),
+            (Ok(_), r) if r > 0 => Err(Error::Mpi(format!("rank {} refused {refused} (its own error says why); no rank queued the step", r - 1))),
+            (Ok(v), _) => Ok(v),
+        }
+    }
+
+    /// Pushes one field of one step: collective over the communicator,
+    /// every rank with its own part of the domain. Checks that all ranks
+    /// push the same field, step and form, agrees the layout at the field's
+    /// first step, sends each rank what its piece needs, and queues the
+    /// piece on `queue` (all ranks queue, skip or refuse it together).
+    /// `model_file(rank)` names each rank's model in the step index.
+    pub fn push(&mut self, queue: &BackgroundEncoder, job: Job, model_file: &dyn Fn(u32) -> String) -> Result<Distributed> {
+        self.check_thread()?;
+        let kind = Kind::of(&job.data);
+        let what = format!("field '{}' step {}", job.field, job.step);
+        let pushed = format!("{what} as {}", kind_name(kind));
+        let key = fingerprint(&job.field, job.step, kind);
+        let local = queue.check(&job).and_then(|()| self.check_local(&job, kind));
+        let stats = self.agree(local, key, &pushed, &format!("its data for {what}"))?;
+        if !self.fields.contains_key(&job.field) {
+            let layout = self.agree_layout(&job.data, kind, stats, &what)?;
+            self.fields.insert(job.field.clone(), layout);
+        }
+        let layout = &self.fields[&job.field];
+        let split = halo::split(&job.data, &layout.global, &layout.pieces).and_then(|bufs| {
+            bufs.iter()
+                .map(|b| i32::try_from(b.len()).map_err(|_| Error::arg(format!("{what}: more than 2^31 values for one rank in one step"))))
+                .collect::<Result<Vec<i32>>>()
+                .and_then(|counts| match counts.iter().try_fold(0i32, |a, &c| a.checked_add(c)) {
+                    Some(_) => Ok((bufs, counts)),
+                    None => Err(Error::arg(format!("{what}: more than 2^31 values to send in one step"))),
+                })
+        });
+        let (bufs, counts) = self.agree(split, key, &pushed, &format!("to split its data of {what}"))?;
+        let received = self.exchange(&bufs, &counts);
+        drop(bufs);
+        let received: Vec<&[f64]> = received.0.iter().map(|r| &received.1[r.clone()]).collect();
+        let piece = layout.pieces[self.rank];
+        let joined = halo::join(kind, &received, &layout.global, &piece);
+        // All ranks decide about a full queue together.
+        let room = joined.as_ref().map_or(true, |d| queue.has_room(d.bytes()));
+        let mut all_room = [0u64];
+        self.comm.all_reduce_into(&[room as u64][..], &mut all_room[..], SystemOperation::min());
+        let data = joined?;
+        let index = (self.rank == 0).then(|| {
+            let models = (0..self.size as u32).map(model_file).collect();
+            StepIndex::new(&job.field, job.step, job.time, &layout.range, &layout.global, &layout.pieces, self.cfg.halo, models)
+        });
+        let range = Some(layout.range);
+        let pushed = queue.push_checked(Job { data, range, ..job }, all_room[0] == 1)?;
+        Ok(Distributed { pushed, index })
+    }
+
+    /// What this rank checks alone before the first collective: the form
+    /// matches the field's, a grid sits on the field's lattice; and the
+    /// local value range for the first step.
+    fn check_local(&self, job: &Job, kind: Kind) -> Result<[f64; 2]> {
+        if let Some(l) = self.fields.get(&job.field) {
+            if l.kind != kind {
+                return Err(Error::arg(format!(
+                    "field '{}' came as {} at its first step, now as {}",
+                    job.field,
+                    kind_name(l.kind),
+                    kind_name(kind)
+                )));
+            }
+            if let StepData::Grid { frame, .. } = &job.data {
+                halo::grid_box(&l.global, frame)?;
+            }
+            return Ok([0.0; 2]);
+        }
+        let values = halo::data_values(&job.data);
+        let transform = match self.cfg.range {
+            SeriesRange::Fixed(_) => return Ok([0.0; 2]),
+            SeriesRange::FirstStep(t) => t,
+        };
+        if transform == Transform::Log10 {
+            if let Some(v) = values.iter().find(|&&v| v <= 0.0) {
+                return Err(Error::data(format!("log10 transform needs positive values; got {v}")));
+            }
+        }
+        let t = |v: f32| if transform == Transform::Log10 { (v as f64).log10() } else { v as f64 };
+        Ok(values.iter().fold([f64::INFINITY, f64::NEG_INFINITY], |[lo, hi], &v| [lo.min(t(v)), hi.max(t(v))]))
+    }
+
+    /// The global lattice, every rank's piece and the range of a field,
+    /// from every rank's first step. Collective.
+    fn agree_layout(&self, data: &StepData, kind: Kind, local_range: [f64; 2], what: &str) -> Result<Layout> {
+        let b = halo::data_bounds(data);
+        let spacing = match data {
+            StepData::Grid { frame, .. } => 1.0 / frame.gamma,
+            _ => 0.0,
+        };
+        // Minima of everything: maxima travel negated.
+        let mine = [b.min[0], b.min[1], b.min[2], -b.max[0], -b.max[1], -b.max[2], local_range[0], -local_range[1], spacing, -spacing];
+        let mut all = [0f64; 10];
+        self.comm.all_reduce_into(&mine[..], &mut all[..], SystemOperation::min());
+        let (gmin, gmax) = ([all[0], all[1], all[2]], [-all[3], -all[4], -all[5]]);
+        // Every rank computes the same from the same reduced numbers, so
+        // these errors come on all ranks together.
+        let range = match self.cfg.range {
+            SeriesRange::Fixed(r) => r,
+            SeriesRange::FirstStep(t) => ValueRange::new(all[6], -all[7], t)
+                .map_err(|_| Error::data(format!("{what}: the field is constant ({}) on every rank; give a value range", all[6])))?,
+        };
+        let global = match kind {
+            Kind::Grid => {
+                let (smin, smax) = (all[8], -all[9]);
+                if (smax - smin) > 1e-9 * smin {
+                    return Err(Error::Mpi(format!("{what}: the ranks' grids have spacings from {smin} to {smax}; they must share one")));
+                }
+                let gamma = 1.0 / smin;
+                let dims = std::array::from_fn(|a| ((gmax[a] - gmin[a]) * gamma).round().max(1.0) as usize);
+                IndexFrame { dims, bmin: gmin, gamma }
+            }
+            _ => {
+                let (lo, hi) = self.cfg.bounds.map_or((gmin, gmax), |b| (b.min, b.max));
+                IndexFrame::from_bounds(self.cfg.dims, lo, hi)?
+            }
+        };
+        let piece = match data {
+            StepData::Grid { frame, .. } => halo::grid_box(&global, frame).map(|g| {
+                let lo = std::array::from_fn(|a| g.lo[a].saturating_sub(self.cfg.halo));
+                let hi = std::array::from_fn(|a| (g.hi[a] + self.cfg.halo).min(global.dims[a]));
+                IndexBox { lo, hi }
+            }),
+            _ => {
+                // This rank's region, clipped to the global box.
+                let g = global.world_box();
+                let lo = std::array::from_fn(|a| b.min[a].clamp(g.min[a], g.max[a]));
+                let hi = std::array::from_fn(|a| b.max[a].clamp(g.min[a], g.max[a]));
+                Ok(global.covering_box(lo, hi, self.cfg.halo))
+            }
+        };
+        let mine: Vec<i64> = match &piece {
+            Ok(p) => p.lo.iter().chain(&p.hi).map(|&v| v as i64).chain([1]).collect(),
+            Err(_) => vec![0, 0, 0, 0, 0, 0, 0],
+        };
+        let mut all = vec![0i64; 7 * self.size];
+        self.comm.all_gather_into(&mine[..], &mut all[..]);
+        let piece = piece?;
+        if let Some(r) = all.chunks_exact(7).position(|c| c[6] == 0) {
+            return Err(Error::Mpi(format!("{what}: rank {r}'s grid is not on the lattice of the others (its own error says why)")));
+        }
+        let pieces: Vec<IndexBox> = all
+            .chunks_exact(7)
+            .map(|c| IndexBox { lo: std::array::from_fn(|a| c[a] as usize), hi: std::array::from_fn(|a| c[3 + a] as usize) })
+            .collect();
+        debug_assert_eq!(pieces[self.rank], piece);
+        Ok(Layout { kind, global, pieces, range })
+    }
+
+    /// Sends `bufs[r]` to rank `r`; returns what each rank sent here, as
+    /// ranges of one buffer. Collective.
+    fn exchange(&self, bufs: &[Vec<f64>], counts: &[i32]) -> (Vec<std::ops::Range<usize>>, Vec<f64>) {
+        let mut recv_counts = vec![0i32; self.size];
+        self.comm.all_to_all_into(counts, &mut recv_counts[..]);
+        let displs = |c: &[i32]| c.iter().scan(0i32, |at, &n| Some(std::mem::replace(at, *at + n))).collect::<Vec<i32>>();
+        let send: Vec<f64> = bufs.concat();
+        let total: usize = recv_counts.iter().map(|&c| c as usize).sum();
+        let mut recv = vec![0f64; total];
+        let (sd, rd) = (displs(counts), displs(&recv_counts));
+        {
+            let partition = Partition::new(&send[..], counts, &sd[..]);
+            let mut into = PartitionMut::new(&mut recv[..], &recv_counts[..], &rd[..]);
+            self.comm.all_to_all_varcount_into(&partition, &mut into);
+        }
+        let ranges = rd.iter().zip(&recv_counts).map(|(&d, &c)| d as usize..(d + c) as usize).collect();
+        (ranges, recv)
+    }
+}
+
+impl Drop for Decomposition {
+    /// Frees the duplicate (collective), unless MPI is finalised by now
+    /// (then freeing is not allowed; the handle dies with MPI).
+    fn drop(&mut self) {
+        if mpi::environment::is_finalized() {
+            return;
+        }
+        // SAFETY: taken once, here.
+        drop(unsafe { ManuallyDrop::take(&mut self.comm) });
+    }
+}

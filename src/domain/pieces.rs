@@ -1,0 +1,159 @@
+//! One global field from models of pieces of a domain (the per-rank models
+//! of a domain-decomposed run).
+//!
+//! Pieces share one global index frame: the same voxel size and a lattice
+//! whose origins differ by whole voxels, each piece covering its own part of
+//! the domain plus a halo. The mixture is additive, so the global model is
+//! every piece's primitives together, their centres moved into the global
+//! frame; decoding it computes `sum n / max(sum rho, eps)` over all of
+//! them. [`blend`] instead decodes each piece on its own box and blends the
+//! pieces across their halos (what `gsenc decode` of a step index does:
+//! kernels no longer leak past a piece's box). A step index ([`StepIndex`])
+//! names the pieces of one step. No I/O here.
+
+use crate::error::{Error, Result};
+use crate::field::IndexFrame;
+use crate::math::kernel::layout::MU;
+use crate::field::{IndexBox, LATTICE_TOLERANCE};
+use crate::model::Model;
+
+/// The global model of `pieces`: one frame covering all of them, every
+/// primitive of every piece. Pieces must be of the same field and step,
+/// share the value range and the voxel size, and sit on one lattice.
+pub fn merge(pieces: &[Model]) -> Result<Model> {
+    let first = pieces.first().ok_or_else(|| Error::arg("no models to merge"))?;
+    let gamma = first.meta.frame.gamma;
+    for (i, p) in pieces.iter().enumerate() {
+        let m = &p.meta;
+        if m.field != first.meta.field || m.step != first.meta.step {
+            return Err(Error::arg(format!(
+                "piece {i} is field '{}' step {}, piece 0 is field '{}' step {}: merge pieces of one step",
+                m.field, m.step, first.meta.field, first.meta.step
+            )));
+        }
+        if m.range != first.meta.range {
+            return Err(Error::arg(format!(
+                "piece {i} has value range {:?}, piece 0 {:?}: the pieces of a field must share one range",
+                m.range, first.meta.range
+            )));
+        }
+        if ((m.frame.gamma - gamma) / gamma).abs() > 1e-9 {
+            return Err(Error::arg(format!(
+                "piece {i} has {} voxels per unit, piece 0 {gamma}: the pieces must share one voxel size",
+                m.frame.gamma
+            )));
+        }
+    }
+    let bmin: [f64; 3] = std::array::from_fn(|a| pieces.iter().map(|p| p.meta.frame.bmin[a]).fold(f64::INFINITY, f64::min));
+    let mut dims = [0usize; 3];
+    let mut offsets = Vec::with_capacity(pieces.len());
+    for (i, p) in pieces.iter().enumerate() {
+        let f = &p.meta.frame;
+        let mut offset = [0usize; 3];
+        for a in 0..3 {
+            let voxels = (f.bmin[a] - bmin[a]) * gamma;
+            if (voxels - voxels.round()).abs() > LATTICE_TOLERANCE {
+                return Err(Error::arg(format!(
+                    "piece {i} starts {voxels} voxels from the others along axis {a}: the pieces must sit on one lattice"
+                )));
+            }
+            offset[a] = voxels.round() as usize;
+            dims[a] = dims[a].max(offset[a] + f.dims[a]);
+        }
+        offsets.push(offset);
+    }
+    let mut meta = first.meta.clone();
+    meta.frame = IndexFrame { dims, bmin, gamma };
+    meta.rank = 0;
+    meta.encode_psnr = None;
+    let mut params = Vec::with_capacity(pieces.iter().map(|p| p.params.len()).sum());
+    for (p, offset) in pieces.iter().zip(&offsets) {
+        params.extend(p.params.iter().map(|q| {
+            let mut q = *q;
+            for a in 0..3 {
+                q[MU + a] += offset[a] as f32;
+            }
+            q
+        }));
+    }
+    Ok(Model { meta, params })
+}
+
+/// The global field of a step's pieces on `region` of a lattice of
+/// `out_dims` over the global frame, each piece decoded alone on its own
+/// box and the pieces blended by a partition of unity: piece `p`'s weight is
+/// 1 in its rank's own region and falls linearly to 0 across its halo
+/// (`halo` voxels of the global lattice; no fall on sides that are the
+/// domain's edge), and the value is `sum w_p V_p / sum w_p`.
+///
+/// Why not the additive decode of [`merge`]: a piece's kernels reach up to
+/// five standard deviations past its box, into neighbours' regions it never
+/// saw, and where the field is faint (density below the decoder's floor)
+/// those tails set the value; blending each piece only where it was fitted
+/// removes them (docs/BENCHMARKS.md "MPI" compares the two).
+pub fn blend(
+    global: &IndexFrame,
+    pieces: &[Model],
+    boxes: &[IndexBox],
+    halo: usize,
+    out_dims: [usize; 3],
+    region: IndexBox,
+    backend: &mut dyn crate::backend::Backend,
+) -> Result<crate::field::Grid> {
+    if pieces.len() != boxes.len() || pieces.is_empty() {
+        return Err(Error::arg("blend needs one box per piece"));
+    }
+    if (0..3).any(|a| region.lo[a] >= region.hi[a] || region.hi[a] > out_dims[a] || out_dims[a] == 0) {
+        return Err(Error::arg(format!("region {:?}..{:?} is not inside the lattice of {out_dims:?}", region.lo, region.hi)));
+    }
+    let rd = region.dims();
+    let n: usize = rd.iter().product();
+    let mut sum = vec![0f64; n];
+    let mut weight = vec![0f64; n];
+    // Output voxel i along axis a has its centre at global index u = (i + 0.5) s - 0.5.
+    let step: [f64; 3] = std::array::from_fn(|a| global.dims[a] as f64 / out_dims[a] as f64);
+    let centre = |a: usize, i: usize| (i as f64 + 0.5) * step[a] - 0.5;
+    for (piece, b) in pieces.iter().zip(boxes) {
+        // Output voxels whose centres lie in the piece's box [lo - 0.5, hi - 0.5].
+        let mut lo = [0usize; 3];
+        let mut hi = [0usize; 3];
+        for a in 0..3 {
+            let first = ((b.lo[a] as f64 + 0.5) / step[a] - 0.5).ceil().max(region.lo[a] as f64) as usize;
+            let end = (((b.hi[a] as f64 + 0.5) / step[a] - 0.5).floor() + 1.0).min(region.hi[a] as f64).max(0.0) as usize;
+            (lo[a], hi[a]) = (first, end.max(first));
+        }
+        let dims = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
+        if dims.contains(&0) {
+            continue;
+        }
+        let lattice = crate::backend::Lattice {
+            dims,
+            origin: std::array::from_fn(|a| (centre(a, lo[a]) - b.lo[a] as f64) as f32),
+            step: step.map(|s| s as f32),
+        };
+        let mut values = vec![0f32; dims.iter().product()];
+        backend.decode_lattice(&piece.params, &lattice, &mut values);
+        // The weight along one axis: 1 inside, falling to 0 at a box side
+        // that borders another rank (not at the domain's edge).
+        let ramp = |a: usize, u: f64| {
+            let t = halo.max(1) as f64;
+            let low = if b.lo[a] == 0 { 1.0 } else { ((u - (b.lo[a] as f64 - 0.5)) / t).clamp(0.0, 1.0) };
+            let high = if b.hi[a] == global.dims[a] { 1.0 } else { (((b.hi[a] as f64 - 0.5) - u) / t).clamp(0.0, 1.0) };
+            low.min(high)
+        };
+        let w: [Vec<f64>; 3] = std::array::from_fn(|a| (lo[a]..hi[a]).map(|i| ramp(a, centre(a, i))).collect());
+        for k in 0..dims[2] {
+            for j in 0..dims[1] {
+                let wjk = w[1][j] * w[2][k];
+                for i in 0..dims[0] {
+                    let wi = w[0][i] * wjk;
+                    let at = (lo[0] + i - region.lo[0]) + rd[0] * ((lo[1] + j - region.lo[1]) + rd[1] * (lo[2] + k - region.lo[2]));
+                    sum[at] += wi * values[i + dims[0] * (j + dims[1] * k)] as f64;
+                    weight[at] += wi;
+                }
+            }
+        }
+    }
+    let values = sum.iter().zip(&weight).map(|(&s, &w)| if w > 0.0 { (s / w) as f32 } else { 0.0 }).collect();
+    crate::field::Grid::new(rd, values)
+}

@@ -1,0 +1,22 @@
+//! The encoder (METHOD.md "Seeding" through "Schedules"), on memory only.
+//!
+//! [`pipeline`] is the one path every caller takes (the command-line tool,
+//! the series encoder, the background queue, hence the C API and MPI):
+//! prepare the input, encode it (seeded or warm-started), score the model as
+//! it will be stored, and build the model with its metadata. Below it:
+//! [`config`] (budget, schedules, warm regimes), [`seeding`] (the three
+//! streams), [`points`] (the stratified training points), [`relocate`],
+//! [`refine`] (the optimisation loop) and [`validation`] (a fixed point set
+//! scored along the way).
+
+pub mod config;
+pub mod pipeline;
+pub mod points;
+pub mod refine;
+pub mod relocate;
+pub mod seeding;
+pub mod validation;
+
+pub use config::{Cancel, EncodeConfig, Schedule, WarmStart};
+pub use refine::{encode, encode_validated, spatial_order, validate, with_threads, EncodeOutput, LossTerms, Progress};
+pub use validation::Validation;

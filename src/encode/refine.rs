@@ -1,0 +1,256 @@
+//! The refinement loop: seeding (or a warm start), stratified points, the
+//! four-term loss, Adam with cosine decay, and relocation at 35/55/75 %.
+
+use crate::backend::Backend;
+use crate::encode::config::{Cancel, EncodeConfig};
+use crate::encode::points::PointSampler;
+use crate::encode::relocate::{relocate, Relocation, RELOCATE_POINTS};
+use crate::encode::seeding::{seed, Seeding};
+use crate::encode::validation::Validation;
+use crate::error::{Error, Result};
+use crate::field::check_finite;
+use crate::input::Target;
+use crate::math::kernel::{morton_key, Primitive};
+use crate::math::loss::regularizers;
+use crate::math::optim::{cosine_lr, Adam};
+use std::time::Instant;
+
+/// Reported after every iteration.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress {
+    pub iteration: usize,
+    pub iterations: usize,
+    pub loss: f64,
+}
+
+/// Loss terms of the last iteration, unweighted.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct LossTerms {
+    pub val: f64,
+    pub cov: f64,
+    pub scale: f64,
+    pub aniso: f64,
+    pub total: f64,
+}
+
+pub struct EncodeOutput {
+    /// The model, in spatial (Morton) order of the centres: the order of a
+    /// model's primitives carries no meaning.
+    pub params: Vec<Primitive>,
+    pub iterations: usize,
+    pub points: usize,
+    /// The seeding result, absent for a warm start.
+    pub seeding: Option<Seeding>,
+    /// Each relocation pass; its indices refer to the primitive order at that
+    /// moment (the encoder re-sorts spatially after every pass).
+    pub relocations: Vec<Relocation>,
+    pub last_loss: LossTerms,
+    /// Seconds in seeding (or copying the warm start).
+    pub seed_seconds: f64,
+    /// Seconds in the optimisation loop (the paper's reported time).
+    pub loop_seconds: f64,
+    /// `(iterations done, validation PSNR)`, when a [`Validation`] was given:
+    /// at 0 (the initial model), every `every` iterations, and at the end.
+    pub validation: Vec<(usize, f64)>,
+    /// Seconds spent scoring the validation set (inside `loop_seconds`).
+    pub validation_seconds: f64,
+    /// Kernel evaluations of the loop's point passes (its throughput).
+    pub kernel_evaluations: u64,
+}
+
+/// Checks a target and a configuration before any work is done.
+pub fn validate(target: &Target, cfg: &EncodeConfig, init: Option<&[Primitive]>) -> Result<()> {
+    let voxels = target.reference.len();
+    if cfg.budget == 0 {
+        return Err(Error::arg("budget must be at least 1 primitive"));
+    }
+    if cfg.budget > voxels {
+        return Err(Error::arg(format!(
+            "budget of {} primitives exceeds the {voxels} voxels of the reference grid; a model larger than its grid reduces nothing",
+            cfg.budget
+        )));
+    }
+    if cfg.points() == 0 {
+        return Err(Error::arg("points per iteration must be at least 1"));
+    }
+    if !(cfg.learning_rate.is_finite() && cfg.learning_rate > 0.0) {
+        return Err(Error::arg("learning rate must be positive"));
+    }
+    if target.samples.is_empty() {
+        return Err(Error::data("no samples"));
+    }
+    check_finite(&target.reference.values)?;
+    if let Some(p) = target.reference.values.iter().position(|v| !(0.0..=1.0).contains(v)) {
+        return Err(Error::data(format!(
+            "reference value {} at index {p} is outside [0, 1]; normalise first",
+            target.reference.values[p]
+        )));
+    }
+    if let Some(init) = init {
+        if init.len() != cfg.budget {
+            return Err(Error::arg(format!("warm start has {} primitives, budget is {}", init.len(), cfg.budget)));
+        }
+        if init.iter().flatten().any(|v| !v.is_finite()) {
+            return Err(Error::data("warm-start model holds non-finite parameters"));
+        }
+    }
+    Ok(())
+}
+
+/// Encodes `target` into `cfg.budget` primitives, seeded from its samples, or
+/// warm-started from `init` (then seeding is skipped). Runs on the current
+/// rayon pool; see [`with_threads`].
+pub fn encode(
+    target: &Target,
+    cfg: &EncodeConfig,
+    init: Option<&[Primitive]>,
+    backend: &mut dyn Backend,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<EncodeOutput> {
+    encode_validated(target, cfg, init, None, backend, progress)
+}
+
+/// [`encode`], also scoring `validation` (when given) along the way, with
+/// the same backend. Scoring reads the parameters only: the model is the same
+/// with or without it.
+pub fn encode_validated(
+    target: &Target,
+    cfg: &EncodeConfig,
+    init: Option<&[Primitive]>,
+    validation: Option<&Validation>,
+    backend: &mut dyn Backend,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<EncodeOutput> {
+    validate(target, cfg, init)?;
+    if let Some(v) = validation {
+        if v.every == 0 || v.points.is_empty() || v.points.len() != v.values.len() {
+            return Err(Error::arg("validation set is empty, mismatched, or has a zero interval"));
+        }
+    }
+    let t_seed = Instant::now();
+    // Primitives are kept in spatial (Morton) order, which makes the backend's
+    // candidate blocks compact; the seeding record follows the same permutation.
+    let (mut params, seeding) = match init {
+        Some(p) => (permute(p, &spatial_order(p)), None),
+        None => {
+            let s = seed(target.samples, target.reference.dims, cfg.budget, cfg.seed_init)?;
+            let order = spatial_order(&s.params);
+            let s = Seeding {
+                params: permute(&s.params, &order),
+                stream: permute(&s.stream, &order),
+                sample: permute(&s.sample, &order),
+            };
+            (s.params.clone(), Some(s))
+        }
+    };
+    let seed_seconds = t_seed.elapsed().as_secs_f64();
+    tracing::info!(
+        budget = cfg.budget,
+        iterations = cfg.iterations(),
+        points = cfg.points(),
+        warm_start = init.is_some(),
+        backend = %backend.name(),
+        seed_seconds,
+        "encode starts"
+    );
+
+    let t_loop = Instant::now();
+    let evaluations_before = backend.kernel_evaluations();
+    let iterations = cfg.iterations();
+    let points = cfg.points();
+    let reloc_at = cfg.relocation_iterations();
+    let n = params.len();
+    let mut sampler = PointSampler::new(target.reference, cfg.seed_sample);
+    let mut adam = Adam::new(n);
+    let mut grad: Vec<Primitive> = vec![[0.0; 12]; n];
+    let mut relocations = vec![];
+    let mut last = LossTerms::default();
+    let mut scores = Vec::new();
+    let mut validation_seconds = 0.0;
+    let mut score = |t: usize, params: &[Primitive], backend: &mut dyn Backend| {
+        if let Some(v) = validation {
+            let started = Instant::now();
+            scores.push((t, v.psnr(backend, params)));
+            validation_seconds += started.elapsed().as_secs_f64();
+        }
+    };
+    for t in 0..iterations {
+        if cfg.cancel.as_ref().is_some_and(Cancel::is_set) {
+            return Err(Error::Cancelled(format!("at iteration {t} of {iterations}")));
+        }
+        if t % validation.map_or(usize::MAX, |v| v.every) == 0 {
+            score(t, &params, backend);
+        }
+        if reloc_at.contains(&t) {
+            let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
+            let r = relocate(backend, &mut params, &mut adam, &batch);
+            tracing::debug!(iteration = t, moved = r.moved.len(), "relocation");
+            let order = spatial_order(&params);
+            params = permute(&params, &order);
+            adam.m = permute(&adam.m, &order);
+            adam.v = permute(&adam.v, &order);
+            relocations.push(r);
+        }
+        let batch = sampler.draw(points, target.reference, target.samples);
+        let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad);
+        let reg = regularizers(&params, &cfg.weights, &mut grad);
+        let w = &cfg.weights;
+        last = LossTerms {
+            val: pl.val,
+            cov: pl.cov,
+            scale: reg.scale,
+            aniso: reg.aniso,
+            total: w.val as f64 * pl.val + w.cov as f64 * pl.cov + w.scale as f64 * reg.scale + w.aniso as f64 * reg.aniso,
+        };
+        if !last.total.is_finite() {
+            return Err(Error::data(format!("loss is not finite at iteration {t}: {last:?}")));
+        }
+        adam.step(&mut params, &grad, cosine_lr(cfg.learning_rate, t, iterations));
+        progress(&Progress { iteration: t + 1, iterations, loss: last.total });
+    }
+    score(iterations, &params, backend);
+    let loop_seconds = t_loop.elapsed().as_secs_f64();
+    tracing::info!(loop_seconds, loss = last.total, "encode done");
+    Ok(EncodeOutput {
+        params,
+        iterations,
+        points,
+        seeding,
+        relocations,
+        last_loss: last,
+        seed_seconds,
+        loop_seconds,
+        validation: scores,
+        validation_seconds,
+        kernel_evaluations: backend.kernel_evaluations() - evaluations_before,
+    })
+}
+
+/// The permutation that sorts primitives by the Morton key of their centres
+/// (ties by index, so it is deterministic).
+pub fn spatial_order(params: &[Primitive]) -> Vec<usize> {
+    let mut keyed: Vec<(u64, usize)> = params.iter().enumerate().map(|(i, p)| (morton_key(p), i)).collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|(_, i)| i).collect()
+}
+
+fn permute<T: Clone>(v: &[T], order: &[usize]) -> Vec<T> {
+    order.iter().map(|&i| v[i].clone()).collect()
+}
+
+/// Runs `f` on a dedicated rayon pool of `threads` threads (the global pool
+/// when `None`), so that an encode never competes with a host's own pool.
+pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Send) -> Result<R> {
+    match threads {
+        None => Ok(f()),
+        Some(0) => Err(Error::arg("threads must be at least 1")),
+        Some(t) => {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .thread_name(|i| format!("gsenc-{i}"))
+                .build()
+                .map_err(|e| Error::arg(format!("cannot start {t} threads: {e}")))?;
+            Ok(pool.install(f))
+        }
+    }
+}

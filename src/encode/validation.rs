@@ -1,0 +1,58 @@
+//! A fixed set of validation points scored during an encode, so that
+//! quality can be read against iterations (time to quality).
+
+use crate::backend::Backend;
+use crate::error::{Error, Result};
+use crate::field::Grid;
+use crate::math::kernel::Primitive;
+use crate::math::loss::v_eval;
+use crate::math::rng::Rng;
+use crate::model::metrics::psnr_from_mse;
+
+/// A fixed set of voxel centres with their reference values, scored during
+/// an encode so that quality can be read against iterations (time to quality).
+/// Fixed by its seed, so every step of a series is scored on the same points.
+#[derive(Clone, Debug)]
+pub struct Validation {
+    pub points: Vec<[f32; 3]>,
+    pub values: Vec<f32>,
+    /// Score every this many iterations (at least 1).
+    pub every: usize,
+}
+
+impl Validation {
+    /// `count` voxel centres of `reference` drawn uniformly with replacement.
+    pub fn from_reference(reference: &Grid, count: usize, seed: u64, every: usize) -> Result<Validation> {
+        if count == 0 || every == 0 {
+            return Err(Error::arg("validation needs at least one point and a positive interval"));
+        }
+        let [dx, dy, _] = reference.dims;
+        let mut rng = Rng::new(seed);
+        let mut points = Vec::with_capacity(count);
+        let mut values = Vec::with_capacity(count);
+        for _ in 0..count {
+            let i = rng.below(reference.len() as u64) as usize;
+            points.push([(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]);
+            values.push(reference.values[i]);
+        }
+        Ok(Validation { points, values, every })
+    }
+
+    /// The same points with the values of another reference on the same
+    /// lattice (the next step of a series).
+    pub fn rescored(&self, reference: &Grid) -> Validation {
+        let [dx, dy, _] = reference.dims;
+        let values = self.points.iter().map(|p| reference.values[p[0] as usize + dx * (p[1] as usize + dy * p[2] as usize)]).collect();
+        Validation { points: self.points.clone(), values, every: self.every }
+    }
+
+    /// PSNR of `V_eval` of `params` against the reference values at the points.
+    pub fn psnr(&self, backend: &mut dyn Backend, params: &[Primitive]) -> f64 {
+        let mut rho = vec![0.0; self.points.len()];
+        let mut n = vec![0.0; self.points.len()];
+        backend.evaluate_points(params, &self.points, &mut rho, &mut n);
+        let se: f64 = (0..self.points.len()).map(|i| ((v_eval(rho[i], n[i]) - self.values[i]) as f64).powi(2)).sum();
+        psnr_from_mse(se / self.points.len() as f64)
+    }
+}
+

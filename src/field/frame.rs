@@ -1,0 +1,185 @@
+//! Where a lattice sits: the index frame of a reference grid in world
+//! units (METHOD.md "Frames and units"), world boxes, boxes of lattice
+//! indices, and the geometry between a lattice and its sub-lattices.
+
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+
+/// How far (in voxels) a sub-lattice's origin may sit from a whole voxel of
+/// the lattice it is cut from.
+pub(crate) const LATTICE_TOLERANCE: f64 = 1e-6;
+
+/// Where the index frame sits in the world: `u = (x - bmin) * gamma - 0.5`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct IndexFrame {
+    pub dims: [usize; 3],
+    pub bmin: [f64; 3],
+    pub gamma: f64,
+}
+
+impl IndexFrame {
+    /// `gamma = min_a D_a / (bmax_a - bmin_a)`: isotropic voxels (METHOD.md
+    /// "Frames and units").
+    pub fn from_bounds(dims: [usize; 3], bmin: [f64; 3], bmax: [f64; 3]) -> Result<IndexFrame> {
+        let mut gamma = f64::INFINITY;
+        for a in 0..3 {
+            let ext = bmax[a] - bmin[a];
+            if !(ext.is_finite() && ext > 0.0) {
+                return Err(Error::arg(format!("bounds on axis {a} are empty or not finite: [{}, {}]", bmin[a], bmax[a])));
+            }
+            gamma = gamma.min(dims[a] as f64 / ext);
+        }
+        Ok(IndexFrame { dims, bmin, gamma })
+    }
+
+    /// A grid whose voxel centres are `origin + i * spacing` (isotropic spacing).
+    pub fn for_grid(dims: [usize; 3], origin: [f64; 3], spacing: f64) -> Result<IndexFrame> {
+        if !(spacing.is_finite() && spacing > 0.0) {
+            return Err(Error::arg(format!("grid spacing must be positive, got {spacing}")));
+        }
+        Ok(IndexFrame {
+            dims,
+            bmin: [origin[0] - 0.5 * spacing, origin[1] - 0.5 * spacing, origin[2] - 0.5 * spacing],
+            gamma: 1.0 / spacing,
+        })
+    }
+
+    pub fn world_to_index(&self, x: [f64; 3]) -> [f64; 3] {
+        [
+            (x[0] - self.bmin[0]) * self.gamma - 0.5,
+            (x[1] - self.bmin[1]) * self.gamma - 0.5,
+            (x[2] - self.bmin[2]) * self.gamma - 0.5,
+        ]
+    }
+
+    pub fn index_to_world(&self, u: [f64; 3]) -> [f64; 3] {
+        [
+            self.bmin[0] + (u[0] + 0.5) / self.gamma,
+            self.bmin[1] + (u[1] + 0.5) / self.gamma,
+            self.bmin[2] + (u[2] + 0.5) / self.gamma,
+        ]
+    }
+
+    /// The world box of the lattice: `bmin` to `bmin + dims / gamma`.
+    pub fn world_box(&self) -> Bounds {
+        Bounds { min: self.bmin, max: std::array::from_fn(|a| self.bmin[a] + self.dims[a] as f64 / self.gamma) }
+    }
+
+    /// The frame of the voxels `b` of this lattice: the same voxel size, the
+    /// origin moved by whole voxels.
+    pub fn sub_frame(&self, b: &IndexBox) -> IndexFrame {
+        IndexFrame { dims: b.dims(), bmin: std::array::from_fn(|a| self.bmin[a] + b.lo[a] as f64 / self.gamma), gamma: self.gamma }
+    }
+
+    /// The box that the lattice of `piece` (same voxel size) covers in this
+    /// lattice; an error when it is off this lattice by a fraction of a voxel
+    /// or reaches outside it. The inverse of [`IndexFrame::sub_frame`].
+    pub fn box_of(&self, piece: &IndexFrame) -> Result<IndexBox> {
+        let mut lo = [0usize; 3];
+        let mut hi = [0usize; 3];
+        for a in 0..3 {
+            let voxels = (piece.bmin[a] - self.bmin[a]) * self.gamma;
+            if voxels < -LATTICE_TOLERANCE || (voxels - voxels.round()).abs() > LATTICE_TOLERANCE {
+                return Err(Error::arg(format!(
+                    "the piece starts {voxels} voxels from the global corner along axis {a}: it is not on the global lattice"
+                )));
+            }
+            lo[a] = voxels.round() as usize;
+            hi[a] = lo[a] + piece.dims[a];
+            if hi[a] > self.dims[a] {
+                return Err(Error::arg("the piece reaches outside the global frame"));
+            }
+        }
+        Ok(IndexBox { lo, hi })
+    }
+
+    /// The voxels whose cells meet the world box `min..max`, grown by `halo`
+    /// voxels on every side and clipped to the lattice (never empty).
+    pub fn covering_box(&self, min: [f64; 3], max: [f64; 3], halo: usize) -> IndexBox {
+        let mut b = IndexBox { lo: [0; 3], hi: [0; 3] };
+        for a in 0..3 {
+            let d = self.dims[a] as i64;
+            let lo = ((min[a] - self.bmin[a]) * self.gamma).floor() as i64 - halo as i64;
+            let hi = ((max[a] - self.bmin[a]) * self.gamma).ceil() as i64 + halo as i64;
+            let lo = lo.clamp(0, d - 1);
+            b.lo[a] = lo as usize;
+            b.hi[a] = hi.clamp(lo + 1, d) as usize;
+        }
+        b
+    }
+}
+
+/// A half-open box `[lo, hi)` of lattice indices.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct IndexBox {
+    pub lo: [usize; 3],
+    pub hi: [usize; 3],
+}
+
+impl IndexBox {
+    pub fn whole(dims: [usize; 3]) -> IndexBox {
+        IndexBox { lo: [0; 3], hi: dims }
+    }
+
+    pub fn dims(&self) -> [usize; 3] {
+        [0, 1, 2].map(|a| self.hi[a].saturating_sub(self.lo[a]))
+    }
+
+    pub(crate) fn check_within(&self, dims: [usize; 3]) -> Result<()> {
+        if (0..3).any(|a| self.lo[a] >= self.hi[a] || self.hi[a] > dims[a]) {
+            return Err(Error::arg(format!(
+                "sub-box {:?}..{:?} is empty or not inside the lattice of {dims:?}",
+                self.lo, self.hi
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// An axis-aligned box in world units.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Bounds {
+    pub min: [f64; 3],
+    pub max: [f64; 3],
+}
+
+impl Bounds {
+    /// The smallest box holding every `(lo, hi)` corner pair.
+    pub(crate) fn enclosing(boxes: impl ParallelIterator<Item = ([f64; 3], [f64; 3])>) -> Bounds {
+        let empty = || Bounds { min: [f64::INFINITY; 3], max: [f64::NEG_INFINITY; 3] };
+        boxes.fold(empty, |b, (lo, hi)| b.union(lo, hi)).reduce(empty, |a, b| a.union(b.min, b.max))
+    }
+
+    /// Dims with `longest` voxels along the box's longest axis and cubic
+    /// voxels, so that an elongated box is not padded to a cube of empty space.
+    pub fn fitted_dims(&self, longest: usize) -> Result<[usize; 3]> {
+        let ext = [0, 1, 2].map(|a| self.max[a] - self.min[a]);
+        if longest == 0 || ext.iter().any(|e| !(e.is_finite() && *e >= 0.0)) {
+            return Err(Error::arg(format!("cannot fit {longest} voxels to the box {:?} .. {:?}", self.min, self.max)));
+        }
+        let emax = ext.iter().cloned().fold(0.0, f64::max);
+        if emax <= 0.0 {
+            return Err(Error::arg("the box is a single point; give bounds explicitly"));
+        }
+        Ok(ext.map(|e| ((e / emax * longest as f64).round() as usize).max(1)))
+    }
+
+    fn union(self, lo: [f64; 3], hi: [f64; 3]) -> Bounds {
+        Bounds { min: [0, 1, 2].map(|a| self.min[a].min(lo[a])), max: [0, 1, 2].map(|a| self.max[a].max(hi[a])) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn index_frame_round_trips() {
+        let f = IndexFrame::from_bounds([64, 32, 32], [0.0, 0.0, 0.0], [2.0, 1.0, 1.0]).unwrap();
+        assert_eq!(f.gamma, 32.0);
+        let u = f.world_to_index([0.5 / 32.0, 0.0, 1.0]);
+        assert!((u[0] - 0.0).abs() < 1e-12);
+        let x = f.index_to_world(u);
+        assert!((x[2] - 1.0).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,152 @@
+//! A scalar field on a regular lattice, x fastest.
+
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+
+/// A scalar field on a regular lattice, x fastest (C order `[z][y][x]`).
+/// Voxel `(i, j, k)` has its centre at index-frame position `(i, j, k)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Grid {
+    pub dims: [usize; 3],
+    pub values: Vec<f32>,
+}
+
+impl Grid {
+    pub fn new(dims: [usize; 3], values: Vec<f32>) -> Result<Grid> {
+        if dims.iter().any(|&d| d == 0) {
+            return Err(Error::arg(format!("grid dims must be positive, got {dims:?}")));
+        }
+        let n = dims[0]
+            .checked_mul(dims[1])
+            .and_then(|v| v.checked_mul(dims[2]))
+            .ok_or_else(|| Error::arg(format!("grid dims {dims:?} overflow")))?;
+        if values.len() != n {
+            return Err(Error::data(format!(
+                "grid of dims {}x{}x{} needs {} values, got {}",
+                dims[0], dims[1], dims[2], n, values.len()
+            )));
+        }
+        Ok(Grid { dims, values })
+    }
+
+    pub fn len(&self) -> usize {
+        self.values.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.values.is_empty()
+    }
+
+    #[inline]
+    pub fn index(&self, i: usize, j: usize, k: usize) -> usize {
+        i + self.dims[0] * (j + self.dims[1] * k)
+    }
+
+    /// Voxel coordinates of a linear index.
+    #[inline]
+    pub fn coords(&self, idx: usize) -> [usize; 3] {
+        let i = idx % self.dims[0];
+        let j = (idx / self.dims[0]) % self.dims[1];
+        let k = idx / (self.dims[0] * self.dims[1]);
+        [i, j, k]
+    }
+
+    /// Trilinear interpolation at an index-frame position, clamped to the domain.
+    #[inline]
+    pub fn trilinear(&self, u: [f32; 3]) -> f32 {
+        let mut i0 = [0usize; 3];
+        let mut t = [0f32; 3];
+        for a in 0..3 {
+            let hi = (self.dims[a] - 1) as f32;
+            let x = u[a].clamp(0.0, hi);
+            let f = x.floor();
+            let mut i = f as usize;
+            let mut frac = x - f;
+            if i + 1 >= self.dims[a] {
+                // On the last plane (or a one-voxel axis): no neighbour above.
+                i = self.dims[a] - 1;
+                frac = 0.0;
+            }
+            i0[a] = i;
+            t[a] = frac;
+        }
+        let step = |a: usize| if i0[a] + 1 < self.dims[a] { 1 } else { 0 };
+        let (sx, sy, sz) = (step(0), step(1), step(2));
+        let v = |di: usize, dj: usize, dk: usize| self.values[self.index(i0[0] + di, i0[1] + dj, i0[2] + dk)];
+        let c00 = v(0, 0, 0) * (1.0 - t[0]) + v(sx, 0, 0) * t[0];
+        let c10 = v(0, sy, 0) * (1.0 - t[0]) + v(sx, sy, 0) * t[0];
+        let c01 = v(0, 0, sz) * (1.0 - t[0]) + v(sx, 0, sz) * t[0];
+        let c11 = v(0, sy, sz) * (1.0 - t[0]) + v(sx, sy, sz) * t[0];
+        let c0 = c00 * (1.0 - t[1]) + c10 * t[1];
+        let c1 = c01 * (1.0 - t[1]) + c11 * t[1];
+        c0 * (1.0 - t[2]) + c1 * t[2]
+    }
+
+    /// Mean over `k x k x k` blocks. Voxels beyond the last whole block on an
+    /// axis (when `k` does not divide the dims) are dropped.
+    pub fn downsample(&self, k: usize) -> Result<Grid> {
+        if k == 0 {
+            return Err(Error::arg("downsample factor must be at least 1"));
+        }
+        if k == 1 {
+            return Ok(self.clone());
+        }
+        let nd = [self.dims[0] / k, self.dims[1] / k, self.dims[2] / k];
+        if nd.iter().any(|&d| d == 0) {
+            return Err(Error::arg(format!("downsample factor {k} is larger than the grid {:?}", self.dims)));
+        }
+        let inv = 1.0 / (k * k * k) as f64;
+        let mut out = vec![0f32; nd[0] * nd[1] * nd[2]];
+        out.par_chunks_mut(nd[0] * nd[1]).enumerate().for_each(|(z, slab)| {
+            for y in 0..nd[1] {
+                for x in 0..nd[0] {
+                    let mut s = 0f64;
+                    for dz in 0..k {
+                        for dy in 0..k {
+                            let row = self.index(x * k, y * k + dy, z * k + dz);
+                            s += self.values[row..row + k].iter().map(|&v| v as f64).sum::<f64>();
+                        }
+                    }
+                    slab[x + nd[0] * y] = (s * inv) as f32;
+                }
+            }
+        });
+        Grid::new(nd, out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trilinear_reproduces_linear_fields() {
+        let dims = [5, 4, 3];
+        let f = |x: f32, y: f32, z: f32| 0.3 * x - 0.2 * y + 0.7 * z + 1.0;
+        let mut vals = vec![];
+        for k in 0..3 {
+            for j in 0..4 {
+                for i in 0..5 {
+                    vals.push(f(i as f32, j as f32, k as f32));
+                }
+            }
+        }
+        let g = Grid::new(dims, vals).unwrap();
+        for u in [[0.5, 1.25, 0.75], [3.9, 2.99, 1.999], [4.0, 3.0, 2.0], [0.0, 0.0, 0.0]] {
+            assert!((g.trilinear(u) - f(u[0], u[1], u[2])).abs() < 1e-5, "{u:?}");
+        }
+        // Clamped outside the domain.
+        assert!((g.trilinear([-3.0, 0.0, 0.0]) - f(0.0, 0.0, 0.0)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn downsample_is_block_mean() {
+        let dims = [4, 4, 2];
+        let vals: Vec<f32> = (0..32).map(|i| i as f32).collect();
+        let g = Grid::new(dims, vals).unwrap();
+        let d = g.downsample(2).unwrap();
+        assert_eq!(d.dims, [2, 2, 1]);
+        // Block (0,0,0) holds indices 0,1,4,5,16,17,20,21.
+        assert_eq!(d.values[0], (0 + 1 + 4 + 5 + 16 + 17 + 20 + 21) as f32 / 8.0);
+    }
+}

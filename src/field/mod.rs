@@ -1,0 +1,12 @@
+//! Fields on lattices: grids of values, their normalisation to `[0, 1]`, and
+//! where a lattice sits in the world (the index frame, world boxes, boxes of
+//! lattice indices).
+
+mod frame;
+mod grid;
+mod range;
+
+pub use frame::{Bounds, IndexBox, IndexFrame};
+pub(crate) use frame::LATTICE_TOLERANCE;
+pub use grid::Grid;
+pub use range::{check_finite, check_finite_serial, Normalized, Transform, ValueRange};

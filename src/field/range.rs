@@ -1,0 +1,162 @@
+//! Values: the optional transform, the normalisation to `[0, 1]` of one
+//! field's series (METHOD.md "Frames and units"), and the finite-value checks.
+
+use crate::error::{Error, Result};
+use rayon::prelude::*;
+
+/// Optional transform applied to raw values before normalisation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Transform {
+    Linear = 0,
+    /// `log10(x)`, for fields spanning decades; requires positive values.
+    Log10 = 1,
+}
+
+impl Transform {
+    pub fn from_code(c: u32) -> Option<Transform> {
+        match c {
+            0 => Some(Transform::Linear),
+            1 => Some(Transform::Log10),
+            _ => None,
+        }
+    }
+    pub fn name(self) -> &'static str {
+        match self {
+            Transform::Linear => "linear",
+            Transform::Log10 => "log10",
+        }
+    }
+    pub fn from_name(name: &str) -> Option<Transform> {
+        [Transform::Linear, Transform::Log10].into_iter().find(|t| t.name() == name)
+    }
+}
+
+/// The normalisation `v = (T(x) - vmin) / (vmax - vmin)` clamped to `[0, 1]`,
+/// with `[vmin, vmax]` in transformed units. One per field and time series.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ValueRange {
+    pub vmin: f64,
+    pub vmax: f64,
+    pub transform: Transform,
+}
+
+/// Normalised values and how many fell outside the range (and were clamped).
+#[derive(Clone, Debug)]
+pub struct Normalized {
+    pub values: Vec<f32>,
+    pub clamped: usize,
+}
+
+impl ValueRange {
+    pub fn new(vmin: f64, vmax: f64, transform: Transform) -> Result<ValueRange> {
+        if !(vmin.is_finite() && vmax.is_finite()) || vmax <= vmin {
+            return Err(Error::arg(format!("value range [{vmin}, {vmax}] must be finite with max > min")));
+        }
+        Ok(ValueRange { vmin, vmax, transform })
+    }
+
+    fn apply(transform: Transform, x: f64) -> f64 {
+        match transform {
+            Transform::Linear => x,
+            Transform::Log10 => x.log10(),
+        }
+    }
+
+    /// The range of the (transformed) data itself. Fails on non-finite values,
+    /// non-positive values under log10, empty or constant data.
+    pub fn from_data(values: &[f32], transform: Transform) -> Result<ValueRange> {
+        check_finite(values)?;
+        if values.is_empty() {
+            return Err(Error::data("no values"));
+        }
+        if transform == Transform::Log10 {
+            if let Some(pos) = values.iter().position(|&v| v <= 0.0) {
+                return Err(Error::data(format!(
+                    "log10 transform needs positive values; value {} at index {pos}",
+                    values[pos]
+                )));
+            }
+        }
+        let (lo, hi) = values
+            .par_iter()
+            .map(|&v| {
+                let t = Self::apply(transform, v as f64);
+                (t, t)
+            })
+            .reduce(|| (f64::INFINITY, f64::NEG_INFINITY), |a, b| (a.0.min(b.0), a.1.max(b.1)));
+        if hi <= lo {
+            return Err(Error::data(format!("field is constant ({lo}); give a value range explicitly")));
+        }
+        ValueRange::new(lo, hi, transform)
+    }
+
+    /// Normalises raw values, counting those clamped into `[0, 1]`.
+    pub fn normalize(&self, values: &[f32]) -> Result<Normalized> {
+        check_finite(values)?;
+        let scale = 1.0 / (self.vmax - self.vmin);
+        let (vmin, tr) = (self.vmin, self.transform);
+        let out: Vec<(f32, bool)> = values
+            .par_iter()
+            .map(|&x| {
+                let t = if tr == Transform::Log10 && x <= 0.0 { f64::NEG_INFINITY } else { Self::apply(tr, x as f64) };
+                let v = (t - vmin) * scale;
+                let c = v.clamp(0.0, 1.0);
+                (c as f32, c != v)
+            })
+            .collect();
+        let clamped = out.iter().filter(|x| x.1).count();
+        Ok(Normalized { values: out.into_iter().map(|x| x.0).collect(), clamped })
+    }
+
+    /// Maps a normalised value back to data units.
+    pub fn denormalize(&self, v: f32) -> f64 {
+        let t = self.vmin + v as f64 * (self.vmax - self.vmin);
+        match self.transform {
+            Transform::Linear => t,
+            Transform::Log10 => 10f64.powf(t),
+        }
+    }
+}
+
+/// Fails with the position of the first NaN or infinite value.
+/// [`check_finite`] on the calling thread alone, for the caller's side of
+/// the background queue: a push must not wake a rayon pool (the host's, or
+/// the global one the encoder's threads compete with).
+pub fn check_finite_serial(values: &[f32]) -> Result<()> {
+    // Whole chunks first: `all` over a chunk vectorises; the position is
+    // looked up only on failure.
+    if values.chunks(4096).all(|c| c.iter().all(|v| v.is_finite())) {
+        return Ok(());
+    }
+    let pos = values.iter().position(|v| !v.is_finite()).expect("a non-finite value was seen");
+    Err(not_finite(values, pos))
+}
+
+pub fn check_finite(values: &[f32]) -> Result<()> {
+    if let Some(pos) = values.par_iter().position_first(|v| !v.is_finite()) {
+        return Err(not_finite(values, pos));
+    }
+    Ok(())
+}
+
+fn not_finite(values: &[f32], pos: usize) -> Error {
+    Error::data(format!("value {} at index {pos} is not finite", values[pos]))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn normalize_clamps_and_counts() {
+        let r = ValueRange::new(0.0, 10.0, Transform::Linear).unwrap();
+        let n = r.normalize(&[-1.0, 0.0, 5.0, 10.0, 12.0]).unwrap();
+        assert_eq!(n.values, vec![0.0, 0.0, 0.5, 1.0, 1.0]);
+        assert_eq!(n.clamped, 2);
+        assert!(r.normalize(&[f32::NAN]).is_err());
+        assert!(ValueRange::from_data(&[1.0, 1.0], Transform::Linear).is_err());
+        assert!(ValueRange::from_data(&[1.0, 0.0], Transform::Log10).is_err());
+        let l = ValueRange::from_data(&[1.0, 1000.0], Transform::Log10).unwrap();
+        assert_eq!((l.vmin, l.vmax), (0.0, 3.0));
+    }
+}

@@ -1,0 +1,14 @@
+//! The file formats, bytes in and bytes out (no file system here: `io/`
+//! writes them): the model file `.gsm` ([`model_file`], docs/FORMAT.md), its
+//! payloads and the 8-bit export ([`quantize`]), the step index `.gsi` of a
+//! decomposed step ([`step_index`]), and how models are named on disk
+//! ([`names`]).
+
+pub mod model_file;
+pub mod names;
+pub mod quantize;
+pub mod step_index;
+
+pub use model_file::{read_model, read_model_file, write_model, write_model_as, ModelFile, Payload, BYTES_PER_PRIMITIVE, MAGIC, VERSION_MAJOR, VERSION_MINOR};
+pub use names::{check_field_name, model_file_name, step_index_file_name};
+pub use step_index::StepIndex;

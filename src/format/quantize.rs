@@ -1,0 +1,222 @@
+//! The paper's 8-bit export (SPEC.md "Exports"): centres in 16 bits, the
+//! other nine parameters in 8 bits through per-array min/max affine maps.
+//! The body is laid out array by array (all x centres, then all y, ...), which
+//! is what lets the lossless compressor in `format.rs` find the redundancy.
+//!
+//! ```text
+//! centres, Float16:  3 arrays of N x u16 (IEEE half bits of mu_x, mu_y, mu_z)
+//! centres, Fixed16:  3 x (lo f32, hi f32), then 3 arrays of N x u16,
+//!                    mu = lo + k / 65535 (hi - lo)
+//! then:              9 x (lo f32, hi f32) for l[3] q[4] alpha beta,
+//!                    then 9 arrays of N x u8, p = lo + k / 255 (hi - lo)
+//! ```
+//! All numbers little-endian.
+
+use crate::error::{Error, Result};
+use crate::math::kernel::Primitive;
+use half::f16;
+
+/// The largest finite float16.
+pub const FLOAT16_MAX: f32 = 65504.0;
+
+/// How centres are stored in the 8-bit export.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CentreCoding {
+    /// IEEE float16 of the index-frame coordinate (the paper's choice): steps
+    /// of 1/8 voxel above coordinate 128, 1/4 above 256, 1/2 above 512.
+    Float16,
+    /// uint16 fixed point over the centres' own extent per axis: steps of
+    /// extent / 65535 everywhere (1/256 voxel on a 256-voxel axis).
+    Fixed16,
+}
+
+/// The min/max affine map of one array to `levels + 1` codes:
+/// `p = lo + k / levels * (hi - lo)`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Affine {
+    pub lo: f32,
+    pub hi: f32,
+}
+
+impl Affine {
+    fn of(values: impl Iterator<Item = f32>) -> Affine {
+        let (lo, hi) = values.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        if lo > hi {
+            Affine { lo: 0.0, hi: 0.0 }
+        } else {
+            Affine { lo, hi }
+        }
+    }
+
+    fn encode(&self, v: f32, levels: f32) -> f32 {
+        if self.hi > self.lo {
+            ((v - self.lo) / (self.hi - self.lo) * levels).round().clamp(0.0, levels)
+        } else {
+            0.0
+        }
+    }
+
+    fn decode(&self, k: f32, levels: f32) -> f32 {
+        self.lo + (self.hi - self.lo) * (k / levels)
+    }
+
+    fn check(self) -> Result<Affine> {
+        if !(self.lo.is_finite() && self.hi.is_finite() && self.hi >= self.lo) {
+            return Err(Error::format("8-bit payload has an invalid min/max table"));
+        }
+        Ok(self)
+    }
+}
+
+/// Stored centres: three arrays of `n` 16-bit codes (x, then y, then z).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Centres {
+    /// IEEE half bits of each coordinate.
+    Float16(Vec<u16>),
+    /// Fixed-point codes through one affine map per axis.
+    Fixed16 { maps: [Affine; 3], codes: Vec<u16> },
+}
+
+/// The 8-bit export of `n` primitives, array by array. The `.gsm` body and
+/// the HDF5 store hold exactly these numbers.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Quantized {
+    pub n: usize,
+    pub centres: Centres,
+    /// Maps of the nine other parameters (`l[3] q[4] alpha beta`).
+    pub maps: [Affine; 9],
+    /// Nine arrays of `n` codes, in the order of `maps`.
+    pub codes: Vec<u8>,
+}
+
+/// Bytes of the uncompressed body for `n` primitives.
+pub fn body_len(n: usize, centres: CentreCoding) -> usize {
+    let table = match centres {
+        CentreCoding::Float16 => 0,
+        CentreCoding::Fixed16 => 3 * 8,
+    };
+    table + 3 * 2 * n + 9 * 8 + 9 * n
+}
+
+impl Quantized {
+    /// Quantises primitives (all finite).
+    pub fn of(params: &[Primitive], coding: CentreCoding) -> Quantized {
+        let n = params.len();
+        let centres = match coding {
+            CentreCoding::Float16 => {
+                Centres::Float16((0..3).flat_map(|a| params.iter().map(move |p| f16::from_f32(p[a]).to_bits())).collect())
+            }
+            CentreCoding::Fixed16 => {
+                let maps = [0, 1, 2].map(|a| Affine::of(params.iter().map(|p| p[a])));
+                let codes = (0..3).flat_map(|a| params.iter().map(move |p| maps[a].encode(p[a], 65535.0) as u16)).collect();
+                Centres::Fixed16 { maps, codes }
+            }
+        };
+        let maps: [Affine; 9] = std::array::from_fn(|k| Affine::of(params.iter().map(|p| p[3 + k])));
+        let codes = (0..9).flat_map(|k| params.iter().map(move |p| maps[k].encode(p[3 + k], 255.0) as u8)).collect();
+        Quantized { n, centres, maps, codes }
+    }
+
+    pub fn coding(&self) -> CentreCoding {
+        match self.centres {
+            Centres::Float16(_) => CentreCoding::Float16,
+            Centres::Fixed16 { .. } => CentreCoding::Fixed16,
+        }
+    }
+
+    /// The primitives these codes stand for. Fails on arrays of the wrong
+    /// length, an invalid min/max table or a non-finite centre.
+    pub fn dequantize(&self) -> Result<Vec<Primitive>> {
+        let n = self.n;
+        let centre_codes = match &self.centres {
+            Centres::Float16(c) => c,
+            Centres::Fixed16 { codes, .. } => codes,
+        };
+        if centre_codes.len() != 3 * n || self.codes.len() != 9 * n {
+            return Err(Error::format(format!(
+                "8-bit payload holds {} centre and {} parameter codes, {n} primitives need {} and {}",
+                centre_codes.len(),
+                self.codes.len(),
+                3 * n,
+                9 * n
+            )));
+        }
+        let mut params = vec![[0f32; 12]; n];
+        match &self.centres {
+            Centres::Float16(c) => {
+                for (i, p) in params.iter_mut().enumerate() {
+                    for a in 0..3 {
+                        p[a] = f16::from_bits(c[a * n + i]).to_f32();
+                    }
+                }
+                if params.iter().any(|p| !(p[0].is_finite() && p[1].is_finite() && p[2].is_finite())) {
+                    return Err(Error::format("8-bit payload holds a non-finite centre"));
+                }
+            }
+            Centres::Fixed16 { maps, codes } => {
+                for a in 0..3 {
+                    let m = maps[a].check()?;
+                    for (i, p) in params.iter_mut().enumerate() {
+                        p[a] = m.decode(codes[a * n + i] as f32, 65535.0);
+                    }
+                }
+            }
+        }
+        for k in 0..9 {
+            let m = self.maps[k].check()?;
+            for (i, p) in params.iter_mut().enumerate() {
+                p[3 + k] = m.decode(self.codes[k * n + i] as f32, 255.0);
+            }
+        }
+        Ok(params)
+    }
+
+    /// The body laid out as in the module documentation.
+    pub fn to_body(&self) -> Vec<u8> {
+        let mut out = Vec::with_capacity(body_len(self.n, self.coding()));
+        let put_map = |out: &mut Vec<u8>, m: &Affine| {
+            out.extend_from_slice(&m.lo.to_le_bytes());
+            out.extend_from_slice(&m.hi.to_le_bytes());
+        };
+        match &self.centres {
+            Centres::Float16(c) => out.extend(c.iter().flat_map(|k| k.to_le_bytes())),
+            Centres::Fixed16 { maps, codes } => {
+                maps.iter().for_each(|m| put_map(&mut out, m));
+                out.extend(codes.iter().flat_map(|k| k.to_le_bytes()));
+            }
+        }
+        self.maps.iter().for_each(|m| put_map(&mut out, m));
+        out.extend_from_slice(&self.codes);
+        out
+    }
+
+    /// Parses a body of `n` primitives; fails on a wrong length.
+    pub fn from_body(body: &[u8], n: usize, coding: CentreCoding) -> Result<Quantized> {
+        if body.len() != body_len(n, coding) {
+            return Err(Error::format(format!("8-bit payload holds {} bytes, {n} primitives need {}", body.len(), body_len(n, coding))));
+        }
+        let f32_at = |at: usize| f32::from_le_bytes(body[at..at + 4].try_into().unwrap());
+        let map_at = |at: usize| Affine { lo: f32_at(at), hi: f32_at(at + 4) };
+        let u16s = |b: &[u8]| b.chunks_exact(2).map(|k| u16::from_le_bytes([k[0], k[1]])).collect::<Vec<u16>>();
+        let (centres, at) = match coding {
+            CentreCoding::Float16 => (Centres::Float16(u16s(&body[..6 * n])), 6 * n),
+            CentreCoding::Fixed16 => {
+                let maps = [map_at(0), map_at(8), map_at(16)];
+                (Centres::Fixed16 { maps, codes: u16s(&body[24..24 + 6 * n]) }, 24 + 6 * n)
+            }
+        };
+        let maps = std::array::from_fn(|k| map_at(at + 8 * k));
+        Ok(Quantized { n, centres, maps, codes: body[at + 72..].to_vec() })
+    }
+}
+
+/// Quantises primitives (all finite) into the body above.
+pub fn quantize(params: &[Primitive], centres: CentreCoding) -> Vec<u8> {
+    Quantized::of(params, centres).to_body()
+}
+
+/// Rebuilds `n` primitives from a body; fails on a wrong length or a
+/// non-finite table entry.
+pub fn dequantize(body: &[u8], n: usize, centres: CentreCoding) -> Result<Vec<Primitive>> {
+    Quantized::from_body(body, n, centres)?.dequantize()
+}

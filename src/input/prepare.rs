@@ -1,0 +1,232 @@
+//! Input made ready for the encoder, whatever its form: the index frame, the
+//! value range, the samples that seed the model and the reference grid that
+//! supervises it (METHOD.md "Frames and units", "Samples", "Reference grid").
+//! A grid is its own reference and its voxels are its samples; particles and
+//! cells become samples and a deposit, item by item.
+
+use crate::error::{Error, Result};
+use crate::field::{Bounds, Grid, IndexFrame, Transform, ValueRange};
+use crate::input::cells::Cells;
+use crate::input::deposit::{deposit, lattice_len, DepositStats};
+use crate::input::items::{Conversion, Item};
+use crate::input::particles::Particles;
+use crate::input::samples::{Sample, SampleArrays, SampleSet};
+use crate::input::Target;
+use rayon::prelude::*;
+use std::time::Instant;
+
+/// Where the reference grid lies: its dims, and its world bounds (those of the
+/// data when `None`). Voxels are cubic: `gamma = min_a D_a / extent_a`, so the
+/// lattice may extend past `bounds.max` on all but the tightest axis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Placement {
+    pub dims: [usize; 3],
+    pub bounds: Option<Bounds>,
+}
+
+/// How values are normalised to `[0, 1]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum RangeSpec {
+    /// The range of the transformed data. Under `Log10` every value must be
+    /// positive (otherwise an error names the first offender).
+    FromData(Transform),
+    /// A given range, as for every step of a time series. Values outside it
+    /// are clamped and counted; under `Log10`, zero and negative values are
+    /// floored to `vmin` (normalised 0), never NaN.
+    Fixed(ValueRange),
+}
+
+impl RangeSpec {
+    pub fn resolve(&self, values: &[f32]) -> Result<ValueRange> {
+        match *self {
+            RangeSpec::FromData(t) => ValueRange::from_data(values, t),
+            RangeSpec::Fixed(r) => Ok(r),
+        }
+    }
+}
+
+/// One field of one step as the caller holds it, in data units.
+#[derive(Clone, Copy)]
+pub enum Input<'a> {
+    /// A regular grid over `frame`.
+    Grid { values: &'a Grid, frame: IndexFrame },
+    /// SPH particles, deposited on `placement` and seeded from the particles.
+    Particles { particles: &'a Particles<'a>, placement: Placement },
+    /// SPH particles deposited as for `Particles`, then encoded as a grid:
+    /// seeded from the deposit's voxels instead of the particles.
+    ParticleDeposit { particles: &'a Particles<'a>, placement: Placement },
+    /// Hexahedral cells, deposited on `placement` (volume-weighted).
+    Cells { cells: &'a Cells<'a>, placement: Placement },
+}
+
+impl<'a> Input<'a> {
+    /// What the encode is seeded from, once prepared.
+    pub fn form(&self) -> Form {
+        match self {
+            Input::Grid { .. } | Input::ParticleDeposit { .. } => Form::Grid,
+            Input::Particles { .. } => Form::Particles,
+            Input::Cells { .. } => Form::Cells,
+        }
+    }
+
+    /// The same input deposited in `bounds` (when given) whatever its
+    /// placement says: every step of a series uses its first step's box.
+    pub fn with_bounds(self, bounds: Option<Bounds>) -> Input<'a> {
+        let Some(b) = bounds else { return self };
+        let place = |p: Placement| Placement { bounds: Some(b), ..p };
+        match self {
+            Input::Grid { .. } => self,
+            Input::Particles { particles, placement } => Input::Particles { particles, placement: place(placement) },
+            Input::ParticleDeposit { particles, placement } => Input::ParticleDeposit { particles, placement: place(placement) },
+            Input::Cells { cells, placement } => Input::Cells { cells, placement: place(placement) },
+        }
+    }
+}
+
+/// What a prepared input seeds the model from. Particles also run the
+/// `full` schedule longer (METHOD.md "Schedules").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Form {
+    /// The reference grid's voxels (a grid, or a deposit encoded as a grid).
+    Grid,
+    Particles,
+    Cells,
+}
+
+/// An input ready for the encoder.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    pub form: Form,
+    pub frame: IndexFrame,
+    pub range: ValueRange,
+    /// Normalised to `[0, 1]`: the supervision target (a grid itself, or the
+    /// deposit of particles or cells).
+    pub reference: Grid,
+    /// Particles or cells inside the bounds, in input order; `None` when the
+    /// reference's voxels are the samples.
+    pub samples: Option<SampleArrays>,
+    /// The world box particles or cells were deposited in (`None` for grids).
+    pub bounds: Option<Bounds>,
+    /// Values clamped into the range (only with a fixed range).
+    pub clamped_values: usize,
+    /// What the deposit saw and cost (particles and cells).
+    pub deposit: Option<DepositStats>,
+}
+
+impl Prepared {
+    pub fn target(&self) -> Target<'_> {
+        let samples: &dyn SampleSet = match &self.samples {
+            Some(s) => s,
+            None => &self.reference,
+        };
+        Target { reference: &self.reference, samples }
+    }
+
+    /// Particles or cells whose centres lie outside the bounds (they seed
+    /// nothing; their support is clipped).
+    pub fn outside_items(&self) -> usize {
+        self.deposit.as_ref().map_or(0, |d| d.outside)
+    }
+}
+
+/// The frame, range, reference and samples of any input.
+pub fn prepare(input: &Input, range: &RangeSpec) -> Result<Prepared> {
+    match *input {
+        Input::Grid { values, frame } => {
+            if values.dims != frame.dims {
+                return Err(Error::arg(format!("grid of {:?} voxels, frame of {:?}", values.dims, frame.dims)));
+            }
+            let range = range.resolve(&values.values)?;
+            let norm = range.normalize(&values.values)?;
+            Ok(Prepared {
+                form: Form::Grid,
+                frame,
+                range,
+                reference: Grid::new(values.dims, norm.values)?,
+                samples: None,
+                bounds: None,
+                clamped_values: norm.clamped,
+                deposit: None,
+            })
+        }
+        Input::Particles { particles, placement } => prepare_particles(particles, &placement, range),
+        Input::ParticleDeposit { particles, placement } => {
+            let p = prepare_particles(particles, &placement, range)?;
+            Ok(Prepared { form: Form::Grid, samples: None, ..p })
+        }
+        Input::Cells { cells, placement } => prepare_cells(cells, &placement, range),
+    }
+}
+
+/// Samples and deposit of SPH particles.
+pub fn prepare_particles(p: &Particles, placement: &Placement, range: &RangeSpec) -> Result<Prepared> {
+    p.validate()?;
+    let bounds = placement.bounds.unwrap_or_else(|| p.bounds());
+    prepare_items(Form::Particles, p, p.values, placement.dims, bounds, range)
+}
+
+/// Samples and volume-weighted deposit of hexahedral cells.
+pub fn prepare_cells(c: &Cells, placement: &Placement, range: &RangeSpec) -> Result<Prepared> {
+    c.validate()?;
+    let bounds = placement.bounds.unwrap_or_else(|| c.bounds());
+    prepare_items(Form::Cells, c, c.values, placement.dims, bounds, range)
+}
+
+fn prepare_items(form: Form, items: &dyn Conversion, values: &[f32], dims: [usize; 3], bounds: Bounds, range: &RangeSpec) -> Result<Prepared> {
+    lattice_len(dims)?;
+    let frame = IndexFrame::from_bounds(dims, bounds.min, bounds.max).map_err(|e| match e {
+        Error::InvalidArgument(m) => Error::arg(format!("{m}; give bounds explicitly when the data are flat on an axis")),
+        other => other,
+    })?;
+    let range = range.resolve(values)?;
+    let norm = range.normalize(values)?;
+    let started = Instant::now();
+    let converted: Vec<Item> = (0..items.item_count()).into_par_iter().map(|j| items.item(j, &frame, norm.values[j])).collect();
+
+    let mut stats = DepositStats { items: converted.len(), ..Default::default() };
+    let max_importance = converted.iter().filter(|it| it.inside).fold(0f64, |a, it| a.max(it.importance));
+    let mut samples = SampleArrays::default();
+    let mut splats = Vec::with_capacity(converted.len());
+    for (it, &v) in converted.iter().zip(&norm.values) {
+        stats.outside += !it.inside as usize;
+        stats.outside_dropped += (!it.inside && it.splat.is_none()) as usize;
+        stats.nearest_voxel += it.nearest as usize;
+        if it.inside {
+            samples.push(Sample {
+                q: it.u.map(|c| c as f32),
+                h: it.sample_scale as f32,
+                v,
+                // Importance only matters through ratios (m^0.6); dividing by
+                // the largest keeps tiny masses or volumes representable in f32.
+                m: if max_importance > 0.0 { (it.importance / max_importance) as f32 } else { 0.0 },
+            });
+        }
+        splats.extend(it.splat);
+    }
+    drop(converted);
+    if samples.is_empty() {
+        return Err(Error::data(format!(
+            "none of the {} items lies inside the bounds {:?} .. {:?}",
+            stats.items, bounds.min, bounds.max
+        )));
+    }
+    let (reference, deposit_stats) = deposit(dims, &splats, stats, started)?;
+    tracing::info!(
+        items = deposit_stats.items,
+        outside = deposit_stats.outside,
+        outside_dropped = deposit_stats.outside_dropped,
+        nearest_voxel = deposit_stats.nearest_voxel,
+        seconds = deposit_stats.seconds,
+        "deposit done"
+    );
+    Ok(Prepared {
+        form,
+        frame,
+        range,
+        reference,
+        samples: Some(samples),
+        bounds: Some(bounds),
+        clamped_values: norm.clamped,
+        deposit: Some(deposit_stats),
+    })
+}

@@ -1,0 +1,152 @@
+//! A model: its primitives and everything needed to decode them, decoding
+//! on any lattice (whole, a sub-box, or streamed in slabs), and the PSNR
+//! scores of a decode ([`metrics`]).
+
+pub mod metrics;
+
+use crate::backend::{Backend, Lattice};
+use crate::error::{Error, Result};
+use crate::field::{Grid, IndexBox, IndexFrame, ValueRange};
+use crate::math::kernel::Primitive;
+
+/// Decoding metadata stored with every model.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModelMeta {
+    /// Index frame of the reference grid: dims, world origin of its box, voxels per world unit.
+    pub frame: IndexFrame,
+    /// Normalisation of the field (per field and time series).
+    pub range: ValueRange,
+    pub field: String,
+    pub step: u64,
+    /// Schedule name and the iterations and points actually used.
+    pub schedule: String,
+    pub iterations: u32,
+    pub points: u32,
+    pub seed_init: u64,
+    pub seed_sample: u64,
+    /// Simulation time of the step, when the caller gave one.
+    pub time: Option<f64>,
+    /// MPI rank that encoded this piece of the domain (0 for serial runs).
+    pub rank: u32,
+    /// Voxel PSNR of the stored model against its reference at encode time,
+    /// when it was measured (after any 8-bit quantisation).
+    pub encode_psnr: Option<f64>,
+}
+
+impl ModelMeta {
+    /// Metadata of a model over `frame` and `range`, the rest unset: field
+    /// "scalar", step 0, no schedule, rank 0, time and PSNR unknown.
+    pub fn new(frame: IndexFrame, range: ValueRange) -> ModelMeta {
+        ModelMeta {
+            frame,
+            range,
+            field: "scalar".into(),
+            step: 0,
+            schedule: String::new(),
+            iterations: 0,
+            points: 0,
+            seed_init: 0,
+            seed_sample: 0,
+            time: None,
+            rank: 0,
+            encode_psnr: None,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Model {
+    pub meta: ModelMeta,
+    pub params: Vec<Primitive>,
+}
+
+/// Default most voxels decoded at once by [`Model::decode_streaming`]: 64 MB of f32.
+pub const DEFAULT_SLAB_VOXELS: usize = 1 << 24;
+/// Largest lattice a decode accepts (2^34 voxels, 64 GiB of float32).
+const MAX_DECODE_VOXELS: usize = 1 << 34;
+
+impl Model {
+    pub fn len(&self) -> usize {
+        self.params.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.params.is_empty()
+    }
+
+    /// Decodes `V_eval` (normalised, in `[0, 1]`) on a lattice of `dims`
+    /// covering the model's box; the reference dims when `None`.
+    pub fn decode(&self, backend: &mut dyn Backend, dims: Option<[usize; 3]>) -> Result<Grid> {
+        let out_dims = self.lattice_dims(dims)?;
+        self.decode_box(backend, out_dims, IndexBox::whole(out_dims))
+    }
+
+    /// Decodes the part `region` of the lattice of `dims` (see [`Model::decode`]).
+    pub fn decode_box(&self, backend: &mut dyn Backend, dims: [usize; 3], region: IndexBox) -> Result<Grid> {
+        let dims = self.lattice_dims(Some(dims))?;
+        region.check_within(dims)?;
+        let n = region.dims().iter().product();
+        let mut out = Vec::new();
+        out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
+        out.resize(n, 0.0);
+        backend.decode_lattice(&self.params, &self.sub_lattice(dims, region), &mut out);
+        Grid::new(region.dims(), out)
+    }
+
+    /// Decodes `region` of the lattice of `dims` in slabs of whole z layers,
+    /// at most `slab_voxels` voxels each (at least one layer), and hands
+    /// every slab (x fastest) to `sink` in order. Memory stays at one slab
+    /// plus the model's per-primitive state, whatever the lattice's size.
+    pub fn decode_streaming(
+        &self,
+        backend: &mut dyn Backend,
+        dims: [usize; 3],
+        region: IndexBox,
+        slab_voxels: usize,
+        sink: &mut dyn FnMut(&[f32]) -> Result<()>,
+    ) -> Result<()> {
+        let dims = self.lattice_dims(Some(dims))?;
+        region.check_within(dims)?;
+        let rd = region.dims();
+        let layer = rd[0] * rd[1];
+        let layers = (slab_voxels / layer).max(1);
+        let mut buf = Vec::new();
+        let mut z = region.lo[2];
+        while z < region.hi[2] {
+            let z1 = (z + layers).min(region.hi[2]);
+            let slab = IndexBox { lo: [region.lo[0], region.lo[1], z], hi: [region.hi[0], region.hi[1], z1] };
+            let n = layer * (z1 - z);
+            if buf.len() != n {
+                buf.clear();
+                buf.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate a slab of {n} voxels")))?;
+                buf.resize(n, 0.0);
+            }
+            backend.decode_lattice(&self.params, &self.sub_lattice(dims, slab), &mut buf);
+            sink(&buf)?;
+            z = z1;
+        }
+        Ok(())
+    }
+
+    fn lattice_dims(&self, dims: Option<[usize; 3]>) -> Result<[usize; 3]> {
+        let out_dims = dims.unwrap_or(self.meta.frame.dims);
+        if out_dims.iter().any(|&d| d == 0) {
+            return Err(Error::arg(format!("decode dims must be positive, got {out_dims:?}")));
+        }
+        let n = out_dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
+        n.filter(|&n| n <= MAX_DECODE_VOXELS).ok_or_else(|| Error::arg(format!("decode dims {out_dims:?} are too large")))?;
+        Ok(out_dims)
+    }
+
+    /// The voxel centres of `region` of the lattice of `dims` over the model's box.
+    fn sub_lattice(&self, dims: [usize; 3], region: IndexBox) -> Lattice {
+        let whole = Lattice::resampled(self.meta.frame.dims, dims);
+        let mut l = Lattice { dims: region.dims(), ..whole };
+        for a in 0..3 {
+            // In f64, so that a slab starts exactly where the whole lattice has it.
+            let step = self.meta.frame.dims[a] as f64 / dims[a] as f64;
+            l.origin[a] = ((region.lo[a] as f64 + 0.5) * step - 0.5) as f32;
+        }
+        l
+    }
+}

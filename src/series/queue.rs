@@ -1,0 +1,459 @@
+//! The background queue: the solver hands a step over and goes on; a worker
+//! thread encodes it beside the solver.
+//!
+//! `push` takes data the caller has already copied (a [`StepData`]), checks
+//! it against the queue's memory budget and its policy when full, and
+//! returns. One worker thread takes jobs in push order (so the steps of a
+//! field arrive in order, as warm starts need) and runs each on the queue's
+//! own rayon pool (never the global one a host may use): deposit, seeding or
+//! warm start, refinement, then the [`ModelSink`], which stores the model.
+//! A sink may instead leave models to the caller (`take_finished`), for
+//! stores such as HDF5 that must be written from the caller's thread.
+//!
+//! Every job has a [`JobState`] the caller can poll. A failed job records
+//! its error and the worker goes on with the next; `wait` reports each
+//! failure once. Nothing here does I/O: sinks are the caller's.
+
+use crate::backend::cpu::CpuBackend;
+use crate::encode::Cancel;
+use crate::error::{Error, Result};
+use crate::field::ValueRange;
+use crate::format::check_field_name;
+use crate::input::StepData;
+use crate::model::Model;
+use crate::series::{SeriesConfig, SeriesEncoder};
+use crossbeam_channel::{unbounded, Receiver, Sender};
+use parking_lot::{Condvar, Mutex};
+use std::collections::BTreeMap;
+use std::sync::Arc;
+use std::thread::JoinHandle;
+
+/// What `push` does when the queue's memory budget is taken.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WhenFull {
+    /// Wait until enough queued data has been encoded.
+    Block,
+    /// Drop this step (it is reported as skipped); the field's next step
+    /// warm-starts from the last one encoded.
+    Skip,
+    /// Queue nothing and say so; the caller may push again later.
+    Busy,
+}
+
+#[derive(Clone, Debug)]
+pub struct QueueConfig {
+    pub series: SeriesConfig,
+    /// Bytes of pushed data the queue may hold, queued and running jobs
+    /// together. A job larger than the whole budget is still taken when the
+    /// queue is empty, so that no step can never be encoded.
+    pub max_bytes: usize,
+    pub when_full: WhenFull,
+    /// Threads of the encode's own pool.
+    pub threads: usize,
+}
+
+/// One field of one step.
+pub struct Job {
+    pub field: String,
+    pub step: u64,
+    /// Simulation time, when known.
+    pub time: Option<f64>,
+    pub data: StepData,
+    /// The value range of the field's series, when it was agreed elsewhere
+    /// (across MPI ranks) rather than taken from this first step's data.
+    pub range: Option<ValueRange>,
+}
+
+/// Where a job is.
+#[derive(Clone, Debug)]
+pub enum JobState {
+    Queued,
+    /// Being encoded: `iteration` of `iterations` (0 of 0 while depositing
+    /// and seeding).
+    Running { iteration: usize, iterations: usize },
+    /// Encoded and stored by the sink at `location`.
+    Written { psnr: f64, location: String },
+    /// Encoded; the model waits in `take_finished` for the caller to store.
+    Encoded { psnr: f64 },
+    /// The encode failed (the field's series is as it was), or the store
+    /// did (the step stays in the series: the next one warm-starts from it).
+    Failed(Arc<Error>),
+    /// Dropped by the `Skip` policy.
+    Skipped,
+    /// Dropped by `cancel`.
+    Cancelled,
+}
+
+impl JobState {
+    /// Whether the job will not change any more.
+    pub fn is_final(&self) -> bool {
+        !matches!(self, JobState::Queued | JobState::Running { .. })
+    }
+}
+
+/// What `push` did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Pushed {
+    Queued,
+    /// The queue was full and the policy is `Skip`: the step was dropped.
+    Skipped,
+    /// The queue was full and the policy is `Busy`: nothing was queued.
+    Busy,
+}
+
+/// Stores finished models, on the worker thread.
+pub trait ModelSink: Send {
+    /// Stores `model`; returns where it went. `None`: leave the model to the
+    /// caller's `take_finished` (a store that must be written from the
+    /// caller's thread).
+    fn store(&mut self, model: &Model) -> Result<Option<String>>;
+}
+
+/// A sink that stores nothing: every model goes to `take_finished`.
+pub struct CallerStores;
+
+impl ModelSink for CallerStores {
+    fn store(&mut self, _: &Model) -> Result<Option<String>> {
+        Ok(None)
+    }
+}
+
+type Key = (String, u64);
+
+#[derive(Default)]
+struct State {
+    jobs: BTreeMap<Key, JobState>,
+    /// Jobs pushed and not final, and the bytes they hold.
+    in_flight: usize,
+    bytes: usize,
+    /// The last step pushed per field (steps must increase).
+    last_pushed: BTreeMap<String, u64>,
+    /// The last model encoded per field, with its PSNR as stored.
+    last: BTreeMap<String, (Model, f64)>,
+    /// Models a `CallerStores`-style sink left to the caller.
+    finished: Vec<Model>,
+    /// Failures not yet reported by `wait`.
+    unreported: Vec<Key>,
+    /// Grid buffers of finished jobs, for the next pushes to copy into.
+    recycled: Vec<Vec<f32>>,
+}
+
+impl State {
+    /// Whether `bytes` more fit in `max_bytes` (a job is always taken when
+    /// nothing is in flight, so that no step can never be encoded).
+    fn fits(&self, bytes: usize, max_bytes: usize) -> bool {
+        self.in_flight == 0 || self.bytes + bytes <= max_bytes
+    }
+}
+
+/// Buffers kept for reuse (beyond the queue's budget: at most this many
+/// grids): enough for a push while one job runs and one waits.
+const RECYCLED_BUFFERS: usize = 2;
+
+struct Shared {
+    state: Mutex<State>,
+    /// Signalled whenever a job changes state or bytes are released.
+    changed: Condvar,
+    cancel: Cancel,
+}
+
+/// The background encoder of a set of fields' time series.
+pub struct BackgroundEncoder {
+    shared: Arc<Shared>,
+    cfg: QueueConfig,
+    jobs: Option<Sender<Job>>,
+    worker: Option<JoinHandle<()>>,
+}
+
+impl BackgroundEncoder {
+    /// Starts the worker and its pool of `cfg.threads` threads.
+    pub fn new(cfg: QueueConfig, sink: Box<dyn ModelSink>) -> Result<BackgroundEncoder> {
+        if cfg.threads == 0 {
+            return Err(Error::arg("the encode needs at least one thread"));
+        }
+        if cfg.max_bytes == 0 {
+            return Err(Error::arg("the queue's memory budget must be positive"));
+        }
+        let cancel = Cancel::default();
+        let mut series_cfg = cfg.series.clone();
+        series_cfg.encode.cancel = Some(cancel.clone());
+        let series = SeriesEncoder::new(series_cfg)?;
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(cfg.threads)
+            .thread_name(|i| format!("gsenc-encode-{i}"))
+            .build()
+            .map_err(|e| Error::arg(format!("cannot start {} encode threads: {e}", cfg.threads)))?;
+        let shared = Arc::new(Shared { state: Mutex::new(State::default()), changed: Condvar::new(), cancel });
+        let (tx, rx) = unbounded();
+        let worker = Worker { shared: shared.clone(), series, pool, sink };
+        let handle = std::thread::Builder::new()
+            .name("gsenc-queue".into())
+            .spawn(move || worker.run(rx))
+            .map_err(|e| Error::arg(format!("cannot start the encode thread: {e}")))?;
+        Ok(BackgroundEncoder { shared, cfg, jobs: Some(tx), worker: Some(handle) })
+    }
+
+    pub fn config(&self) -> &QueueConfig {
+        &self.cfg
+    }
+
+    /// Queues `job` (its data already copied), or applies the full-queue
+    /// policy. Refuses at once what cannot be encoded: non-finite values,
+    /// a step that does not follow the field's last pushed one.
+    pub fn push(&self, job: Job) -> Result<Pushed> {
+        self.check(&job)?;
+        self.push_checked(job, true)
+    }
+
+    /// What `push` refuses before it queues anything: a bad field name,
+    /// non-finite values, a step that does not follow the field's last.
+    pub fn check(&self, job: &Job) -> Result<()> {
+        check_field_name(&job.field)?;
+        job.data.check_finite()?;
+        if let Some(&last) = self.shared.state.lock().last_pushed.get(&job.field) {
+            if job.step <= last {
+                return Err(Error::arg(format!(
+                    "field '{}': step {} does not follow step {last} (steps of a field must increase)",
+                    job.field, job.step
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Whether a job of `bytes` would be queued now without waiting.
+    pub fn has_room(&self, bytes: usize) -> bool {
+        self.shared.state.lock().fits(bytes, self.cfg.max_bytes)
+    }
+
+    /// `push` of a job that passed [`BackgroundEncoder::check`]. With
+    /// `others_have_room` false the queue counts as full whatever its own
+    /// room (the ranks of an MPI run decide together, so that all of them
+    /// queue, skip or refuse the same step); `Block` then waits for its own.
+    pub fn push_checked(&self, job: Job, others_have_room: bool) -> Result<Pushed> {
+        let bytes = job.data.bytes();
+        let key = (job.field.clone(), job.step);
+        let mut st = self.shared.state.lock();
+        let fits = |st: &State| st.fits(bytes, self.cfg.max_bytes);
+        if !fits(&st) || !others_have_room {
+            match self.cfg.when_full {
+                WhenFull::Block => {
+                    while !fits(&st) {
+                        self.shared.changed.wait(&mut st);
+                    }
+                }
+                WhenFull::Skip => {
+                    st.last_pushed.insert(job.field.clone(), job.step);
+                    st.jobs.insert(key, JobState::Skipped);
+                    return Ok(Pushed::Skipped);
+                }
+                WhenFull::Busy => return Ok(Pushed::Busy),
+            }
+        }
+        st.last_pushed.insert(job.field.clone(), job.step);
+        st.jobs.insert(key.clone(), JobState::Queued);
+        st.in_flight += 1;
+        st.bytes += bytes;
+        drop(st);
+        let sent = self.jobs.as_ref().map(|tx| tx.send(job));
+        if !matches!(sent, Some(Ok(()))) {
+            // Only after a worker panic outside its guard: undo, and say so.
+            let mut st = self.shared.state.lock();
+            st.jobs.insert(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))));
+            st.in_flight -= 1;
+            st.bytes -= bytes;
+            return Err(Error::arg("the encode thread has stopped"));
+        }
+        Ok(Pushed::Queued)
+    }
+
+    /// The state of `field`'s step `step`, if it was pushed.
+    pub fn poll(&self, field: &str, step: u64) -> Option<JobState> {
+        self.shared.state.lock().jobs.get(&(field.to_owned(), step)).cloned()
+    }
+
+    /// Blocks until every job (of `field`, or of every field) is final.
+    /// Returns the first failure not reported before, naming its field and
+    /// step; each failure is reported once.
+    pub fn wait(&self, field: Option<&str>) -> Result<()> {
+        let mut st = self.shared.state.lock();
+        let pending = |st: &State| {
+            st.jobs.iter().any(|((f, _), s)| field.is_none_or(|want| want == f) && !s.is_final())
+        };
+        while pending(&st) {
+            self.shared.changed.wait(&mut st);
+        }
+        let State { unreported, jobs, .. } = &mut *st;
+        let Some(i) = unreported.iter().position(|(f, _)| field.is_none_or(|want| want == f)) else {
+            return Ok(());
+        };
+        let (f, step) = unreported.remove(i);
+        match jobs.get(&(f.clone(), step)) {
+            Some(JobState::Failed(e)) => Err(e.in_context(&format!("field '{f}' step {step}"))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Drops every queued job and stops the running one at its next
+    /// iteration; returns when the worker is idle. Their states become
+    /// `Cancelled`; the fields' series stay at their last encoded steps.
+    pub fn cancel(&self) {
+        self.shared.cancel.set(true);
+        let mut st = self.shared.state.lock();
+        while st.in_flight > 0 {
+            self.shared.changed.wait(&mut st);
+        }
+        self.shared.cancel.set(false);
+    }
+
+    /// The last model of `field` and its PSNR as stored.
+    pub fn last(&self, field: &str) -> Option<(Model, f64)> {
+        self.shared.state.lock().last.get(field).cloned()
+    }
+
+    /// Models the sink left to the caller, oldest first.
+    pub fn take_finished(&self) -> Vec<Model> {
+        std::mem::take(&mut self.shared.state.lock().finished)
+    }
+
+    /// Records what the caller did with a model from `take_finished`.
+    pub fn set_stored(&self, field: &str, step: u64, stored: Result<String>) {
+        let mut st = self.shared.state.lock();
+        let key = (field.to_owned(), step);
+        let psnr = match st.jobs.get(&key) {
+            Some(JobState::Encoded { psnr }) => *psnr,
+            _ => f64::NAN,
+        };
+        let state = match stored {
+            Ok(location) => JobState::Written { psnr, location },
+            Err(e) => {
+                st.unreported.push(key.clone());
+                JobState::Failed(Arc::new(e))
+            }
+        };
+        st.jobs.insert(key, state);
+        self.shared.changed.notify_all();
+    }
+
+    /// An empty buffer with room for `len` values, recycled from a finished
+    /// grid job when one is large enough (a fresh 8 MB allocation costs the
+    /// push its page faults, a third of a 128^3 push).
+    pub fn recycled_buffer(&self, len: usize) -> Vec<f32> {
+        let mut st = self.shared.state.lock();
+        match st.recycled.iter().position(|b| b.capacity() >= len) {
+            Some(i) => st.recycled.swap_remove(i),
+            None => Vec::with_capacity(len),
+        }
+    }
+
+    /// Bytes of pushed data the queue holds now.
+    pub fn queued_bytes(&self) -> usize {
+        self.shared.state.lock().bytes
+    }
+}
+
+impl Drop for BackgroundEncoder {
+    /// Drains: every queued job is encoded before the worker stops (call
+    /// `cancel` first to drop them instead).
+    fn drop(&mut self) {
+        drop(self.jobs.take());
+        if let Some(w) = self.worker.take() {
+            let _ = w.join();
+        }
+    }
+}
+
+/// The worker thread's side.
+struct Worker {
+    shared: Arc<Shared>,
+    series: SeriesEncoder,
+    pool: rayon::ThreadPool,
+    sink: Box<dyn ModelSink>,
+}
+
+impl Worker {
+    fn run(mut self, jobs: Receiver<Job>) {
+        while let Ok(job) = jobs.recv() {
+            self.prepare_spare(&job.data);
+            let key = (job.field.clone(), job.step);
+            let bytes = job.data.bytes();
+            let state = if self.shared.cancel.is_set() {
+                JobState::Cancelled
+            } else {
+                self.set(&key, JobState::Running { iteration: 0, iterations: 0 });
+                // A panic in one job fails that job, not the queue.
+                std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.encode(&job)))
+                    .unwrap_or_else(|_| Err(Error::arg("internal error: the encode panicked (please report)")))
+                    .unwrap_or_else(|e| match e {
+                        Error::Cancelled(_) => JobState::Cancelled,
+                        e => JobState::Failed(Arc::new(e)),
+                    })
+            };
+            let mut st = self.shared.state.lock();
+            if let StepData::Grid { grid, .. } = job.data {
+                if st.recycled.len() < RECYCLED_BUFFERS {
+                    st.recycled.push(grid.values);
+                }
+            }
+            if matches!(state, JobState::Failed(_)) {
+                st.unreported.push(key.clone());
+            }
+            st.jobs.insert(key, state);
+            st.in_flight -= 1;
+            st.bytes -= bytes;
+            self.shared.changed.notify_all();
+        }
+    }
+
+    /// Leaves a buffer for the next grid push while this job holds its
+    /// own, its pages already faulted in here, on the encoder's thread:
+    /// otherwise a push that arrives while the queue is busy pays for a
+    /// fresh allocation (a third of a 128^3 push).
+    fn prepare_spare(&self, data: &StepData) {
+        let StepData::Grid { grid, .. } = data else { return };
+        let len = grid.values.len();
+        if self.shared.state.lock().recycled.iter().any(|b| b.capacity() >= len) {
+            return;
+        }
+        let mut spare = vec![0f32; 0];
+        spare.resize(len, 0.0); // writes every page
+        spare.clear();
+        let mut st = self.shared.state.lock();
+        if st.recycled.len() < RECYCLED_BUFFERS {
+            st.recycled.push(spare);
+        }
+    }
+
+    fn set(&self, key: &Key, state: JobState) {
+        self.shared.state.lock().jobs.insert(key.clone(), state);
+        self.shared.changed.notify_all();
+    }
+
+    /// Encodes one job on the pool and stores its model.
+    fn encode(&mut self, job: &Job) -> Result<JobState> {
+        let (series, shared) = (&mut self.series, &self.shared);
+        let key = (job.field.clone(), job.step);
+        let (model, psnr) = self.pool.install(|| -> Result<(Model, f64)> {
+            if let Some(range) = job.range {
+                series.set_range(&job.field, range);
+            }
+            let r = job.data.with_input(|input| {
+                series.encode_step(&job.field, job.step, job.time, input, &mut CpuBackend::new(), &mut |p| {
+                    // Progress is cheap to record: one lock per iteration.
+                    let running = JobState::Running { iteration: p.iteration, iterations: p.iterations };
+                    shared.state.lock().jobs.insert(key.clone(), running);
+                })
+            })?;
+            Ok((r.encoded.model, r.encoded.psnr))
+        })?;
+        let state = match self.sink.store(&model)? {
+            Some(location) => JobState::Written { psnr, location },
+            None => {
+                self.shared.state.lock().finished.push(model.clone());
+                JobState::Encoded { psnr }
+            }
+        };
+        self.shared.state.lock().last.insert(job.field.clone(), (model, psnr));
+        Ok(state)
+    }
+}
