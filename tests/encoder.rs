@@ -278,13 +278,13 @@ fn bad_inputs_give_clear_errors() {
     assert!(with_threads(Some(0), || ()).is_err());
 }
 
-/// The fidelity reference: a brute-force transcription of SPEC.md
+/// The fidelity reference: a brute-force transcription of docs/METHOD.md
 /// reached 45.4 dB on hydrogen_atom at 4,096 primitives with 300 x 3,072.
 /// Seeds alone move this figure by about +-1.2 dB here (43.2 to 45.6 dB over
 /// four seed pairs, docs/BENCHMARKS.md), so the floor is 3 dB below it.
 #[test]
 fn hydrogen_atom_reaches_the_reference_quality() {
-    let raw = gsenc::io::raw::read_raw(shared_data("hydrogen_atom.float32"), [64, 64, 64], gsenc::io::raw::DType::F32, gsenc::io::raw::Order::XFastest).unwrap();
+    let raw = gsenc::io::raw::read_raw(repo_data("hydrogen_atom.float32.zst"), [64, 64, 64], gsenc::io::raw::DType::F32, gsenc::io::raw::Order::XFastest).unwrap();
     let r = ValueRange::from_data(&raw.values, Transform::Linear).unwrap();
     let g = Grid::new(raw.dims, r.normalize(&raw.values).unwrap().values).unwrap();
     let t = Target { reference: &g, samples: &g };

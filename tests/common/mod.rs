@@ -1,6 +1,7 @@
 //! Shared helpers for the integration tests: a dense f64 transcription of
-//! SPEC.md (no binning, no SIMD, libm exp) to check the library against, and
-//! small synthetic fields.
+//! the method (docs/METHOD.md "Representation", "Objective"; no binning, no
+//! SIMD, libm exp) to check the library against, small synthetic fields, and
+//! the repository's real data.
 #![allow(dead_code)]
 
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
@@ -12,7 +13,7 @@ pub fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())
 }
 
-/// `(rho, n)` of the mixture at `x`, straight from the SPEC formulas.
+/// `(rho, n)` of the mixture at `x`, straight from the formulas of METHOD.md.
 pub fn dense_rho_n(params: &[[f64; 12]], x: [f64; 3]) -> (f64, f64) {
     let (mut rho, mut n) = (0.0, 0.0);
     for p in params {
@@ -114,9 +115,13 @@ pub fn blobs(dims: [usize; 3], seed: u64, count: usize) -> Grid {
     Grid::new(dims, v).unwrap()
 }
 
-pub fn shared_data(name: &str) -> std::path::PathBuf {
-    let p = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/data").join(name);
-    assert!(p.exists(), "test data {} is missing: the project expects ../shared/data beside it", p.display());
+/// A file of the repository's `data/` (see data/README.md), from any crate
+/// of the workspace.
+pub fn repo_data(name: &str) -> std::path::PathBuf {
+    let here = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let root = here.ancestors().find(|d| d.join("data/README.md").is_file()).expect("the repository's data/ folder");
+    let p = root.join("data").join(name);
+    assert!(p.is_file(), "test data {} is missing from the repository", p.display());
     p
 }
 
