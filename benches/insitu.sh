@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# In-situ benchmark (issue 7) with the C mock solver of benches/insitu.c on a
+# In-situ benchmark with the C mock solver of benches/insitu.c on a
 # 128^3 float grid, one core for the solver and one for the encoder (its
 # pool has 1 thread): push latency, solver step time with and without
 # encoding every step, and encode throughput (the solver doing no work, so
@@ -10,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs=${1:-3} steps=${2:-12} sweeps=${3:-1800} budget=${4:-4000} iters=${5:-200} warm=${6:-60}
-cargo build --release --locked --lib >&2
+cargo build --release --locked -p gsenc-capi >&2
 out=bench-out/insitu
 mkdir -p "$out"
 cc -std=c99 -O2 -Iinclude -Iexamples_c benches/insitu.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/insitu"

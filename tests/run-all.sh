@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
-# Every test of the project: the Rust suites (unit, integration, CLI; with the
-# HDF5 store), the default build without system libraries, the generated C
-# header's freshness, a C program linked against the library, the store read
-# by h5py, and a bounded fuzzing run of the model reader.
+# Every test of the project: the Rust suites of the three crates (library,
+# C ABI, command-line tool; with the HDF5 store), the default build without
+# system libraries, the generated C header's freshness, the C API from C
+# (under valgrind too), the C API and the tool giving the same models, the
+# installed CMake package with C and Fortran, MPI under mpirun, the store
+# read by h5py, and a bounded fuzzing run of the model reader. Needs nothing
+# beyond the repository (tests/deps.sh installs the system packages).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
 bash tests/deps.sh
 cargo test --release --locked --features hdf5
 # A plain build needs no system library: it must still compile and pass.
-cargo test --release --locked --test cli
+cargo test --release --locked -p gsenc-cli --test cli
 
 # build.rs regenerates include/gsenc.h; the checked-in copy must match.
 if ! git diff --quiet -- include/gsenc.h; then
@@ -18,7 +21,8 @@ if ! git diff --quiet -- include/gsenc.h; then
     exit 1
 fi
 
-cargo build --release --locked --lib
+# The library, libgsenc (.so and .a) and the tool, without features.
+cargo build --release --locked
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
@@ -32,6 +36,8 @@ GSENC_CAPI_TMP="$out" "$out/capi"
 # ...and under valgrind memcheck: no invalid reads or writes, no leaks.
 cc -std=c99 -g -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi-g"
 GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --show-leak-kinds=definite,indirect --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
+# The C API and the tool: the same particles and cells, the same models.
+bash tests/parity.sh
 
 # The installed CMake package: C and Fortran mock solvers as a separate project.
 bash tests/package.sh
