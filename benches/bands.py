@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Where in the field two models of one deposit differ (issue 3's
-samples-vs-grid question). Run after benches/inputs.sh:
+"""Where in the field two models of one deposit differ (the
+samples-vs-grid question of docs/BENCHMARKS.md). Run after benches/inputs.sh:
 
     python3 benches/bands.py ROW [ROW...]
 

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmarks of the encoder core (issue 2). Rerun with:
+# Benchmarks of the encoder core. Rerun with:
 #   bash benches/core.sh [REPEATS] [ROWS...]
 # REPEATS (default 3) runs of each row; the 256^3 row runs once unless
 # REPEATS_LARGE is set. ROWS selects rows by name (default: all).
@@ -10,7 +10,8 @@ cd "$(dirname "$0")/.."
 repeats=${1:-3}
 shift || true
 rows=("$@")
-data=../shared/data
+. benches/corpus.sh
+corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out
 mkdir -p "$out"
 cargo build --release --locked --bin gsenc >&2
@@ -36,7 +37,7 @@ run rm128_32k_matched "$repeats" "${rm_args[@]}" --downsample 2 --budget 32000 -
 run rm128_32k_full "$repeats" "${rm_args[@]}" --downsample 2 --budget 32000 --schedule full
 run hydrogen_4k_matched "$repeats" "${h_args[@]}" --budget 4096 --schedule matched
 run rm256_200k_full "${REPEATS_LARGE:-1}" "${rm_args[@]}" --budget 200000 --schedule full
-# Fidelity check of the issue: 300 x 3072 at 4,096 primitives, eight seed
+# Fidelity check: 300 x 3072 at 4,096 primitives, eight seed
 # pairs each, values normalised by the data's own range (the reference run's
 # protocol: RM 64^3 with value/255 instead lands about 1.3 dB higher).
 rm_data_range=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Decode throughput (issue 4): voxels per second and peak memory of
+# Decode throughput: voxels per second and peak memory of
 # `gsenc decode` at several lattice resolutions, streaming to a .raw file.
 #   bash benches/decode.sh [REPEATS]
 # Uses the models benches/core.sh leaves in bench-out/ (rm128_32k_full,

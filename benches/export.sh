@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmark of the model payloads (issue 4): each model is rewritten as
+# Benchmark of the model payloads: each model is rewritten as
 # float32, 8-bit with float16 centres and 8-bit with uint16 centres
 # (`gsenc convert`), then scored against its reference (`gsenc eval`).
 #   bash benches/export.sh [REPEATS]
@@ -11,7 +11,8 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repeats=${1:-3}
-data=../shared/data
+. benches/corpus.sh
+corpus richtmyer_meshkov_t20.uint8
 out=bench-out
 cargo build --release --locked --bin gsenc >&2
 bin=target/release/gsenc

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmarks of particle and cell input (issue 3). Rerun with:
+# Benchmarks of particle and cell input. Rerun with:
 #   bash benches/inputs.sh [REPEATS] [ROWS...]
 # REPEATS (default 3) runs of each row; ROWS selects rows by name (default all).
 # Each row encodes the native samples against their deposit ("samples"), then
@@ -13,7 +13,8 @@ cd "$(dirname "$0")/.."
 repeats=${1:-3}
 shift || true
 rows=("$@")
-data=../shared/data
+. benches/corpus.sh
+corpus dm_halo_particles.positions.float32 dm_halo_particles.smoothing_length.float32 dm_halo_particles.mass.float32 dm_halo_particles.density.float32 enzo_amr_cells.centers.float32 enzo_amr_cells.sizes.float32 enzo_amr_cells.density.float32 dambreak3d_particles.positions.float32 dambreak3d_particles.smoothing_length.float32 dambreak3d_particles.mass.float32 dambreak3d_particles.speed.float32
 out=bench-out
 mkdir -p "$out"
 cargo build --release --locked --bin gsenc >&2

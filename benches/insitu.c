@@ -1,4 +1,4 @@
-/* In-situ benchmark (issue 7): a mock solver on a 128^3 float grid that
+/* In-situ benchmark: a mock solver on a 128^3 float grid that
  * pushes its field to gsenc every step and never waits for the encode.
  *
  * Each solver step recomputes the moving blobs of examples_c/mock_field.h

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmark of time-series warm starts (issue 5) on dambreak3d_particles:
+# Benchmark of time-series warm starts on dambreak3d_particles:
 # speed deposited on a 128^3 reference over the series' whole box (the
 # manifest's bounds: the fluid moves across the tank, so the first step's box
 # would drop most later particles), 50,000 primitives, steps 1..21 (step 0 is
@@ -19,7 +19,8 @@ cd "$(dirname "$0")/.."
 points=${1:-4096}
 steps=${2:-1..22}
 modes=${3:-off dense coarse}
-data=../shared/data
+. benches/corpus.sh
+corpus dambreak3d_particles.positions.float32 dambreak3d_particles.smoothing_length.float32 dambreak3d_particles.mass.float32 dambreak3d_particles.speed.float32
 out=bench-out
 mkdir -p "$out"
 cargo build --release --locked --bin gsenc >&2

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Benchmark of the HDF5 store (issue 4): each model is appended to a fresh
+# Benchmark of the HDF5 store: each model is appended to a fresh
 # store with each payload (`gsenc store add`), and the store is decoded to
 # HDF5 + XDMF (`gsenc decode-series`).
 #   bash benches/store.sh [REPEATS]

@@ -69,7 +69,7 @@ fn merged_pieces_decode_one_seamless_field() {
     let decoded = global.decode(&mut cpu, None).unwrap();
     let single_decoded = single.decode(&mut cpu, None).unwrap();
     let (merged_psnr, single_psnr) = (voxel_psnr(&decoded.values, &whole.values), voxel_psnr(&single_decoded.values, &whole.values));
-    // Issue 8: within 1 dB of one model of the whole with the same budget.
+    // Within 1 dB of one model of the whole with the same budget.
     assert!(merged_psnr > single_psnr - 1.0, "merged pieces {merged_psnr:.2} dB, one model {single_psnr:.2} dB");
 
     // No seam: within two voxels of the cut, the merged pieces err no more

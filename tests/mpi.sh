@@ -47,7 +47,7 @@ run 1 "$out/capi_mpi_levels"
 
 # The mock solver: grid, particles and cells on 1, 2 and 4 ranks with the same
 # total budget; 2 and 4 ranks are checked against the single rank's run: the
-# blended global PSNR within 1 dB (issue 8), the error near the cuts grown no
+# blended global PSNR within 1 dB, the error near the cuts grown no
 # more than inside, every piece warm-started after the first step.
 solver=target/release/examples/mpi_mock_solver
 args=(--grid 64 --particles 40000 --budget 1200 --iterations 400 --steps 2 --halo 4)
