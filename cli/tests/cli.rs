@@ -246,6 +246,61 @@ fn particles_encode_deposit_and_eval_agree() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Options that take numbers accept a leading minus (`--bounds -5,...`, not
+/// only `--bounds=-5,...`); names of schedules, payloads and warm starts are
+/// checked when the command line is parsed, before any file is read.
+#[test]
+fn negative_numbers_are_values_and_names_are_checked_first() {
+    let dir = tmpdir("negative");
+    let [pos, hh, mass, val] = write_particles(&dir);
+    // The same particles moved into negative coordinates.
+    let moved: Vec<f32> = gsenc::io::raw::read_items(&pos, gsenc::io::raw::DType::F32, 3, gsenc::io::raw::Rows { count: None, row: 0 })
+        .unwrap()
+        .iter()
+        .map(|&x| x as f32 - 5.0)
+        .collect();
+    let neg = dir.join("neg.f32");
+    write_f32(&neg, &moved);
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let m = dir.join("neg.gsm");
+    let (code, out, err) = gsenc(&[
+        "encode", "particles", "--positions", &s(&neg), "--smoothing-length", &s(&hh), "--mass", &s(&mass), "--values", &s(&val),
+        "--count", "600", "--dims", "12,8,4", "--bounds", "-5,-5,-5,-2,-3,-4", "--range", "-1,120", "--time", "-0.5",
+        "--budget", "30", "--iters", "5", "--points", "256", "-o", m.to_str().unwrap(), "--json",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let e = json(&out);
+    assert_eq!(e["bounds_min"], serde_json::json!([-5.0, -5.0, -5.0]));
+    assert_eq!((e["value_min"].as_f64(), e["value_max"].as_f64()), (Some(-1.0), Some(120.0)));
+    let (code, out, _) = gsenc(&["info", m.to_str().unwrap(), "--json"]);
+    assert_eq!(code, 0);
+    assert_eq!(json(&out)["time"], -0.5);
+
+    // A misspelt name is refused by the parser (exit code 2), which lists the
+    // names, before the missing input file is ever opened.
+    let (missing, out) = (dir.join("missing.f32"), dir.join("out.gsm"));
+    let (missing, out) = (missing.to_str().unwrap(), out.to_str().unwrap());
+    let grid = ["encode", "grid", "--input", missing, "--dims", "4,4,4", "--budget", "8", "-o", out];
+    for (extra, bad, names) in [
+        (["--dtype", "f32", "--schedule", "fulll"], "fulll", "full, matched, short"),
+        (["--dtype", "f32", "--payload", "8bits"], "8bits", "f32, 8bit, 8bit-u16"),
+        (["--schedule", "full", "--dtype", "f23"], "f23", "u8, u16, f32, f64"),
+    ] {
+        let mut a = grid.to_vec();
+        a.extend_from_slice(&extra);
+        let (code, _, err) = gsenc(&a);
+        assert_eq!(code, 2, "{err}");
+        assert!(err.contains(bad) && err.contains(names) && !err.contains("missing.f32"), "{err}");
+    }
+    let (code, _, err) = gsenc(&[
+        "encode-series", "--positions", missing, "--smoothing-length", missing, "--values", missing, "--count", "600",
+        "--dims", "8", "--budget", "8", "--warm", "dens", "-o", out,
+    ]);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("dens") && err.contains("off, coarse, dense") && !err.contains("missing.f32"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn cells_encode_and_deposit() {
     let dir = tmpdir("cells");
