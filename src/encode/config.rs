@@ -6,7 +6,7 @@ use crate::encode::relocate::RELOCATE_AT;
 use crate::error::{Error, Result};
 use crate::math::loss::LossWeights;
 
-/// Named iteration x point schedules of SPEC.md.
+/// Named iteration x point schedules (METHOD.md "Schedules").
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Schedule {
     /// 3000 x 16384 (4000 iterations for particles).
@@ -61,9 +61,9 @@ pub struct EncodeConfig {
     /// Overrides of the schedule's iterations and points per iteration.
     pub iterations: Option<usize>,
     pub points: Option<usize>,
-    /// Seed of the seeding draws (SPEC: 0).
+    /// Seed of the seeding draws (0 by default).
     pub seed_init: u64,
-    /// Seed of the point sampler (SPEC: 1).
+    /// Seed of the point sampler (1 by default).
     pub seed_sample: u64,
     /// Relocation passes at 35, 55 and 75 % of the iterations.
     pub relocation: bool,

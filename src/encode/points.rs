@@ -1,4 +1,4 @@
-//! Stratified training points (SPEC.md "Objective and refinement").
+//! Stratified training points (METHOD.md "Training points").
 //!
 //! Strata, in this order within a batch: 30 % from voxels with `V_ref > 0.4`,
 //! 30 % from voxels with `0.02 < V_ref <= 0.4` (uniform over each pool), 15 %

@@ -1,4 +1,5 @@
-//! Fixed-count relocation (SPEC.md; the paper's Sec. 3.4).
+//! Fixed-count relocation (METHOD.md "Relocation"; the paper's "Fidelity
+//! Objective and Relocation").
 //!
 //! On a fresh stratified set of points, the 8 % of primitives with the
 //! smallest effective support `w prod_a exp(l_a)` move to the points with the

@@ -1,5 +1,5 @@
 //! Three-stream seeding of a budget of N primitives from samples
-//! (SPEC.md "Seeding a budget of N primitives", the paper's Sec. 3.3).
+//! (METHOD.md "Seeding"; the paper's "Seeding from Samples").
 //!
 //! Streams and their order:
 //! 1. importance, `round(0.45 N)`: without replacement, probability

@@ -50,7 +50,7 @@ const ZSTD_LEVEL: i32 = 19;
 pub enum Payload {
     /// 12 float32 a primitive, exact.
     Float32,
-    /// The paper's 8-bit export, then zstd (SPEC.md "Exports").
+    /// The paper's 8-bit export, then zstd (METHOD.md "Payloads").
     Bits8(CentreCoding),
 }
 

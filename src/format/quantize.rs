@@ -1,4 +1,4 @@
-//! The paper's 8-bit export (SPEC.md "Exports"): centres in 16 bits, the
+//! The paper's 8-bit export (METHOD.md "Payloads"): centres in 16 bits, the
 //! other nine parameters in 8 bits through per-array min/max affine maps.
 //! The body is laid out array by array (all x centres, then all y, ...), which
 //! is what lets the lossless compressor in `format.rs` find the redundancy.

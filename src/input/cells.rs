@@ -1,4 +1,4 @@
-//! Axis-aligned hexahedral cells (AMR leaves) as encoder input (SPEC.md
+//! Axis-aligned hexahedral cells (AMR leaves) as encoder input (METHOD.md
 //! "Samples" and "Reference grid", the paper's Eq. 6).
 //!
 //! A cell with world centre `x`, volume `vol` and normalised value `v`, at

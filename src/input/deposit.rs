@@ -1,5 +1,5 @@
 //! Deposits: the reference grid that supervises particle and cell encodes
-//! (SPEC.md "Reference grid").
+//! (METHOD.md "Reference grid").
 //!
 //! Every input item (a particle or a cell) is a *splat*: a box of voxels, and a
 //! weight function over it. Each voxel gets `V = sum(w v) / sum(w)` over the

@@ -1,4 +1,4 @@
-//! SPH particles as encoder input (SPEC.md "Samples" and "Reference grid").
+//! SPH particles as encoder input (METHOD.md "Samples" and "Reference grid").
 //!
 //! A particle at world position `x` with smoothing length `hh`, mass `m` and
 //! normalised value `v` is
@@ -17,7 +17,7 @@ use crate::field::Bounds;
 use crate::input::items::{Conversion, Item};
 use rayon::prelude::*;
 
-/// Sample scale as a fraction of the smoothing length (SPEC.md).
+/// Sample scale as a fraction of the smoothing length (METHOD.md "Samples").
 pub const SAMPLE_SCALE: f64 = 0.8;
 
 /// Particles in world units, borrowed from the caller (one entry per particle

@@ -1,5 +1,5 @@
 //! The one mathematical definition of a primitive, its truncated kernel and
-//! the kernel's analytic gradients (SPEC.md "Representation").
+//! the kernel's analytic gradients (METHOD.md "Representation").
 //!
 //! Every backend evaluates exactly these formulas. The gradient is split in
 //! two so that it maps onto hardware without float atomics:
@@ -39,8 +39,8 @@ pub fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
 
-/// Inverse of [`sigmoid`] after clamping `p` to `[1e-4, 1 - 1e-4]`, as SPEC.md
-/// prescribes for seeded values and weights.
+/// Inverse of [`sigmoid`] after clamping `p` to `[1e-4, 1 - 1e-4]`, as seeded
+/// values and weights are (METHOD.md "Seeding").
 #[inline]
 pub fn logit_clamped(p: f32) -> f32 {
     let p = p.clamp(1e-4, 1.0 - 1e-4);

@@ -1,4 +1,4 @@
-//! The objective of SPEC.md / the paper's Eq. 7-8:
+//! The objective (METHOD.md "Objective"; the paper's Eq. 7-8):
 //! `L = L_val + 2 L_cov + 0.1 L_scale + 0.05 L_aniso`.
 //!
 //! The two point terms are split into what each point contributes
