@@ -1,5 +1,5 @@
 //! Analytic gradients of every loss term against central finite differences
-//! of an independent dense f64 transcription of SPEC.md.
+//! of an independent dense f64 transcription of docs/METHOD.md.
 
 mod common;
 use common::*;
