@@ -29,20 +29,17 @@
 //!
 //! ```no_run
 //! use gsenc::encode::{pipeline, EncodeConfig, Schedule};
-//! use gsenc::field::{Grid, IndexFrame, Transform};
+//! use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 //! use gsenc::input::{Input, RangeSpec};
-//! let grid = Grid::new([32, 32, 32], vec![0.5; 32 * 32 * 32]).unwrap();
+//! let values = (0..32 * 32 * 32).map(|i| (i % 32) as f32 / 31.0).collect();
+//! let grid = Grid::new([32, 32, 32], values).unwrap();
 //! let frame = IndexFrame::for_grid(grid.dims, [0.0; 3], 1.0).unwrap();
+//! let range = RangeSpec::Fixed(ValueRange::new(0.0, 1.0, Transform::Linear).unwrap());
 //! let request = pipeline::Request::new(EncodeConfig::new(1000, Schedule::Short));
-//! let (_, encoded) = pipeline::encode(
-//!     &Input::Grid { values: &grid, frame },
-//!     &RangeSpec::FromData(Transform::Linear),
-//!     &request,
-//!     &mut gsenc::backend::cpu::CpuBackend::new(),
-//!     &mut |_| {},
-//! )
-//! .unwrap();
+//! let mut backend = gsenc::backend::cpu::CpuBackend::new();
+//! let (_, encoded) = pipeline::encode(&Input::Grid { values: &grid, frame }, &range, &request, &mut backend, &mut |_| {}).unwrap();
 //! assert_eq!(encoded.model.params.len(), 1000);
+//! println!("{} dB as stored", encoded.psnr);
 //! ```
 
 pub mod backend;
