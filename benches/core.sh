@@ -4,7 +4,8 @@
 # REPEATS (default 3) runs of each row; the 256^3 row runs once unless
 # REPEATS_LARGE is set. ROWS selects rows by name (default: all).
 # Prints one JSON line per run to bench-out/core.jsonl and a Markdown table
-# of medians at the end.
+# of medians at the end. Every row's model stays in bench-out/ (ROW.gsm; the
+# fidelity rows ROW_sSEED.gsm), so two builds can be compared byte for byte.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 repeats=${1:-3}
@@ -23,12 +24,12 @@ h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
 
 want() { [ ${#rows[@]} -eq 0 ] || [[ " ${rows[*]} " == *" $1 "* ]]; }
 
-run() { # name repeats args...
+run() { # name repeats args...  (the model file is ROW${tag}.gsm)
     local name=$1 n=$2; shift 2
     want "$name" || return 0
     for i in $(seq 1 "$n"); do
         echo "[$name] run $i/$n" >&2
-        "$bin" encode grid "$@" -o "$out/$name.gsm" --json --quiet \
+        "$bin" encode grid "$@" -o "$out/$name${tag:-}.gsm" --json --quiet \
             | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; print(json.dumps(d))" >> "$out/core.jsonl"
     done
 }
@@ -42,9 +43,11 @@ run rm256_200k_full "${REPEATS_LARGE:-1}" "${rm_args[@]}" --budget 200000 --sche
 # protocol: RM 64^3 with value/255 instead lands about 1.3 dB higher).
 rm_data_range=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8)
 for s in 0 1 2 3 4 5 6 7; do
+    tag=_s$s
     run fidelity_hydrogen_4k_300it 1 "${h_args[@]}" --budget 4096 --iters 300 --points 3072 --seed "$s" --sample-seed $((s + 1))
     run fidelity_rm64_4k_300it 1 "${rm_data_range[@]}" --downsample 4 --budget 4096 --iters 300 --points 3072 --seed "$s" --sample-seed $((s + 1))
 done
+tag=
 
 python3 - "$out/core.jsonl" <<'PY'
 import json, statistics, sys

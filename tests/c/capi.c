@@ -38,7 +38,7 @@ int main(void) {
     const char *dir = getenv("GSENC_CAPI_TMP") ? getenv("GSENC_CAPI_TMP") : "/tmp";
     char path[512];
 
-    /* The ABI as this C compiler lays it out: the values capi/mod.rs pins. */
+    /* The ABI as this C compiler lays it out: the values capi/lib.rs pins. */
     CHECK(sizeof(gsenc_config) == 184 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
               && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144, "gsenc_config layout");
