@@ -3,7 +3,7 @@
 
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Args;
-use gsenc::encode::{EncodeConfig, Objective, Schedule};
+use gsenc::encode::{EncodeConfig, Schedule};
 use gsenc::field::{Bounds, Grid, IndexFrame, Transform, ValueRange};
 use gsenc::input::cells::{CellSize, Cells};
 use gsenc::input::particles::Particles;
@@ -117,11 +117,6 @@ pub struct TrainingArgs {
     /// Skip the relocation passes.
     #[arg(long)]
     pub no_relocation: bool,
-    /// What the encode fits: field (default: the paper's objective, and the
-    /// decoded value held to the reference in empty space too) or paper
-    /// (the paper's objective and training points exactly).
-    #[arg(long, default_value = "field", value_parser = one_of(&Objective::ALL, Objective::name))]
-    pub objective: Objective,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
@@ -137,7 +132,6 @@ impl TrainingArgs {
         cfg.seed_init = self.seed;
         cfg.seed_sample = self.sample_seed;
         cfg.relocation = !self.no_relocation;
-        cfg.objective = self.objective;
         cfg
     }
 }

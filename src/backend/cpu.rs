@@ -505,7 +505,7 @@ fn has_avx2() -> bool {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn grad_chunk_avx2(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (PointLoss, u64) {
+unsafe fn grad_chunk_avx2(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
     grad_chunk(job, sc, range)
 }
 
@@ -515,7 +515,7 @@ unsafe fn eval_chunk_avx2(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], r
     eval_chunk(prep, bins, pos, range)
 }
 
-fn grad_chunk_dispatch(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (PointLoss, u64) {
+fn grad_chunk_dispatch(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
     #[cfg(target_arch = "x86_64")]
     if has_avx2() {
         // SAFETY: the CPU supports AVX2 (checked above).
@@ -534,11 +534,11 @@ fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], rang
 }
 
 /// Forward, loss and backward for the points of bricks `b0..b1`; returns the
-/// chunk's point terms and kernel evaluations, and leaves its gradient sums
-/// in `sc`.
+/// chunk's (L_val, L_cov, kernel evaluations) and leaves its gradient sums in
+/// `sc`.
 #[inline(always)]
-fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) -> (PointLoss, u64) {
-    let (mut loss, mut evals) = (PointLoss::default(), 0u64);
+fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) -> (f64, f64, u64) {
+    let (mut val, mut cov, mut evals) = (0.0f64, 0.0f64, 0u64);
     let bins = job.bins;
     let ChunkScratch { slot, touched, acc, soa } = sc;
     for b in b0..b1 {
@@ -549,7 +549,8 @@ fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) ->
         for &pi in &bins.order[s as usize..e as usize] {
             let (rho, n) = soa.forward(job.batch.pos[pi as usize], &mut evals);
             let t = point_terms(rho, n, job.batch.vref[pi as usize], job.norm, job.weights);
-            loss.add(&t);
+            val += t.val as f64;
+            cov += t.cov as f64;
             if t.g_rho != 0.0 || t.g_n != 0.0 {
                 soa.backward(t.g_rho, t.g_n);
                 any = true;
@@ -570,7 +571,7 @@ fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) ->
             }
         }
     }
-    (loss, evals)
+    (val, cov, evals)
 }
 
 /// `(point, rho, n)` for the points of bricks `b0..b1`, and the kernel count.
@@ -649,7 +650,7 @@ impl Backend for CpuBackend {
         acc.resize(np, GradAcc::default());
         let CpuBackend { prep, chunks, evaluations, .. } = self;
         let prep: &Prepared = prep;
-        let losses: Vec<(PointLoss, u64)> = chunks[..ranges.len()]
+        let losses: Vec<(f64, f64, u64)> = chunks[..ranges.len()]
             .par_iter_mut()
             .zip(ranges.par_iter())
             .map(|(sc, &range)| {
@@ -663,10 +664,9 @@ impl Backend for CpuBackend {
             .collect();
         // Fixed-order reduction: chunk by chunk.
         let mut out = PointLoss::default();
-        for (sc, (l, e)) in chunks.iter_mut().zip(losses) {
-            out.val += l.val;
-            out.cov += l.cov;
-            out.empty += l.empty;
+        for (sc, (v, c, e)) in chunks.iter_mut().zip(losses) {
+            out.val += v;
+            out.cov += c;
             *evaluations += e;
             for (t, &g) in sc.touched.iter().enumerate() {
                 acc[g as usize].add(&sc.acc[t]);

@@ -36,15 +36,6 @@ impl PointBatch {
 pub struct PointLoss {
     pub val: f64,
     pub cov: f64,
-    pub empty: f64,
-}
-
-impl PointLoss {
-    pub fn add(&mut self, t: &crate::math::loss::PointTerms) {
-        self.val += t.val as f64;
-        self.cov += t.cov as f64;
-        self.empty += t.empty as f64;
-    }
 }
 
 /// A regular lattice of evaluation points in the index frame:
@@ -102,7 +93,7 @@ pub trait Backend: Send {
     /// Mixture density `rho` and numerator `n` at each point.
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]);
 
-    /// The point terms L_val, L_cov and L_empty over `batch`, and the gradient of their
+    /// The point terms L_val and L_cov over `batch`, and the gradient of their
     /// weighted sum with respect to every parameter, written into `grad` (one
     /// entry per primitive): the pair sums of [`crate::math::kernel::GradAcc`] turned
     /// into parameter gradients by [`crate::math::kernel::Frame::finalize`]. The

@@ -68,73 +68,12 @@ pub struct EncodeConfig {
     /// Relocation passes at 35, 55 and 75 % of the iterations.
     pub relocation: bool,
     pub learning_rate: f32,
-    /// What the encode fits: the loss terms and the training strata.
-    pub objective: Objective,
-    /// True for SPH particle input (longer full schedule); the pipeline
-    /// sets it from the input's form.
+    pub weights: LossWeights,
+    /// True for SPH particle input (longer full schedule).
     pub particles: bool,
     /// Not part of the model: lets another thread stop the encode between
     /// iterations (it then fails with `Error::Cancelled`).
     pub cancel: Option<Cancel>,
-}
-
-/// What an encode fits (METHOD.md "Objective").
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum Objective {
-    /// gsenc's default: the paper's four terms and `L_empty`, which pulls the
-    /// decoded value to the reference where the reference is empty, on
-    /// training points that include a band around the data's support.
-    #[default]
-    Field,
-    /// The paper's objective and training strata exactly: nothing looks at
-    /// empty space.
-    Paper,
-}
-
-/// Weight of `L_empty` in the `field` objective (METHOD.md "Objective").
-pub const EMPTY_WEIGHT: f32 = 1.0;
-/// Share of the training points drawn from the band around the support.
-pub const BAND_SHARE: f64 = 0.10;
-/// Width of that band, in voxels.
-pub const BAND_VOXELS: usize = 4;
-
-fn experiment<T: std::str::FromStr>(name: &str, default: T) -> T {
-    std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
-}
-
-impl Objective {
-    pub const ALL: [Objective; 2] = [Objective::Field, Objective::Paper];
-
-    pub fn name(self) -> &'static str {
-        match self {
-            Objective::Field => "field",
-            Objective::Paper => "paper",
-        }
-    }
-
-    pub fn from_name(s: &str) -> Result<Objective> {
-        Objective::ALL
-            .into_iter()
-            .find(|v| v.name() == s)
-            .ok_or_else(|| Error::arg(format!("unknown objective '{s}' (field, paper)")))
-    }
-
-    /// The weights of the loss terms.
-    pub fn weights(self) -> LossWeights {
-        match self {
-            Objective::Paper => LossWeights::default(),
-            Objective::Field => LossWeights { empty: experiment("GSENC_EXP_EMPTY", EMPTY_WEIGHT), ..LossWeights::default() },
-        }
-    }
-
-    /// The band stratum of the training points: its share, and its width in
-    /// voxels (no band in the paper's strata).
-    pub fn band(self) -> (f64, usize) {
-        match self {
-            Objective::Paper => (0.0, 0),
-            Objective::Field => (experiment("GSENC_EXP_BAND_SHARE", BAND_SHARE), experiment("GSENC_EXP_BAND_VOXELS", BAND_VOXELS)),
-        }
-    }
 }
 
 /// A flag another thread sets to stop an encode.
@@ -161,7 +100,7 @@ impl EncodeConfig {
             seed_sample: 1,
             relocation: true,
             learning_rate: 8e-3,
-            objective: Objective::default(),
+            weights: LossWeights::default(),
             particles: false,
             cancel: None,
         }

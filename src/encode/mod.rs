@@ -17,6 +17,6 @@ pub mod relocate;
 pub mod seeding;
 pub mod validation;
 
-pub use config::{Cancel, EncodeConfig, Objective, Schedule, WarmStart};
+pub use config::{Cancel, EncodeConfig, Schedule, WarmStart};
 pub use refine::{encode, encode_validated, spatial_order, validate, with_threads, EncodeOutput, LossTerms, Progress};
 pub use validation::Validation;

@@ -2,7 +2,7 @@
 //! four-term loss, Adam with cosine decay, and relocation at 35/55/75 %.
 
 use crate::backend::Backend;
-use crate::encode::config::{Cancel, EncodeConfig, Objective};
+use crate::encode::config::{Cancel, EncodeConfig};
 use crate::encode::points::PointSampler;
 use crate::encode::relocate::{relocate, Relocation, RELOCATE_POINTS};
 use crate::encode::seeding::{seed, Seeding};
@@ -30,8 +30,6 @@ pub struct LossTerms {
     pub cov: f64,
     pub scale: f64,
     pub aniso: f64,
-    /// `L_empty` (0 under the paper's objective).
-    pub empty: f64,
     pub total: f64,
 }
 
@@ -162,8 +160,7 @@ pub fn encode_validated(
     let points = cfg.points();
     let reloc_at = cfg.relocation_iterations();
     let n = params.len();
-    let mut sampler = PointSampler::new(target.reference, cfg.seed_sample, cfg.objective);
-    let weights = cfg.objective.weights();
+    let mut sampler = PointSampler::new(target.reference, cfg.seed_sample);
     let mut adam = Adam::new(n);
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; n];
     let mut relocations = vec![];
@@ -186,7 +183,7 @@ pub fn encode_validated(
         }
         if reloc_at.contains(&t) {
             let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
-            let r = relocate(backend, &mut params, &mut adam, &batch, cfg.objective == Objective::Field && std::env::var("GSENC_EXP_RELOC_EMPTY").is_ok());
+            let r = relocate(backend, &mut params, &mut adam, &batch);
             tracing::debug!(iteration = t, moved = r.moved.len(), "relocation");
             let order = spatial_order(&params);
             params = permute(&params, &order);
@@ -195,20 +192,15 @@ pub fn encode_validated(
             relocations.push(r);
         }
         let batch = sampler.draw(points, target.reference, target.samples);
-        let pl = backend.point_loss_grad(&params, &batch, &weights, &mut grad);
-        let reg = regularizers(&params, &weights, &mut grad);
-        let w = &weights;
+        let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad);
+        let reg = regularizers(&params, &cfg.weights, &mut grad);
+        let w = &cfg.weights;
         last = LossTerms {
             val: pl.val,
             cov: pl.cov,
             scale: reg.scale,
             aniso: reg.aniso,
-            empty: pl.empty,
-            total: w.val as f64 * pl.val
-                + w.cov as f64 * pl.cov
-                + w.scale as f64 * reg.scale
-                + w.aniso as f64 * reg.aniso
-                + w.empty as f64 * pl.empty,
+            total: w.val as f64 * pl.val + w.cov as f64 * pl.cov + w.scale as f64 * reg.scale + w.aniso as f64 * reg.aniso,
         };
         if !last.total.is_finite() {
             return Err(Error::data(format!("loss is not finite at iteration {t}: {last:?}")));

@@ -10,7 +10,7 @@
 
 use crate::backend::Backend;
 use crate::math::kernel::{isotropic, layout, sigmoid, Primitive};
-use crate::math::loss::{v_eval, v_train, MASK_REF};
+use crate::math::loss::v_train;
 use crate::math::optim::Adam;
 use crate::backend::PointBatch;
 
@@ -42,7 +42,6 @@ pub fn relocate(
     params: &mut [Primitive],
     adam: &mut Adam,
     batch: &PointBatch,
-    empty_errors: bool,
 ) -> Relocation {
     let n = params.len();
     let k = ((RELOCATE_FRACTION * n as f64).round() as usize).min(batch.len());
@@ -55,13 +54,7 @@ pub fn relocate(
     let mut errors: Vec<(f32, usize)> = (0..batch.len())
         .map(|p| {
             let vref = batch.vref[p];
-            let e = if vref > ERROR_MASK {
-                (v_train(rho[p], num[p]) - vref).abs()
-            } else if empty_errors && vref <= MASK_REF {
-                (v_eval(rho[p], num[p]) - vref).abs()
-            } else {
-                0.0
-            };
+            let e = if vref > ERROR_MASK { (v_train(rho[p], num[p]) - vref).abs() } else { 0.0 };
             (e, p)
         })
         .collect();

@@ -1,7 +1,5 @@
 //! The objective (METHOD.md "Objective"; the paper's Eq. 7-8):
-//! `L = L_val + 2 L_cov + 0.1 L_scale + 0.05 L_aniso`, and gsenc's fifth
-//! term `L_empty`, which supervises the decoded value where the reference is
-//! empty (weight 0 in the paper's objective).
+//! `L = L_val + 2 L_cov + 0.1 L_scale + 0.05 L_aniso`.
 //!
 //! The two point terms are split into what each point contributes
 //! ([`point_terms`]), which every backend calls, and the per-primitive
@@ -21,8 +19,7 @@ pub const TRAIN_FLOOR: f32 = 1e-3;
 /// Denominator floor of the decoded value `V_eval = clamp(n / max(rho, 0.05))`.
 pub const EVAL_FLOOR: f32 = 0.05;
 
-/// Weights of the loss terms. The defaults are the paper's four (and no
-/// `empty` term); `encode::Objective` picks them for an encode. Tests set all
+/// Weights of the four loss terms. The defaults are the paper's; tests set all
 /// but one to zero to check each term's gradient on its own.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LossWeights {
@@ -30,13 +27,11 @@ pub struct LossWeights {
     pub cov: f32,
     pub scale: f32,
     pub aniso: f32,
-    /// `L_empty`: the decoded value at points whose reference is empty.
-    pub empty: f32,
 }
 
 impl Default for LossWeights {
     fn default() -> Self {
-        LossWeights { val: 1.0, cov: 2.0, scale: 0.1, aniso: 0.05, empty: 0.0 }
+        LossWeights { val: 1.0, cov: 2.0, scale: 0.1, aniso: 0.05 }
     }
 }
 
@@ -96,13 +91,12 @@ impl PointNorm {
     }
 }
 
-/// One point's share of the (unweighted) L_val, L_cov and L_empty, and the
-/// gradient of the weighted loss with respect to the point's `rho` and `n`.
+/// One point's share of the (unweighted) L_val and L_cov, and the gradient of
+/// the weighted loss with respect to the point's `rho` and `n`.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct PointTerms {
     pub val: f32,
     pub cov: f32,
-    pub empty: f32,
     pub g_rho: f32,
     pub g_n: f32,
 }
@@ -110,7 +104,7 @@ pub struct PointTerms {
 #[inline]
 pub fn point_terms(rho: f32, n: f32, vref: f32, norm: &PointNorm, w: &LossWeights) -> PointTerms {
     if vref <= MASK_REF {
-        return if w.empty == 0.0 { PointTerms::default() } else { empty_terms(rho, n, vref, norm, w) };
+        return PointTerms::default();
     }
     let omega = 0.5 + vref;
     let denom = rho.max(TRAIN_FLOOR);
@@ -124,29 +118,7 @@ pub fn point_terms(rho: f32, n: f32, vref: f32, norm: &PointNorm, w: &LossWeight
     if cov_gap > 0.0 {
         g_rho -= w.cov * norm.inv_count;
     }
-    PointTerms { val, cov, empty: 0.0, g_rho, g_n }
-}
-
-/// A masked point's share of `L_empty = (1/|P|) sum_p 1[V_ref <= 0.005]
-/// Huber(V_eval - V_ref)`: the value the decoder shows there, pulled to the
-/// (empty) reference. `V_eval = n / max(rho, 0.05)` (clamped to `[0, 1]`),
-/// so where the density is below the floor only `n` has a gradient.
-#[inline]
-fn empty_terms(rho: f32, n: f32, vref: f32, norm: &PointNorm, w: &LossWeights) -> PointTerms {
-    let denom = rho.max(EVAL_FLOOR);
-    let v = n / denom;
-    if v >= 1.0 {
-        // Clamped: no gradient.
-        return PointTerms { empty: huber(1.0 - vref) * norm.inv_count, ..PointTerms::default() };
-    }
-    let r = v - vref;
-    let dl_dv = w.empty * huber_grad(r) * norm.inv_count;
-    PointTerms {
-        empty: huber(r) * norm.inv_count,
-        g_n: dl_dv / denom,
-        g_rho: if rho > EVAL_FLOOR { -dl_dv * n / (rho * rho) } else { 0.0 },
-        ..PointTerms::default()
-    }
+    PointTerms { val, cov, g_rho, g_n }
 }
 
 /// Values of the two per-primitive regularisers (unweighted).
