@@ -32,6 +32,11 @@ pub const GSENC_PAYLOAD_8BIT_U16: i32 = 2;
 pub const GSENC_QUEUE_BLOCK: i32 = 0;
 pub const GSENC_QUEUE_SKIP: i32 = 1;
 pub const GSENC_QUEUE_BUSY: i32 = 2;
+/// Whether models store their support (`gsenc_config.support`): where the
+/// data are non-zero, so that the model decodes to 0 elsewhere (the
+/// default), or not, for the paper's models exactly.
+pub const GSENC_SUPPORT_STORED: i32 = 0;
+pub const GSENC_SUPPORT_NONE: i32 = 1;
 /// Where models go (`gsenc_config.output_format`).
 pub const GSENC_OUTPUT_FOLDER: i32 = 0;
 pub const GSENC_OUTPUT_HDF5: i32 = 1;
@@ -86,6 +91,9 @@ pub struct gsenc_config {
     pub seed_sample: u64,
     /// MPI rank stored in the models (0).
     pub rank: u32,
+    /// `GSENC_SUPPORT_*` (default stored). This field fills what was
+    /// padding, so every other offset is unchanged.
+    pub support: i32,
     /// Where every model goes, per `output_format`: a folder of
     /// `FIELD_STEP.gsm` files (`FIELD_STEP_rRANK.gsm` on ranks other than
     /// 0), or an HDF5 store file. NULL (default) keeps models in memory
@@ -137,6 +145,7 @@ impl gsenc_config {
             seed_init: 0,
             seed_sample: 1,
             rank: 0,
+            support: GSENC_SUPPORT_STORED,
             output_dir: std::ptr::null(),
             warm_iterations: 0,
             when_full: GSENC_QUEUE_BLOCK,
@@ -244,6 +253,11 @@ impl Settings {
             GSENC_QUEUE_BUSY => WhenFull::Busy,
             w => return Err(bad(format!("unknown when_full {w} (GSENC_QUEUE_BLOCK, _SKIP, _BUSY)"))),
         };
+        let store_support = match c.support {
+            GSENC_SUPPORT_STORED => true,
+            GSENC_SUPPORT_NONE => false,
+            v => return Err(bad(format!("unknown support {v} (GSENC_SUPPORT_STORED, _NONE)"))),
+        };
         let output_format = match c.output_format {
             GSENC_OUTPUT_FOLDER => OutputFormat::Folder,
             GSENC_OUTPUT_HDF5 => OutputFormat::Hdf5,
@@ -267,6 +281,7 @@ impl Settings {
         series.warm_iterations = (c.warm_iterations > 0).then_some(c.warm_iterations as usize);
         series.payload = payload;
         series.rank = c.rank;
+        series.store_support = store_support;
         Ok(Settings {
             series,
             dims: c.dims.map(|d| d as usize),

@@ -42,6 +42,7 @@ module gsenc
     integer(c_int32_t), parameter, public :: GSENC_CELLS_BOXES = 0, GSENC_CELLS_HEXAHEDRA = 1
     integer(c_int32_t), parameter, public :: GSENC_QUEUE_BLOCK = 0, GSENC_QUEUE_SKIP = 1, GSENC_QUEUE_BUSY = 2
     integer(c_int32_t), parameter, public :: GSENC_OUTPUT_FOLDER = 0, GSENC_OUTPUT_HDF5 = 1
+    integer(c_int32_t), parameter, public :: GSENC_SUPPORT_STORED = 0, GSENC_SUPPORT_NONE = 1
     integer(c_int32_t), parameter, public :: GSENC_JOB_QUEUED = 0, GSENC_JOB_RUNNING = 1, GSENC_JOB_DONE = 2, &
         GSENC_JOB_FAILED = 3, GSENC_JOB_SKIPPED = 4, GSENC_JOB_CANCELLED = 5
 
@@ -61,6 +62,7 @@ module gsenc
         integer(c_int32_t) :: payload = 0, threads = 0
         integer(c_int64_t) :: seed_init = 0, seed_sample = 0
         integer(c_int32_t) :: rank = 0
+        integer(c_int32_t) :: support = 0
         type(c_ptr) :: output_dir = c_null_ptr
         integer(c_int32_t) :: warm_iterations = 0
         integer(c_int32_t) :: when_full = 0

@@ -89,6 +89,7 @@ mod tests {
             (offset_of!(gsenc_config, seed_init), 128),
             (offset_of!(gsenc_config, seed_sample), 136),
             (offset_of!(gsenc_config, rank), 144),
+            (offset_of!(gsenc_config, support), 148),
             (offset_of!(gsenc_config, output_dir), 152),
             (offset_of!(gsenc_config, warm_iterations), 160),
             (offset_of!(gsenc_config, when_full), 164),
@@ -147,6 +148,7 @@ mod tests {
         assert_eq!([super::GSENC_DTYPE_FLOAT32, super::GSENC_DTYPE_FLOAT64], [0, 1]);
         assert_eq!([GSENC_QUEUE_BLOCK, GSENC_QUEUE_SKIP, GSENC_QUEUE_BUSY], [0, 1, 2]);
         assert_eq!([GSENC_OUTPUT_FOLDER, GSENC_OUTPUT_HDF5], [0, 1]);
+        assert_eq!([GSENC_SUPPORT_STORED, GSENC_SUPPORT_NONE], [0, 1]);
         assert_eq!(size_of::<gsenc_job>(), 32);
         assert_eq!(
             [offset_of!(gsenc_job, state), offset_of!(gsenc_job, iteration), offset_of!(gsenc_job, iterations), offset_of!(gsenc_job, error), offset_of!(gsenc_job, psnr)],

@@ -8,7 +8,6 @@ use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::backend::Backend;
 use gsenc::field::IndexBox;
-use gsenc::math::loss::v_eval;
 use gsenc::model::{Model, DEFAULT_SLAB_VOXELS};
 use std::os::raw::c_char;
 
@@ -119,7 +118,8 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 
 /// Decodes the model onto `dims` cells covering its box (NULL `dims`: its
 /// reference dims) into `out`, which holds `out_len` floats, x fastest,
-/// in data units. The caller owns `out`. Thread-safe, also on one model.
+/// in data units; with its support, where it stores one (0 where the data
+/// were empty). The caller owns `out`. Thread-safe, also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *const u64, out: *mut f32, out_len: u64) -> gsenc_status {
     guard(|| {
@@ -153,8 +153,8 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 }
 
 /// Evaluates the model at `count` world points (`points`: x, y, z per
-/// point, interleaved) into `out` (`count` floats, data units), both
-/// owned by the caller. Thread-safe, also on one model.
+/// point, interleaved) into `out` (`count` floats, data units, with the
+/// model's support), both owned by the caller. Thread-safe, also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
     guard(|| {
@@ -174,7 +174,7 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
         let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
         CpuBackend::new().evaluate_points(&m.params, &index, &mut rho, &mut num);
         for i in 0..n {
-            out[i] = m.meta.range.denormalize(v_eval(rho[i], num[i])) as f32;
+            out[i] = m.meta.range.denormalize(m.value_at(index[i], rho[i], num[i])) as f32;
         }
         Ok(())
     })

@@ -18,6 +18,17 @@ pub fn one_of<T: Copy + Send + Sync + 'static>(all: &'static [T], name: fn(T) ->
     PossibleValuesParser::new(all.iter().map(|&v| name(v))).map(move |s| *all.iter().find(|&&v| name(v) == s).expect("clap checked the name"))
 }
 
+/// `--support stored|none`, as whether the support is stored.
+const SUPPORT: [bool; 2] = [true, false];
+
+fn support_name(stored: bool) -> &'static str {
+    if stored {
+        "stored"
+    } else {
+        "none"
+    }
+}
+
 /// A parser through a library `from_name` (names with aliases).
 fn named<T: 'static>(from_name: fn(&str) -> Result<T>) -> impl Fn(&str) -> std::result::Result<T, String> + Clone + Send + Sync + 'static {
     move |s| from_name(s).map_err(|e| e.to_string())
@@ -117,6 +128,11 @@ pub struct TrainingArgs {
     /// Skip the relocation passes.
     #[arg(long)]
     pub no_relocation: bool,
+    /// stored (default): store where the data are non-zero with the model,
+    /// so that it decodes to 0 there (METHOD.md "Support"; a few hundred
+    /// bytes to a few KB); none: the paper's model exactly.
+    #[arg(long, default_value = "stored", value_parser = one_of(&SUPPORT, support_name), action = clap::ArgAction::Set)]
+    pub support: bool,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,

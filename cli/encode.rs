@@ -117,6 +117,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         config: o.train.config(),
         start: Start::Seeded,
         payload: o.payload,
+        store_support: o.train.support,
         labels: Labels { field: o.field.clone(), step: o.step, time: o.time, rank: 0 },
         validation: None,
     };

@@ -150,6 +150,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     cfg.validation_points = a.validation_points;
     cfg.validation_every = a.validation_every;
     cfg.payload = payload;
+    cfg.store_support = a.train.support;
     let mut series = SeriesEncoder::new(cfg)?;
     if let Some(path) = &a.resume_from {
         let model = read_model_file(path)?.model;

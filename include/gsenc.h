@@ -80,6 +80,15 @@
 #define GSENC_QUEUE_BUSY 2
 
 /*
+ Whether models store their support (`gsenc_config.support`): where the
+ data are non-zero, so that the model decodes to 0 elsewhere (the
+ default), or not, for the paper's models exactly.
+ */
+#define GSENC_SUPPORT_STORED 0
+
+#define GSENC_SUPPORT_NONE 1
+
+/*
  Where models go (`gsenc_config.output_format`).
  */
 #define GSENC_OUTPUT_FOLDER 0
@@ -273,6 +282,11 @@ typedef struct {
    MPI rank stored in the models (0).
    */
   uint32_t rank;
+  /*
+   `GSENC_SUPPORT_*` (default stored). This field fills what was
+   padding, so every other offset is unchanged.
+   */
+  int32_t support;
   /*
    Where every model goes, per `output_format`: a folder of
    `FIELD_STEP.gsm` files (`FIELD_STEP_rRANK.gsm` on ranks other than
@@ -661,7 +675,8 @@ gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *in
 /*
  Decodes the model onto `dims` cells covering its box (NULL `dims`: its
  reference dims) into `out`, which holds `out_len` floats, x fastest,
- in data units. The caller owns `out`. Thread-safe, also on one model.
+ in data units; with its support, where it stores one (0 where the data
+ were empty). The caller owns `out`. Thread-safe, also on one model.
  */
 gsenc_status gsenc_model_decode(const gsenc_model *model,
                                 const uint64_t *dims,
@@ -670,8 +685,8 @@ gsenc_status gsenc_model_decode(const gsenc_model *model,
 
 /*
  Evaluates the model at `count` world points (`points`: x, y, z per
- point, interleaved) into `out` (`count` floats, data units), both
- owned by the caller. Thread-safe, also on one model.
+ point, interleaved) into `out` (`count` floats, data units, with the
+ model's support), both owned by the caller. Thread-safe, also on one model.
  */
 gsenc_status gsenc_model_evaluate(const gsenc_model *model,
                                   const double *points,

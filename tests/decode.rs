@@ -28,6 +28,7 @@ fn model() -> Model {
                 p
             })
             .collect(),
+        support: None,
     }
 }
 

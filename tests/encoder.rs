@@ -239,6 +239,7 @@ fn small_model_bytes(threads: usize) -> Vec<u8> {
             ..ModelMeta::new(IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap(), ValueRange::new(0.0, 1.0, Transform::Linear).unwrap())
         },
         params: out.params,
+        support: None,
     };
     write_model(&model).unwrap()
 }

@@ -1,11 +1,11 @@
 //! The file formats: round trips of the model file and rejection of
 //! damaged or foreign files; the step index.
 
-use gsenc::field::{IndexBox, IndexFrame, Transform, ValueRange};
+use gsenc::field::{Grid, IndexBox, IndexFrame, Transform, ValueRange};
 use gsenc::format::StepIndex;
 use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Payload, BYTES_PER_PRIMITIVE};
 use gsenc::format::quantize::CentreCoding;
-use gsenc::model::{Model, ModelMeta};
+use gsenc::model::{Model, ModelMeta, Support};
 use gsenc::math::rng::Rng;
 use gsenc::Error;
 
@@ -15,6 +15,20 @@ fn model(n: usize) -> Model {
     m.meta.time = Some(0.125);
     m.meta.rank = 3;
     m.meta.encode_psnr = Some(41.5);
+    m
+}
+
+/// [`model`] with a support: a ball of data in the reference box.
+fn model_with_support(n: usize) -> Model {
+    let mut m = model(n);
+    let dims = m.meta.frame.dims;
+    let values = (0..dims.iter().product::<usize>())
+        .map(|i| {
+            let (x, y, z) = ((i % dims[0]) as f64 - 64.0, (i / dims[0] % dims[1]) as f64 - 32.0, (i / (dims[0] * dims[1])) as f64 - 16.0);
+            if x * x + y * y + z * z < 400.0 { 0.5 } else { 0.0 }
+        })
+        .collect();
+    m.support = Support::from_reference(&Grid::new(dims, values).unwrap());
     m
 }
 
@@ -38,6 +52,7 @@ fn model_without_extras(n: usize, rng: &mut Rng) -> Model {
         params: (0..n)
             .map(|_| std::array::from_fn(|k| if k < 3 { rng.range(-0.5, 127.5) } else { rng.range(-5.0, 5.0) } as f32))
             .collect(),
+        support: None,
     }
 }
 
@@ -54,8 +69,8 @@ fn round_trip_is_exact_and_48_bytes_a_primitive() {
 
 #[test]
 fn every_truncation_is_rejected() {
-    for payload in Payload::ALL {
-        let bytes = write_model_as(&model(5), payload).unwrap();
+    for (payload, m) in Payload::ALL.into_iter().flat_map(|p| [(p, model(5)), (p, model_with_support(5))]) {
+        let bytes = write_model_as(&m, payload).unwrap();
         for cut in 0..bytes.len() {
             let e = read_model(&bytes[..cut]).unwrap_err();
             assert!(matches!(e, Error::Format(_)), "{payload:?}, cut at {cut}: {e}");
@@ -68,8 +83,8 @@ fn every_truncation_is_rejected() {
 
 #[test]
 fn every_corrupted_byte_is_detected() {
-    for payload in Payload::ALL {
-        let bytes = write_model_as(&model(3), payload).unwrap();
+    for (payload, m) in Payload::ALL.into_iter().flat_map(|p| [(p, model(3)), (p, model_with_support(3))]) {
+        let bytes = write_model_as(&m, payload).unwrap();
         for i in 0..bytes.len() {
             for flip in [0x01u8, 0x80] {
                 let mut b = bytes.clone();
@@ -202,7 +217,8 @@ fn foreign_and_newer_files_are_rejected_with_clear_errors() {
 
 #[test]
 fn a_newer_minor_version_with_extra_header_fields_is_read() {
-    let m = model(4);
+    // A minor version past 1.2 carries the 1.2 fields (the support), then its own.
+    let m = model_with_support(4);
     let b = write_model(&m).unwrap();
     let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     let mut out = b[..16 + header_len].to_vec();
@@ -258,4 +274,63 @@ fn step_index_round_trips_and_refuses_other_json() {
     assert!(matches!(StepIndex::from_json(&newer), Err(gsenc::Error::Version(_))));
     let missing_rank = text.replace("\"ranks\": 2", "\"ranks\": 3");
     assert!(StepIndex::from_json(&missing_rank).unwrap_err().to_string().contains("ranks"));
+}
+
+#[test]
+fn a_support_is_stored_in_version_1_2_and_a_model_without_one_stays_1_1() {
+    for payload in Payload::ALL {
+        let with = model_with_support(6);
+        let file = read_model_file(&write_model_as(&with, payload).unwrap()).unwrap();
+        assert_eq!(file.version, (1, 2));
+        assert_eq!(file.model.support, with.support);
+        assert_eq!(file.model.support.as_ref().unwrap().count(), with.support.as_ref().unwrap().count());
+        let without = read_model_file(&write_model_as(&model(6), payload).unwrap()).unwrap();
+        assert_eq!((without.version, without.model.support), ((1, 1), None));
+    }
+    // A support on another lattice than the model's is refused on write.
+    let mut m = model(2);
+    m.support = Support::from_reference(&Grid::new([4, 4, 4], vec![0.0; 64]).unwrap());
+    assert!(matches!(write_model(&m), Err(Error::InvalidArgument(_))));
+}
+
+/// The header of a 1.2 file with its support frame replaced by `frame`,
+/// with a valid checksum.
+fn with_support_frame(frame: &[u8]) -> Vec<u8> {
+    let b = write_model(&model_with_support(2)).unwrap();
+    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let old_len = u32::from_le_bytes(b[16 + header_len - 4 - support_bytes(&b)..][..4].try_into().unwrap()) as usize;
+    let cut = 16 + header_len - old_len - 4;
+    let mut out = b[..cut].to_vec();
+    out.extend_from_slice(&(frame.len() as u32).to_le_bytes());
+    out.extend_from_slice(frame);
+    out[12..16].copy_from_slice(&((header_len - old_len + frame.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&b[16 + header_len..b.len() - 4]);
+    let crc = crc32fast::hash(&out);
+    out.extend_from_slice(&crc.to_le_bytes());
+    out
+}
+
+/// Bytes of the support frame of a file written by [`write_model`].
+fn support_bytes(b: &[u8]) -> usize {
+    let packed = zstd::bulk::compress(model_with_support(2).support.unwrap().bits(), 19).unwrap();
+    assert!(b.windows(packed.len()).any(|w| w == packed.as_slice()), "the file holds the support frame");
+    packed.len()
+}
+
+#[test]
+fn a_corrupted_support_behind_a_valid_checksum_is_refused() {
+    let bits = model_with_support(2).support.unwrap().bits().to_vec();
+    // The frame rebuilt as written reads back (the helper is sound).
+    assert!(read_model(&with_support_frame(&zstd::bulk::compress(&bits, 19).unwrap())).unwrap().support.is_some());
+    let short = zstd::bulk::compress(&bits[..bits.len() - 1], 19).unwrap();
+    let mut stray = bits.clone();
+    *stray.last_mut().unwrap() = 0xff;
+    stray.push(0);
+    let long = zstd::bulk::compress(&stray, 19).unwrap();
+    for (frame, why) in [(&b"not zstd"[..], "support"), (&short[..], "support"), (&long[..], "support"), (&[0u8; 3][..], "support")] {
+        let e = read_model(&with_support_frame(frame)).unwrap_err();
+        assert!(matches!(&e, Error::Format(m) if m.contains(why)), "{e}");
+    }
+    // An empty frame is no support.
+    assert_eq!(read_model(&with_support_frame(&[])).unwrap().support, None);
 }

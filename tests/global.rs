@@ -47,7 +47,7 @@ fn encode_model(g: &Grid, x0: usize, budget: usize) -> Model {
     let frame = IndexFrame { dims: g.dims, bmin: [x0 as f64 * 0.5, -1.0, 2.0], gamma: 2.0 };
     let mut meta = ModelMeta::new(frame, range());
     meta.field = "rho".into();
-    Model { meta, params: out.params }
+    Model { meta, params: out.params, support: None }
 }
 
 fn mse(a: &[f32], b: &[f32]) -> f64 {
@@ -198,4 +198,43 @@ fn blend_uses_each_piece_only_inside_its_box() {
             assert!(v >= va.min(vb) - 1e-6 && v <= va.max(vb) + 1e-6, "{v} not between {va} and {vb}");
         }
     }
+}
+
+/// Pieces with supports: the merged model's support is each piece's own
+/// on its box, and the blend decodes each piece with its support, so the
+/// global field is 0 wherever the pieces' data are empty.
+#[test]
+fn merged_and_blended_pieces_keep_their_supports() {
+    use gsenc::domain::pieces::blend;
+    use gsenc::model::Support;
+    let g = blobs(DIMS, 3, 4);
+    // The data end at x = 30: the right piece has an empty part.
+    let values: Vec<f32> = g.values.iter().enumerate().map(|(i, &v)| if i % DIMS[0] >= 30 { 0.0 } else { v }).collect();
+    let whole = Grid::new(DIMS, values).unwrap();
+    let (a, b) = (slab(&whole, 0, CUT + HALO), slab(&whole, CUT - HALO, DIMS[0]));
+    let mut pieces = [encode_model(&a, 0, 150), encode_model(&b, CUT - HALO, 150)];
+    pieces[0].support = Support::from_reference(&a);
+    pieces[1].support = Support::from_reference(&b);
+    assert!(pieces[1].support.is_some());
+
+    let merged = merge(&pieces).unwrap();
+    let s = merged.support.as_ref().expect("the merged model keeps a support");
+    let want = Support::place(&[(pieces[0].support.as_ref(), IndexBox { lo: [0; 3], hi: a.dims }), (pieces[1].support.as_ref(), IndexBox { lo: [CUT - HALO, 0, 0], hi: DIMS })], DIMS);
+    assert_eq!(s, &want);
+    let decoded = merged.decode(&mut CpuBackend::new(), None).unwrap();
+    let global = merged.meta.frame;
+    let boxes = [IndexBox { lo: [0; 3], hi: a.dims }, IndexBox { lo: [CUT - HALO, 0, 0], hi: DIMS }];
+    let mut pieces_in_global = pieces.clone();
+    for (p, bx) in pieces_in_global.iter_mut().zip(&boxes) {
+        p.meta.frame = global.sub_frame(bx);
+    }
+    let blended = blend(&global, &pieces_in_global, &boxes, HALO, DIMS, IndexBox::whole(DIMS), &mut CpuBackend::new()).unwrap();
+    let mut empty = 0;
+    for i in 0..whole.len() {
+        if whole.values[i] <= 0.005 {
+            assert_eq!((decoded.values[i], blended.values[i]), (0.0, 0.0), "voxel {i}");
+            empty += 1;
+        }
+    }
+    assert!(empty > 1000, "{empty} empty voxels");
 }

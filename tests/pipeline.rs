@@ -45,7 +45,7 @@ fn a_grid_encode_is_the_refinement_loops_model_labelled_and_scored_as_stored() {
     cfg.points = Some(1024);
     let payload = Payload::Bits8(CentreCoding::Float16);
     let labels = Labels { field: "rho".into(), step: 7, time: Some(-0.5), rank: 3 };
-    let request = Request { config: cfg.clone(), start: Start::Seeded, payload, labels: labels.clone(), validation: None };
+    let request = Request { config: cfg.clone(), start: Start::Seeded, payload, store_support: false, labels: labels.clone(), validation: None };
     let range = RangeSpec::FromData(Transform::Linear);
     let (prepared, encoded) =
         pipeline::encode(&Input::Grid { values: &grid, frame }, &range, &request, &mut CpuBackend::new(), &mut |_| {}).unwrap();

@@ -1,6 +1,7 @@
 """Reads a gsenc HDF5 store with h5py alone, following docs/FORMAT.md, and
 checks every entry against the float32 model file `gsenc store extract`
-writes for it: the store is readable without gsenc.
+writes for it, and a model's support against the data it was encoded from:
+the store is readable without gsenc.
 
     python3 tests/store_h5py.py GSENC_BINARY
 Builds its own store from random models written by `gsenc store add`.
@@ -68,7 +69,7 @@ def main():
             write_gsm_f32(m, p, "rho", 10 + i, i)
             subprocess.run([gsenc, "store", "add", store, m, "--payload", payload], check=True, capture_output=True)
         with h5py.File(store, "r") as f:
-            assert f.attrs["gsenc_store"] == "1.0"
+            assert f.attrs["gsenc_store"] == "1.1"
             entries = [(field, step, rank) for field in f for step in f[field] for rank in f[field][step]]
             assert len(entries) == 3, entries
             for field, step, rank in entries:
@@ -83,8 +84,30 @@ def main():
                 failures += not ok
                 print(f"h5py {field}/{step}/{rank} {g.attrs['payload']}: max relative difference {err:.2e}",
                       "ok" if ok else "FAILED")
-    print(f"h5py: {3 - failures} passed, {failures} failed")
+        failures += check_support(d)
+    print(f"h5py: {4 - failures} passed, {failures} failed")
     sys.exit(1 if failures else 0)
+
+
+def check_support(d):
+    """A grid with an empty region, encoded by gsenc and stored: the entry's
+    `support` dataset, unpacked by numpy, is where the normalised data
+    exceed 0.005. Returns the number of failures."""
+    dims = (12, 10, 8)
+    z, y, x = np.meshgrid(*[np.arange(n) for n in reversed(dims)], indexing="ij")
+    data = np.where(x < 7, 1.0 + np.sin(x + 2 * y) ** 2 + z, 0.0).astype("<f4")
+    raw, model, store = (os.path.join(d, n) for n in ("g.f32", "g.gsm", "support.h5"))
+    data.tofile(raw)
+    subprocess.run([gsenc, "encode", "grid", "--input", raw, "--dims", ",".join(map(str, dims)), "--dtype", "f32",
+                    "--budget", "40", "--iters", "10", "--points", "256", "-o", model, "--quiet"], check=True, capture_output=True)
+    subprocess.run([gsenc, "store", "add", store, model], check=True, capture_output=True)
+    with h5py.File(store, "r") as f:
+        g = f["scalar"]["0"]["rank_0"]
+        bits = np.unpackbits(g["support"][()], bitorder="little")[: data.size]
+    want = ((data - data.min()) / (data.max() - data.min()) > 0.005).ravel()
+    ok = bits.shape == want.shape and np.array_equal(bits.astype(bool), want) and 0 < want.sum() < want.size
+    print(f"h5py support: {int(bits.sum())} of {bits.size} voxels", "ok" if ok else "FAILED")
+    return 0 if ok else 1
 
 
 main()

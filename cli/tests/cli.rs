@@ -301,6 +301,43 @@ fn negative_numbers_are_values_and_names_are_checked_first() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// `--support stored` (the default) stores where the data are, in a 1.2
+/// file, and the decode is 0 elsewhere; `--support none` writes the
+/// paper's 1.1 model.
+#[test]
+fn the_support_is_stored_by_default_and_none_leaves_it_out() {
+    let dir = tmpdir("support");
+    let (input, vals) = write_input(&dir);
+    // The upper half in x is empty (0 in data units, the range's minimum).
+    let vals: Vec<f32> = vals.iter().enumerate().map(|(i, &v)| if i % 20 >= 10 { 0.0 } else { v }).collect();
+    std::fs::write(&input, gsenc::io::raw::to_f32_bytes(&vals)).unwrap();
+    let inp = input.to_str().unwrap();
+    let in_support = vals.iter().filter(|&&v| v / 12.0 > 0.005).count();
+    for (support, version, voxels) in [("stored", "gsenc model 1.2", serde_json::json!(in_support)), ("none", "gsenc model 1.1", serde_json::Value::Null)] {
+        let m = dir.join(format!("{support}.gsm"));
+        let ms = m.to_str().unwrap();
+        let (code, _, err) = gsenc(&[
+            "encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "120", "--iters", "60",
+            "--points", "1024", "--support", support, "-o", ms, "--quiet",
+        ]);
+        assert_eq!(code, 0, "{err}");
+        let (_, out, _) = gsenc(&["info", ms, "--json"]);
+        let info = json(&out);
+        assert_eq!((info["format"].as_str(), &info["support_voxels"]), (Some(version), &voxels), "{out}");
+        let raw = dir.join(format!("{support}.raw"));
+        let (code, _, err) = gsenc(&["decode", ms, "-o", raw.to_str().unwrap(), "--quiet"]);
+        assert_eq!(code, 0, "{err}");
+        let decoded = gsenc::io::raw::read_raw(&raw, [20, 16, 12], gsenc::io::raw::DType::F32, gsenc::io::raw::Order::XFastest).unwrap();
+        let empty_max = (0..vals.len()).filter(|&i| vals[i] == 0.0).map(|i| decoded.values[i].abs()).fold(0f32, f32::max);
+        if support == "stored" {
+            assert_eq!(empty_max, 0.0);
+        } else {
+            assert!(empty_max > 0.0, "the paper's model has no tail in the empty half: no test");
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 #[test]
 fn cells_encode_and_deposit() {
     let dir = tmpdir("cells");
@@ -395,7 +432,7 @@ fn payloads_convert_info_and_sub_box_decode() {
     assert!((psnr8 - e8["voxel_psnr"].as_f64().unwrap()).abs() < 1e-9);
     assert!((eval(&f32m) - psnr8).abs() < 0.5, "8-bit costs little PSNR");
     let i8 = info(&eightm);
-    assert_eq!((i8["payload"].as_str(), i8["format"].as_str()), (Some("8bit"), Some("gsenc model 1.1")));
+    assert_eq!((i8["payload"].as_str(), i8["format"].as_str()), (Some("8bit"), Some("gsenc model 1.2")));
     assert!((i8["encode_psnr"].as_f64().unwrap() - psnr8).abs() < 1e-9);
     assert_eq!(i8["time"].as_f64(), Some(2.5));
 
@@ -619,7 +656,7 @@ fn decode_of_several_pieces_writes_one_global_field() {
         let out = gsenc::encode::encode(&target, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
         let mut meta = ModelMeta::new(IndexFrame { dims: g.dims, bmin: [x0, 0.0, 0.0], gamma: 2.0 }, range);
         meta.field = "rho".into();
-        Model { meta, params: out.params }
+        Model { meta, params: out.params, support: None }
     };
     let (a, b) = (piece(0.0, 1), piece(5.0, 2));
     let (pa, pb) = (dir.join("rho_r0.gsm"), dir.join("rho_r1.gsm"));

@@ -8,14 +8,14 @@
 //! frame; decoding it computes `sum n / max(sum rho, eps)` over all of
 //! them. [`blend`] instead decodes each piece on its own box and blends the
 //! pieces across their halos (what `gsenc decode` of a step index does:
-//! kernels no longer leak past a piece's box). A step index ([`StepIndex`])
-//! names the pieces of one step. No I/O here.
+//! kernels no longer leak past a piece's box). A step index
+//! ([`crate::format::StepIndex`]) names the pieces of one step. No I/O here.
 
 use crate::error::{Error, Result};
 use crate::field::IndexFrame;
 use crate::math::kernel::layout::MU;
 use crate::field::{IndexBox, LATTICE_TOLERANCE};
-use crate::model::Model;
+use crate::model::{Model, Support};
 
 /// The global model of `pieces`: one frame covering all of them, every
 /// primitive of every piece. Pieces must be of the same field and step,
@@ -76,7 +76,17 @@ pub fn merge(pieces: &[Model]) -> Result<Model> {
             q
         }));
     }
-    Ok(Model { meta, params })
+    // One support over the union: each piece's own on its box (all of its
+    // box for a piece without one); none at all when no piece has one.
+    let support = pieces.iter().any(|p| p.support.is_some()).then(|| {
+        let placed: Vec<_> = pieces
+            .iter()
+            .zip(&offsets)
+            .map(|(p, o)| (p.support.as_ref(), IndexBox { lo: *o, hi: std::array::from_fn(|a| o[a] + p.meta.frame.dims[a]) }))
+            .collect();
+        Support::place(&placed, dims)
+    });
+    Ok(Model { meta, params, support })
 }
 
 /// The global field of a step's pieces on `region` of a lattice of
@@ -132,7 +142,7 @@ pub fn blend(
             step: step.map(|s| s as f32),
         };
         let mut values = vec![0f32; dims.iter().product()];
-        backend.decode_lattice(&piece.params, &lattice, &mut values);
+        piece.decode_lattice(backend, &lattice, &mut values);
         // The weight along one axis: 1 inside, falling to 0 at a box side
         // that borders another rank (not at the domain's edge).
         let ramp = |a: usize, u: f64| {

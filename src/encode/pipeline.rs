@@ -9,9 +9,12 @@
 //!    particles), a warm start follows its regime.
 //! 3. **Encode**: seeded from the samples, or warm-started from a previous
 //!    model's parameters ([`crate::encode::refine`]).
-//! 4. **Score the model as it will be stored**: the payload's round trip,
-//!    decoded on the reference lattice, against the reference.
-//! 5. **Build the model** and its metadata.
+//! 4. **Build the model**: its metadata, and its support (where the
+//!    reference holds data; METHOD.md "Support") unless the request asks
+//!    for the paper's model.
+//! 5. **Score the model as it will be stored**: the payload's round trip,
+//!    decoded on the reference lattice with the support, against the
+//!    reference.
 //!
 //! No I/O: the caller writes the model ([`crate::io`]).
 
@@ -24,7 +27,7 @@ use crate::format::Payload;
 use crate::input::{prepare, Form, Input, Prepared, RangeSpec};
 use crate::math::kernel::Primitive;
 use crate::model::metrics::voxel_psnr;
-use crate::model::{Model, ModelMeta};
+use crate::model::{Model, ModelMeta, Support};
 use std::time::Instant;
 
 /// How an encode starts.
@@ -63,15 +66,20 @@ pub struct Request<'a> {
     pub start: Start<'a>,
     /// The payload the model will be stored with: its PSNR is measured as stored.
     pub payload: Payload,
+    /// Store the support of the reference with the model (gsenc's default),
+    /// so that it decodes to zero where the data are empty; `false`: the
+    /// paper's model exactly.
+    pub store_support: bool,
     pub labels: Labels,
     /// Scored along the way when given (time to quality); does not change the model.
     pub validation: Option<&'a Validation>,
 }
 
 impl Request<'_> {
-    /// A seeded encode with `config`, stored as float32, labelled "scalar" step 0.
+    /// A seeded encode with `config`, stored as float32 with its support,
+    /// labelled "scalar" step 0.
     pub fn new(config: EncodeConfig) -> Request<'static> {
-        Request { config, start: Start::Seeded, payload: Payload::Float32, labels: Labels::default(), validation: None }
+        Request { config, start: Start::Seeded, payload: Payload::Float32, store_support: true, labels: Labels::default(), validation: None }
     }
 }
 
@@ -133,12 +141,6 @@ pub fn encode_prepared(
     };
     let output = encode_validated(&prepared.target(), &cfg, init, request.validation, backend, progress)?;
 
-    let started = Instant::now();
-    let dims = prepared.reference.dims;
-    let decoded = decode_as_stored(request.payload, &output.params, dims, backend)?;
-    let psnr = voxel_psnr(&decoded, &prepared.reference.values);
-    let decode_seconds = started.elapsed().as_secs_f64();
-
     let l = &request.labels;
     let meta = ModelMeta {
         frame: prepared.frame,
@@ -155,18 +157,26 @@ pub fn encode_prepared(
         seed_sample: cfg.seed_sample,
         time: l.time,
         rank: l.rank,
-        encode_psnr: Some(psnr),
+        encode_psnr: None,
     };
-    let model = Model { meta, params: output.params.clone() };
+    let support = request.store_support.then(|| Support::from_reference(&prepared.reference)).flatten();
+    let mut model = Model { meta, params: output.params.clone(), support };
+
+    let started = Instant::now();
+    let decoded = decode_as_stored(request.payload, &model, backend)?;
+    let psnr = voxel_psnr(&decoded, &prepared.reference.values);
+    let decode_seconds = started.elapsed().as_secs_f64();
+    model.meta.encode_psnr = Some(psnr);
     Ok(Encoded { model, output, config: cfg, warm_started: init.is_some(), psnr, decoded, decode_seconds })
 }
 
-/// `params` as a reader of the model stored with `payload` sees them,
-/// decoded on the reference lattice of `dims`. Fails on parameters the
-/// payload cannot store.
-pub fn decode_as_stored(payload: Payload, params: &[Primitive], dims: [usize; 3], backend: &mut dyn Backend) -> Result<Vec<f32>> {
-    let stored = payload.round_trip(params)?;
+/// `model` as a reader of it stored with `payload` sees it, decoded on its
+/// reference lattice (support included). Fails on parameters the payload
+/// cannot store.
+pub fn decode_as_stored(payload: Payload, model: &Model, backend: &mut dyn Backend) -> Result<Vec<f32>> {
+    let stored = Model { meta: model.meta.clone(), params: payload.round_trip(&model.params)?, support: model.support.clone() };
+    let dims = model.meta.frame.dims;
     let mut decoded = vec![0f32; dims.iter().product()];
-    backend.decode_lattice(&stored, &Lattice::reference(dims), &mut decoded);
+    stored.decode_lattice(backend, &Lattice::reference(dims), &mut decoded);
     Ok(decoded)
 }

@@ -5,7 +5,7 @@ use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::field::Grid;
 use crate::math::kernel::Primitive;
-use crate::math::loss::v_eval;
+use crate::math::loss::{v_eval, MASK_REF};
 use crate::math::rng::Rng;
 use crate::model::metrics::psnr_from_mse;
 
@@ -18,6 +18,9 @@ pub struct Validation {
     pub values: Vec<f32>,
     /// Score every this many iterations (at least 1).
     pub every: usize,
+    /// Score the model as it decodes with its support stored: exactly 0 at
+    /// the points whose reference is empty (METHOD.md "Support").
+    pub support: bool,
 }
 
 impl Validation {
@@ -35,7 +38,7 @@ impl Validation {
             points.push([(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]);
             values.push(reference.values[i]);
         }
-        Ok(Validation { points, values, every })
+        Ok(Validation { points, values, every, support: false })
     }
 
     /// The same points with the values of another reference on the same
@@ -43,15 +46,17 @@ impl Validation {
     pub fn rescored(&self, reference: &Grid) -> Validation {
         let [dx, dy, _] = reference.dims;
         let values = self.points.iter().map(|p| reference.values[p[0] as usize + dx * (p[1] as usize + dy * p[2] as usize)]).collect();
-        Validation { points: self.points.clone(), values, every: self.every }
+        Validation { points: self.points.clone(), values, every: self.every, support: self.support }
     }
 
-    /// PSNR of `V_eval` of `params` against the reference values at the points.
+    /// PSNR of `V_eval` of `params` against the reference values at the
+    /// points (with the support: 0 where the reference is empty).
     pub fn psnr(&self, backend: &mut dyn Backend, params: &[Primitive]) -> f64 {
         let mut rho = vec![0.0; self.points.len()];
         let mut n = vec![0.0; self.points.len()];
         backend.evaluate_points(params, &self.points, &mut rho, &mut n);
-        let se: f64 = (0..self.points.len()).map(|i| ((v_eval(rho[i], n[i]) - self.values[i]) as f64).powi(2)).sum();
+        let decoded = |i: usize| if self.support && self.values[i] <= MASK_REF { 0.0 } else { v_eval(rho[i], n[i]) };
+        let se: f64 = (0..self.points.len()).map(|i| ((decoded(i) - self.values[i]) as f64).powi(2)).sum();
         psnr_from_mse(se / self.points.len() as f64)
     }
 }

@@ -1,8 +1,8 @@
-//! The model file (`.gsm`), version 1.1. All little-endian.
+//! The model file (`.gsm`), version 1.2. All little-endian.
 //!
 //! ```text
 //! 0   magic        8 bytes  "GSENCMDL"
-//! 8   major, minor u16, u16 (1, 1)
+//! 8   major, minor u16, u16 (1, 2; 1, 1 when the model has no support)
 //! 12  header_len   u32      bytes of the header that follows
 //! 16  header       header_len bytes:
 //!       payload u32 (0 float32, 1 8-bit with float16 centres,
@@ -12,6 +12,9 @@
 //!       step u64, iterations u32, points u32, seed_init u64, seed_sample u64,
 //!       schedule (u16 length + UTF-8), field (u16 length + UTF-8),
 //!       -- 1.1: time f64 (NaN: unknown), rank u32, encode_psnr f64 (NaN: unknown)
+//!       -- 1.2: support_len u32, then support_len bytes: one zstd frame of
+//!          the support's bits (`model::Support`: one per reference voxel,
+//!          x fastest, least significant bit first); 0: no support
 //!       -- a newer minor version may append fields; readers skip them.
 //! ..  payload      float32: count x 12 x f32, mu[3] l[3] q[4] alpha beta;
 //!                  8-bit: one zstd frame of the body in `quantize.rs`
@@ -23,16 +26,23 @@
 use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::math::kernel::Primitive;
-use crate::model::{Model, ModelMeta};
+use crate::model::{Model, ModelMeta, Support};
 use crate::format::quantize::{self, CentreCoding};
 
 pub const MAGIC: &[u8; 8] = b"GSENCMDL";
 pub const VERSION_MAJOR: u16 = 1;
-pub const VERSION_MINOR: u16 = 1;
+pub const VERSION_MINOR: u16 = 2;
+/// The minor version written for a model without a support: the file is
+/// then exactly what gsenc 1.1 wrote.
+const MINOR_WITHOUT_SUPPORT: u16 = 1;
 /// Bytes a primitive of the float32 payload.
 pub const BYTES_PER_PRIMITIVE: usize = 48;
 const PREFIX: usize = 16;
-const MAX_HEADER: usize = 1 << 16;
+/// A header longer than this is refused before anything else is read (the
+/// file must hold it too); 1.1 readers allowed 64 KiB, before supports.
+const MAX_HEADER: usize = 1 << 30;
+/// zstd level of a stored support.
+const SUPPORT_ZSTD_LEVEL: i32 = 19;
 /// Most primitives an 8-bit payload may claim (its body is decompressed into
 /// memory sized from the count, so the count is bounded before allocating).
 const MAX_8BIT_COUNT: u64 = 1 << 32;
@@ -164,11 +174,24 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
     h.extend_from_slice(&m.time.unwrap_or(f64::NAN).to_le_bytes());
     h.extend_from_slice(&m.rank.to_le_bytes());
     h.extend_from_slice(&m.encode_psnr.unwrap_or(f64::NAN).to_le_bytes());
+    let minor = match &model.support {
+        None => MINOR_WITHOUT_SUPPORT,
+        Some(support) => {
+            if support.dims() != m.frame.dims {
+                return Err(Error::arg(format!("the support's lattice {:?} is not the model's {:?}", support.dims(), m.frame.dims)));
+            }
+            let packed = zstd::bulk::compress(support.bits(), SUPPORT_ZSTD_LEVEL).map_err(|e| Error::format(format!("zstd: {e}")))?;
+            let len = u32::try_from(packed.len()).map_err(|_| Error::arg("the support does not fit a model file"))?;
+            h.extend_from_slice(&len.to_le_bytes());
+            h.extend_from_slice(&packed);
+            VERSION_MINOR
+        }
+    };
 
     let mut out = Vec::with_capacity(PREFIX + h.len() + model.params.len() * BYTES_PER_PRIMITIVE + 4);
     out.extend_from_slice(MAGIC);
     out.extend_from_slice(&VERSION_MAJOR.to_le_bytes());
-    out.extend_from_slice(&VERSION_MINOR.to_le_bytes());
+    out.extend_from_slice(&minor.to_le_bytes());
     out.extend_from_slice(&(h.len() as u32).to_le_bytes());
     out.extend_from_slice(&h);
     match payload {
@@ -270,6 +293,12 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     let unknown_is_none = |v: f64| (!v.is_nan()).then_some(v);
     let (time, rank, encode_psnr) =
         if minor >= 1 { (unknown_is_none(h.f64()?), h.u32()?, unknown_is_none(h.f64()?)) } else { (None, 0, None) };
+    let packed_support = if minor >= 2 {
+        let n = h.u32()? as usize;
+        Some(h.take(n)?).filter(|b| !b.is_empty())
+    } else {
+        None
+    };
 
     let body = bytes.len() - PREFIX - header_len - 4;
     match payload {
@@ -294,6 +323,7 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
         return Err(Error::format("model header holds an invalid index frame"));
     }
     let range = ValueRange::new(vmin, vmax, transform).map_err(|e| Error::format(format!("model header: {e}")))?;
+    let support = packed_support.map(|b| read_support(b, dims)).transpose()?;
     let start = PREFIX + header_len;
     let stored = &bytes[start..start + body];
     let params = match payload {
@@ -319,6 +349,7 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
             encode_psnr,
         },
         params,
+        support,
     };
     Ok(ModelFile { model, payload, version: (major, minor) })
 }
@@ -337,17 +368,30 @@ fn read_f32_payload(stored: &[u8]) -> Vec<Primitive> {
 }
 
 fn read_8bit_payload(stored: &[u8], count: usize, centres: CentreCoding) -> Result<Vec<Primitive>> {
-    let want = quantize::body_len(count, centres);
-    let corrupt = |why: String| Error::format(format!("8-bit payload is corrupted: {why}"));
+    let body = unpack(stored, quantize::body_len(count, centres), &format!("8-bit payload of {count} primitives"))?;
+    quantize::dequantize(&body, count, centres)
+}
+
+fn read_support(stored: &[u8], dims: [usize; 3]) -> Result<Support> {
+    let voxels = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n <= 1 << 36);
+    let voxels = voxels.ok_or_else(|| Error::format(format!("model header holds a support of dims {dims:?}")))?;
+    let bits = unpack(stored, voxels.div_ceil(8), "support")?;
+    Support::from_bits(dims, bits).map_err(|e| Error::format(format!("support is corrupted: {e}")))
+}
+
+/// One zstd frame that must unpack to exactly `want` bytes. A length the
+/// stored bytes cannot hold is refused before anything is allocated.
+fn unpack(stored: &[u8], want: usize, what: &str) -> Result<Vec<u8>> {
+    let corrupt = |why: String| Error::format(format!("{what} is corrupted: {why}"));
     if want > stored.len().saturating_mul(ZSTD_MAX_RATIO) {
-        return Err(corrupt(format!("{} stored bytes cannot hold {count} primitives", stored.len())));
+        return Err(corrupt(format!("{} stored bytes cannot hold {want}", stored.len())));
     }
     let mut body = Vec::new();
-    body.try_reserve_exact(want).map_err(|_| Error::format(format!("cannot allocate the payload of {count} primitives")))?;
+    body.try_reserve_exact(want).map_err(|_| Error::format(format!("cannot allocate the {what}")))?;
     let mut dec = zstd::bulk::Decompressor::new().map_err(|e| corrupt(e.to_string()))?;
     let got = dec.decompress_to_buffer(stored, &mut body).map_err(|e| corrupt(e.to_string()))?;
     if got != want {
-        return Err(corrupt(format!("{got} bytes unpacked, {count} primitives need {want}")));
+        return Err(corrupt(format!("{got} bytes unpacked, {want} expected")));
     }
-    quantize::dequantize(&body, count, centres)
+    Ok(body)
 }

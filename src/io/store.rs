@@ -24,7 +24,7 @@ use crate::format::Payload;
 use crate::io::atomic::temporary_path;
 use crate::format::check_field_name;
 use crate::math::kernel::Primitive;
-use crate::model::{Model, ModelMeta};
+use crate::model::{Model, ModelMeta, Support};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
 use hdf5::plist::file_access::{CacheDecreaseMode, CacheIncreaseMode, FlashIncreaseMode, MetadataCacheConfig};
 use hdf5::plist::file_create::FileSpaceStrategy;
@@ -33,7 +33,8 @@ use hdf5::{Dataset, File, Group, H5Type, Location};
 use std::path::{Path, PathBuf};
 
 /// Layout version of the store, in the root attribute `gsenc_store`.
-pub const STORE_VERSION: &str = "1.0";
+/// 1.1 adds the optional `support` dataset of an entry.
+pub const STORE_VERSION: &str = "1.1";
 /// Names of the twelve parameters, in the order of the `params` rows.
 pub const PARAMETER_NAMES: [&str; 12] =
     ["mu_x", "mu_y", "mu_z", "l_x", "l_y", "l_z", "q_w", "q_x", "q_y", "q_z", "alpha", "beta"];
@@ -210,7 +211,8 @@ impl Store {
             .map_err(|_| Error::arg(format!("{} holds no model {}", self.path.display(), key.path())))?;
         let info = read_info(&g, key, &self.path)?;
         let params = read_params(&g, &info, &self.path)?;
-        Ok((Model { meta: info.meta, params }, info.payload))
+        let support = read_support(&g, &info, &self.path)?;
+        Ok((Model { meta: info.meta, params, support }, info.payload))
     }
 }
 
@@ -374,7 +376,21 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
     scalar_attr(g, "seed_init", &m.seed_init)?;
     scalar_attr(g, "seed_sample", &m.seed_sample)?;
     scalar_attr(g, "encode_psnr", &m.encode_psnr.unwrap_or(f64::NAN))?;
+    if let Some(support) = &model.support {
+        // The packed bits, one per reference voxel (x fastest, least
+        // significant bit first), deflated like the 8-bit codes.
+        let bits = support.bits();
+        g.new_dataset::<u8>().shape(bits.len()).chunk(bits.len().clamp(1, CHUNK)).deflate(DEFLATE_LEVEL).create("support")?.write_raw(bits)?;
+    }
     scalar_str_attr(g, "parameters", &PARAMETER_NAMES.join(" "))
+}
+
+/// The entry's support, when it has one.
+fn read_support(g: &Group, info: &EntryInfo, path: &Path) -> Result<Option<Support>> {
+    let Ok(ds) = g.dataset("support") else { return Ok(None) };
+    let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), EntryKey::of(&info.meta).path()));
+    let bits: Vec<u8> = ds.read_raw().map_err(|e| bad(format!("support: {e}")))?;
+    Support::from_bits(info.meta.frame.dims, bits).map(Some).map_err(|e| bad(e.to_string()))
 }
 
 fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {

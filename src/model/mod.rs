@@ -1,8 +1,11 @@
 //! A model: its primitives and everything needed to decode them, decoding
-//! on any lattice (whole, a sub-box, or streamed in slabs), and the PSNR
-//! scores of a decode ([`metrics`]).
+//! on any lattice (whole, a sub-box, or streamed in slabs), its stored
+//! support ([`support`]), and the PSNR scores of a decode ([`metrics`]).
 
 pub mod metrics;
+pub mod support;
+
+pub use support::Support;
 
 use crate::backend::{Backend, Lattice};
 use crate::error::{Error, Result};
@@ -58,6 +61,9 @@ impl ModelMeta {
 pub struct Model {
     pub meta: ModelMeta,
     pub params: Vec<Primitive>,
+    /// Where the field holds data, on the reference lattice; `None`:
+    /// everywhere (the paper's model, or a field with no empty voxel).
+    pub support: Option<Support>,
 }
 
 /// Default most voxels decoded at once by [`Model::decode_streaming`]: 64 MB of f32.
@@ -89,7 +95,7 @@ impl Model {
         let mut out = Vec::new();
         out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
         out.resize(n, 0.0);
-        backend.decode_lattice(&self.params, &self.sub_lattice(dims, region), &mut out);
+        self.decode_lattice(backend, &self.sub_lattice(dims, region), &mut out);
         Grid::new(region.dims(), out)
     }
 
@@ -121,11 +127,30 @@ impl Model {
                 buf.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate a slab of {n} voxels")))?;
                 buf.resize(n, 0.0);
             }
-            backend.decode_lattice(&self.params, &self.sub_lattice(dims, slab), &mut buf);
+            self.decode_lattice(backend, &self.sub_lattice(dims, slab), &mut buf);
             sink(&buf)?;
             z = z1;
         }
         Ok(())
+    }
+
+    /// The decoded value at every point of `lattice` (in the index frame of
+    /// the reference): `V_eval` of the primitives, times the support's
+    /// factor when the model has one. Every decode goes through here.
+    pub fn decode_lattice(&self, backend: &mut dyn Backend, lattice: &Lattice, out: &mut [f32]) {
+        backend.decode_lattice(&self.params, lattice, out);
+        if let Some(s) = &self.support {
+            s.apply(lattice, out);
+        }
+    }
+
+    /// The decoded value at index-frame points, from their `(rho, n)`.
+    pub fn value_at(&self, u: [f32; 3], rho: f32, n: f32) -> f32 {
+        let v = crate::math::loss::v_eval(rho, n);
+        match &self.support {
+            Some(s) => v * s.factor(u),
+            None => v,
+        }
     }
 
     fn lattice_dims(&self, dims: Option<[usize; 3]>) -> Result<[usize; 3]> {

@@ -45,11 +45,14 @@ pub struct SeriesConfig {
     pub payload: Payload,
     /// MPI rank recorded in the models (0 for a serial run).
     pub rank: u32,
+    /// Store each step's support with its model (METHOD.md "Support");
+    /// `false`: the paper's models exactly.
+    pub store_support: bool,
 }
 
 impl SeriesConfig {
     pub fn new(encode: EncodeConfig, warm: WarmStart, range: SeriesRange) -> SeriesConfig {
-        SeriesConfig { encode, warm, range, validation_points: 1 << 16, validation_every: 50, validation_seed: 0x7a11_da7e, warm_iterations: None, payload: Payload::Float32, rank: 0 }
+        SeriesConfig { encode, warm, range, validation_points: 1 << 16, validation_every: 50, validation_seed: 0x7a11_da7e, warm_iterations: None, payload: Payload::Float32, rank: 0, store_support: true }
     }
 }
 
@@ -183,12 +186,15 @@ impl SeriesEncoder {
         let validation = match state.and_then(|s| s.validation.as_ref()) {
             Some(v) => Some(v.rescored(&prepared.reference)),
             None if self.cfg.validation_points == 0 => None,
-            None => Some(Validation::from_reference(
-                &prepared.reference,
-                self.cfg.validation_points,
-                self.cfg.validation_seed,
-                self.cfg.validation_every,
-            )?),
+            None => Some(Validation {
+                support: self.cfg.store_support,
+                ..Validation::from_reference(
+                    &prepared.reference,
+                    self.cfg.validation_points,
+                    self.cfg.validation_seed,
+                    self.cfg.validation_every,
+                )?
+            }),
         };
         let start = match state.filter(|_| self.cfg.warm != WarmStart::Off) {
             Some(s) => Start::Warm { params: &s.last.params, regime: self.cfg.warm, iterations: self.cfg.warm_iterations },
@@ -198,6 +204,7 @@ impl SeriesEncoder {
             config: self.cfg.encode.clone(),
             start,
             payload: self.cfg.payload,
+            store_support: self.cfg.store_support,
             labels: Labels { field: field.to_owned(), step, time, rank: self.cfg.rank },
             validation: validation.as_ref(),
         };

@@ -41,7 +41,8 @@ int main(void) {
     /* The ABI as this C compiler lays it out: the values capi/lib.rs pins. */
     CHECK(sizeof(gsenc_config) == 184 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
               && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
-              && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144, "gsenc_config layout");
+              && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144
+              && offsetof(gsenc_config, support) == 148, "gsenc_config layout");
     CHECK(sizeof(gsenc_grid) == 104 && offsetof(gsenc_grid, strides) == 48 && offsetof(gsenc_grid, spacing) == 96, "gsenc_grid layout");
     CHECK(sizeof(gsenc_particles) == 96 && offsetof(gsenc_particles, values) == 80, "gsenc_particles layout");
     CHECK(sizeof(gsenc_cells) == 128 && offsetof(gsenc_cells, connectivity) == 104 && offsetof(gsenc_cells, value_stride) == 120, "gsenc_cells layout");
@@ -58,7 +59,7 @@ int main(void) {
     CHECK(strstr(last_error(), "struct_size") != NULL, "message names struct_size");
     cfg.struct_size = sizeof cfg;
     EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_OK);
-    CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_DENSE && cfg.seed_sample == 1, "defaults");
+    CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_DENSE && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED, "defaults");
     EXPECT(gsenc_config_init(NULL), GSENC_STATUS_NULL_POINTER);
 
     cfg.budget = 120;
@@ -82,6 +83,10 @@ int main(void) {
     bad.schedule = 7;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
     CHECK(strstr(last_error(), "schedule") != NULL, "message names the schedule");
+    bad = cfg;
+    bad.support = 2;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "support") != NULL, "message names the support: %s", last_error());
     bad = cfg;
     bad.struct_size = 8;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_STRUCT_SIZE);

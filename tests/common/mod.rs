@@ -161,7 +161,7 @@ pub fn store_model(field: &str, step: u64, rank: u32, n: usize, scale_hi: f64) -
             } as f32)
         })
         .collect();
-    Model { meta, params }
+    Model { meta, params, support: None }
 }
 
 

@@ -1,0 +1,202 @@
+//! The stored support of a model (METHOD.md "Support"): one bit per voxel of
+//! the reference lattice, set where the reference exceeds the objective's
+//! mask (0.005). The objective never looks at the other voxels, so the
+//! Gaussians' tails that reach them are unsupervised; the decoder multiplies
+//! `V_eval` by the trilinear interpolation of the bits, which is exactly the
+//! bit at every voxel centre (0 outside the support, 1 inside, leaving the
+//! value untouched) and falls off over one voxel between centres.
+
+use crate::backend::Lattice;
+use crate::error::{Error, Result};
+use crate::field::{Grid, IndexBox};
+use crate::math::loss::MASK_REF;
+use rayon::prelude::*;
+
+/// Which voxels of a reference lattice hold data.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Support {
+    dims: [usize; 3],
+    /// Bit `i` (x fastest) of byte `i / 8`, least significant bit first.
+    bits: Vec<u8>,
+}
+
+impl Support {
+    /// The voxels of `reference` (normalised) above the objective's mask;
+    /// `None` when that is every voxel (nothing to store).
+    pub fn from_reference(reference: &Grid) -> Option<Support> {
+        if reference.values.iter().all(|&v| v > MASK_REF) {
+            return None;
+        }
+        let mut bits = vec![0u8; reference.len().div_ceil(8)];
+        for (byte, chunk) in bits.iter_mut().zip(reference.values.chunks(8)) {
+            *byte = chunk.iter().enumerate().fold(0u8, |b, (k, &v)| b | (((v > MASK_REF) as u8) << k));
+        }
+        Some(Support { dims: reference.dims, bits })
+    }
+
+    /// A support of `dims` from its packed bits (as `bits()` gives them);
+    /// refuses a length that does not fit the lattice or stray bits past it.
+    pub fn from_bits(dims: [usize; 3], bits: Vec<u8>) -> Result<Support> {
+        let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n > 0);
+        let n = n.ok_or_else(|| Error::format(format!("support of dims {dims:?}")))?;
+        if bits.len() != n.div_ceil(8) {
+            return Err(Error::format(format!("support holds {} bytes; {dims:?} voxels need {}", bits.len(), n.div_ceil(8))));
+        }
+        if n % 8 != 0 && bits[bits.len() - 1] >> (n % 8) != 0 {
+            return Err(Error::format("support has bits set past its lattice"));
+        }
+        Ok(Support { dims, bits })
+    }
+
+    pub fn dims(&self) -> [usize; 3] {
+        self.dims
+    }
+
+    /// The packed bits: voxel `i` (x fastest) is bit `i % 8` of byte `i / 8`.
+    pub fn bits(&self) -> &[u8] {
+        &self.bits
+    }
+
+    /// Voxels in the support.
+    pub fn count(&self) -> usize {
+        self.bits.iter().map(|b| b.count_ones() as usize).sum()
+    }
+
+    #[inline]
+    fn bit(&self, i: usize, j: usize, k: usize) -> f32 {
+        let v = i + self.dims[0] * (j + self.dims[1] * k);
+        ((self.bits[v / 8] >> (v % 8)) & 1) as f32
+    }
+
+    /// The trilinear interpolation of the bits at an index-frame position,
+    /// clamped to the lattice like the reference's own interpolation: the
+    /// bit itself at a voxel centre.
+    #[inline]
+    pub fn factor(&self, u: [f32; 3]) -> f32 {
+        let mut i0 = [0usize; 3];
+        let mut i1 = [0usize; 3];
+        let mut t = [0f32; 3];
+        for a in 0..3 {
+            let hi = (self.dims[a] - 1) as f32;
+            let x = u[a].clamp(0.0, hi);
+            let f = x.floor();
+            i0[a] = f as usize;
+            i1[a] = (i0[a] + 1).min(self.dims[a] - 1);
+            t[a] = x - f;
+        }
+        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        let plane = |k: usize| {
+            let y0 = lerp(self.bit(i0[0], i0[1], k), self.bit(i1[0], i0[1], k), t[0]);
+            let y1 = lerp(self.bit(i0[0], i1[1], k), self.bit(i1[0], i1[1], k), t[0]);
+            lerp(y0, y1, t[1])
+        };
+        lerp(plane(i0[2]), plane(i1[2]), t[2])
+    }
+
+    /// Multiplies the values decoded at `lattice`'s points (x fastest) by
+    /// the support's factor there.
+    pub fn apply(&self, lattice: &Lattice, out: &mut [f32]) {
+        let [nx, ny, _] = lattice.dims;
+        out.par_chunks_mut((nx * ny).max(1)).enumerate().for_each(|(k, layer)| {
+            for j in 0..ny {
+                for i in 0..nx {
+                    let f = self.factor(lattice.point(i, j, k));
+                    if f != 1.0 {
+                        layer[i + nx * j] *= f;
+                    }
+                }
+            }
+        });
+    }
+
+    /// One support of a lattice of `dims` from those of its pieces, each at
+    /// its box (a piece without a support is support everywhere on its box);
+    /// voxels of no piece are outside (the pieces of a domain merged into
+    /// one model).
+    pub fn place(supports: &[(Option<&Support>, IndexBox)], dims: [usize; 3]) -> Support {
+        let n: usize = dims.iter().product();
+        let mut bits = vec![0u8; n.div_ceil(8)];
+        for (s, b) in supports {
+            let bd = b.dims();
+            for k in 0..bd[2] {
+                for j in 0..bd[1] {
+                    for i in 0..bd[0] {
+                        if s.is_none_or(|s| s.bit(i, j, k) == 1.0) {
+                            let v = (b.lo[0] + i) + dims[0] * ((b.lo[1] + j) + dims[1] * (b.lo[2] + k));
+                            bits[v / 8] |= 1 << (v % 8);
+                        }
+                    }
+                }
+            }
+        }
+        Support { dims, bits }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn support() -> Support {
+        // 5 x 4 x 3 with a 2 x 2 x 2 block of data at (1..3, 1..3, 0..2).
+        let mut g = Grid::new([5, 4, 3], vec![0.0; 60]).unwrap();
+        for (i, j, k) in [(1, 1, 0), (2, 1, 0), (1, 2, 0), (2, 2, 0), (1, 1, 1), (2, 1, 1), (1, 2, 1), (2, 2, 1)] {
+            let at = g.index(i, j, k);
+            g.values[at] = 0.5;
+        }
+        g.values[0] = 0.005; // at the mask: outside
+        Support::from_reference(&g).unwrap()
+    }
+
+    #[test]
+    fn bits_at_centres_and_a_linear_fall_between() {
+        let s = support();
+        assert_eq!(s.count(), 8);
+        assert_eq!(s.factor([1.0, 1.0, 0.0]), 1.0);
+        assert_eq!(s.factor([0.0, 0.0, 0.0]), 0.0);
+        assert_eq!(s.factor([4.0, 3.0, 2.0]), 0.0);
+        assert!((s.factor([0.5, 1.0, 0.0]) - 0.5).abs() < 1e-7);
+        assert!((s.factor([2.75, 1.5, 1.0]) - 0.25).abs() < 1e-6);
+        // Clamped like the reference: beyond the lattice is its edge.
+        assert_eq!(s.factor([-3.0, 1.0, 0.0]), 0.0);
+        assert_eq!(s.factor([1.0, 1.0, -7.0]), 1.0);
+    }
+
+    #[test]
+    fn bits_round_trip_and_bad_bits_are_refused() {
+        let s = support();
+        assert_eq!(Support::from_bits(s.dims(), s.bits().to_vec()).unwrap(), s);
+        assert!(Support::from_bits([5, 4, 3], vec![0; 7]).is_err());
+        let mut stray = s.bits().to_vec();
+        *stray.last_mut().unwrap() |= 0x80; // voxel 63 of 60
+        assert!(Support::from_bits([5, 4, 3], stray).is_err());
+        let full = Grid::new([2, 2, 2], vec![0.3; 8]).unwrap();
+        assert!(Support::from_reference(&full).is_none(), "a support of every voxel is not stored");
+    }
+
+    #[test]
+    fn apply_zeroes_outside_and_keeps_inside_bit_for_bit() {
+        let s = support();
+        let lattice = Lattice::reference([5, 4, 3]);
+        let mut out: Vec<f32> = (0..60).map(|i| 0.1 + i as f32 * 0.013).collect();
+        let before = out.clone();
+        s.apply(&lattice, &mut out);
+        for (i, (a, b)) in out.iter().zip(&before).enumerate() {
+            let inside = s.bit(i % 5, i / 5 % 4, i / 20) == 1.0;
+            assert_eq!(*a, if inside { *b } else { 0.0 }, "voxel {i}");
+        }
+    }
+
+    #[test]
+    fn placed_supports_cover_their_boxes() {
+        let s = support();
+        let b = IndexBox { lo: [3, 0, 1], hi: [8, 4, 4] };
+        let whole = IndexBox { lo: [0, 0, 0], hi: [2, 2, 2] };
+        let g = Support::place(&[(Some(&s), b), (None, whole)], [8, 4, 4]);
+        assert_eq!(g.count(), 8 + 8);
+        assert_eq!(g.bit(3 + 1, 1, 1), 1.0);
+        assert_eq!(g.bit(3, 0, 1), 0.0);
+        assert_eq!(g.bit(1, 1, 1), 1.0, "a piece without a support is all support");
+        assert_eq!(g.bit(2, 2, 0), 0.0, "outside every piece");
+    }
+}
