@@ -94,13 +94,33 @@ impl Support {
     }
 
     /// Multiplies the values decoded at `lattice`'s points (x fastest) by
-    /// the support's factor there.
+    /// the support's factor there ([`Support::factor`]; the per-axis
+    /// interpolation is worked out once per axis, not per point).
     pub fn apply(&self, lattice: &Lattice, out: &mut [f32]) {
         let [nx, ny, _] = lattice.dims;
-        out.par_chunks_mut((nx * ny).max(1)).enumerate().for_each(|(k, layer)| {
-            for j in 0..ny {
-                for i in 0..nx {
-                    let f = self.factor(lattice.point(i, j, k));
+        // Per axis and lattice index: (lower voxel, upper voxel, weight).
+        let axis = |a: usize| -> Vec<(usize, usize, f32)> {
+            (0..lattice.dims[a])
+                .map(|i| {
+                    let u = lattice.point(i * (a == 0) as usize, i * (a == 1) as usize, i * (a == 2) as usize)[a];
+                    let x = u.clamp(0.0, (self.dims[a] - 1) as f32);
+                    let f = x.floor();
+                    let i0 = f as usize;
+                    (i0, (i0 + 1).min(self.dims[a] - 1), x - f)
+                })
+                .collect()
+        };
+        let (ax, ay, az) = (axis(0), axis(1), axis(2));
+        let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        out.par_chunks_mut((nx * ny).max(1)).zip(az.par_iter()).for_each(|(layer, &(z0, z1, tz))| {
+            for (j, &(y0, y1, ty)) in ay.iter().enumerate() {
+                for (i, &(x0, x1, tx)) in ax.iter().enumerate() {
+                    let plane = |k: usize| {
+                        let a = lerp(self.bit(x0, y0, k), self.bit(x1, y0, k), tx);
+                        let b = lerp(self.bit(x0, y1, k), self.bit(x1, y1, k), tx);
+                        lerp(a, b, ty)
+                    };
+                    let f = lerp(plane(z0), plane(z1), tz);
                     if f != 1.0 {
                         layer[i + nx * j] *= f;
                     }
@@ -184,6 +204,24 @@ mod tests {
         for (i, (a, b)) in out.iter().zip(&before).enumerate() {
             let inside = s.bit(i % 5, i / 5 % 4, i / 20) == 1.0;
             assert_eq!(*a, if inside { *b } else { 0.0 }, "voxel {i}");
+        }
+    }
+
+    #[test]
+    fn apply_multiplies_by_the_factor_at_every_point_of_any_lattice() {
+        let s = support();
+        for lattice in [Lattice::resampled([5, 4, 3], [11, 7, 5]), Lattice { dims: [3, 2, 2], origin: [0.75, 0.5, -0.25], step: [1.5, 0.4, 0.9] }] {
+            let mut out = vec![2.0f32; lattice.len()];
+            s.apply(&lattice, &mut out);
+            let [nx, ny, nz] = lattice.dims;
+            for k in 0..nz {
+                for j in 0..ny {
+                    for i in 0..nx {
+                        let want = 2.0 * s.factor(lattice.point(i, j, k));
+                        assert_eq!(out[i + nx * (j + ny * k)], want, "point {i},{j},{k}");
+                    }
+                }
+            }
         }
     }
 
