@@ -71,3 +71,13 @@ impl Error {
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// The value among `all` that `name` calls `s`, or an invalid-argument error
+/// naming `what` and listing the names: how every named setting (schedule,
+/// warm start, payload) is parsed.
+pub(crate) fn by_name<T: Copy>(all: &[T], name: fn(T) -> &'static str, s: &str, what: &str) -> Result<T> {
+    all.iter().copied().find(|&v| name(v) == s).ok_or_else(|| {
+        let names: Vec<&str> = all.iter().map(|&v| name(v)).collect();
+        Error::arg(format!("unknown {what} '{s}' ({})", names.join(", ")))
+    })
+}

@@ -3,7 +3,7 @@
 //! learning rate and loss weights, and the regime of a warm-started step.
 
 use crate::encode::relocate::RELOCATE_AT;
-use crate::error::{Error, Result};
+use crate::error::{by_name, Result};
 use crate::math::loss::LossWeights;
 
 /// Named iteration x point schedules (METHOD.md "Schedules").
@@ -21,10 +21,7 @@ impl Schedule {
     pub const ALL: [Schedule; 3] = [Schedule::Full, Schedule::Matched, Schedule::Short];
 
     pub fn from_name(s: &str) -> Result<Schedule> {
-        Schedule::ALL
-            .into_iter()
-            .find(|v| v.name() == s)
-            .ok_or_else(|| Error::arg(format!("unknown schedule '{s}' (full, matched, short)")))
+        by_name(&Schedule::ALL, Schedule::name, s, "schedule")
     }
 
     pub fn name(self) -> &'static str {
@@ -136,10 +133,7 @@ impl WarmStart {
     pub const ALL: [WarmStart; 3] = [WarmStart::Off, WarmStart::Coarse, WarmStart::Dense];
 
     pub fn from_name(s: &str) -> Result<WarmStart> {
-        WarmStart::ALL
-            .into_iter()
-            .find(|v| v.name() == s)
-            .ok_or_else(|| Error::arg(format!("unknown warm start '{s}' (off, coarse, dense)")))
+        by_name(&WarmStart::ALL, WarmStart::name, s, "warm start")
     }
 
     pub fn name(self) -> &'static str {

@@ -23,7 +23,7 @@
 //! Readers reject a foreign magic, a newer major version, any size mismatch
 //! (truncation or trailing bytes) and a checksum mismatch, and accept 1.0.
 
-use crate::error::{Error, Result};
+use crate::error::{by_name, Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::math::kernel::Primitive;
 use crate::model::{Model, ModelMeta, Support};
@@ -90,10 +90,7 @@ impl Payload {
     }
 
     pub fn from_name(name: &str) -> Result<Payload> {
-        Payload::ALL
-            .into_iter()
-            .find(|p| p.name() == name)
-            .ok_or_else(|| Error::arg(format!("unknown payload '{name}' (f32, 8bit, 8bit-u16)")))
+        by_name(&Payload::ALL, Payload::name, name, "payload")
     }
 
     /// The parameters as a reader of this payload will see them, so that an
