@@ -55,7 +55,7 @@ pub fn peak_rss_bytes() -> Option<u64> {
 
 /// The keys particle and cell commands add: what the deposit saw and cost.
 pub fn deposit_keys(p: &Prepared) -> Map<String, Value> {
-    let d = p.deposit.clone().unwrap_or_default();
+    let d = p.deposit.unwrap_or_default();
     keys(json!({
         "items": d.items,
         "samples": p.samples.as_ref().map_or(0, |s| s.q.len()),
