@@ -137,6 +137,7 @@ mod tests {
             gsenc_status::Skipped,
             gsenc_status::Cancelled,
             gsenc_status::Mpi,
+            gsenc_status::Device,
         ];
         for (i, s) in statuses.iter().enumerate() {
             assert_eq!(*s as i32, i as i32);

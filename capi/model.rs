@@ -172,7 +172,7 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
         let index: Vec<[f32; 3]> =
             pts.chunks_exact(3).map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)).collect();
         let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
-        CpuBackend::new().evaluate_points(&m.params, &index, &mut rho, &mut num);
+        CpuBackend::new().evaluate_points(&m.params, &index, &mut rho, &mut num)?;
         for i in 0..n {
             out[i] = m.meta.range.denormalize(m.value_at(index[i], rho[i], num[i])) as f32;
         }

@@ -48,6 +48,10 @@ pub enum gsenc_status {
     /// disagree (different fields, steps or forms pushed; another rank's
     /// data refused). Every rank of the call gets this status together.
     Mpi = 13,
+    /// The GPU backend failed: no adapter (with `GSENC_BACKEND_GPU`), a lost
+    /// device, or a model or batch beyond the device's limits or memory.
+    /// With `GSENC_BACKEND_AUTO` a step falls back to the CPU instead.
+    Device = 14,
 }
 
 thread_local! {
@@ -67,6 +71,7 @@ impl From<Error> for Failure {
             Error::Io { .. } | Error::Hdf5 { .. } => gsenc_status::Io,
             Error::Cancelled(_) => gsenc_status::Cancelled,
             Error::Mpi(_) => gsenc_status::Mpi,
+            Error::Device(_) => gsenc_status::Device,
         };
         Failure(status, e.to_string())
     }
@@ -144,6 +149,7 @@ pub extern "C" fn gsenc_status_string(status: i32) -> *const c_char {
         11 => "GSENC_STATUS_SKIPPED\0",
         12 => "GSENC_STATUS_CANCELLED\0",
         13 => "GSENC_STATUS_MPI\0",
+        14 => "GSENC_STATUS_DEVICE\0",
         _ => "GSENC_STATUS_UNKNOWN\0",
     };
     s.as_ptr().cast()

@@ -60,6 +60,7 @@ fn exit_code(e: &Error) -> i32 {
         Error::Format(_) | Error::Version(_) => 4,
         Error::Io { .. } | Error::Hdf5 { .. } => 5,
         Error::Cancelled(_) | Error::Mpi(_) => 6,
+        Error::Device(_) => 7,
     }
 }
 

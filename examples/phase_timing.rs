@@ -39,13 +39,13 @@ fn main() {
     for b in &batches {
         let mut rho = vec![0.0; b.len()];
         let mut n = vec![0.0; b.len()];
-        be.evaluate_points(&params, &b.pos, &mut rho, &mut n);
+        be.evaluate_points(&params, &b.pos, &mut rho, &mut n).unwrap();
     }
     println!("forward   {:8.3} ms", t.elapsed().as_secs_f64() * 1e3 / reps as f64);
     let e0 = be.kernel_evaluations();
     let t = Instant::now();
     for b in &batches {
-        be.point_loss_grad(&params, b, &w, &mut grad);
+        be.point_loss_grad(&params, b, &w, &mut grad).unwrap();
     }
     let dt = t.elapsed().as_secs_f64() / reps as f64;
     println!("loss+grad {:8.3} ms  evals/point {:.1}", dt * 1e3, (be.kernel_evaluations() - e0) as f64 / (reps * points) as f64);

@@ -201,6 +201,12 @@ typedef enum {
    data refused). Every rank of the call gets this status together.
    */
   GSENC_STATUS_MPI = 13,
+  /*
+   The GPU backend failed: no adapter (with `GSENC_BACKEND_GPU`), a lost
+   device, or a model or batch beyond the device's limits or memory.
+   With `GSENC_BACKEND_AUTO` a step falls back to the CPU instead.
+   */
+  GSENC_STATUS_DEVICE = 14,
 } gsenc_status;
 
 /*

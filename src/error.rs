@@ -35,6 +35,10 @@ pub enum Error {
     /// The encode was cancelled (`queue::BackgroundEncoder::cancel`).
     #[error("cancelled: {0}")]
     Cancelled(String),
+    /// The GPU backend cannot run: no adapter, a lost device, or a model or
+    /// batch beyond the device's limits or memory.
+    #[error("GPU: {0}")]
+    Device(String),
 }
 
 impl Error {
@@ -66,6 +70,7 @@ impl Error {
             Error::Hdf5 { path, message } => Error::Hdf5 { path: with(path), message: message.clone() },
             Error::Mpi(m) => Error::Mpi(with(m)),
             Error::Cancelled(m) => Error::Cancelled(with(m)),
+            Error::Device(m) => Error::Device(with(m)),
         }
     }
 }

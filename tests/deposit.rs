@@ -412,7 +412,7 @@ mod real_data {
         }
         let psnr = |params: &[gsenc::math::kernel::Primitive]| {
             let mut d = vec![0f32; prep.reference.len()];
-            CpuBackend::new().decode_lattice(params, &Lattice::reference(prep.reference.dims), &mut d);
+            CpuBackend::new().decode_lattice(params, &Lattice::reference(prep.reference.dims), &mut d).unwrap();
             (voxel_psnr(&d, &prep.reference.values), occupied_psnr(&d, &prep.reference.values).unwrap())
         };
         [psnr(&seeding.params), psnr(&out.params)]

@@ -26,7 +26,7 @@ fn quick(budget: usize, iters: usize, points: usize) -> EncodeConfig {
 
 fn decode_ref(params: &[Primitive], dims: [usize; 3]) -> Vec<f32> {
     let mut out = vec![0f32; dims[0] * dims[1] * dims[2]];
-    CpuBackend::new().decode_lattice(params, &Lattice::reference(dims), &mut out);
+    CpuBackend::new().decode_lattice(params, &Lattice::reference(dims), &mut out).unwrap();
     out
 }
 
@@ -138,8 +138,8 @@ fn relocation_keeps_n_and_moves_the_smallest_to_the_largest_errors() {
     let mut be = CpuBackend::new();
     let mut rho = vec![0f32; b.len()];
     let mut num = vec![0f32; b.len()];
-    be.evaluate_points(&before, &b.pos, &mut rho, &mut num);
-    let r = relocate(&mut be, &mut params, &mut adam, &b);
+    be.evaluate_points(&before, &b.pos, &mut rho, &mut num).unwrap();
+    let r = relocate(&mut be, &mut params, &mut adam, &b).unwrap();
     assert_eq!(params.len(), 50);
     assert_eq!(r.moved.len(), 4); // 8 % of 50
     // The moved ones are the smallest supports, smallest first.
@@ -189,7 +189,7 @@ fn decode_is_resolution_independent() {
     let fine_dims = [48, 40, 32];
     let rmse_vs_coarse = |lat: &Lattice| {
         let mut fine = vec![0f32; lat.len()];
-        CpuBackend::new().decode_lattice(&params, lat, &mut fine);
+        CpuBackend::new().decode_lattice(&params, lat, &mut fine).unwrap();
         let (mut se, mut n) = (0.0f64, 0);
         for k in 2..30 {
             for j in 2..38 {

@@ -50,7 +50,7 @@ fn batch(rng: &mut Rng, count: usize) -> PointBatch {
 
 fn analytic(params: &[Primitive], b: &PointBatch, w: &LossWeights) -> (Vec<Primitive>, [f64; 4]) {
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; params.len()];
-    let pl = CpuBackend::new().point_loss_grad(params, b, w, &mut grad);
+    let pl = CpuBackend::new().point_loss_grad(params, b, w, &mut grad).unwrap();
     let reg = regularizers(params, w, &mut grad);
     (grad, [pl.val, pl.cov, reg.scale, reg.aniso])
 }
@@ -122,7 +122,7 @@ fn backend_density_matches_dense_reference() {
     let b = batch(&mut rng, 3000);
     let mut rho = vec![0f32; b.len()];
     let mut n = vec![0f32; b.len()];
-    CpuBackend::new().evaluate_points(&params, &b.pos, &mut rho, &mut n);
+    CpuBackend::new().evaluate_points(&params, &b.pos, &mut rho, &mut n).unwrap();
     let p64 = to_f64(&params);
     for (i, x) in b.pos.iter().enumerate() {
         let (r, nn) = dense_rho_n(&p64, [x[0] as f64, x[1] as f64, x[2] as f64]);

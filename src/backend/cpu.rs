@@ -16,7 +16,8 @@
 //! Decoding (`decode_lattice`) splats primitives brick by brick: each z-slab
 //! of bricks is one parallel task that writes its own slice of the output.
 
-use super::{Backend, Lattice, PointLoss};
+use super::{check_len, Backend, Lattice, PointLoss};
+use crate::error::Result;
 use crate::math::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
 use crate::math::loss::{point_terms, v_eval, LossWeights, PointNorm};
 use crate::backend::PointBatch;
@@ -603,10 +604,11 @@ impl Backend for CpuBackend {
         self.evaluations
     }
 
-    fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) {
-        assert!(rho.len() == pos.len() && n.len() == pos.len());
+    fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
+        check_len("rho", rho.len(), pos.len())?;
+        check_len("n", n.len(), pos.len())?;
         if pos.is_empty() {
-            return;
+            return Ok(());
         }
         self.prep.update(params);
         let bins = self.bin_points(pos);
@@ -623,6 +625,7 @@ impl Backend for CpuBackend {
                 n[i as usize] = nn;
             }
         }
+        Ok(())
     }
 
     fn point_loss_grad(
@@ -631,11 +634,12 @@ impl Backend for CpuBackend {
         batch: &PointBatch,
         weights: &LossWeights,
         grad: &mut [Primitive],
-    ) -> PointLoss {
-        assert_eq!(grad.len(), params.len());
+    ) -> Result<PointLoss> {
+        check_len("grad", grad.len(), params.len())?;
+        check_len("vref", batch.vref.len(), batch.pos.len())?;
         if batch.is_empty() || params.is_empty() {
             grad.par_iter_mut().for_each(|g| *g = [0.0; 12]);
-            return PointLoss::default();
+            return Ok(PointLoss::default());
         }
         self.prep.update(params);
         let bins = self.bin_points(&batch.pos);
@@ -682,11 +686,11 @@ impl Backend for CpuBackend {
             }
         });
         self.acc = acc;
-        out
+        Ok(out)
     }
 
-    fn decode_lattice(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]) {
-        assert_eq!(out.len(), lattice.len());
+    fn decode_lattice(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]) -> Result<()> {
+        check_len("out", out.len(), lattice.len())?;
         self.prep.update(params);
         let frames = &self.prep.frames;
         let dims = lattice.dims;
@@ -785,6 +789,7 @@ impl Backend for CpuBackend {
                 }
             }
         });
+        Ok(())
     }
 }
 

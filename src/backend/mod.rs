@@ -12,6 +12,7 @@
 
 pub mod cpu;
 
+use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use crate::math::loss::LossWeights;
 
@@ -81,7 +82,9 @@ impl Lattice {
     }
 }
 
-/// The evaluation interface every backend implements.
+/// The evaluation interface every backend implements. The CPU backend never
+/// fails; a device backend returns [`crate::error::Error::Device`] when its
+/// device is lost or a call exceeds its limits.
 pub trait Backend: Send {
     /// A human-readable name ("cpu", "wgpu:<adapter>").
     fn name(&self) -> String;
@@ -91,7 +94,7 @@ pub trait Backend: Send {
     fn kernel_evaluations(&self) -> u64;
 
     /// Mixture density `rho` and numerator `n` at each point.
-    fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]);
+    fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()>;
 
     /// The point terms L_val and L_cov over `batch`, and the gradient of their
     /// weighted sum with respect to every parameter, written into `grad` (one
@@ -104,8 +107,17 @@ pub trait Backend: Send {
         batch: &PointBatch,
         weights: &LossWeights,
         grad: &mut [Primitive],
-    ) -> PointLoss;
+    ) -> Result<PointLoss>;
 
     /// The decoded value `V_eval` at every point of `lattice`, x fastest.
-    fn decode_lattice(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]);
+    fn decode_lattice(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]) -> Result<()>;
+}
+
+/// An error when a backend's output slice does not match its input.
+pub(crate) fn check_len(what: &str, got: usize, want: usize) -> Result<()> {
+    if got == want {
+        Ok(())
+    } else {
+        Err(Error::arg(format!("backend: {what} holds {got} entries, {want} expected")))
+    }
 }

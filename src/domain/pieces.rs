@@ -142,7 +142,7 @@ pub fn blend(
             step: step.map(|s| s as f32),
         };
         let mut values = vec![0f32; dims.iter().product()];
-        piece.decode_lattice(backend, &lattice, &mut values);
+        piece.decode_lattice(backend, &lattice, &mut values)?;
         // The weight along one axis: 1 inside, falling to 0 at a box side
         // that borders another rank (not at the domain's edge).
         let ramp = |a: usize, u: f64| {

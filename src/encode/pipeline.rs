@@ -177,6 +177,6 @@ pub fn decode_as_stored(payload: Payload, model: &Model, backend: &mut dyn Backe
     let stored = Model { meta: model.meta.clone(), params: payload.round_trip(&model.params)?, support: model.support.clone() };
     let dims = model.meta.frame.dims;
     let mut decoded = vec![0f32; dims.iter().product()];
-    stored.decode_lattice(backend, &Lattice::reference(dims), &mut decoded);
+    stored.decode_lattice(backend, &Lattice::reference(dims), &mut decoded)?;
     Ok(decoded)
 }

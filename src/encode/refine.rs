@@ -167,23 +167,24 @@ pub fn encode_validated(
     let mut last = LossTerms::default();
     let mut scores = Vec::new();
     let mut validation_seconds = 0.0;
-    let mut score = |t: usize, params: &[Primitive], backend: &mut dyn Backend| {
+    let mut score = |t: usize, params: &[Primitive], backend: &mut dyn Backend| -> Result<()> {
         if let Some(v) = validation {
             let started = Instant::now();
-            scores.push((t, v.psnr(backend, params)));
+            scores.push((t, v.psnr(backend, params)?));
             validation_seconds += started.elapsed().as_secs_f64();
         }
+        Ok(())
     };
     for t in 0..iterations {
         if cfg.cancel.as_ref().is_some_and(Cancel::is_set) {
             return Err(Error::Cancelled(format!("at iteration {t} of {iterations}")));
         }
         if t % validation.map_or(usize::MAX, |v| v.every) == 0 {
-            score(t, &params, backend);
+            score(t, &params, backend)?;
         }
         if reloc_at.contains(&t) {
             let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
-            let r = relocate(backend, &mut params, &mut adam, &batch);
+            let r = relocate(backend, &mut params, &mut adam, &batch)?;
             tracing::debug!(iteration = t, moved = r.moved.len(), "relocation");
             let order = spatial_order(&params);
             params = permute(&params, &order);
@@ -192,7 +193,7 @@ pub fn encode_validated(
             relocations.push(r);
         }
         let batch = sampler.draw(points, target.reference, target.samples);
-        let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad);
+        let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad)?;
         let reg = regularizers(&params, &cfg.weights, &mut grad);
         let w = &cfg.weights;
         last = LossTerms {
@@ -208,7 +209,7 @@ pub fn encode_validated(
         adam.step(&mut params, &grad, cosine_lr(cfg.learning_rate, t, iterations));
         progress(&Progress { iteration: t + 1, iterations, loss: last.total });
     }
-    score(iterations, &params, backend);
+    score(iterations, &params, backend)?;
     let loop_seconds = t_loop.elapsed().as_secs_f64();
     tracing::info!(loop_seconds, loss = last.total, "encode done");
     Ok(EncodeOutput {

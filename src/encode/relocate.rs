@@ -13,6 +13,7 @@ use crate::math::kernel::{isotropic, layout, sigmoid, Primitive};
 use crate::math::loss::v_train;
 use crate::math::optim::Adam;
 use crate::backend::PointBatch;
+use crate::error::Result;
 
 pub const RELOCATE_FRACTION: f64 = 0.08;
 pub const RELOCATE_POINTS: usize = 1 << 16;
@@ -42,15 +43,15 @@ pub fn relocate(
     params: &mut [Primitive],
     adam: &mut Adam,
     batch: &PointBatch,
-) -> Relocation {
+) -> Result<Relocation> {
     let n = params.len();
     let k = ((RELOCATE_FRACTION * n as f64).round() as usize).min(batch.len());
     if k == 0 {
-        return Relocation::default();
+        return Ok(Relocation::default());
     }
     let mut rho = vec![0f32; batch.len()];
     let mut num = vec![0f32; batch.len()];
-    backend.evaluate_points(params, &batch.pos, &mut rho, &mut num);
+    backend.evaluate_points(params, &batch.pos, &mut rho, &mut num)?;
     let mut errors: Vec<(f32, usize)> = (0..batch.len())
         .map(|p| {
             let vref = batch.vref[p];
@@ -70,5 +71,5 @@ pub fn relocate(
         out.moved.push(i);
         out.targets.push(p);
     }
-    out
+    Ok(out)
 }

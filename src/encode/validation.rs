@@ -51,13 +51,13 @@ impl Validation {
 
     /// PSNR of `V_eval` of `params` against the reference values at the
     /// points (with the support: 0 where the reference is empty).
-    pub fn psnr(&self, backend: &mut dyn Backend, params: &[Primitive]) -> f64 {
+    pub fn psnr(&self, backend: &mut dyn Backend, params: &[Primitive]) -> Result<f64> {
         let mut rho = vec![0.0; self.points.len()];
         let mut n = vec![0.0; self.points.len()];
-        backend.evaluate_points(params, &self.points, &mut rho, &mut n);
+        backend.evaluate_points(params, &self.points, &mut rho, &mut n)?;
         let decoded = |i: usize| if self.support && self.values[i] <= MASK_REF { 0.0 } else { v_eval(rho[i], n[i]) };
         let se: f64 = (0..self.points.len()).map(|i| ((decoded(i) - self.values[i]) as f64).powi(2)).sum();
-        psnr_from_mse(se / self.points.len() as f64)
+        Ok(psnr_from_mse(se / self.points.len() as f64))
     }
 }
 

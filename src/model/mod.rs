@@ -95,7 +95,7 @@ impl Model {
         let mut out = Vec::new();
         out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
         out.resize(n, 0.0);
-        self.decode_lattice(backend, &self.sub_lattice(dims, region), &mut out);
+        self.decode_lattice(backend, &self.sub_lattice(dims, region), &mut out)?;
         Grid::new(region.dims(), out)
     }
 
@@ -127,7 +127,7 @@ impl Model {
                 buf.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate a slab of {n} voxels")))?;
                 buf.resize(n, 0.0);
             }
-            self.decode_lattice(backend, &self.sub_lattice(dims, slab), &mut buf);
+            self.decode_lattice(backend, &self.sub_lattice(dims, slab), &mut buf)?;
             sink(&buf)?;
             z = z1;
         }
@@ -137,11 +137,12 @@ impl Model {
     /// The decoded value at every point of `lattice` (in the index frame of
     /// the reference): `V_eval` of the primitives, times the support's
     /// factor when the model has one. Every decode goes through here.
-    pub fn decode_lattice(&self, backend: &mut dyn Backend, lattice: &Lattice, out: &mut [f32]) {
-        backend.decode_lattice(&self.params, lattice, out);
+    pub fn decode_lattice(&self, backend: &mut dyn Backend, lattice: &Lattice, out: &mut [f32]) -> Result<()> {
+        backend.decode_lattice(&self.params, lattice, out)?;
         if let Some(s) = &self.support {
             s.apply(lattice, out);
         }
+        Ok(())
     }
 
     /// The decoded value at index-frame points, from their `(rho, n)`.

@@ -48,7 +48,8 @@ int main(void) {
     CHECK(sizeof(gsenc_cells) == 128 && offsetof(gsenc_cells, connectivity) == 104 && offsetof(gsenc_cells, value_stride) == 120, "gsenc_cells layout");
     CHECK(sizeof(gsenc_model_info) == 112 && offsetof(gsenc_model_info, rank) == 88 && offsetof(gsenc_model_info, warm_started) == 96 && offsetof(gsenc_model_info, encode_psnr) == 104, "gsenc_model_info layout");
     CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8 && GSENC_STATUS_BUSY == 10
-              && GSENC_STATUS_SKIPPED == 11 && GSENC_STATUS_CANCELLED == 12 && GSENC_STATUS_MPI == 13, "gsenc_status values");
+              && GSENC_STATUS_SKIPPED == 11 && GSENC_STATUS_CANCELLED == 12 && GSENC_STATUS_MPI == 13
+              && GSENC_STATUS_DEVICE == 14, "gsenc_status values");
     CHECK(sizeof(gsenc_job) == 32 && offsetof(gsenc_job, error) == 20 && offsetof(gsenc_job, psnr) == 24 && GSENC_JOB_CANCELLED == 5,
           "gsenc_job layout");
 
