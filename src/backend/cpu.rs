@@ -16,6 +16,7 @@
 //! Decoding (`decode_lattice`) splats primitives brick by brick: each z-slab
 //! of bricks is one parallel task that writes its own slice of the output.
 
+use super::bricks::PointBricks;
 use super::{check_len, Backend, Lattice, PointLoss};
 use crate::error::Result;
 use crate::math::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
@@ -259,10 +260,7 @@ impl Default for CpuBackend {
 
 /// Points sorted into bricks and primitives listed per occupied brick.
 struct PointBins {
-    /// Point indices, grouped by brick.
-    order: Vec<u32>,
-    /// Per occupied brick: range into `order`.
-    brick_points: Vec<(u32, u32)>,
+    bricks: PointBricks,
     /// Per occupied brick: range into `cand`.
     cand_start: Vec<u32>,
     cand: Vec<u32>,
@@ -353,41 +351,12 @@ impl CpuBackend {
     pub fn profile_bin(&mut self, params: &[Primitive], pos: &[[f32; 3]]) -> (usize, usize) {
         self.prep.update(params);
         let b = self.bin_points(pos);
-        (b.brick_points.len(), b.cand.len())
+        (b.bricks.ranges.len(), b.cand.len())
     }
 
     fn bin_points(&self, pos: &[[f32; 3]]) -> PointBins {
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in pos {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
-        // Keep the brick grid no larger than a few bricks per point.
-        let vol: f64 = (0..3).map(|a| (hi[a] - lo[a]) as f64 + 1.0).product();
-        let b = self.brick.max((vol / (4.0 * pos.len() as f64 + 64.0)).cbrt() as f32);
-        let inv_b = 1.0 / b;
-        let mut bd = [0usize; 3];
-        for a in 0..3 {
-            bd[a] = ((hi[a] - lo[a]) * inv_b) as usize + 1;
-        }
-        let brick_of = |x: [f32; 3]| -> usize {
-            let c = |a: usize| (((x[a] - lo[a]) * inv_b) as usize).min(bd[a] - 1);
-            c(0) + bd[0] * (c(1) + bd[1] * c(2))
-        };
-        let nb = bd[0] * bd[1] * bd[2];
-        let keyed: Vec<(u32, u32)> = pos.iter().enumerate().map(|(i, &x)| (brick_of(x) as u32, i as u32)).collect();
-        let (pstart, order) = csr(nb, std::slice::from_ref(&keyed));
-        let mut occ = vec![u32::MAX; nb];
-        let mut brick_points = vec![];
-        for id in 0..nb {
-            if pstart[id + 1] > pstart[id] {
-                occ[id] = brick_points.len() as u32;
-                brick_points.push((pstart[id], pstart[id + 1]));
-            }
-        }
+        let bricks = PointBricks::new(pos, self.brick);
+        let (bd, occ) = (bricks.dims, &bricks.occupied);
         // List every primitive in the occupied bricks its box overlaps.
         // Occupancy of each row of bricks as a bit mask (rows of up to 64 bricks).
         let row_mask: Option<Vec<u64>> = (bd[0] <= 64).then(|| {
@@ -406,23 +375,7 @@ impl CpuBackend {
                 let mut out = vec![];
                 let end = ((c + 1) * PRIM_CHUNK).min(boxes.len());
                 for g in c * PRIM_CHUNK..end {
-                    let bx = &boxes[g];
-                    let mut r0 = [0usize; 3];
-                    let mut r1 = [0usize; 3];
-                    let mut empty = false;
-                    for a in 0..3 {
-                        let l = (bx[a] - lo[a]) * inv_b;
-                        let h = (bx[a + 3] - lo[a]) * inv_b;
-                        if h < 0.0 || l >= bd[a] as f32 || l.is_nan() || h.is_nan() {
-                            empty = true;
-                            break;
-                        }
-                        r0[a] = l.max(0.0) as usize;
-                        r1[a] = (h as usize).min(bd[a] - 1);
-                    }
-                    if empty {
-                        continue;
-                    }
+                    let Some((r0, r1)) = bricks.range_of(&boxes[g]) else { continue };
                     for z in r0[2]..=r1[2] {
                         for y in r0[1]..=r1[1] {
                             let row = y + bd[1] * z;
@@ -449,16 +402,16 @@ impl CpuBackend {
                 out
             })
             .collect();
-        let (cand_start, cand) = csr(brick_points.len(), &parts);
-        PointBins { order, brick_points, cand_start, cand }
+        let (cand_start, cand) = csr(bricks.ranges.len(), &parts);
+        PointBins { bricks, cand_start, cand }
     }
 
     /// Cuts the occupied bricks into at most `WORK_CHUNKS` contiguous ranges of
     /// similar cost (points x candidates).
     fn work_ranges(bins: &PointBins) -> Vec<(usize, usize)> {
-        let nb = bins.brick_points.len();
+        let nb = bins.bricks.ranges.len();
         let cost = |b: usize| {
-            let (s, e) = bins.brick_points[b];
+            let (s, e) = bins.bricks.ranges[b];
             (e - s) as u64 * (bins.cand_start[b + 1] - bins.cand_start[b] + 1) as u64
         };
         let total: u64 = (0..nb).map(cost).sum();
@@ -545,9 +498,9 @@ fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) ->
     for b in b0..b1 {
         let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
         soa.load(&job.prep.hot, &job.prep.boxes, cands, true);
-        let (s, e) = bins.brick_points[b];
+        let (s, e) = bins.bricks.ranges[b];
         let mut any = false;
-        for &pi in &bins.order[s as usize..e as usize] {
+        for &pi in &bins.bricks.order[s as usize..e as usize] {
             let (rho, n) = soa.forward(job.batch.pos[pi as usize], &mut evals);
             let t = point_terms(rho, n, job.batch.vref[pi as usize], job.norm, job.weights);
             val += t.val as f64;
@@ -584,8 +537,8 @@ fn eval_chunk(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], (b0, b1): (us
     for b in b0..b1 {
         let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
         soa.load(&prep.hot, &prep.boxes, cands, false);
-        let (s, e) = bins.brick_points[b];
-        for &pi in &bins.order[s as usize..e as usize] {
+        let (s, e) = bins.bricks.ranges[b];
+        for &pi in &bins.bricks.order[s as usize..e as usize] {
             let (r, nn) = soa.forward(pos[pi as usize], &mut evals);
             out.push((pi, r, nn));
         }

@@ -10,6 +10,7 @@
 //! the pair sums of [`crate::math::kernel::GradAcc`] over the points in its box. No
 //! two threads ever add into one location.
 
+pub mod bricks;
 pub mod cpu;
 
 use crate::error::{Error, Result};

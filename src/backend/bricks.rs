@@ -1,0 +1,123 @@
+//! Points sorted into cubic bricks: the spatial unit every backend's point
+//! passes work on. One definition, so that the CPU and the GPU backends list
+//! the same bricks and the same points in each.
+
+/// A dense grid of cubic bricks over a batch's points, and the points sorted
+/// by brick (a stable counting sort: within a brick, in batch order).
+pub struct PointBricks {
+    /// Corner of brick (0, 0, 0): the batch's lowest coordinates.
+    pub lo: [f32; 3],
+    /// `1 / brick edge`.
+    pub inv_edge: f32,
+    /// Bricks per axis of the dense grid.
+    pub dims: [usize; 3],
+    /// Point indices, grouped by brick, bricks in dense (x fastest) order.
+    pub order: Vec<u32>,
+    /// Per occupied brick, in dense order: its range into `order`.
+    pub ranges: Vec<(u32, u32)>,
+    /// Per occupied brick: its dense grid coordinates.
+    pub coords: Vec<[u32; 3]>,
+    /// Dense brick index -> occupied index, `u32::MAX` when empty.
+    pub occupied: Vec<u32>,
+}
+
+impl PointBricks {
+    /// Bricks of edge `edge` voxels, grown when needed so that the dense grid
+    /// holds no more than a few bricks per point.
+    pub fn new(pos: &[[f32; 3]], edge: f32) -> PointBricks {
+        let mut lo = [f32::INFINITY; 3];
+        let mut hi = [f32::NEG_INFINITY; 3];
+        for p in pos {
+            for a in 0..3 {
+                lo[a] = lo[a].min(p[a]);
+                hi[a] = hi[a].max(p[a]);
+            }
+        }
+        let vol: f64 = (0..3).map(|a| (hi[a] - lo[a]) as f64 + 1.0).product();
+        let b = edge.max((vol / (4.0 * pos.len() as f64 + 64.0)).cbrt() as f32);
+        let inv_edge = 1.0 / b;
+        let mut dims = [0usize; 3];
+        for a in 0..3 {
+            dims[a] = ((hi[a] - lo[a]) * inv_edge) as usize + 1;
+        }
+        let brick_of = |x: [f32; 3]| -> usize {
+            let c = |a: usize| (((x[a] - lo[a]) * inv_edge) as usize).min(dims[a] - 1);
+            c(0) + dims[0] * (c(1) + dims[1] * c(2))
+        };
+        let nb = dims[0] * dims[1] * dims[2];
+        let mut start = vec![0u32; nb + 1];
+        let keys: Vec<u32> = pos.iter().map(|&x| brick_of(x) as u32).collect();
+        for &k in &keys {
+            start[k as usize + 1] += 1;
+        }
+        for k in 0..nb {
+            start[k + 1] += start[k];
+        }
+        let mut next = start.clone();
+        let mut order = vec![0u32; pos.len()];
+        for (i, &k) in keys.iter().enumerate() {
+            order[next[k as usize] as usize] = i as u32;
+            next[k as usize] += 1;
+        }
+        let mut occupied = vec![u32::MAX; nb];
+        let mut ranges = vec![];
+        let mut coords = vec![];
+        for id in 0..nb {
+            if start[id + 1] > start[id] {
+                occupied[id] = ranges.len() as u32;
+                ranges.push((start[id], start[id + 1]));
+                coords.push([(id % dims[0]) as u32, (id / dims[0] % dims[1]) as u32, (id / (dims[0] * dims[1])) as u32]);
+            }
+        }
+        PointBricks { lo, inv_edge, dims, order, ranges, coords, occupied }
+    }
+
+    /// The inclusive brick range `[r0, r1]` that the box `lo..hi` (index
+    /// frame) overlaps, or `None` when it misses the grid or is NaN.
+    pub fn range_of(&self, bx: &[f32; 6]) -> Option<([usize; 3], [usize; 3])> {
+        let mut r0 = [0usize; 3];
+        let mut r1 = [0usize; 3];
+        for a in 0..3 {
+            let l = (bx[a] - self.lo[a]) * self.inv_edge;
+            let h = (bx[a + 3] - self.lo[a]) * self.inv_edge;
+            if h < 0.0 || l >= self.dims[a] as f32 || l.is_nan() || h.is_nan() {
+                return None;
+            }
+            r0[a] = l.max(0.0) as usize;
+            r1[a] = (h as usize).min(self.dims[a] - 1);
+        }
+        Some((r0, r1))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::rng::Rng;
+
+    #[test]
+    fn every_point_once_in_its_brick_in_batch_order() {
+        let mut rng = Rng::new(3);
+        let pos: Vec<[f32; 3]> = (0..500).map(|_| [0, 1, 2].map(|a| rng.range(-3.0, 20.0 + 10.0 * a as f64) as f32)).collect();
+        let b = PointBricks::new(&pos, 4.0);
+        let mut seen = vec![false; pos.len()];
+        for (o, &(s, e)) in b.ranges.iter().enumerate() {
+            let c = b.coords[o];
+            let id = c[0] as usize + b.dims[0] * (c[1] as usize + b.dims[1] * c[2] as usize);
+            assert_eq!(b.occupied[id], o as u32);
+            let pts = &b.order[s as usize..e as usize];
+            assert!(pts.windows(2).all(|w| w[0] < w[1]), "batch order inside a brick");
+            for &i in pts {
+                assert!(!seen[i as usize]);
+                seen[i as usize] = true;
+                let x = pos[i as usize];
+                for a in 0..3 {
+                    let cell = (((x[a] - b.lo[a]) * b.inv_edge) as usize).min(b.dims[a] - 1);
+                    assert_eq!(cell, c[a] as usize);
+                }
+            }
+        }
+        assert!(seen.iter().all(|&s| s));
+        assert_eq!(b.occupied.iter().filter(|&&o| o != u32::MAX).count(), b.ranges.len());
+    }
+}
