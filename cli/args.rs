@@ -3,6 +3,7 @@
 
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Args;
+use gsenc::backend::select::{BackendChoice, BackendKind};
 use gsenc::encode::{EncodeConfig, Schedule};
 use gsenc::field::{Bounds, Grid, IndexFrame, Transform, ValueRange};
 use gsenc::input::cells::{CellSize, Cells};
@@ -103,6 +104,26 @@ impl ValueArgs {
     }
 }
 
+/// Which backend evaluates the mixture: every encoding and decoding command.
+#[derive(Args, Clone, Copy)]
+pub struct BackendArgs {
+    /// auto: a hardware GPU when there is one, else the CPU (never a software
+    /// adapter; falls back to the CPU if the GPU fails); cpu; gpu: the GPU
+    /// or an error (GSENC_ADAPTER=llvmpipe selects Mesa's software adapter).
+    /// GSENC_BACKEND overrides.
+    #[arg(long, default_value = "auto", value_parser = one_of(&BackendKind::ALL, BackendKind::name))]
+    pub backend: BackendKind,
+    /// Which hardware GPU (the index `gsenc devices` lists).
+    #[arg(long)]
+    pub gpu_index: Option<usize>,
+}
+
+impl BackendArgs {
+    pub fn choice(&self) -> BackendChoice {
+        BackendChoice { kind: self.backend, gpu_index: self.gpu_index, brick: None }
+    }
+}
+
 /// The budget and the optimisation: what every encoding command shares.
 #[derive(Args)]
 pub struct TrainingArgs {
@@ -136,6 +157,8 @@ pub struct TrainingArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    #[command(flatten)]
+    pub device: BackendArgs,
 }
 
 impl TrainingArgs {

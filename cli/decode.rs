@@ -2,10 +2,9 @@
 //! index, decoded onto any lattice (or a sub-box of it) and streamed in
 //! slabs into a `.vti` or raw float32 file.
 
-use crate::args::{parse_box, parse_dims, GridOutput};
+use crate::args::{parse_box, parse_dims, BackendArgs, GridOutput};
 use crate::output::{is_vti, output_unit, peak_rss_bytes, print_result};
 use clap::Args;
-use gsenc::backend::cpu::CpuBackend;
 use gsenc::domain::pieces::{blend, merge};
 use gsenc::encode::with_threads;
 use gsenc::field::IndexBox;
@@ -39,6 +38,8 @@ pub struct DecodeArgs {
     /// that lattice); the .vti keeps their world position.
     #[arg(long = "box", value_parser = parse_box)]
     sub_box: Option<[usize; 6]>,
+    #[command(flatten)]
+    device: BackendArgs,
     /// Voxels decoded at once (memory: 4 bytes each, twice).
     #[arg(long, default_value_t = gsenc::model::DEFAULT_SLAB_VOXELS, hide = true)]
     slab_voxels: usize,
@@ -85,6 +86,8 @@ pub fn decode(a: DecodeArgs) -> Result<()> {
         bytes.extend(slab.iter().flat_map(|&v| unit(v).to_le_bytes()));
         file.write(&bytes)
     };
+    let mut backend = a.device.choice().open()?;
+    let backend = backend.as_mut();
     with_threads(a.output.threads, || match index.as_ref().filter(|_| !a.additive) {
         // A step's pieces, each decoded on its own box and blended, in slabs of z layers.
         Some(index) => {
@@ -93,12 +96,12 @@ pub fn decode(a: DecodeArgs) -> Result<()> {
             let mut z = region.lo[2];
             while z < region.hi[2] {
                 let slab = IndexBox { lo: [region.lo[0], region.lo[1], z], hi: [region.hi[0], region.hi[1], (z + layers).min(region.hi[2])] };
-                write(&blend(&global, &pieces, &boxes, index.halo, dims, slab, &mut CpuBackend::new())?.values)?;
+                write(&blend(&global, &pieces, &boxes, index.halo, dims, slab, backend)?.values)?;
                 z = slab.hi[2];
             }
             Ok(())
         }
-        None => model.decode_streaming(&mut CpuBackend::new(), dims, region, a.slab_voxels, &mut write),
+        None => model.decode_streaming(backend, dims, region, a.slab_voxels, &mut write),
     })??;
     if is_vti {
         file.write(vti::VTI_SUFFIX)?;

@@ -4,7 +4,7 @@
 use crate::args::{one_of, CellInput, GridInput, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
 use crate::output::{deposit_keys, keys, peak_rss_bytes, print_result, progress_bar};
 use clap::{Args, Subcommand};
-use gsenc::backend::cpu::CpuBackend;
+use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
 use gsenc::encode::with_threads;
 use gsenc::format::{write_model_as, Payload};
@@ -61,7 +61,7 @@ pub struct EncodeCellsArgs {
 struct EncodeOptions {
     #[command(flatten)]
     train: TrainingArgs,
-    /// CPU backend brick edge in voxels (tuning only; does not change the model
+    /// Training brick edge in voxels (tuning only; does not change the model
     /// beyond float rounding).
     #[arg(long, hide = true)]
     brick: Option<f32>,
@@ -124,11 +124,8 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
     let iterations = config_for(&request.config, prepared.form, &request.start).iterations();
     let pb = progress_bar(o.out.quiet, iterations as u64);
     let encoded = with_threads(threads, || {
-        let mut backend = CpuBackend::new();
-        if let Some(b) = o.brick {
-            backend.brick = b;
-        }
-        encode_prepared(&prepared, &request, &mut backend, &mut |p| {
+        let mut backend = BackendChoice { brick: o.brick, ..o.train.device.choice() }.open()?;
+        encode_prepared(&prepared, &request, backend.as_mut(), &mut |p| {
             pb.set_position(p.iteration as u64);
             if p.iteration % 20 == 0 {
                 pb.set_message(format!("{:.3e}", p.loss));
@@ -154,6 +151,8 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "iterations": out.iterations,
         "points": out.points,
         "kernel_evals_per_second": out.kernel_evaluations as f64 / out.loop_seconds.max(1e-9),
+        "backend": out.backend,
+        "fell_back": out.fell_back,
         "dims": reference.dims,
         "output": o.output.display().to_string(),
     }));

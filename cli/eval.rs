@@ -1,10 +1,9 @@
 //! `gsenc eval`: a model scored against a grid (voxel, sampled and
 //! occupied PSNR).
 
-use crate::args::{GridInput, OutputFlags};
+use crate::args::{BackendArgs, GridInput, OutputFlags};
 use crate::output::print_result;
 use clap::Args;
-use gsenc::backend::cpu::CpuBackend;
 use gsenc::encode::with_threads;
 use gsenc::field::{Transform, ValueRange};
 use gsenc::io::read_model_file;
@@ -25,6 +24,8 @@ pub struct EvalArgs {
     #[arg(long)]
     threads: Option<usize>,
     #[command(flatten)]
+    device: BackendArgs,
+    #[command(flatten)]
     out: OutputFlags,
 }
 
@@ -36,7 +37,8 @@ pub fn eval(a: EvalArgs) -> Result<()> {
     } else {
         model.meta.range.normalize(&grid.values)?
     };
-    let decoded = with_threads(a.threads, || model.decode(&mut CpuBackend::new(), Some(grid.dims)))??;
+    let mut backend = a.device.choice().open()?;
+    let decoded = with_threads(a.threads, || model.decode(backend.as_mut(), Some(grid.dims)))??;
     print_result(
         a.out.json,
         json!({

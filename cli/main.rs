@@ -7,6 +7,7 @@ mod args;
 mod convert;
 mod decode;
 mod deposit;
+mod devices;
 mod encode;
 mod eval;
 mod info;
@@ -33,6 +34,8 @@ enum Command {
     Decode(decode::DecodeArgs),
     /// Score a model against a grid: voxel and sampled PSNR.
     Eval(eval::EvalArgs),
+    /// List the GPU adapters the GPU backend sees (--backend gpu, --gpu-index).
+    Devices(devices::DevicesArgs),
     /// Show the metadata of a model file or of every model of a store.
     Info(info::InfoArgs),
     /// Rewrite a model with another payload (float32 to 8-bit and back).
@@ -75,6 +78,7 @@ fn main() {
         Command::Decode(a) => decode::decode(a),
         Command::Eval(a) => eval::eval(a),
         Command::Info(a) => info::info(a),
+        Command::Devices(a) => devices::devices(a),
         Command::Convert(a) => convert::convert(a),
         Command::Store(c) => store::store(c),
         Command::DecodeSeries(a) => store::decode_series(a),

@@ -5,7 +5,6 @@
 use crate::args::{one_of, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
 use crate::output::{peak_rss_bytes, print_result, progress_bar};
 use clap::Args;
-use gsenc::backend::cpu::CpuBackend;
 use gsenc::encode::{with_threads, WarmStart};
 use gsenc::format::{self, model_file_name, Payload};
 use gsenc::input::{Input, RangeSpec};
@@ -182,6 +181,8 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
         None => None,
     };
     let mut rows_out = Vec::new();
+    // One backend (one device) for the whole series.
+    let mut backend = a.train.device.choice().open()?;
     for &row in &steps {
         let t = Instant::now();
         let arrays = a.input.load(Some(row))?;
@@ -194,7 +195,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
         };
         let pb = progress_bar(a.out.quiet, 0);
         let r = with_threads(a.train.threads, || {
-            series.encode_step(&a.field, row as u64, None, input, &mut CpuBackend::new(), &mut |p| {
+            series.encode_step(&a.field, row as u64, None, input, backend.as_mut(), &mut |p| {
                 pb.set_length(p.iterations as u64);
                 pb.set_position(p.iteration as u64);
             })

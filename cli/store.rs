@@ -60,6 +60,8 @@ pub struct DecodeSeriesArgs {
     #[arg(long)]
     threads: Option<usize>,
     #[command(flatten)]
+    device: crate::args::BackendArgs,
+    #[command(flatten)]
     out: OutputFlags,
 }
 
@@ -91,7 +93,6 @@ mod imp {
 mod imp {
     use super::*;
     use crate::output::print_result;
-    use gsenc::backend::cpu::CpuBackend;
     use gsenc::encode::with_threads;
     use gsenc::format;
     use gsenc::io::read_model_file;
@@ -154,7 +155,8 @@ mod imp {
             normalized: a.normalized,
             slab_voxels: gsenc::model::DEFAULT_SLAB_VOXELS,
         };
-        let s = with_threads(a.threads, || write_decoded_series(&store, &a.output, &opts, &mut CpuBackend::new()))??;
+        let mut backend = a.device.choice().open()?;
+        let s = with_threads(a.threads, || write_decoded_series(&store, &a.output, &opts, backend.as_mut()))??;
         let seconds = t.elapsed().as_secs_f64();
         for (key, why) in &s.skipped {
             eprintln!("gsenc: skipped {}: {why}", key.path());

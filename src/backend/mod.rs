@@ -12,6 +12,9 @@
 
 pub mod bricks;
 pub mod cpu;
+#[cfg(feature = "gpu")]
+pub mod gpu;
+pub mod select;
 
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
@@ -89,6 +92,12 @@ impl Lattice {
 pub trait Backend: Send {
     /// A human-readable name ("cpu", "wgpu:<adapter>").
     fn name(&self) -> String;
+
+    /// Why this backend runs on the CPU although a GPU was asked for
+    /// (`auto` after a device failure), if it does.
+    fn fell_back(&self) -> Option<String> {
+        None
+    }
 
     /// Kernels `K(x)` evaluated by the point passes since creation: pairs of
     /// a point and a candidate primitive (for throughput figures).

@@ -56,6 +56,10 @@ pub struct EncodeOutput {
     pub validation_seconds: f64,
     /// Kernel evaluations of the loop's point passes (its throughput).
     pub kernel_evaluations: u64,
+    /// The backend that finished the encode ("cpu", "wgpu:<adapter>").
+    pub backend: String,
+    /// Why it finished on the CPU although a GPU was asked for, if it did.
+    pub fell_back: Option<String>,
 }
 
 /// Checks a target and a configuration before any work is done.
@@ -211,7 +215,7 @@ pub fn encode_validated(
     }
     score(iterations, &params, backend)?;
     let loop_seconds = t_loop.elapsed().as_secs_f64();
-    tracing::info!(loop_seconds, loss = last.total, "encode done");
+    tracing::info!(loop_seconds, loss = last.total, backend = %backend.name(), "encode done");
     Ok(EncodeOutput {
         params,
         iterations,
@@ -224,6 +228,8 @@ pub fn encode_validated(
         validation: scores,
         validation_seconds,
         kernel_evaluations: backend.kernel_evaluations() - evaluations_before,
+        backend: backend.name(),
+        fell_back: backend.fell_back(),
     })
 }
 

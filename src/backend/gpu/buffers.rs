@@ -1,0 +1,131 @@
+//! Device buffers that grow with the work and are kept between calls, and
+//! the read-back of results.
+//!
+//! With `garbage` set (the tests set it) every buffer is filled with 0xFF
+//! bytes before each call: NaN as a float, `u32::MAX` as an index. wgpu
+//! zeroes new buffers, so a kernel that reads what no pass wrote would pass
+//! unnoticed without it.
+
+use super::device::Gpu;
+use crate::error::{Error, Result};
+use wgpu::util::DeviceExt;
+
+/// A storage buffer kept at least as large as the largest request so far.
+pub struct Slot {
+    label: &'static str,
+    usage: wgpu::BufferUsages,
+    buf: Option<wgpu::Buffer>,
+}
+
+impl Slot {
+    pub fn storage(label: &'static str) -> Slot {
+        Slot::with_usage(label, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC)
+    }
+
+    fn with_usage(label: &'static str, usage: wgpu::BufferUsages) -> Slot {
+        Slot { label, usage, buf: None }
+    }
+
+    /// The buffer, grown (by half again) to hold `bytes`, and filled with
+    /// garbage when `garbage` is set.
+    pub fn ensure(&mut self, gpu: &Gpu, bytes: u64, garbage: bool) -> Result<&wgpu::Buffer> {
+        let bytes = bytes.max(16).next_multiple_of(16);
+        let limit = gpu.limits.max_storage_buffer_binding_size.min(gpu.limits.max_buffer_size);
+        if bytes > limit {
+            return Err(Error::Device(format!(
+                "'{}' needs {:.1} MiB in one buffer, '{}' allows {:.1} MiB: use fewer primitives or points per call, or the CPU backend",
+                self.label,
+                bytes as f64 / (1 << 20) as f64,
+                gpu.adapter.name,
+                limit as f64 / (1 << 20) as f64
+            )));
+        }
+        if self.buf.as_ref().is_none_or(|b| b.size() < bytes) {
+            let grown = self.buf.as_ref().map_or(0, |b| b.size() + b.size() / 2);
+            let size = bytes.max(grown).min(limit).next_multiple_of(16).min(limit);
+            self.buf = Some(gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some(self.label),
+                size,
+                usage: self.usage,
+                mapped_at_creation: false,
+            }));
+        }
+        let buf = self.buf.as_ref().expect("created above");
+        if garbage {
+            gpu.queue.write_buffer(buf, 0, &vec![0xFF; buf.size() as usize]);
+        }
+        Ok(buf)
+    }
+
+    /// [`Slot::ensure`], then `data` written at its start.
+    pub fn upload(&mut self, gpu: &Gpu, data: &[u8], garbage: bool) -> Result<&wgpu::Buffer> {
+        let buf = self.ensure(gpu, data.len() as u64, garbage)?;
+        if !data.is_empty() {
+            gpu.queue.write_buffer(buf, 0, data);
+        }
+        Ok(buf)
+    }
+}
+
+/// A uniform buffer holding `value`.
+pub fn uniform<T: bytemuck::Pod>(gpu: &Gpu, value: &T) -> wgpu::Buffer {
+    gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+        label: Some("gsenc params"),
+        contents: bytemuck::bytes_of(value),
+        usage: wgpu::BufferUsages::UNIFORM,
+    })
+}
+
+/// Regions of device buffers copied into one mappable buffer at the end of
+/// a command encoder, read after the submission finishes.
+pub struct Readback {
+    staging: Slot,
+    parts: Vec<(u64, u64)>,
+}
+
+impl Default for Readback {
+    fn default() -> Self {
+        Readback { staging: Slot::with_usage("gsenc readback", wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST), parts: vec![] }
+    }
+}
+
+impl Readback {
+    /// Records copies of `(buffer, bytes)` regions (each from offset 0) into
+    /// the staging buffer.
+    pub fn record(&mut self, gpu: &Gpu, enc: &mut wgpu::CommandEncoder, regions: &[(&wgpu::Buffer, u64)]) -> Result<()> {
+        let total: u64 = regions.iter().map(|&(_, n)| n.next_multiple_of(8)).sum();
+        let staging = self.staging.ensure(gpu, total, false)?;
+        self.parts.clear();
+        let mut at = 0;
+        for &(buf, n) in regions {
+            if n > 0 {
+                enc.copy_buffer_to_buffer(buf, 0, staging, at, n);
+            }
+            self.parts.push((at, n));
+            at += n.next_multiple_of(8);
+        }
+        Ok(())
+    }
+
+    /// Waits for the submission and returns the recorded regions' bytes.
+    pub fn read(&mut self, gpu: &Gpu) -> Result<Vec<Vec<u8>>> {
+        let end = self.parts.iter().map(|&(at, n)| at + n).max().unwrap_or(0).max(8).next_multiple_of(8);
+        let staging = self.staging.buf.as_ref().expect("recorded before read");
+        let slice = staging.slice(0..end);
+        let done = std::sync::Arc::new(parking_lot::Mutex::new(None));
+        let d = done.clone();
+        slice.map_async(wgpu::MapMode::Read, move |r| *d.lock() = Some(r));
+        gpu.wait()?;
+        match done.lock().take() {
+            Some(Ok(())) => {}
+            Some(Err(e)) => return Err(Error::Device(format!("reading results back: {e}"))),
+            None => return Err(Error::Device("reading results back: the map never completed".into())),
+        }
+        let out = {
+            let view = slice.get_mapped_range().map_err(|e| Error::Device(format!("reading results back: {e}")))?;
+            self.parts.iter().map(|&(at, n)| view[at as usize..(at + n) as usize].to_vec()).collect()
+        };
+        staging.unmap();
+        Ok(out)
+    }
+}

@@ -1,0 +1,163 @@
+//! The adapters wgpu sees, the choice among them, and one opened device with
+//! its errors turned into [`Error::Device`] instead of panics.
+//!
+//! Rules (docs/DESIGN.md "GPU backend"): hardware adapters (discrete,
+//! integrated, virtual GPUs) are numbered in the order wgpu lists them and
+//! chosen by index; a software adapter (Mesa's llvmpipe) is never chosen by
+//! index or by `auto`, only by name (`GSENC_ADAPTER=llvmpipe`), which is how
+//! the tests run the GPU code on a machine without a GPU.
+
+pub use crate::backend::select::AdapterSummary;
+use crate::error::{Error, Result};
+use parking_lot::Mutex;
+use std::sync::Arc;
+
+/// Which adapter to open.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct DeviceRequest {
+    /// Index among the hardware adapters (default 0).
+    pub index: Option<usize>,
+    /// A part of the adapter's name (case-insensitive); any adapter with it,
+    /// software ones included (`GSENC_ADAPTER`, read by `backend::select`).
+    pub name: Option<String>,
+}
+
+fn instance() -> wgpu::Instance {
+    wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+}
+
+fn is_software(info: &wgpu::AdapterInfo) -> bool {
+    matches!(info.device_type, wgpu::DeviceType::Cpu)
+}
+
+/// Every compute-capable adapter, hardware ones first numbered in wgpu's order.
+fn enumerate() -> Vec<(AdapterSummary, wgpu::Adapter)> {
+    let all = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12));
+    let mut next = 0;
+    all.into_iter()
+        .map(|a| {
+            let info = a.get_info();
+            let index = (!is_software(&info)).then(|| {
+                next += 1;
+                next - 1
+            });
+            let s = AdapterSummary {
+                index,
+                name: info.name.clone(),
+                api: format!("{:?}", info.backend),
+                device_type: format!("{:?}", info.device_type),
+                driver: format!("{} {}", info.driver, info.driver_info).trim().to_string(),
+            };
+            (s, a)
+        })
+        .collect()
+}
+
+/// The adapters wgpu sees on this machine.
+pub fn adapters() -> Vec<AdapterSummary> {
+    enumerate().into_iter().map(|(s, _)| s).collect()
+}
+
+fn choose(req: &DeviceRequest) -> Result<(AdapterSummary, wgpu::Adapter)> {
+    let all = enumerate();
+    let seen = if all.is_empty() {
+        "wgpu sees no adapter (no Vulkan, Metal or DX12 driver)".to_string()
+    } else {
+        let names: Vec<String> = all.iter().map(|(s, _)| format!("'{}' ({})", s.name, s.device_type)).collect();
+        format!("adapters seen: {}", names.join(", "))
+    };
+    if let Some(name) = &req.name {
+        let want = name.to_lowercase();
+        return all
+            .into_iter()
+            .find(|(s, _)| s.name.to_lowercase().contains(&want))
+            .ok_or_else(|| Error::Device(format!("no adapter named like '{name}' (GSENC_ADAPTER); {}", seen)));
+    }
+    let index = req.index.unwrap_or(0);
+    let hardware = all.iter().filter(|(s, _)| !s.software()).count();
+    if hardware == 0 {
+        return Err(Error::Device(format!(
+            "no hardware GPU; {}. A software adapter runs only when named: GSENC_ADAPTER=llvmpipe",
+            seen
+        )));
+    }
+    if index >= hardware {
+        return Err(Error::Device(format!("GPU index {index} asked, this machine has {hardware} ({})", seen)));
+    }
+    Ok(all.into_iter().find(|(s, _)| s.index == Some(index)).expect("index checked above"))
+}
+
+/// An opened device, its queue, and what it reported.
+pub struct Gpu {
+    pub device: wgpu::Device,
+    pub queue: wgpu::Queue,
+    pub adapter: AdapterSummary,
+    pub limits: wgpu::Limits,
+    /// Set by wgpu when the device is lost, or by an error no scope caught.
+    failure: Arc<Mutex<Option<String>>>,
+}
+
+impl Gpu {
+    pub fn open(req: &DeviceRequest) -> Result<Gpu> {
+        let (adapter_summary, adapter) = choose(req)?;
+        // Everything the adapter offers: storage bindings of more than the
+        // default 128 MiB, 32 KiB of workgroup memory where there is.
+        let limits = adapter.limits();
+        let desc = wgpu::DeviceDescriptor {
+            label: Some("gsenc"),
+            required_features: wgpu::Features::empty(),
+            required_limits: limits.clone(),
+            experimental_features: wgpu::ExperimentalFeatures::default(),
+            memory_hints: wgpu::MemoryHints::Performance,
+            trace: wgpu::Trace::Off,
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc))
+            .map_err(|e| Error::Device(format!("cannot open '{}': {e}", adapter_summary.name)))?;
+        let failure = Arc::new(Mutex::new(None));
+        let f = failure.clone();
+        device.set_device_lost_callback(move |reason, msg| {
+            f.lock().get_or_insert(format!("device lost ({reason:?}): {msg}"));
+        });
+        let f = failure.clone();
+        device.on_uncaptured_error(Arc::new(move |e| {
+            f.lock().get_or_insert(format!("{e}"));
+        }));
+        Ok(Gpu { device, queue, adapter: adapter_summary, limits, failure })
+    }
+
+    /// The first failure wgpu reported outside an error scope, if any: the
+    /// device is then unusable.
+    pub fn check(&self) -> Result<()> {
+        match self.failure.lock().as_ref() {
+            Some(m) => Err(Error::Device(format!("'{}': {m}", self.adapter.name))),
+            None => Ok(()),
+        }
+    }
+
+    /// Runs `f` inside validation and out-of-memory error scopes and turns
+    /// what they caught into an error.
+    pub fn scoped<R>(&self, what: &str, f: impl FnOnce() -> Result<R>) -> Result<R> {
+        self.check()?;
+        let oom = self.device.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let validation = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let out = f();
+        let v = pollster::block_on(validation.pop());
+        let o = pollster::block_on(oom.pop());
+        if let Some(e) = o {
+            return Err(Error::Device(format!("{what}: out of device memory on '{}': {e}", self.adapter.name)));
+        }
+        if let Some(e) = v {
+            return Err(Error::Device(format!("{what} on '{}': {e}", self.adapter.name)));
+        }
+        self.check()?;
+        out
+    }
+
+    /// Waits for the queue to finish its submitted work.
+    pub fn wait(&self) -> Result<()> {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| Error::Device(format!("waiting for '{}': {e}", self.adapter.name)))?;
+        self.check()
+    }
+}

@@ -1,0 +1,109 @@
+//! The compute pipelines of the GPU backend, the uniform block they share,
+//! and the helpers that bind and dispatch them. Each WGSL file is compiled
+//! with `math.wgsl` (the shared math) prepended.
+
+use super::device::Gpu;
+use crate::error::Result;
+
+const MATH: &str = include_str!("shaders/math.wgsl");
+
+/// `Params` of math.wgsl: what every pass of one backend call reads.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct Params {
+    pub grid_lo: [f32; 4],
+    pub grid_step: [f32; 4],
+    pub grid_dims: [u32; 4],
+    pub lattice: [u32; 4],
+    pub counts: [u32; 4],
+    pub loss: [f32; 4],
+    pub stage: [u32; 4],
+}
+
+/// math.wgsl `CELLS_*`: how a primitive's box maps to grid cells.
+pub const CELLS_TRAINING: u32 = 0;
+pub const CELLS_LATTICE: u32 = 1;
+/// math.wgsl `BIN_*`: which cells a bin pass fills.
+pub const BIN_LISTED: u32 = 0;
+pub const BIN_SLAB: u32 = 1;
+pub const BIN_SLAB_BRICKS: u32 = 2;
+/// decode.wgsl `BS`: edge of a decode brick in lattice points.
+pub const DECODE_BRICK: usize = 8;
+/// Threads per workgroup of the per-primitive kernels (frames, reduce).
+const THREADS: u32 = 128;
+/// The most workgroups along one dispatch axis (WebGPU's limit).
+const MAX_GROUPS: u32 = 65535;
+
+pub struct Kernels {
+    pub frames: wgpu::ComputePipeline,
+    pub count: wgpu::ComputePipeline,
+    pub fill: wgpu::ComputePipeline,
+    pub scan: wgpu::ComputePipeline,
+    pub forward: wgpu::ComputePipeline,
+    pub backward: wgpu::ComputePipeline,
+    pub reduce: wgpu::ComputePipeline,
+    pub loss: wgpu::ComputePipeline,
+    pub decode: wgpu::ComputePipeline,
+}
+
+impl Kernels {
+    pub fn new(gpu: &Gpu) -> Result<Kernels> {
+        gpu.scoped("compiling the kernels", || {
+            let module = |name: &str, src: &str| {
+                gpu.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+                    label: Some(name),
+                    source: wgpu::ShaderSource::Wgsl(format!("{MATH}\n{src}").into()),
+                })
+            };
+            let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
+                gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(entry),
+                    layout: None,
+                    module: m,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
+            };
+            let bin = module("bin.wgsl", include_str!("shaders/bin.wgsl"));
+            Ok(Kernels {
+                frames: pipeline(&module("frames.wgsl", include_str!("shaders/frames.wgsl")), "main"),
+                count: pipeline(&bin, "count"),
+                fill: pipeline(&bin, "fill"),
+                scan: pipeline(&module("scan.wgsl", include_str!("shaders/scan.wgsl")), "main"),
+                forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "main"),
+                backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "main"),
+                reduce: pipeline(&module("reduce.wgsl", include_str!("shaders/reduce.wgsl")), "main"),
+                loss: pipeline(&module("loss.wgsl", include_str!("shaders/loss.wgsl")), "main"),
+                decode: pipeline(&module("decode.wgsl", include_str!("shaders/decode.wgsl")), "main"),
+            })
+        })
+    }
+}
+
+/// Records one dispatch of `pipeline` with each `(binding, buffer)` bound
+/// in group 0 (the bindings its entry point uses, no more), over `groups`
+/// workgroups (split over two axes past WebGPU's 65535 a side; the kernels
+/// rebuild the linear index).
+pub fn dispatch(gpu: &Gpu, enc: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, buffers: &[(u32, &wgpu::Buffer)], groups: u32) {
+    if groups == 0 {
+        return;
+    }
+    let entries: Vec<wgpu::BindGroupEntry> =
+        buffers.iter().map(|&(binding, b)| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }).collect();
+    let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+        label: None,
+        layout: &pipeline.get_bind_group_layout(0),
+        entries: &entries,
+    });
+    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: None });
+    pass.set_pipeline(pipeline);
+    pass.set_bind_group(0, &group, &[]);
+    let x = groups.min(MAX_GROUPS);
+    pass.dispatch_workgroups(x, groups.div_ceil(x), 1);
+}
+
+/// Workgroups for one thread per item of the per-primitive kernels.
+pub fn groups_for(items: usize) -> u32 {
+    (items as u32).div_ceil(THREADS)
+}

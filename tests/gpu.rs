@@ -1,0 +1,321 @@
+//! The GPU backend against the CPU backend, on whatever adapter there is:
+//! a hardware GPU, or Mesa's lavapipe (llvmpipe) on a machine without one.
+//! Every test fills the device buffers with garbage before each call.
+//!
+//! Without an adapter the tests say so and pass, unless GSENC_REQUIRE_GPU=1
+//! (CI sets it), which makes a missing adapter a failure.
+#![cfg(feature = "gpu")]
+
+mod common;
+use common::*;
+use gsenc::backend::gpu::device::{adapters, DeviceRequest};
+use gsenc::backend::gpu::GpuBackend;
+use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch};
+use gsenc::encode::config::EncodeConfig;
+use gsenc::encode::relocate::relocate;
+use gsenc::encode::{encode, Schedule};
+use gsenc::input::Target;
+use gsenc::math::kernel::{isotropic, Primitive};
+use gsenc::math::loss::LossWeights;
+use gsenc::math::optim::Adam;
+use gsenc::math::rng::Rng;
+use gsenc::model::metrics::voxel_psnr;
+
+/// The GPU backend on the first hardware adapter, else on llvmpipe; `None`
+/// (with a message) when wgpu sees no adapter at all and GSENC_REQUIRE_GPU
+/// is not 1. An adapter that is there but fails (a kernel that does not
+/// compile) always fails the test.
+fn gpu() -> Option<GpuBackend> {
+    let seen = adapters();
+    if seen.is_empty() {
+        assert!(
+            std::env::var("GSENC_REQUIRE_GPU").as_deref() != Ok("1"),
+            "GSENC_REQUIRE_GPU=1 and wgpu sees no adapter (install mesa-vulkan-drivers)"
+        );
+        eprintln!("NOT RUN: wgpu sees no adapter; install mesa-vulkan-drivers, or set GSENC_REQUIRE_GPU=1 to fail instead");
+        return None;
+    }
+    let req = match std::env::var("GSENC_ADAPTER").ok().filter(|s| !s.is_empty()) {
+        Some(name) => DeviceRequest { index: None, name: Some(name) },
+        None if seen.iter().any(|a| !a.software()) => DeviceRequest::default(),
+        None => DeviceRequest { index: None, name: Some(seen[0].name.clone()) },
+    };
+    let mut b = GpuBackend::new(&req).unwrap_or_else(|e| panic!("{e}"));
+    b.garbage = true;
+    Some(b)
+}
+
+/// Primitives over a `size`^3 box with every parameter group varied:
+/// rotations, anisotropy, scales beyond the clamp, weights and values.
+fn random_model(rng: &mut Rng, n: usize, size: f64) -> Vec<Primitive> {
+    (0..n)
+        .map(|i| {
+            let mut p = [0f32; 12];
+            for a in 0..3 {
+                p[a] = rng.range(0.0, size) as f32;
+                p[3 + a] = rng.range(0.5f64.ln(), 3.0f64.ln()) as f32;
+            }
+            if i % 5 == 1 {
+                p[3] = 9.0f32.ln(); // clamped at SIGMA_MAX
+            }
+            if i % 5 == 2 {
+                p[4] = 0.3f32.ln(); // clamped at SIGMA_MIN
+            }
+            for q in 0..4 {
+                p[6 + q] = rng.range(-1.0, 1.0) as f32;
+            }
+            p[6] += 1.2;
+            p[10] = rng.range(-2.0, 2.0) as f32;
+            p[11] = rng.range(-2.0, 2.0) as f32;
+            p
+        })
+        .collect()
+}
+
+fn random_batch(rng: &mut Rng, count: usize, size: f64) -> PointBatch {
+    let mut b = PointBatch::default();
+    for i in 0..count {
+        b.pos.push([0, 1, 2].map(|_| rng.range(0.0, size) as f32));
+        b.vref.push(if i % 9 == 0 { 0.001 } else { rng.range(0.0, 1.0) as f32 });
+    }
+    b
+}
+
+fn rel_close(a: f32, b: f32, tol: f32) -> bool {
+    (a - b).abs() <= tol * a.abs().max(b.abs()).max(1e-3)
+}
+
+/// Relative L2 distance of two gradients over all parameters.
+fn rel_l2(a: &[Primitive], b: &[Primitive]) -> f64 {
+    let (mut d, mut s) = (0.0f64, 0.0f64);
+    for (x, y) in a.iter().flatten().zip(b.iter().flatten()) {
+        d += ((x - y) as f64).powi(2);
+        s += (*y as f64).powi(2);
+    }
+    (d / s.max(1e-30)).sqrt()
+}
+
+fn forward_matches(params: &[Primitive], pos: &[[f32; 3]], gpu: &mut GpuBackend) {
+    let (mut r1, mut n1) = (vec![0.0; pos.len()], vec![0.0; pos.len()]);
+    let (mut r2, mut n2) = (vec![0.0; pos.len()], vec![0.0; pos.len()]);
+    CpuBackend::new().evaluate_points(params, pos, &mut r1, &mut n1).unwrap();
+    gpu.evaluate_points(params, pos, &mut r2, &mut n2).unwrap();
+    for i in 0..pos.len() {
+        assert!(rel_close(r1[i], r2[i], 1e-5) && rel_close(n1[i], n2[i], 1e-5), "point {i}: cpu ({}, {}) gpu ({}, {})", r1[i], n1[i], r2[i], n2[i]);
+    }
+}
+
+#[test]
+fn forward_values_match_the_cpu_backend() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(11);
+    let params = random_model(&mut rng, 300, 40.0);
+    let b = random_batch(&mut rng, 3000, 40.0);
+    forward_matches(&params, &b.pos, &mut g);
+    // And against the dense f64 transcription of the method.
+    let (mut rho, mut n) = (vec![0.0; b.len()], vec![0.0; b.len()]);
+    g.evaluate_points(&params, &b.pos, &mut rho, &mut n).unwrap();
+    let p64: Vec<[f64; 12]> = params.iter().map(|p| p.map(|v| v as f64)).collect();
+    for i in (0..b.len()).step_by(37) {
+        let (r, nn) = dense_rho_n(&p64, b.pos[i].map(|v| v as f64));
+        assert!((rho[i] as f64 - r).abs() <= 1e-4 * (1.0 + r) && (n[i] as f64 - nn).abs() <= 1e-4 * (1.0 + nn));
+    }
+}
+
+#[test]
+fn every_gradient_matches_the_cpu_backend() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(12);
+    let params = random_model(&mut rng, 200, 30.0);
+    let b = random_batch(&mut rng, 4000, 30.0);
+    for w in [
+        LossWeights::default(),
+        LossWeights { val: 1.0, cov: 0.0, scale: 0.0, aniso: 0.0 },
+        LossWeights { val: 0.0, cov: 1.0, scale: 0.0, aniso: 0.0 },
+    ] {
+        let mut gc = vec![[0.0; 12]; params.len()];
+        let mut gg = vec![[0.0; 12]; params.len()];
+        let lc = CpuBackend::new().point_loss_grad(&params, &b, &w, &mut gc).unwrap();
+        let lg = g.point_loss_grad(&params, &b, &w, &mut gg).unwrap();
+        assert!((lc.val - lg.val).abs() <= 1e-5 * lc.val.abs().max(1e-6), "L_val {} vs {}", lc.val, lg.val);
+        assert!((lc.cov - lg.cov).abs() <= 1e-5 * lc.cov.abs().max(1e-6), "L_cov {} vs {}", lc.cov, lg.cov);
+        // Each parameter group on its own, so that none hides behind another.
+        for (name, r) in [("mu", 0..3), ("log scale", 3..6), ("quaternion", 6..10), ("alpha", 10..11), ("beta", 11..12)] {
+            let pick = |v: &[Primitive]| -> Vec<Primitive> {
+                v.iter()
+                    .map(|p| {
+                        let mut q = [0.0; 12];
+                        q[r.clone()].copy_from_slice(&p[r.clone()]);
+                        q
+                    })
+                    .collect()
+            };
+            let e = rel_l2(&pick(&gg), &pick(&gc));
+            assert!(e <= 1e-4, "{name} gradient: relative L2 {e:e} with weights {w:?}");
+        }
+    }
+}
+
+#[test]
+fn calls_are_bitwise_identical_run_to_run() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(13);
+    let params = random_model(&mut rng, 500, 48.0);
+    let b = random_batch(&mut rng, 6000, 48.0);
+    let w = LossWeights::default();
+    let mut first = vec![[0.0; 12]; params.len()];
+    let l1 = g.point_loss_grad(&params, &b, &w, &mut first).unwrap();
+    // A second backend (fresh buffers) and the first one again.
+    let mut other = gpu().unwrap();
+    for be in [&mut other, &mut g] {
+        let mut again = vec![[0.0; 12]; params.len()];
+        let l2 = be.point_loss_grad(&params, &b, &w, &mut again).unwrap();
+        assert_eq!(l1, l2);
+        assert!(first.iter().flatten().zip(again.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    }
+}
+
+#[test]
+fn overflowing_candidate_lists_run_again_with_the_same_result() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(14);
+    let params = random_model(&mut rng, 400, 32.0);
+    let b = random_batch(&mut rng, 3000, 32.0);
+    let w = LossWeights::default();
+    let mut roomy = vec![[0.0; 12]; params.len()];
+    g.point_loss_grad(&params, &b, &w, &mut roomy).unwrap();
+    let mut tight = gpu().unwrap();
+    tight.set_capacity(7);
+    let mut grad = vec![[0.0; 12]; params.len()];
+    tight.point_loss_grad(&params, &b, &w, &mut grad).unwrap();
+    assert!(tight.reruns >= 1, "a capacity of 7 candidates must overflow");
+    assert!(roomy.iter().flatten().zip(grad.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
+
+#[test]
+fn decode_matches_the_cpu_decode() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(15);
+    let params = random_model(&mut rng, 250, 20.0);
+    // The reference lattice, a finer resampling with sizes not a multiple of
+    // the decode brick, and a shifted window.
+    for lat in [
+        Lattice::reference([20, 20, 20]),
+        Lattice::resampled([20, 20, 20], [37, 29, 19]),
+        Lattice { dims: [9, 17, 25], origin: [3.5, -2.0, 1.25], step: [0.75, 1.0, 0.5] },
+    ] {
+        let mut a = vec![0.0; lat.len()];
+        let mut b = vec![f32::NAN; lat.len()];
+        CpuBackend::new().decode_lattice(&params, &lat, &mut a).unwrap();
+        g.decode_lattice(&params, &lat, &mut b).unwrap();
+        for i in 0..a.len() {
+            assert!((a[i] - b[i]).abs() <= 2e-5, "{lat:?} voxel {i}: cpu {} gpu {}", a[i], b[i]);
+        }
+    }
+}
+
+#[test]
+fn decode_slabs_that_overflow_run_again() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(16);
+    let params = random_model(&mut rng, 300, 24.0);
+    let lat = Lattice::reference([24, 24, 24]);
+    let mut a = vec![0.0; lat.len()];
+    g.decode_lattice(&params, &lat, &mut a).unwrap();
+    let mut tight = gpu().unwrap();
+    tight.set_capacity(3);
+    let mut b = vec![0.0; lat.len()];
+    tight.decode_lattice(&params, &lat, &mut b).unwrap();
+    assert!(tight.reruns >= 1);
+    assert!(a.iter().zip(&b).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
+
+#[test]
+fn edge_cases_match_the_cpu_backend() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(17);
+    let w = LossWeights::default();
+    // Points in two far clusters: most bricks between them are empty.
+    let mut b = PointBatch::default();
+    for i in 0..2000 {
+        let c = if i % 2 == 0 { 2.0 } else { 90.0 };
+        b.pos.push([0, 1, 2].map(|_| (c + rng.range(-2.0, 2.0)) as f32));
+        b.vref.push(rng.range(0.0, 1.0) as f32);
+    }
+    let cases: Vec<(&str, Vec<Primitive>)> = vec![
+        ("clustered points, primitives between", random_model(&mut rng, 100, 96.0)),
+        // One primitive whose box covers every brick.
+        ("one primitive over everything", {
+            let mut p = isotropic([46.0; 3], 8.0, 0.6, 0.9);
+            p[6..10].copy_from_slice(&[0.9, 0.1, 0.3, -0.2]);
+            vec![p]
+        }),
+        // Zero weights: sigmoid(-200) is 0 in f32.
+        ("zero weights", random_model(&mut rng, 50, 96.0).into_iter().map(|mut p| {
+            p[11] = -200.0;
+            p
+        }).collect()),
+        // Faint primitives: rho below the training floor 1e-3 everywhere.
+        ("density under the floor", random_model(&mut rng, 50, 96.0).into_iter().map(|mut p| {
+            p[11] = -9.0;
+            p
+        }).collect()),
+        // Primitives all outside the points' grid.
+        ("primitives outside", vec![isotropic([500.0, 0.0, 0.0], 1.0, 0.5, 0.5), isotropic([-300.0, 40.0, 40.0], 2.0, 0.5, 0.5)]),
+    ];
+    for (name, params) in cases {
+        forward_matches(&params, &b.pos, &mut g);
+        let mut gc = vec![[0.0; 12]; params.len()];
+        let mut gg = vec![[1.0; 12]; params.len()];
+        let lc = CpuBackend::new().point_loss_grad(&params, &b, &w, &mut gc).unwrap();
+        let lg = g.point_loss_grad(&params, &b, &w, &mut gg).unwrap();
+        assert!((lc.val - lg.val).abs() <= 1e-5 * lc.val.abs().max(1e-6) && (lc.cov - lg.cov).abs() <= 1e-5 * lc.cov.abs().max(1e-6), "{name}: loss {lc:?} vs {lg:?}");
+        let all_zero = gc.iter().flatten().all(|&v| v == 0.0);
+        if all_zero {
+            assert!(gg.iter().flatten().all(|&v| v == 0.0), "{name}: the CPU gradient is zero, the GPU's is not");
+        } else {
+            let e = rel_l2(&gg, &gc);
+            assert!(e <= 1e-4, "{name}: gradient relative L2 {e:e}");
+        }
+    }
+}
+
+#[test]
+fn relocation_moves_the_same_primitives() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(18);
+    let params = random_model(&mut rng, 120, 30.0);
+    let b = random_batch(&mut rng, 2000, 30.0);
+    let (mut pc, mut pg) = (params.clone(), params.clone());
+    let (mut ac, mut ag) = (Adam::new(params.len()), Adam::new(params.len()));
+    let rc = relocate(&mut CpuBackend::new(), &mut pc, &mut ac, &b).unwrap();
+    let rg = relocate(&mut g, &mut pg, &mut ag, &b).unwrap();
+    assert!(!rc.moved.is_empty());
+    assert_eq!(rc.moved, rg.moved);
+    assert_eq!(rc.targets, rg.targets);
+    assert_eq!(pc, pg);
+}
+
+#[test]
+fn a_short_encode_lands_within_a_third_of_a_db_of_the_cpu_backend() {
+    let Some(mut g) = gpu() else { return };
+    let dims = [24, 24, 24];
+    let field = blobs(dims, 5, 4);
+    let t = Target { reference: &field, samples: &field };
+    let mut cfg = EncodeConfig::new(300, Schedule::Short);
+    cfg.iterations = Some(200);
+    cfg.points = Some(4096);
+    let score = |params: &[Primitive]| {
+        let mut out = vec![0.0; field.len()];
+        CpuBackend::new().decode_lattice(params, &Lattice::reference(dims), &mut out).unwrap();
+        voxel_psnr(&out, &field.values)
+    };
+    let cpu = encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+    let on_gpu = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
+    let (a, b) = (score(&cpu.params), score(&on_gpu.params));
+    assert!(a > 30.0, "the CPU encode itself is poor: {a:.2} dB");
+    assert!((a - b).abs() <= 0.3, "cpu {a:.3} dB, gpu {b:.3} dB");
+    // And the same bits when run again.
+    let again = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
+    assert!(on_gpu.params.iter().flatten().zip(again.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
