@@ -3,6 +3,7 @@
 
 use crate::ffi::{c_str, read_sized};
 use crate::status::{fail, gsenc_status, guard, Failure};
+use gsenc::backend::select::{BackendChoice, BackendKind};
 use gsenc::encode::{EncodeConfig, Schedule, WarmStart};
 use gsenc::field::{Bounds, Transform, ValueRange};
 use gsenc::format::quantize::CentreCoding;
@@ -37,6 +38,13 @@ pub const GSENC_QUEUE_BUSY: i32 = 2;
 /// default), or not, for the paper's models exactly.
 pub const GSENC_SUPPORT_STORED: i32 = 0;
 pub const GSENC_SUPPORT_NONE: i32 = 1;
+/// Which backend encodes (`gsenc_config.backend`): a hardware GPU when
+/// there is one, else the CPU (falling back to the CPU if the GPU fails);
+/// the CPU; the GPU or `GSENC_STATUS_DEVICE` at create (`GSENC_ADAPTER`
+/// names a software adapter such as llvmpipe). `GSENC_BACKEND` overrides.
+pub const GSENC_BACKEND_AUTO: i32 = 0;
+pub const GSENC_BACKEND_CPU: i32 = 1;
+pub const GSENC_BACKEND_GPU: i32 = 2;
 /// Where models go (`gsenc_config.output_format`).
 pub const GSENC_OUTPUT_FOLDER: i32 = 0;
 pub const GSENC_OUTPUT_HDF5: i32 = 1;
@@ -118,6 +126,11 @@ pub struct gsenc_config {
     /// piece reaches past its own region (default 8), so that neighbouring
     /// pieces overlap and blend. Ignored by a serial encoder.
     pub halo: u32,
+    /// `GSENC_BACKEND_*` (default auto).
+    pub backend: i32,
+    /// Which hardware GPU (`gsenc devices` lists them); -1 (default): GPU 0,
+    /// or under MPI the rank's node-local rank modulo the node's GPUs.
+    pub gpu_index: i32,
 }
 
 /// The bytes of `gsenc_config` this version reads.
@@ -152,6 +165,8 @@ impl gsenc_config {
             queue_bytes: 1 << 30,
             output_format: GSENC_OUTPUT_FOLDER,
             halo: 8,
+            backend: GSENC_BACKEND_AUTO,
+            gpu_index: -1,
         }
     }
 }
@@ -190,6 +205,8 @@ pub(crate) struct Settings {
     pub output_format: OutputFormat,
     #[cfg_attr(not(feature = "mpi"), allow(dead_code))]
     pub halo: usize,
+    /// The backend; under MPI its GPU index is set per rank at create.
+    pub backend: BackendChoice,
     /// The folder or store models go to.
     pub output: Option<std::path::PathBuf>,
 }
@@ -263,6 +280,17 @@ impl Settings {
             GSENC_OUTPUT_HDF5 => OutputFormat::Hdf5,
             f => return Err(bad(format!("unknown output_format {f} (GSENC_OUTPUT_FOLDER, _HDF5)"))),
         };
+        let kind = match c.backend {
+            GSENC_BACKEND_AUTO => BackendKind::Auto,
+            GSENC_BACKEND_CPU => BackendKind::Cpu,
+            GSENC_BACKEND_GPU => BackendKind::Gpu,
+            b => return Err(bad(format!("unknown backend {b} (GSENC_BACKEND_AUTO, _CPU, _GPU)"))),
+        };
+        let gpu_index = match c.gpu_index {
+            -1 => None,
+            i if i >= 0 => Some(i as usize),
+            i => return Err(bad(format!("gpu_index {i} must be -1 (default) or a GPU's index"))),
+        };
         let queue_bytes = usize::try_from(c.queue_bytes).ok().filter(|&b| b > 0);
         let Some(queue_bytes) = queue_bytes else {
             return Err(bad(format!("queue_bytes {} must be positive", c.queue_bytes)));
@@ -291,6 +319,7 @@ impl Settings {
             queue_bytes,
             output_format,
             halo: c.halo as usize,
+            backend: BackendChoice { kind, gpu_index, brick: None },
             output,
         })
     }

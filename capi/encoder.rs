@@ -115,6 +115,7 @@ fn create_mpi(mut settings: Settings, comm: i32) -> Result<gsenc_encoder, Failur
     let cfg = DecompositionConfig { dims: settings.dims, bounds: settings.bounds, halo: settings.halo, range: settings.series.range };
     let ranks = Decomposition::from_fortran(comm, cfg)?;
     settings.series.rank = ranks.rank() as u32;
+    settings.backend = settings.backend.for_node_rank(ranks.node_rank());
     let mut enc = gsenc_encoder::new(settings)?;
     enc.ranks = Some(ranks);
     Ok(enc)
@@ -178,6 +179,7 @@ impl gsenc_encoder {
                 max_bytes: settings.queue_bytes,
                 when_full: settings.when_full,
                 threads: settings.threads,
+                backend: settings.backend,
             },
             sink,
         )?;

@@ -68,7 +68,7 @@ mod tests {
     /// (x86_64 and aarch64 Linux, LP64).
     #[test]
     fn abi_is_pinned() {
-        assert_eq!(size_of::<gsenc_config>(), 184);
+        assert_eq!(size_of::<gsenc_config>(), 192);
         let c = [
             (offset_of!(gsenc_config, struct_size), 0),
             (offset_of!(gsenc_config, budget), 8),
@@ -96,6 +96,8 @@ mod tests {
             (offset_of!(gsenc_config, queue_bytes), 168),
             (offset_of!(gsenc_config, output_format), 176),
             (offset_of!(gsenc_config, halo), 180),
+            (offset_of!(gsenc_config, backend), 184),
+            (offset_of!(gsenc_config, gpu_index), 188),
         ];
         for (i, (got, want)) in c.iter().enumerate() {
             assert_eq!(got, want, "gsenc_config field {i}");
@@ -149,6 +151,7 @@ mod tests {
         assert_eq!([super::GSENC_DTYPE_FLOAT32, super::GSENC_DTYPE_FLOAT64], [0, 1]);
         assert_eq!([GSENC_QUEUE_BLOCK, GSENC_QUEUE_SKIP, GSENC_QUEUE_BUSY], [0, 1, 2]);
         assert_eq!([GSENC_OUTPUT_FOLDER, GSENC_OUTPUT_HDF5], [0, 1]);
+        assert_eq!([GSENC_BACKEND_AUTO, GSENC_BACKEND_CPU, GSENC_BACKEND_GPU], [0, 1, 2]);
         assert_eq!([GSENC_SUPPORT_STORED, GSENC_SUPPORT_NONE], [0, 1]);
         assert_eq!(size_of::<gsenc_job>(), 32);
         assert_eq!(

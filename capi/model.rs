@@ -6,6 +6,7 @@ use crate::ffi::{c_str, check_sized, extents};
 use crate::handles::Kind;
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::backend::cpu::CpuBackend;
+use gsenc::backend::select::BackendChoice;
 use gsenc::backend::Backend;
 use gsenc::field::IndexBox;
 use gsenc::model::{Model, DEFAULT_SLAB_VOXELS};
@@ -119,7 +120,9 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 /// Decodes the model onto `dims` cells covering its box (NULL `dims`: its
 /// reference dims) into `out`, which holds `out_len` floats, x fastest,
 /// in data units; with its support, where it stores one (0 where the data
-/// were empty). The caller owns `out`. Thread-safe, also on one model.
+/// were empty). The caller owns `out`. Runs on a hardware GPU when there is
+/// one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses). Thread-safe,
+/// also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *const u64, out: *mut f32, out_len: u64) -> gsenc_status {
     guard(|| {
@@ -141,7 +144,8 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
         let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
         let mut at = 0;
         let range = m.meta.range;
-        m.decode_streaming(&mut CpuBackend::new(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
+        let mut backend = BackendChoice::default().open()?;
+        m.decode_streaming(backend.as_mut(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
             for (o, &v) in out[at..at + slab.len()].iter_mut().zip(slab) {
                 *o = range.denormalize(v) as f32;
             }
@@ -154,7 +158,8 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 
 /// Evaluates the model at `count` world points (`points`: x, y, z per
 /// point, interleaved) into `out` (`count` floats, data units, with the
-/// model's support), both owned by the caller. Thread-safe, also on one model.
+/// model's support), both owned by the caller. On the CPU: a few points do
+/// not pay for opening a GPU. Thread-safe, also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
     guard(|| {

@@ -89,6 +89,18 @@
 #define GSENC_SUPPORT_NONE 1
 
 /*
+ Which backend encodes (`gsenc_config.backend`): a hardware GPU when
+ there is one, else the CPU (falling back to the CPU if the GPU fails);
+ the CPU; the GPU or `GSENC_STATUS_DEVICE` at create (`GSENC_ADAPTER`
+ names a software adapter such as llvmpipe). `GSENC_BACKEND` overrides.
+ */
+#define GSENC_BACKEND_AUTO 0
+
+#define GSENC_BACKEND_CPU 1
+
+#define GSENC_BACKEND_GPU 2
+
+/*
  Where models go (`gsenc_config.output_format`).
  */
 #define GSENC_OUTPUT_FOLDER 0
@@ -329,6 +341,15 @@ typedef struct {
    pieces overlap and blend. Ignored by a serial encoder.
    */
   uint32_t halo;
+  /*
+   `GSENC_BACKEND_*` (default auto).
+   */
+  int32_t backend;
+  /*
+   Which hardware GPU (`gsenc devices` lists them); -1 (default): GPU 0,
+   or under MPI the rank's node-local rank modulo the node's GPUs.
+   */
+  int32_t gpu_index;
 } gsenc_config;
 
 /*
@@ -682,7 +703,9 @@ gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *in
  Decodes the model onto `dims` cells covering its box (NULL `dims`: its
  reference dims) into `out`, which holds `out_len` floats, x fastest,
  in data units; with its support, where it stores one (0 where the data
- were empty). The caller owns `out`. Thread-safe, also on one model.
+ were empty). The caller owns `out`. Runs on a hardware GPU when there is
+ one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses). Thread-safe,
+ also on one model.
  */
 gsenc_status gsenc_model_decode(const gsenc_model *model,
                                 const uint64_t *dims,
@@ -692,7 +715,8 @@ gsenc_status gsenc_model_decode(const gsenc_model *model,
 /*
  Evaluates the model at `count` world points (`points`: x, y, z per
  point, interleaved) into `out` (`count` floats, data units, with the
- model's support), both owned by the caller. Thread-safe, also on one model.
+ model's support), both owned by the caller. On the CPU: a few points do
+ not pay for opening a GPU. Thread-safe, also on one model.
  */
 gsenc_status gsenc_model_evaluate(const gsenc_model *model,
                                   const double *points,

@@ -47,6 +47,7 @@ fn queue_config(max_jobs: usize, when_full: WhenFull) -> QueueConfig {
         max_bytes: max_jobs * DIMS.iter().product::<usize>() * 4,
         when_full,
         threads: 1,
+        backend: gsenc::backend::select::BackendChoice::cpu(),
     }
 }
 

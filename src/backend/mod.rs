@@ -93,6 +93,12 @@ pub trait Backend: Send {
     /// A human-readable name ("cpu", "wgpu:<adapter>").
     fn name(&self) -> String;
 
+    /// Whether the heavy work runs on a device, so that the host needs
+    /// one thread for it rather than a pool.
+    fn on_device(&self) -> bool {
+        false
+    }
+
     /// Why this backend runs on the CPU although a GPU was asked for
     /// (`auto` after a device failure), if it does.
     fn fell_back(&self) -> Option<String> {

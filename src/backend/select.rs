@@ -93,6 +93,19 @@ impl BackendChoice {
         BackendChoice { kind: BackendKind::Cpu, ..BackendChoice::default() }
     }
 
+    /// The choice for the rank `node_rank` of a node: unless an index was
+    /// given, the GPU `node_rank` modulo the node's hardware GPUs, so that
+    /// the ranks of a node share its GPUs evenly.
+    pub fn for_node_rank(self, node_rank: usize) -> BackendChoice {
+        if self.gpu_index.is_some() || self.kind.or_env().ok() == Some(BackendKind::Cpu) {
+            return self;
+        }
+        match hardware_gpus() {
+            0 => self,
+            n => BackendChoice { gpu_index: Some(node_rank % n), ..self },
+        }
+    }
+
     /// Opens the backend, `GSENC_BACKEND` overriding the kind.
     pub fn open(self) -> Result<Box<dyn Backend>> {
         match self.kind.or_env()? {
@@ -203,6 +216,10 @@ impl Backend for Fallback {
 
     fn fell_back(&self) -> Option<String> {
         self.fell_back.clone()
+    }
+
+    fn on_device(&self) -> bool {
+        self.gpu.as_ref().is_some_and(|g| g.on_device())
     }
 
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {

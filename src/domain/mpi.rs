@@ -67,6 +67,7 @@ pub struct Decomposition {
     comm: ManuallyDrop<SimpleCommunicator>,
     rank: usize,
     size: usize,
+    node_rank: usize,
     /// Only the main thread may call MPI (`MPI_THREAD_FUNNELED`).
     funneled: bool,
     cfg: DecompositionConfig,
@@ -144,11 +145,18 @@ impl Decomposition {
             return Err(Error::arg(format!("dims {:?} must be positive", cfg.dims)));
         }
         let (rank, size) = (comm.rank() as usize, comm.size() as usize);
-        Ok(Decomposition { comm: ManuallyDrop::new(comm), rank, size, funneled, cfg, fields: BTreeMap::new() })
+        // The ranks that share this node's memory, in rank order.
+        let node_rank = comm.split_shared(rank as i32).rank() as usize;
+        Ok(Decomposition { comm: ManuallyDrop::new(comm), rank, size, node_rank, funneled, cfg, fields: BTreeMap::new() })
     }
 
     pub fn rank(&self) -> usize {
         self.rank
+    }
+
+    /// This rank's place among the ranks of its node (what picks its GPU).
+    pub fn node_rank(&self) -> usize {
+        self.node_rank
     }
 
     pub fn size(&self) -> usize {

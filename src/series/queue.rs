@@ -7,6 +7,8 @@
 //! field arrive in order, as warm starts need) and runs each on the queue's
 //! own rayon pool (never the global one a host may use): deposit, seeding or
 //! warm start, refinement, then the [`ModelSink`], which stores the model.
+//! The worker owns the backend, opened once at `new`: with a GPU backend the
+//! pool has one thread, since the device does the heavy work.
 //! A sink may instead leave models to the caller (`take_finished`), for
 //! stores such as HDF5 that must be written from the caller's thread.
 //!
@@ -14,7 +16,8 @@
 //! its error and the worker goes on with the next; `wait` reports each
 //! failure once. Nothing here does I/O: sinks are the caller's.
 
-use crate::backend::cpu::CpuBackend;
+use crate::backend::select::BackendChoice;
+use crate::backend::Backend;
 use crate::encode::Cancel;
 use crate::error::{Error, Result};
 use crate::field::ValueRange;
@@ -48,8 +51,10 @@ pub struct QueueConfig {
     /// queue is empty, so that no step can never be encoded.
     pub max_bytes: usize,
     pub when_full: WhenFull,
-    /// Threads of the encode's own pool.
+    /// Threads of the encode's own pool (one when the backend is a GPU).
     pub threads: usize,
+    /// Which backend the worker encodes with.
+    pub backend: BackendChoice,
 }
 
 /// One field of one step.
@@ -178,14 +183,17 @@ impl BackgroundEncoder {
         let mut series_cfg = cfg.series.clone();
         series_cfg.encode.cancel = Some(cancel.clone());
         let series = SeriesEncoder::new(series_cfg)?;
+        let backend = cfg.backend.open()?;
+        let threads = if backend.on_device() { 1 } else { cfg.threads };
+        tracing::info!(backend = %backend.name(), threads, "background encoder starts");
         let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(cfg.threads)
+            .num_threads(threads)
             .thread_name(|i| format!("gsenc-encode-{i}"))
             .build()
             .map_err(|e| Error::arg(format!("cannot start {} encode threads: {e}", cfg.threads)))?;
         let shared = Arc::new(Shared { state: Mutex::new(State::default()), changed: Condvar::new(), cancel });
         let (tx, rx) = unbounded();
-        let worker = Worker { shared: shared.clone(), series, pool, sink };
+        let worker = Worker { shared: shared.clone(), series, pool, sink, backend };
         let handle = std::thread::Builder::new()
             .name("gsenc-queue".into())
             .spawn(move || worker.run(rx))
@@ -369,6 +377,7 @@ struct Worker {
     series: SeriesEncoder,
     pool: rayon::ThreadPool,
     sink: Box<dyn ModelSink>,
+    backend: Box<dyn Backend>,
 }
 
 impl Worker {
@@ -431,14 +440,14 @@ impl Worker {
 
     /// Encodes one job on the pool and stores its model.
     fn encode(&mut self, job: &Job) -> Result<JobState> {
-        let (series, shared) = (&mut self.series, &self.shared);
+        let (series, shared, backend) = (&mut self.series, &self.shared, self.backend.as_mut());
         let key = (job.field.clone(), job.step);
         let (model, psnr) = self.pool.install(|| -> Result<(Model, f64)> {
             if let Some(range) = job.range {
                 series.set_range(&job.field, range);
             }
             let r = job.data.with_input(|input| {
-                series.encode_step(&job.field, job.step, job.time, input, &mut CpuBackend::new(), &mut |p| {
+                series.encode_step(&job.field, job.step, job.time, input, &mut *backend, &mut |p| {
                     // Progress is cheap to record: one lock per iteration.
                     let running = JobState::Running { iteration: p.iteration, iterations: p.iterations };
                     shared.state.lock().jobs.insert(key.clone(), running);

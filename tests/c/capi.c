@@ -39,7 +39,7 @@ int main(void) {
     char path[512];
 
     /* The ABI as this C compiler lays it out: the values capi/lib.rs pins. */
-    CHECK(sizeof(gsenc_config) == 184 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
+    CHECK(sizeof(gsenc_config) == 192 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, backend) == 184 && offsetof(gsenc_config, gpu_index) == 188 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
               && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144
               && offsetof(gsenc_config, support) == 148, "gsenc_config layout");
@@ -60,7 +60,8 @@ int main(void) {
     CHECK(strstr(last_error(), "struct_size") != NULL, "message names struct_size");
     cfg.struct_size = sizeof cfg;
     EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_OK);
-    CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_DENSE && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED, "defaults");
+    CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_DENSE && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED
+              && cfg.backend == GSENC_BACKEND_AUTO && cfg.gpu_index == -1, "defaults");
     EXPECT(gsenc_config_init(NULL), GSENC_STATUS_NULL_POINTER);
 
     cfg.budget = 120;
@@ -88,6 +89,20 @@ int main(void) {
     bad.support = 2;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
     CHECK(strstr(last_error(), "support") != NULL, "message names the support: %s", last_error());
+    bad = cfg;
+    bad.backend = 5;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "backend") != NULL, "message names the backend: %s", last_error());
+    bad = cfg;
+    bad.gpu_index = -2;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    /* A GPU that is not there is a device error at create, with nothing left behind. */
+    bad = cfg;
+    bad.backend = GSENC_BACKEND_GPU;
+    bad.gpu_index = 99;
+    enc = (gsenc_encoder *)1;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_DEVICE);
+    CHECK(enc == NULL && strstr(last_error(), "GPU") != NULL, "missing GPU: %s", last_error());
     bad = cfg;
     bad.struct_size = 8;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_STRUCT_SIZE);

@@ -284,6 +284,10 @@ impl Backend for GpuBackend {
         format!("wgpu:{}", self.gpu.adapter.name)
     }
 
+    fn on_device(&self) -> bool {
+        true
+    }
+
     /// Counted as points times the candidates of their brick.
     fn kernel_evaluations(&self) -> u64 {
         self.evaluations
