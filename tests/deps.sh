@@ -2,8 +2,9 @@
 # Installs what the test suite needs beyond a Rust toolchain, when missing:
 # C and C++ compilers (the C tests, libFuzzer), HDF5 (the `hdf5` feature's
 # store, and h5dump to read it), valgrind (the C API under memcheck), CMake
-# and gfortran (the installed package, the Fortran module and examples) and
-# h5py (to read the store from Python). Debian
+# and gfortran (the installed package, the Fortran module and examples),
+# Mesa's Vulkan drivers (lavapipe runs the GPU backend's tests on the CPU)
+# and h5py (to read the store from Python). Debian
 # packages through apt when run as root; otherwise it says what to install.
 set -euo pipefail
 
@@ -17,6 +18,7 @@ command -v valgrind >/dev/null || need_apt+=(valgrind)
 command -v cmake >/dev/null || need_apt+=(cmake make)
 command -v gfortran >/dev/null || need_apt+=(gfortran)
 command -v mpicc >/dev/null && command -v mpirun >/dev/null || need_apt+=(libopenmpi-dev openmpi-bin)
+ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || need_apt+=(mesa-vulkan-drivers libvulkan1)
 [ -e /usr/lib/llvm-14/lib/libclang.so ] || ls /usr/lib/llvm-*/lib/libclang.so >/dev/null 2>&1 || need_apt+=(libclang-dev)
 if [ ${#need_apt[@]} -gt 0 ]; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
