@@ -3,7 +3,7 @@
 //! slabs into a `.vti` or raw float32 file.
 
 use crate::args::{parse_box, parse_dims, BackendArgs, GridOutput};
-use crate::output::{is_vti, output_unit, peak_rss_bytes, print_result};
+use crate::output::{is_vti, kernel_seconds, output_unit, peak_rss_bytes, print_result};
 use clap::Args;
 use gsenc::domain::pieces::{blend, merge};
 use gsenc::encode::with_threads;
@@ -119,6 +119,9 @@ pub fn decode(a: DecodeArgs) -> Result<()> {
             "seconds": seconds,
             "voxels_per_second": voxels as f64 / seconds.max(1e-9),
             "peak_rss_bytes": peak_rss_bytes(),
+            "backend": backend.name(),
+            "fell_back": backend.fell_back(),
+            "kernel_seconds": kernel_seconds(backend),
             "output": out_path.display().to_string(),
         }),
     );

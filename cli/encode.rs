@@ -2,7 +2,7 @@
 //! through the library's encode pipeline.
 
 use crate::args::{one_of, CellInput, GridInput, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
-use crate::output::{deposit_keys, keys, peak_rss_bytes, print_result, progress_bar};
+use crate::output::{deposit_keys, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar};
 use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
@@ -123,8 +123,8 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
     };
     let iterations = config_for(&request.config, prepared.form, &request.start).iterations();
     let pb = progress_bar(o.out.quiet, iterations as u64);
+    let mut backend = BackendChoice { brick: o.brick, ..o.train.device.choice() }.open()?;
     let encoded = with_threads(threads, || {
-        let mut backend = BackendChoice { brick: o.brick, ..o.train.device.choice() }.open()?;
         encode_prepared(&prepared, &request, backend.as_mut(), &mut |p| {
             pb.set_position(p.iteration as u64);
             if p.iteration % 20 == 0 {
@@ -153,6 +153,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "kernel_evals_per_second": out.kernel_evaluations as f64 / out.loop_seconds.max(1e-9),
         "backend": out.backend,
         "fell_back": out.fell_back,
+        "kernel_seconds": kernel_seconds(backend.as_ref()),
         "dims": reference.dims,
         "output": o.output.display().to_string(),
     }));

@@ -88,3 +88,13 @@ pub fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3],
     let bytes = if is_vti(path) { vti::write_vti_bytes(grid, origin, spacing, name) } else { raw::to_f32_bytes(&grid.values) };
     write_atomic(path, &bytes)
 }
+
+/// Device seconds per kernel of a GPU backend (`{kernel: {passes, seconds}}`),
+/// null for the CPU's.
+pub fn kernel_seconds(backend: &dyn gsenc::backend::Backend) -> Value {
+    let k = backend.kernel_seconds();
+    if k.is_empty() {
+        return Value::Null;
+    }
+    Value::Object(k.into_iter().map(|(name, passes, s)| (name, json!({ "passes": passes, "seconds": s }))).collect())
+}

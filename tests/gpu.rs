@@ -14,7 +14,9 @@ use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch};
 use gsenc::encode::config::EncodeConfig;
 use gsenc::encode::relocate::relocate;
 use gsenc::encode::{encode, Schedule};
+use gsenc::field::{Grid, Transform, ValueRange};
 use gsenc::input::Target;
+use gsenc::io::raw::{read_raw, DType, Order};
 use gsenc::math::kernel::{isotropic, Primitive};
 use gsenc::math::loss::LossWeights;
 use gsenc::math::optim::Adam;
@@ -296,25 +298,38 @@ fn relocation_moves_the_same_primitives() {
     assert_eq!(pc, pg);
 }
 
+/// The repository's hydrogen_atom at 32^3, normalised by its own range.
+fn hydrogen32() -> Grid {
+    let raw = read_raw(repo_data("hydrogen_atom.float32.zst"), [64; 3], DType::F32, Order::XFastest).unwrap().downsample(2).unwrap();
+    let r = ValueRange::from_data(&raw.values, Transform::Linear).unwrap();
+    Grid::new(raw.dims, r.normalize(&raw.values).unwrap().values).unwrap()
+}
+
+/// Real data, so that the comparison measures the backends, not the chaos
+/// of a toy problem: on a tiny synthetic field (300 primitives on 24^3) a
+/// different float summation order alone moves the PSNR by up to 2 dB on
+/// either backend (relocation picks other primitives), while on hydrogen
+/// the CPU backend with 8- and 16-voxel bricks (another summation order)
+/// and the GPU backend agree within 0.1 dB (docs/BENCHMARKS.md).
 #[test]
 fn a_short_encode_lands_within_a_third_of_a_db_of_the_cpu_backend() {
     let Some(mut g) = gpu() else { return };
-    let dims = [24, 24, 24];
-    let field = blobs(dims, 5, 4);
+    let field = hydrogen32();
     let t = Target { reference: &field, samples: &field };
-    let mut cfg = EncodeConfig::new(300, Schedule::Short);
-    cfg.iterations = Some(200);
+    let mut cfg = EncodeConfig::new(250, Schedule::Short);
+    cfg.iterations = Some(300);
     cfg.points = Some(4096);
     let score = |params: &[Primitive]| {
         let mut out = vec![0.0; field.len()];
-        CpuBackend::new().decode_lattice(params, &Lattice::reference(dims), &mut out).unwrap();
+        CpuBackend::new().decode_lattice(params, &Lattice::reference(field.dims), &mut out).unwrap();
         voxel_psnr(&out, &field.values)
     };
     let cpu = encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap();
     let on_gpu = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
     let (a, b) = (score(&cpu.params), score(&on_gpu.params));
-    assert!(a > 30.0, "the CPU encode itself is poor: {a:.2} dB");
+    assert!(a > 33.0, "the CPU encode itself is poor: {a:.2} dB");
     assert!((a - b).abs() <= 0.3, "cpu {a:.3} dB, gpu {b:.3} dB");
+    assert!(on_gpu.backend.starts_with("wgpu:"), "{}", on_gpu.backend);
     // And the same bits when run again.
     let again = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
     assert!(on_gpu.params.iter().flatten().zip(again.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));

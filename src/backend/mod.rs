@@ -99,6 +99,13 @@ pub trait Backend: Send {
         false
     }
 
+    /// Device seconds per kernel since the backend opened, with the number
+    /// of passes timed: `(kernel, passes, seconds)`. Empty for a backend
+    /// that does not time its kernels (the CPU's).
+    fn kernel_seconds(&self) -> Vec<(String, u64, f64)> {
+        vec![]
+    }
+
     /// Why this backend runs on the CPU although a GPU was asked for
     /// (`auto` after a device failure), if it does.
     fn fell_back(&self) -> Option<String> {

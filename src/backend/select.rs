@@ -222,6 +222,10 @@ impl Backend for Fallback {
         self.gpu.as_ref().is_some_and(|g| g.on_device())
     }
 
+    fn kernel_seconds(&self) -> Vec<(String, u64, f64)> {
+        self.gpu.as_ref().map_or(vec![], |g| g.kernel_seconds())
+    }
+
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
         self.run(|b| b.evaluate_points(params, pos, rho, n))
     }

@@ -3,6 +3,7 @@
 //! with `math.wgsl` (the shared math) prepended.
 
 use super::device::Gpu;
+use super::timer::Timer;
 use crate::error::Result;
 
 const MATH: &str = include_str!("shaders/math.wgsl");
@@ -34,16 +35,22 @@ const THREADS: u32 = 128;
 /// The most workgroups along one dispatch axis (WebGPU's limit).
 const MAX_GROUPS: u32 = 65535;
 
+/// A compiled kernel and the name its times are reported under.
+pub struct Kernel {
+    pub label: &'static str,
+    pub pipeline: wgpu::ComputePipeline,
+}
+
 pub struct Kernels {
-    pub frames: wgpu::ComputePipeline,
-    pub count: wgpu::ComputePipeline,
-    pub fill: wgpu::ComputePipeline,
-    pub scan: wgpu::ComputePipeline,
-    pub forward: wgpu::ComputePipeline,
-    pub backward: wgpu::ComputePipeline,
-    pub reduce: wgpu::ComputePipeline,
-    pub loss: wgpu::ComputePipeline,
-    pub decode: wgpu::ComputePipeline,
+    pub frames: Kernel,
+    pub count: Kernel,
+    pub fill: Kernel,
+    pub scan: Kernel,
+    pub forward: Kernel,
+    pub backward: Kernel,
+    pub reduce: Kernel,
+    pub loss: Kernel,
+    pub decode: Kernel,
 }
 
 impl Kernels {
@@ -55,27 +62,28 @@ impl Kernels {
                     source: wgpu::ShaderSource::Wgsl(format!("{MATH}\n{src}").into()),
                 })
             };
-            let pipeline = |m: &wgpu::ShaderModule, entry: &str| {
-                gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
+            let pipeline = |m: &wgpu::ShaderModule, label: &'static str, entry: &str| Kernel {
+                label,
+                pipeline: gpu.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(label),
                     layout: None,
                     module: m,
                     entry_point: Some(entry),
                     compilation_options: Default::default(),
                     cache: None,
-                })
+                }),
             };
             let bin = module("bin.wgsl", include_str!("shaders/bin.wgsl"));
             Ok(Kernels {
-                frames: pipeline(&module("frames.wgsl", include_str!("shaders/frames.wgsl")), "main"),
-                count: pipeline(&bin, "count"),
-                fill: pipeline(&bin, "fill"),
-                scan: pipeline(&module("scan.wgsl", include_str!("shaders/scan.wgsl")), "main"),
-                forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "main"),
-                backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "main"),
-                reduce: pipeline(&module("reduce.wgsl", include_str!("shaders/reduce.wgsl")), "main"),
-                loss: pipeline(&module("loss.wgsl", include_str!("shaders/loss.wgsl")), "main"),
-                decode: pipeline(&module("decode.wgsl", include_str!("shaders/decode.wgsl")), "main"),
+                frames: pipeline(&module("frames.wgsl", include_str!("shaders/frames.wgsl")), "frames", "main"),
+                count: pipeline(&bin, "bin count", "count"),
+                fill: pipeline(&bin, "bin fill", "fill"),
+                scan: pipeline(&module("scan.wgsl", include_str!("shaders/scan.wgsl")), "scan", "main"),
+                forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "forward", "main"),
+                backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "backward", "main"),
+                reduce: pipeline(&module("reduce.wgsl", include_str!("shaders/reduce.wgsl")), "reduce", "main"),
+                loss: pipeline(&module("loss.wgsl", include_str!("shaders/loss.wgsl")), "loss", "main"),
+                decode: pipeline(&module("decode.wgsl", include_str!("shaders/decode.wgsl")), "decode", "main"),
             })
         })
     }
@@ -85,7 +93,15 @@ impl Kernels {
 /// in group 0 (the bindings its entry point uses, no more), over `groups`
 /// workgroups (split over two axes past WebGPU's 65535 a side; the kernels
 /// rebuild the linear index).
-pub fn dispatch(gpu: &Gpu, enc: &mut wgpu::CommandEncoder, pipeline: &wgpu::ComputePipeline, buffers: &[(u32, &wgpu::Buffer)], groups: u32) {
+/// The pass is timed by `timer` (under the kernel's label) when it can.
+pub fn dispatch(
+    gpu: &Gpu,
+    enc: &mut wgpu::CommandEncoder,
+    timer: &mut Timer,
+    kernel: &Kernel,
+    buffers: &[(u32, &wgpu::Buffer)],
+    groups: u32,
+) {
     if groups == 0 {
         return;
     }
@@ -93,11 +109,11 @@ pub fn dispatch(gpu: &Gpu, enc: &mut wgpu::CommandEncoder, pipeline: &wgpu::Comp
         buffers.iter().map(|&(binding, b)| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }).collect();
     let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
         label: None,
-        layout: &pipeline.get_bind_group_layout(0),
+        layout: &kernel.pipeline.get_bind_group_layout(0),
         entries: &entries,
     });
-    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes: None });
-    pass.set_pipeline(pipeline);
+    let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.label), timestamp_writes: timer.writes(kernel.label) });
+    pass.set_pipeline(&kernel.pipeline);
     pass.set_bind_group(0, &group, &[]);
     let x = groups.min(MAX_GROUPS);
     pass.dispatch_workgroups(x, groups.div_ceil(x), 1);

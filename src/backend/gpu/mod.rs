@@ -3,11 +3,12 @@
 //!
 //! A training call (`point_loss_grad`) records one command buffer:
 //! 1. `frames`: each primitive's `Hot` record and the bricks its box overlaps;
-//! 2. `bin` `count`, `scan`, `bin` `fill`: per occupied brick, the list of
-//!    candidate primitives in primitive order (one workgroup per brick
-//!    gathers, so no atomics); the lists get a capacity, and the scan's
-//!    total, read back with the results, says whether they fitted (if not,
-//!    the call runs again with room for them);
+//! 2. `bin` `count`, `scan`, `bin` `fill`, twice: per coarse cell of 4^3
+//!    bricks the primitives that reach it, then per occupied brick its
+//!    candidates from its coarse cell's list, in primitive order (one
+//!    workgroup per cell gathers, so no atomics); the lists get a capacity,
+//!    and the scans' totals, read back with the results, say whether they
+//!    fitted (if not, the call runs again with room for them);
 //! 3. `forward`: per brick, the points' density and numerator with the
 //!    candidates staged in workgroup memory, and each point's loss terms;
 //! 4. `backward`: per (brick, candidate) the pair sums of `GradAcc`, each in
@@ -27,10 +28,12 @@ pub mod device;
 
 mod buffers;
 mod kernels;
+mod timer;
 
 use self::buffers::{uniform, Readback, Slot};
 use self::device::{DeviceRequest, Gpu};
 use self::kernels::*;
+use self::timer::Timer;
 use super::bricks::PointBricks;
 use super::{check_len, Backend, Lattice, PointBatch, PointLoss};
 use crate::error::{Error, Result};
@@ -62,9 +65,11 @@ struct Buffers {
     partial: Slot,
     grad: Slot,
     loss: Slot,
-    slab_counts: Slot,
-    slab_starts: Slot,
-    slab_lists: Slot,
+    /// The first level of binning: coarse cells (training), the slab (decoding).
+    coarse_cells: Slot,
+    coarse_counts: Slot,
+    coarse_starts: Slot,
+    coarse_lists: Slot,
     slab: Slot,
     readback: Readback,
 }
@@ -89,9 +94,10 @@ impl Default for Buffers {
             partial: Slot::storage("partial sums"),
             grad: Slot::storage("gradient"),
             loss: Slot::storage("loss"),
-            slab_counts: Slot::storage("slab counts"),
-            slab_starts: Slot::storage("slab starts"),
-            slab_lists: Slot::storage("slab lists"),
+            coarse_cells: Slot::storage("coarse cells"),
+            coarse_counts: Slot::storage("coarse counts"),
+            coarse_starts: Slot::storage("coarse starts"),
+            coarse_lists: Slot::storage("coarse lists"),
             slab: Slot::storage("slab values"),
             readback: Readback::default(),
         }
@@ -101,6 +107,7 @@ impl Default for Buffers {
 pub struct GpuBackend {
     gpu: Gpu,
     kernels: Kernels,
+    timer: Timer,
     bufs: Buffers,
     /// Edge of a training brick in voxels (as the CPU backend's).
     pub brick: f32,
@@ -108,6 +115,8 @@ pub struct GpuBackend {
     pub garbage: bool,
     /// Room in the candidate lists of training calls, grown on overflow.
     capacity: usize,
+    /// Room in the coarse cells' lists of training calls.
+    coarse_capacity: usize,
     /// Room in the per-brick lists of a decode slab, grown on overflow.
     slab_capacity: usize,
     evaluations: u64,
@@ -131,6 +140,29 @@ fn count_u32(what: &str, n: usize) -> Result<u32> {
     u32::try_from(n).map_err(|_| Error::Device(format!("{n} {what} exceed the GPU backend's 32-bit indices")))
 }
 
+/// Bricks per coarse cell along each axis: the first level of training bins.
+const COARSE: u32 = 4;
+
+/// The coarse cells (of `COARSE`^3 bricks) that hold occupied bricks, as
+/// bin.wgsl's `cells` (two vec4 each: the inclusive brick box, parent 0),
+/// and the occupied bricks as `cells` whose parent is their coarse cell.
+fn coarse_cells(bricks: &PointBricks) -> (Vec<[u32; 4]>, Vec<[u32; 4]>) {
+    let mut index = std::collections::BTreeMap::new();
+    let key = |c: &[u32; 3]| [c[2] / COARSE, c[1] / COARSE, c[0] / COARSE];
+    for c in &bricks.coords {
+        let n = index.len() as u32;
+        index.entry(key(c)).or_insert(n);
+    }
+    let mut coarse = vec![[0u32; 4]; 2 * index.len()];
+    for (k, &i) in &index {
+        let hi = |a: usize, v: u32| (v * COARSE + COARSE - 1).min(bricks.dims[a] as u32 - 1);
+        coarse[2 * i as usize] = [k[2] * COARSE, k[1] * COARSE, k[0] * COARSE, 0];
+        coarse[2 * i as usize + 1] = [hi(0, k[2]), hi(1, k[1]), hi(2, k[0]), 0];
+    }
+    let cells = bricks.coords.iter().flat_map(|c| [[c[0], c[1], c[2], index[&key(c)]], [c[0], c[1], c[2], 0]]).collect();
+    (coarse, cells)
+}
+
 /// `(binding, buffer)` pairs for bindings 0, 1, 2, ...
 fn seq<'a>(bufs: &[&'a wgpu::Buffer]) -> Vec<(u32, &'a wgpu::Buffer)> {
     bufs.iter().enumerate().map(|(i, &b)| (i as u32, b)).collect()
@@ -141,13 +173,16 @@ impl GpuBackend {
     pub fn new(req: &DeviceRequest) -> Result<GpuBackend> {
         let gpu = Gpu::open(req)?;
         let kernels = Kernels::new(&gpu)?;
+        let timer = Timer::new(&gpu);
         Ok(GpuBackend {
             gpu,
             kernels,
+            timer,
             bufs: Buffers::default(),
             brick: 16.0,
             garbage: false,
             capacity: 1 << 16,
+            coarse_capacity: 1 << 16,
             slab_capacity: 1 << 16,
             evaluations: 0,
             reruns: 0,
@@ -159,6 +194,7 @@ impl GpuBackend {
     /// make the lists overflow.
     pub fn set_capacity(&mut self, slots: usize) {
         self.capacity = slots.max(1);
+        self.coarse_capacity = slots.max(1);
         self.slab_capacity = slots.max(1);
     }
 
@@ -182,7 +218,8 @@ impl GpuBackend {
 
     /// Points sorted into bricks: uploads them and the bricks, and returns
     /// the `Params` of the call (without the loss fields) and the bricks.
-    fn upload_points(&mut self, n: usize, pos: &[[f32; 3]], vref: Option<&[f32]>) -> Result<(Params, PointBricks)> {
+    /// Also returns the number of coarse cells.
+    fn upload_points(&mut self, n: usize, pos: &[[f32; 3]], vref: Option<&[f32]>) -> Result<(Params, PointBricks, usize)> {
         let g = self.garbage;
         let bricks = PointBricks::new(pos, self.brick);
         let sorted: Vec<[f32; 4]> = bricks
@@ -194,13 +231,15 @@ impl GpuBackend {
             })
             .collect();
         let ranges: Vec<[u32; 2]> = bricks.ranges.iter().map(|&(s, e)| [s, e]).collect();
-        let cells: Vec<[u32; 4]> = bricks.coords.iter().flat_map(|c| [[c[0], c[1], c[2], 0], [c[0], c[1], c[2], 0]]).collect();
+        let (coarse, cells) = coarse_cells(&bricks);
         self.bufs.points.upload(&self.gpu, bytes(&sorted), g)?;
         self.bufs.brick_points.upload(&self.gpu, bytes(&ranges), g)?;
         self.bufs.cells.upload(&self.gpu, bytes(&cells), g)?;
+        self.bufs.coarse_cells.upload(&self.gpu, bytes(&coarse), g)?;
         self.bufs.occupied.upload(&self.gpu, bytes(&bricks.occupied), g)?;
         let nb = bricks.ranges.len();
         self.bufs.counts.ensure(&self.gpu, 4 * nb as u64, g)?;
+        self.bufs.coarse_counts.ensure(&self.gpu, 2 * coarse.len() as u64, g)?;
         self.bufs.rho_n.ensure(&self.gpu, 8 * pos.len() as u64, g)?;
         self.bufs.terms.ensure(&self.gpu, 16 * pos.len() as u64, g)?;
         let p = Params {
@@ -210,22 +249,26 @@ impl GpuBackend {
             stage: [BIN_LISTED, 0, 0, 0],
             ..Params::default()
         };
-        Ok((p, bricks))
+        Ok((p, bricks, coarse.len() / 2))
     }
 
     /// Records frames, binning and the forward pass (and, when `train`, the
     /// backward pass, the reduction and the loss) of one point call, reads
     /// back `(rho_n or gradient, loss, starts)`, and runs again with more
-    /// room when the candidate lists overflowed.
-    fn run_points(&mut self, mut p: Params, nbricks: usize, train: bool) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
+    /// room when a level of candidate lists overflowed.
+    fn run_points(&mut self, mut p: Params, nbricks: usize, ncoarse: usize, train: bool) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
         let n = p.counts[0] as usize;
         let npts = p.counts[3] as usize;
         loop {
             p.counts[2] = count_u32("candidate slots", self.capacity)?;
+            let coarse_p = Params { counts: [p.counts[0], count_u32("coarse cells", ncoarse)?, count_u32("candidate slots", self.coarse_capacity)?, 0], ..p };
             let g = self.garbage;
             let gpu = &self.gpu;
             let k = &self.kernels;
+            let timer = &mut self.timer;
             let b = &mut self.bufs;
+            b.coarse_starts.ensure(gpu, 4 * (ncoarse as u64 + 1), g)?;
+            b.coarse_lists.ensure(gpu, 4 * self.coarse_capacity as u64, g)?;
             b.starts.ensure(gpu, 4 * (nbricks as u64 + 1), g)?;
             b.lists.ensure(gpu, 4 * self.capacity as u64, g)?;
             if train {
@@ -234,40 +277,72 @@ impl GpuBackend {
                 b.loss.ensure(gpu, 8, g)?;
             }
             let out = gpu.scoped("a point pass", || {
-                let u = uniform(gpu, &p);
+                let (u, u1) = (uniform(gpu, &p), uniform(gpu, &coarse_p));
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
-                let (ident, ident_bounds, cells) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?, b.cells.ensure(gpu, 0, false)?);
-                let (counts, starts, lists) = (b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
+                let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
+                let (cells1, counts1, starts1, lists1) =
+                    (b.coarse_cells.ensure(gpu, 0, false)?, b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
+                let (cells, counts, starts, lists) = (b.cells.ensure(gpu, 0, false)?, b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
                 let (bp, pts, rho_n, terms) = (b.brick_points.ensure(gpu, 0, false)?, b.points.ensure(gpu, 0, false)?, b.rho_n.ensure(gpu, 0, false)?, b.terms.ensure(gpu, 0, false)?);
-                let nb = nbricks as u32;
-                dispatch(gpu, &mut enc, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
-                dispatch(gpu, &mut enc, &k.count, &seq(&[&u, ranges, ident, ident_bounds, cells, counts]), nb);
-                dispatch(gpu, &mut enc, &k.scan, &seq(&[&u, counts, starts]), 1);
-                dispatch(gpu, &mut enc, &k.fill, &[(0, &u), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, starts), (7, lists)], nb);
-                dispatch(gpu, &mut enc, &k.forward, &seq(&[&u, hot, starts, lists, bp, pts, rho_n, terms]), nb);
+                let (nb, nc) = (nbricks as u32, ncoarse as u32);
+                dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
+                // Each coarse cell's primitives, from all of them.
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), nc);
+                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, counts1, starts1]), 1);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], nc);
+                // Each brick's, from its coarse cell's.
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
+                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u, counts, starts]), 1);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u), (1, ranges), (2, lists1), (3, starts1), (4, cells), (6, starts), (7, lists)], nb);
+                dispatch(gpu, &mut enc, timer, &k.forward, &seq(&[&u, hot, starts, lists, bp, pts, rho_n, terms]), nb);
                 let (first, first_len) = if train {
                     let (partial, occ, grad, loss) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?, b.loss.ensure(gpu, 0, false)?);
-                    dispatch(gpu, &mut enc, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), nb);
-                    dispatch(gpu, &mut enc, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), groups_for(n));
-                    dispatch(gpu, &mut enc, &k.loss, &seq(&[&u, terms, loss]), 1);
+                    dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), nb);
+                    dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), groups_for(n));
+                    dispatch(gpu, &mut enc, timer, &k.loss, &seq(&[&u, terms, loss]), 1);
                     (grad, 48 * n as u64)
                 } else {
                     (rho_n, 8 * npts as u64)
                 };
                 let loss = b.loss.ensure(gpu, 8, false)?;
-                b.readback.record(gpu, &mut enc, &[(first, first_len), (loss, if train { 8 } else { 0 }), (starts, 4 * (nbricks as u64 + 1))])?;
+                let times = timer.resolve(&mut enc).unwrap_or((loss, 0));
+                b.readback.record(
+                    gpu,
+                    &mut enc,
+                    &[(first, first_len), (loss, if train { 8 } else { 0 }), (starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (ncoarse as u64 + 1)), times],
+                )?;
                 gpu.queue.submit([enc.finish()]);
                 b.readback.read(gpu)
-            })?;
+            });
+            let out = self.timed(out)?;
             let mut out = out.into_iter();
-            let (first, loss, starts) = (out.next().unwrap_or_default(), out.next().unwrap_or_default(), words(&out.next().unwrap_or_default()));
-            let total = starts.last().copied().unwrap_or(0) as usize;
-            if total <= self.capacity {
+            let mut next = || out.next().unwrap_or_default();
+            let (first, loss, starts, starts1) = (next(), next(), words(&next()), words(&next()));
+            let (total, total1) = (starts.last().copied().unwrap_or(0) as usize, starts1.last().copied().unwrap_or(0) as usize);
+            if total1 > self.coarse_capacity {
+                self.coarse_capacity = total1 + total1 / 4;
+            } else if total > self.capacity {
+                self.capacity = total + total / 4;
+            } else {
                 return Ok((first, loss, starts));
             }
-            self.capacity = total + total / 4;
             self.reruns += 1;
+        }
+    }
+
+    /// Hands a submission's timestamps (its last read-back region) to the
+    /// timer and returns the other regions.
+    fn timed(&mut self, read: Result<Vec<Vec<u8>>>) -> Result<Vec<Vec<u8>>> {
+        match read {
+            Ok(mut regions) => {
+                self.timer.record(&regions.pop().unwrap_or_default());
+                Ok(regions)
+            }
+            Err(e) => {
+                self.timer.discard();
+                Err(e)
+            }
         }
     }
 
@@ -288,6 +363,10 @@ impl Backend for GpuBackend {
         true
     }
 
+    fn kernel_seconds(&self) -> Vec<(String, u64, f64)> {
+        self.timer.totals()
+    }
+
     /// Counted as points times the candidates of their brick.
     fn kernel_evaluations(&self) -> u64 {
         self.evaluations
@@ -305,8 +384,8 @@ impl Backend for GpuBackend {
             return Ok(());
         }
         self.upload_params(params)?;
-        let (p, bricks) = self.upload_points(params.len(), pos, None)?;
-        let (rn, _, starts) = self.run_points(p, bricks.ranges.len(), false)?;
+        let (p, bricks, ncoarse) = self.upload_points(params.len(), pos, None)?;
+        let (rn, _, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, false)?;
         self.count_evaluations(&bricks, &starts);
         let rn = floats(&rn);
         for (k, &i) in bricks.order.iter().enumerate() {
@@ -324,11 +403,11 @@ impl Backend for GpuBackend {
             return Ok(PointLoss::default());
         }
         self.upload_params(params)?;
-        let (mut p, bricks) = self.upload_points(params.len(), &batch.pos, Some(&batch.vref))?;
+        let (mut p, bricks, ncoarse) = self.upload_points(params.len(), &batch.pos, Some(&batch.vref))?;
         let norm = PointNorm::new(&batch.vref);
         p.loss = [norm.inv_weight_sum, norm.inv_count, weights.val, weights.cov];
         p.stage[3] = 1;
-        let (g, loss, starts) = self.run_points(p, bricks.ranges.len(), true)?;
+        let (g, loss, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, true)?;
         self.count_evaluations(&bricks, &starts);
         let g = floats(&g);
         for (i, out) in grad.iter_mut().enumerate() {
@@ -378,10 +457,11 @@ impl Backend for GpuBackend {
             let g = self.garbage;
             let gpu = &self.gpu;
             let k = &self.kernels;
+            let timer = &mut self.timer;
             let b = &mut self.bufs;
-            b.slab_counts.ensure(gpu, 4, g)?;
-            b.slab_starts.ensure(gpu, 8, g)?;
-            b.slab_lists.ensure(gpu, 4 * n as u64, g)?;
+            b.coarse_counts.ensure(gpu, 4, g)?;
+            b.coarse_starts.ensure(gpu, 8, g)?;
+            b.coarse_lists.ensure(gpu, 4 * n as u64, g)?;
             b.counts.ensure(gpu, 4 * ncells as u64, g)?;
             b.starts.ensure(gpu, 4 * (ncells as u64 + 1), g)?;
             b.lists.ensure(gpu, 4 * self.slab_capacity as u64, g)?;
@@ -392,25 +472,27 @@ impl Backend for GpuBackend {
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
                 let (ident, ident_bounds, cells) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?, b.cells.ensure(gpu, 0, false)?);
-                let (sc, ss, sl) = (b.slab_counts.ensure(gpu, 0, false)?, b.slab_starts.ensure(gpu, 0, false)?, b.slab_lists.ensure(gpu, 0, false)?);
+                let (sc, ss, sl) = (b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
                 let (counts, starts, lists) = (b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
                 let slab = b.slab.ensure(gpu, 0, false)?;
                 if !frames_done {
-                    dispatch(gpu, &mut enc, &k.frames, &seq(&[&u1, params, hot, ranges]), groups_for(n as usize));
+                    dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u1, params, hot, ranges]), groups_for(n as usize));
                 }
                 // The slab's primitives, from all of them.
-                dispatch(gpu, &mut enc, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), 1);
-                dispatch(gpu, &mut enc, &k.scan, &seq(&[&u1, sc, ss]), 1);
-                dispatch(gpu, &mut enc, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], 1);
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), 1);
+                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, sc, ss]), 1);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], 1);
                 // Each brick's, from the slab's.
-                dispatch(gpu, &mut enc, &k.count, &seq(&[&u2, ranges, sl, ss, cells, counts]), ncells);
-                dispatch(gpu, &mut enc, &k.scan, &seq(&[&u2, counts, starts]), 1);
-                dispatch(gpu, &mut enc, &k.fill, &[(0, &u2), (1, ranges), (2, sl), (3, ss), (4, cells), (6, starts), (7, lists)], ncells);
-                dispatch(gpu, &mut enc, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
-                b.readback.record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1))])?;
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u2, ranges, sl, ss, cells, counts]), ncells);
+                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u2, counts, starts]), 1);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u2), (1, ranges), (2, sl), (3, ss), (4, cells), (6, starts), (7, lists)], ncells);
+                dispatch(gpu, &mut enc, timer, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
+                let times = timer.resolve(&mut enc).unwrap_or((slab, 0));
+                b.readback.record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;
                 gpu.queue.submit([enc.finish()]);
                 b.readback.read(gpu)
-            })?;
+            });
+            let read = self.timed(read)?;
             frames_done = true;
             let total = words(&read[1]).last().copied().unwrap_or(0) as usize;
             if total > self.slab_capacity {

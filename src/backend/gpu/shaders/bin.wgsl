@@ -1,18 +1,24 @@
-// Binning: for every cell of a pass, the primitives of a source list whose
-// cell range overlaps the cell, in source order. One workgroup per cell
-// gathers (no atomics, so every list is in a fixed order):
+// Binning: for every cell of a pass, the primitives of its source list
+// whose cell range overlaps the cell, in source order. One workgroup per
+// cell gathers, each thread over its own contiguous run of the source list
+// (no atomics, so every list is in a fixed order):
 //   `count`: how many, per cell;  (then scan.wgsl: each list's start)
 //   `fill`:  the lists themselves, written up to `P.counts.z` entries; the
 //            scan's total tells the host whether they fitted.
+// A cell's source list is its parent's list of the pass before: every
+// primitive for the first level; a coarse cell's list for a training brick
+// (4^3 bricks a coarse cell), the slab's list for a decode brick. Two
+// levels keep the work near (cells + primitives) rather than their product.
 // Mirrors cpu.rs `bin_points` (training bricks) and the layer and brick
 // lists of cpu.rs `decode_lattice` (lattice slabs, then their bricks).
 
 @group(0) @binding(0) var<uniform> P: Params;
 @group(0) @binding(1) var<storage, read> ranges: array<vec4<u32>>;
-// The source list is src[src_bounds[0] .. src_bounds[1]].
+// The source lists: parent p's is src[src_starts[p] .. src_starts[p + 1]].
 @group(0) @binding(2) var<storage, read> src: array<u32>;
-@group(0) @binding(3) var<storage, read> src_bounds: array<u32>;
-// BIN_LISTED: the cells' inclusive boxes, two vec4 per cell.
+@group(0) @binding(3) var<storage, read> src_starts: array<u32>;
+// BIN_LISTED: the cells' inclusive boxes, two vec4 per cell; the first's w
+// is the cell's parent.
 @group(0) @binding(4) var<storage, read> cells: array<vec4<u32>>;
 @group(0) @binding(5) var<storage, read_write> counts: array<u32>;
 @group(0) @binding(6) var<storage, read> starts: array<u32>;
@@ -40,11 +46,36 @@ fn overlaps(g: u32, lo: vec3<u32>, hi: vec3<u32>) -> bool {
     return r0.w == 0u && all(r0.xyz <= hi) && all(r1 >= lo);
 }
 
-// The source list's bounds, clamped to the buffer (a source list that
-// overflowed its own capacity is read no further than it was written).
-fn source() -> vec2<u32> {
-    let e = min(src_bounds[1], arrayLength(&src));
-    return vec2<u32>(min(src_bounds[0], e), e);
+// Cell c's source list, clamped to the buffer (a parent list that
+// overflowed its capacity is read no further than it was written; the host
+// runs the call again anyway).
+fn source(c: u32) -> vec2<u32> {
+    var parent = 0u;
+    if P.stage.x == BIN_LISTED {
+        parent = cells[2u * c].w;
+    }
+    let e = min(src_starts[parent + 1u], arrayLength(&src));
+    return vec2<u32>(min(src_starts[parent], e), e);
+}
+
+// This thread's contiguous run of the source list: the runs follow each
+// other in thread order, so hits written run by run stay in source order.
+fn own_run(s: vec2<u32>, lid: u32) -> vec2<u32> {
+    let n = s.y - s.x;
+    let per = (n + WG - 1u) / WG;
+    let b = min(lid * per, n);
+    return vec2<u32>(s.x + b, s.x + min(b + per, n));
+}
+
+// Hits of cell box `bx` in the run `r`.
+fn hits(r: vec2<u32>, bx: array<vec3<u32>, 2>) -> u32 {
+    var n = 0u;
+    for (var i = r.x; i < r.y; i++) {
+        if overlaps(src[i], bx[0], bx[1]) {
+            n += 1u;
+        }
+    }
+    return n;
 }
 
 @compute @workgroup_size(128)
@@ -55,14 +86,7 @@ fn count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
         return;
     }
     let bx = cell_box(c);
-    let s = source();
-    var n = 0u;
-    for (var i = s.x + lid; i < s.y; i += WG) {
-        if overlaps(src[i], bx[0], bx[1]) {
-            n += 1u;
-        }
-    }
-    shared_u[lid] = n;
+    shared_u[lid] = hits(own_run(source(c), lid), bx);
     workgroupBarrier();
     for (var h = WG / 2u; h > 0u; h >>= 1u) {
         if lid < h {
@@ -83,36 +107,29 @@ fn fill(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         return;
     }
     let bx = cell_box(c);
-    let s = source();
-    let base = starts[c];
-    var run = 0u;
-    for (var i0 = s.x; i0 < s.y; i0 += WG) {
-        let i = i0 + lid;
-        var g = 0u;
-        var f = 0u;
-        if i < s.y {
-            g = src[i];
-            f = select(0u, 1u, overlaps(g, bx[0], bx[1]));
+    let r = own_run(source(c), lid);
+    let n = hits(r, bx);
+    // Inclusive prefix sum of the runs' hit counts (Hillis-Steele): where
+    // this run's hits go.
+    shared_u[lid] = n;
+    workgroupBarrier();
+    for (var h = 1u; h < WG; h <<= 1u) {
+        var v = 0u;
+        if lid >= h {
+            v = shared_u[lid - h];
         }
-        // Inclusive prefix sum of the flags (Hillis-Steele): each hit's place.
-        shared_u[lid] = f;
         workgroupBarrier();
-        for (var h = 1u; h < WG; h <<= 1u) {
-            var v = 0u;
-            if lid >= h {
-                v = shared_u[lid - h];
-            }
-            workgroupBarrier();
-            shared_u[lid] += v;
-            workgroupBarrier();
-        }
-        if f == 1u {
-            let at = base + run + shared_u[lid] - 1u;
+        shared_u[lid] += v;
+        workgroupBarrier();
+    }
+    var at = starts[c] + shared_u[lid] - n;
+    for (var i = r.x; i < r.y; i++) {
+        let g = src[i];
+        if overlaps(g, bx[0], bx[1]) {
             if at < P.counts.z {
                 lists[at] = g;
             }
+            at += 1u;
         }
-        run += shared_u[WG - 1u];
-        workgroupBarrier();
     }
 }

@@ -1,8 +1,11 @@
 // Forward: the mixture's density and numerator at each point of a brick, and
 // (training) each point's share of L_val and L_cov with the loss's
 // sensitivity to its density and numerator.
-// One workgroup per occupied brick; the brick's candidates are staged in
-// workgroup memory a tile at a time, every point of the brick reads them.
+// One workgroup per occupied brick, PTS points at a time: every thread sums
+// its share of the brick's candidates (every WG-th) at those points, then
+// the workgroup adds the threads' sums in a fixed tree order. Training
+// bricks hold a handful of points and hundreds of candidates, so the
+// candidates, not the points, are spread over the threads.
 // Mirrors cpu.rs `BrickSoa::forward` and the loop of cpu.rs `grad_chunk`
 // (then loss.rs `point_terms`, in math.wgsl).
 
@@ -20,7 +23,9 @@
 @group(0) @binding(7) var<storage, read_write> terms: array<vec4<f32>>;
 
 const WG: u32 = 128u;
-var<workgroup> tile: array<Hot, WG>;
+const PTS: u32 = 8u;
+var<workgroup> sum_rho: array<array<f32, PTS>, WG>;
+var<workgroup> sum_n: array<array<f32, PTS>, WG>;
 
 @compute @workgroup_size(128)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
@@ -32,34 +37,46 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let c0 = min(starts[b], P.counts.z);
     let c1 = min(starts[b + 1u], P.counts.z);
     let pr = brick_points[b];
-    for (var p0 = pr.x; p0 < pr.y; p0 += WG) {
-        let p = p0 + lid;
-        let live = p < pr.y;
-        var x = vec4<f32>(0.0);
-        if live {
-            x = points[p];
+    for (var p0 = pr.x; p0 < pr.y; p0 += PTS) {
+        let m = min(PTS, pr.y - p0);
+        // Loops of a constant PTS trips over registers: no dynamically
+        // indexed private arrays, which compilers put in memory. Slots past
+        // `m` evaluate a point far away (every kernel 0) and are not written.
+        var x: array<vec3<f32>, PTS>;
+        for (var q = 0u; q < PTS; q++) {
+            x[q] = select(vec3<f32>(3.0e38), points[min(p0 + q, pr.y - 1u)].xyz, q < m);
         }
-        var rho = 0.0;
-        var n = 0.0;
-        for (var t0 = c0; t0 < c1; t0 += WG) {
-            workgroupBarrier();
-            if t0 + lid < c1 {
-                tile[lid] = hot[lists[t0 + lid]];
-            }
-            workgroupBarrier();
-            let m = min(WG, c1 - t0);
-            for (var j = 0u; j < m; j++) {
-                let h = tile[j];
-                let wk = h.w * kernel_at(h, x.xyz).w;
-                rho += wk;
-                n += wk * h.s;
+        var rho: array<f32, PTS>;
+        var n: array<f32, PTS>;
+        for (var j = c0 + lid; j < c1; j += WG) {
+            let h = hot[lists[j]];
+            for (var q = 0u; q < PTS; q++) {
+                let wk = h.w * kernel_at(h, x[q]).w;
+                rho[q] += wk;
+                n[q] += wk * h.s;
             }
         }
-        if live {
-            rho_n[p] = vec2<f32>(rho, n);
+        sum_rho[lid] = rho;
+        sum_n[lid] = n;
+        workgroupBarrier();
+        for (var h = WG / 2u; h > 0u; h >>= 1u) {
+            if lid < h {
+                for (var q = 0u; q < PTS; q++) {
+                    sum_rho[lid][q] += sum_rho[lid + h][q];
+                    sum_n[lid][q] += sum_n[lid + h][q];
+                }
+            }
+            workgroupBarrier();
+        }
+        if lid < m {
+            let p = p0 + lid;
+            let r = sum_rho[0][lid];
+            let nn = sum_n[0][lid];
+            rho_n[p] = vec2<f32>(r, nn);
             if P.stage.w == 1u {
-                terms[p] = point_terms(rho, n, x.w, P.loss.x, P.loss.y, P.loss.z, P.loss.w);
+                terms[p] = point_terms(r, nn, points[p].w, P.loss.x, P.loss.y, P.loss.z, P.loss.w);
             }
         }
+        workgroupBarrier();
     }
 }
