@@ -7,7 +7,10 @@
 # Env: ITERS caps every row's iterations (default: the schedule's);
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
 # the CPU rows need not run the whole schedule); ROWS selects rows by name;
-# OUT (the device machine's output folder) also receives the results.
+# ROW_LIMIT (default 150 s) stops any one run, recorded as timed out, so the
+# script ends in time; INSITU=0 skips the in-situ run (benches/insitu.sh,
+# one run of 8 steps, on the GPU backend); OUT (the device machine's output
+# folder) also receives the results.
 # Prints one JSON line per run to bench-out/gpu.jsonl, the adapters to
 # bench-out/gpu-devices.json, and a Markdown table of the rows.
 set -euo pipefail
@@ -35,8 +38,12 @@ run() { # name backend iteration-cap args...
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")
     echo "[$name] $backend ${iters[*]}" >&2
-    "$bin" encode grid "$@" "${iters[@]}" --backend "$backend" -o "$out/gpu_${name}_$backend.gsm" --json --quiet \
-        | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
+    local result
+    if result=$(timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" --backend "$backend" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
+        echo "$result" | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
+    else
+        echo "{\"row\": \"$name\", \"which\": \"$backend\", \"failed_or_timed_out\": true}" >> "$log"
+    fi
 }
 
 row() { # name args...: the row on the GPU, then on the CPU
@@ -61,11 +68,20 @@ if want decode_1024; then
     done
 fi
 
+# Push latency and the solver's slowdown with the encoder on the GPU.
+if [ "${INSITU:-1}" = 1 ] && want insitu; then
+    GSENC_BACKEND=gpu timeout 240 bash benches/insitu.sh 1 8 600 > "$out/gpu-insitu.md" || echo "insitu: failed or timed out" >> "$out/gpu-insitu.md"
+    cat "$out/gpu-insitu.md" >&2
+fi
+
 python3 - "$log" <<'PY' | tee "$out/gpu-table.md"
 import json, sys
 rows = {}
 for line in open(sys.argv[1]):
     d = json.loads(line)
+    if d.get("failed_or_timed_out"):
+        print(f"<!-- {d['row']} on {d['which']}: failed or timed out -->")
+        continue
     rows.setdefault(d["row"], {})[d["which"]] = d
 print("| row | backend | iterations | voxel PSNR dB | loop s | s / iteration | GPU speed-up per iteration | PSNR gap dB |")
 print("|---|---|---|---|---|---|---|---|")
@@ -84,6 +100,6 @@ for name, by in rows.items():
         print(f"| {name} | {d['backend']} | {d['iterations']} | {d['voxel_psnr']:.2f} | {d['seconds']:.2f} | {per[w]*1e3:.2f} ms | {ratio} | {gap} |")
 PY
 if [ -n "${OUT:-}" ]; then
-    cp "$out"/gpu.jsonl "$out"/gpu-*.json "$out"/gpu-table.md "$OUT"/ 2>/dev/null || true
+    cp "$out"/gpu.jsonl "$out"/gpu-*.json "$out"/gpu-table.md "$out"/gpu-insitu.md "$OUT"/ 2>/dev/null || true
     cp "$out"/gpu-nvidia-smi.csv "$out"/gpu-cpu.txt "$OUT"/ 2>/dev/null || true
 fi

@@ -18,7 +18,8 @@ pub mod select;
 
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
-use crate::math::loss::LossWeights;
+use crate::math::loss::{LossWeights, RegTerms};
+use crate::math::optim::Adam;
 
 /// Points and their reference values.
 #[derive(Clone, Debug, Default)]
@@ -106,6 +107,19 @@ pub trait Backend: Send {
         vec![]
     }
 
+    /// A backend that can keep the parameters and Adam's moments on its
+    /// device through a run of iterations ([`Resident`]) says so here.
+    fn resident(&mut self) -> Option<&mut dyn Resident> {
+        None
+    }
+
+    /// After `error` from this backend: whether it gave up its device and
+    /// will run on the CPU from now on (`auto`), so that the work can be
+    /// done again. A backend without a fall-back answers false.
+    fn abandon_device(&mut self, _error: &Error) -> bool {
+        false
+    }
+
     /// Why this backend runs on the CPU although a GPU was asked for
     /// (`auto` after a device failure), if it does.
     fn fell_back(&self) -> Option<String> {
@@ -143,4 +157,22 @@ pub(crate) fn check_len(what: &str, got: usize, want: usize) -> Result<()> {
     } else {
         Err(Error::arg(format!("backend: {what} holds {got} entries, {want} expected")))
     }
+}
+
+/// Training with the parameters and Adam's moments kept on a device: the
+/// loop uploads them once, runs whole iterations (point terms, regularisers,
+/// gradient, Adam) on the device, and reads them back only when it needs
+/// them on the host (relocation, validation, the end). One step computes
+/// what [`Backend::point_loss_grad`], [`crate::math::loss::regularizers`]
+/// and [`Adam::step`] compute, in the device's order of float sums.
+pub trait Resident {
+    /// Puts `params` and `adam`'s moments and step count on the device.
+    fn load(&mut self, params: &[Primitive], adam: &Adam) -> Result<()>;
+
+    /// One iteration at learning rate `lr`; returns the unweighted loss
+    /// terms when `report` (reading them costs a wait for the device).
+    fn step(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<Option<(PointLoss, RegTerms)>>;
+
+    /// Copies the parameters, moments and step count back.
+    fn store(&mut self, params: &mut [Primitive], adam: &mut Adam) -> Result<()>;
 }

@@ -10,7 +10,7 @@
 //!   ([`Fallback::fell_back`]).
 
 use super::cpu::CpuBackend;
-use super::{Backend, Lattice, PointBatch, PointLoss};
+use super::{Backend, Lattice, PointBatch, PointLoss, Resident};
 use crate::error::{by_name, Error, Result};
 use crate::math::kernel::Primitive;
 use crate::math::loss::LossWeights;
@@ -224,6 +224,19 @@ impl Backend for Fallback {
 
     fn kernel_seconds(&self) -> Vec<(String, u64, f64)> {
         self.gpu.as_ref().map_or(vec![], |g| g.kernel_seconds())
+    }
+
+    fn resident(&mut self) -> Option<&mut dyn Resident> {
+        self.gpu.as_mut().and_then(|g| g.resident())
+    }
+
+    fn abandon_device(&mut self, error: &Error) -> bool {
+        if self.gpu.is_none() || !matches!(error, Error::Device(_)) {
+            return false;
+        }
+        let e = Error::Device(error.to_string());
+        self.fail(e);
+        true
     }
 
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {

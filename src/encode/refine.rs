@@ -1,7 +1,7 @@
 //! The refinement loop: seeding (or a warm start), stratified points, the
 //! four-term loss, Adam with cosine decay, and relocation at 35/55/75 %.
 
-use crate::backend::Backend;
+use crate::backend::{Backend, PointLoss};
 use crate::encode::config::{Cancel, EncodeConfig};
 use crate::encode::points::PointSampler;
 use crate::encode::relocate::{relocate, Relocation, RELOCATE_POINTS};
@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 use crate::field::check_finite;
 use crate::input::Target;
 use crate::math::kernel::{morton_key, Primitive};
-use crate::math::loss::regularizers;
+use crate::math::loss::{regularizers, RegTerms};
 use crate::math::optim::{cosine_lr, Adam};
 use std::time::Instant;
 
@@ -116,8 +116,30 @@ pub fn encode(
 
 /// [`encode`], also scoring `validation` (when given) along the way, with
 /// the same backend. Scoring reads the parameters only: the model is the same
-/// with or without it.
+/// with or without it. When the backend's device fails and the backend falls
+/// back to the CPU (`auto`), the encode starts again there.
 pub fn encode_validated(
+    target: &Target,
+    cfg: &EncodeConfig,
+    init: Option<&[Primitive]>,
+    validation: Option<&Validation>,
+    backend: &mut dyn Backend,
+    progress: &mut dyn FnMut(&Progress),
+) -> Result<EncodeOutput> {
+    match refine(target, cfg, init, validation, backend, progress) {
+        Err(e) if backend.abandon_device(&e) => {
+            tracing::warn!(error = %e, "the encode starts again on the CPU");
+            refine(target, cfg, init, validation, backend, progress)
+        }
+        other => other,
+    }
+}
+
+/// Loss terms are read back from a resident backend every this many
+/// iterations (and at the last): reading them waits for the device.
+pub const LOSS_EVERY: usize = 10;
+
+fn refine(
     target: &Target,
     cfg: &EncodeConfig,
     init: Option<&[Primitive]>,
@@ -179,14 +201,31 @@ pub fn encode_validated(
         }
         Ok(())
     };
+    // A resident backend keeps the parameters and moments on its device;
+    // they come back to the host only when the host needs them. `on_host`
+    // says whether the host's copies are current.
+    let resident = backend.resident().is_some();
+    let mut on_host = true;
+    let terms = |pl: PointLoss, reg: RegTerms| {
+        let w = &cfg.weights;
+        LossTerms {
+            val: pl.val,
+            cov: pl.cov,
+            scale: reg.scale,
+            aniso: reg.aniso,
+            total: w.val as f64 * pl.val + w.cov as f64 * pl.cov + w.scale as f64 * reg.scale + w.aniso as f64 * reg.aniso,
+        }
+    };
     for t in 0..iterations {
         if cfg.cancel.as_ref().is_some_and(Cancel::is_set) {
             return Err(Error::Cancelled(format!("at iteration {t} of {iterations}")));
         }
         if t % validation.map_or(usize::MAX, |v| v.every) == 0 {
+            to_host(&mut params, &mut adam, &mut on_host, backend)?;
             score(t, &params, backend)?;
         }
         if reloc_at.contains(&t) {
+            to_host(&mut params, &mut adam, &mut on_host, backend)?;
             let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
             let r = relocate(backend, &mut params, &mut adam, &batch)?;
             tracing::debug!(iteration = t, moved = r.moved.len(), "relocation");
@@ -197,22 +236,29 @@ pub fn encode_validated(
             relocations.push(r);
         }
         let batch = sampler.draw(points, target.reference, target.samples);
-        let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad)?;
-        let reg = regularizers(&params, &cfg.weights, &mut grad);
-        let w = &cfg.weights;
-        last = LossTerms {
-            val: pl.val,
-            cov: pl.cov,
-            scale: reg.scale,
-            aniso: reg.aniso,
-            total: w.val as f64 * pl.val + w.cov as f64 * pl.cov + w.scale as f64 * reg.scale + w.aniso as f64 * reg.aniso,
-        };
+        let lr = cosine_lr(cfg.learning_rate, t, iterations);
+        if resident {
+            let report = t % LOSS_EVERY == 0 || t + 1 == iterations;
+            let r = backend.resident().expect("checked above");
+            if on_host {
+                r.load(&params, &adam)?;
+                on_host = false;
+            }
+            if let Some((pl, reg)) = r.step(&batch, &cfg.weights, lr, report)? {
+                last = terms(pl, reg);
+            }
+        } else {
+            let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad)?;
+            let reg = regularizers(&params, &cfg.weights, &mut grad);
+            last = terms(pl, reg);
+            adam.step(&mut params, &grad, lr);
+        }
         if !last.total.is_finite() {
             return Err(Error::data(format!("loss is not finite at iteration {t}: {last:?}")));
         }
-        adam.step(&mut params, &grad, cosine_lr(cfg.learning_rate, t, iterations));
         progress(&Progress { iteration: t + 1, iterations, loss: last.total });
     }
+    to_host(&mut params, &mut adam, &mut on_host, backend)?;
     score(iterations, &params, backend)?;
     let loop_seconds = t_loop.elapsed().as_secs_f64();
     tracing::info!(loop_seconds, loss = last.total, backend = %backend.name(), "encode done");
@@ -231,6 +277,18 @@ pub fn encode_validated(
         backend: backend.name(),
         fell_back: backend.fell_back(),
     })
+}
+
+/// Brings a resident backend's parameters and moments back to the host,
+/// unless the host's copies are current.
+fn to_host(params: &mut [Primitive], adam: &mut Adam, on_host: &mut bool, backend: &mut dyn Backend) -> Result<()> {
+    if !*on_host {
+        if let Some(r) = backend.resident() {
+            r.store(params, adam)?;
+        }
+        *on_host = true;
+    }
+    Ok(())
 }
 
 /// The permutation that sorts primitives by the Morton key of their centres

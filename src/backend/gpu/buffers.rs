@@ -129,3 +129,68 @@ impl Readback {
         Ok(out)
     }
 }
+
+/// Every device buffer the backend keeps between calls.
+pub(super) struct Buffers {
+    pub(super) params: Slot,
+    pub(super) hot: Slot,
+    pub(super) ranges: Slot,
+    pub(super) identity: Slot,
+    pub(super) identity_bounds: Slot,
+    pub(super) cells: Slot,
+    pub(super) counts: Slot,
+    pub(super) starts: Slot,
+    pub(super) lists: Slot,
+    pub(super) brick_points: Slot,
+    pub(super) points: Slot,
+    pub(super) occupied: Slot,
+    pub(super) rho_n: Slot,
+    pub(super) terms: Slot,
+    pub(super) partial: Slot,
+    pub(super) grad: Slot,
+    /// Resident training: Adam's moments, the regularisers' values.
+    pub(super) moments: Slot,
+    pub(super) reg_terms: Slot,
+    pub(super) loss: Slot,
+    /// The first level of binning: coarse cells (training), the slab (decoding).
+    pub(super) coarse_cells: Slot,
+    pub(super) coarse_counts: Slot,
+    pub(super) coarse_starts: Slot,
+    pub(super) coarse_lists: Slot,
+    pub(super) slab: Slot,
+    pub(super) readback: Readback,
+}
+
+impl Default for Buffers {
+    fn default() -> Self {
+        Buffers {
+            params: Slot::storage("params"),
+            hot: Slot::storage("hot"),
+            ranges: Slot::storage("ranges"),
+            identity: Slot::storage("identity"),
+            identity_bounds: Slot::storage("identity bounds"),
+            cells: Slot::storage("cells"),
+            counts: Slot::storage("counts"),
+            starts: Slot::storage("starts"),
+            lists: Slot::storage("candidate lists"),
+            brick_points: Slot::storage("brick points"),
+            points: Slot::storage("points"),
+            occupied: Slot::storage("occupied"),
+            rho_n: Slot::storage("rho n"),
+            terms: Slot::storage("terms"),
+            partial: Slot::storage("partial sums"),
+            grad: Slot::storage("gradient"),
+            moments: Slot::storage("moments"),
+            reg_terms: Slot::storage("regulariser terms"),
+            loss: Slot::storage("loss"),
+            coarse_cells: Slot::storage("coarse cells"),
+            coarse_counts: Slot::storage("coarse counts"),
+            coarse_starts: Slot::storage("coarse starts"),
+            coarse_lists: Slot::storage("coarse lists"),
+            slab: Slot::storage("slab values"),
+            readback: Readback::default(),
+        }
+    }
+}
+
+

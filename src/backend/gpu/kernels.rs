@@ -19,6 +19,9 @@ pub struct Params {
     pub counts: [u32; 4],
     pub loss: [f32; 4],
     pub stage: [u32; 4],
+    pub optim: [f32; 4],
+    pub reg: [f32; 4],
+    pub coarse: [u32; 4],
 }
 
 /// math.wgsl `CELLS_*`: how a primitive's box maps to grid cells.
@@ -49,6 +52,7 @@ pub struct Kernels {
     pub forward: Kernel,
     pub backward: Kernel,
     pub reduce: Kernel,
+    pub adam: Kernel,
     pub loss: Kernel,
     pub decode: Kernel,
 }
@@ -82,6 +86,7 @@ impl Kernels {
                 forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "forward", "main"),
                 backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "backward", "main"),
                 reduce: pipeline(&module("reduce.wgsl", include_str!("shaders/reduce.wgsl")), "reduce", "main"),
+                adam: pipeline(&module("adam.wgsl", include_str!("shaders/adam.wgsl")), "adam", "main"),
                 loss: pipeline(&module("loss.wgsl", include_str!("shaders/loss.wgsl")), "loss", "main"),
                 decode: pipeline(&module("decode.wgsl", include_str!("shaders/decode.wgsl")), "decode", "main"),
             })

@@ -226,6 +226,63 @@ fn contract(g: array<vec3<f32>, 3>, d: array<vec3<f32>, 3>) -> f32 {
     return s;
 }
 
+// loss.rs `regularizers`, for one primitive's parameters `p`: adds the
+// weighted gradients of L_scale and L_aniso to `grad` and returns their
+// (unweighted) values. `w` is `Params.reg`.
+fn regularize(p: array<f32, 12>, w: vec4<f32>, grad: ptr<function, array<f32, 12>>) -> vec2<f32> {
+    let e = vec3<f32>(exp(p[LOG_SCALE]), exp(p[LOG_SCALE + 1u]), exp(p[LOG_SCALE + 2u]));
+    let w_scale = w.x;
+    let w_aniso = w.y;
+    let inv_3n = w.z;
+    let inv_n = w.w;
+    var sc = 0.0;
+    var an = 0.0;
+    for (var a = 0u; a < 3u; a++) {
+        if e[a] > 8.0 {
+            sc += (e[a] - 8.0) * inv_3n;
+            (*grad)[LOG_SCALE + a] += w_scale * e[a] * inv_3n;
+        }
+        if e[a] < 0.30 {
+            sc += 0.05 * (0.30 - e[a]) * inv_3n;
+            (*grad)[LOG_SCALE + a] -= w_scale * 0.05 * e[a] * inv_3n;
+        }
+    }
+    var amax = 0u;
+    var amin = 0u;
+    for (var a = 1u; a < 3u; a++) {
+        if e[a] > e[amax] {
+            amax = a;
+        }
+        if e[a] < e[amin] {
+            amin = a;
+        }
+    }
+    let ratio = e[amax] / max(e[amin], 1e-3);
+    if ratio > 4.0 && amax != amin {
+        an += (ratio - 4.0) * inv_n;
+        (*grad)[LOG_SCALE + amax] += w_aniso * ratio * inv_n;
+        if e[amin] > 1e-3 {
+            (*grad)[LOG_SCALE + amin] -= w_aniso * ratio * inv_n;
+        }
+    }
+    return vec2<f32>(sc, an);
+}
+
+// optim.rs `BETA1`, `BETA2`, `EPS`
+const BETA1: f32 = 0.9;
+const BETA2: f32 = 0.999;
+const EPS: f32 = 1e-8;
+
+// optim.rs `Adam::step` for one parameter: returns (p, m, v) after the step,
+// with learning rate `lr` and bias corrections `bc1`, `bc2`.
+fn adam_update(p: f32, g: f32, m: f32, v: f32, lr: f32, bc1: f32, bc2: f32) -> vec3<f32> {
+    let m1 = BETA1 * m + (1.0 - BETA1) * g;
+    let v1 = BETA2 * v + (1.0 - BETA2) * g * g;
+    let mh = m1 / bc1;
+    let vh = v1 / bc2;
+    return vec3<f32>(p - lr * mh / (sqrt(vh) + EPS), m1, v1);
+}
+
 // loss.rs `huber`
 fn huber(r: f32) -> f32 {
     let a = abs(r);
@@ -288,6 +345,15 @@ struct Params {
     // x: which cells a bin pass fills (BIN_*); y: brick layer (lattice
     // bricks); z: first lattice layer of the slab; w: 1 to write the loss terms.
     stage: vec4<u32>,
+    // Resident training: x: the learning rate; y, z: Adam's bias
+    // corrections 1 - beta1^t, 1 - beta2^t (optim.rs `Adam::step`).
+    optim: vec4<f32>,
+    // x, y: weights of L_scale and L_aniso; z: 1 / 3N; w: 1 / N
+    // (loss.rs `regularizers`).
+    reg: vec4<f32>,
+    // x: coarse cells; y: capacity of their lists; z: 1 to sum the
+    // regularisers' values (loss.wgsl).
+    coarse: vec4<u32>,
 }
 
 // Params.grid_dims.w

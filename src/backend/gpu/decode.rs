@@ -1,0 +1,103 @@
+//! Decoding on the GPU: per slab of 8 lattice planes, the slab's
+//! primitives, then each 8x8x8 brick's from the slab's list, then V_eval at
+//! every lattice point of the brick (decode.wgsl). Mirrors cpu.rs
+//! `decode_lattice`.
+
+use super::buffers::uniform;
+use super::kernels::*;
+use super::{count_u32, floats, seq, words, GpuBackend};
+use crate::backend::{check_len, Lattice};
+use crate::error::Result;
+use crate::math::kernel::Primitive;
+
+impl GpuBackend {
+    /// `Backend::decode_lattice`: slab by slab of lattice bricks.
+    pub(super) fn decode(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]) -> Result<()> {
+        check_len("out", out.len(), lattice.len())?;
+        if out.is_empty() {
+            return Ok(());
+        }
+        if params.is_empty() {
+            out.fill(0.0);
+            return Ok(());
+        }
+        self.upload_params(params)?;
+        let d = lattice.dims;
+        let bs = DECODE_BRICK;
+        let nbx = d[0].div_ceil(bs);
+        let nby = d[1].div_ceil(bs);
+        let nbz = d[2].div_ceil(bs);
+        let n = count_u32("primitives", params.len())?;
+        let base = Params {
+            grid_lo: [lattice.origin[0], lattice.origin[1], lattice.origin[2], 0.0],
+            grid_step: [lattice.step[0], lattice.step[1], lattice.step[2], 0.0],
+            grid_dims: [count_u32("bricks", nbx)?, count_u32("bricks", nby)?, count_u32("bricks", nbz)?, CELLS_LATTICE],
+            lattice: [count_u32("points", d[0])?, count_u32("points", d[1])?, count_u32("points", d[2])?, bs as u32],
+            counts: [n, 1, n, 0],
+            ..Params::default()
+        };
+        let layer = d[0] * d[1];
+        let ncells = count_u32("bricks", nbx * nby)?;
+        let mut frames_done = false;
+        let mut bz = 0;
+        while bz < nbz {
+            let z0 = bz * bs;
+            let layers = bs.min(d[2] - z0);
+            let slab_p = Params { counts: [n, 1, n, 0], stage: [BIN_SLAB, bz as u32, z0 as u32, 0], ..base };
+            let brick_p = Params {
+                counts: [n, ncells, count_u32("candidate slots", self.slab_capacity)?, 0],
+                stage: [BIN_SLAB_BRICKS, bz as u32, z0 as u32, 0],
+                ..base
+            };
+            let g = self.garbage;
+            let gpu = &self.gpu;
+            let k = &self.kernels;
+            let timer = &mut self.timer;
+            let b = &mut self.bufs;
+            b.coarse_counts.ensure(gpu, 4, g)?;
+            b.coarse_starts.ensure(gpu, 8, g)?;
+            b.coarse_lists.ensure(gpu, 4 * n as u64, g)?;
+            b.counts.ensure(gpu, 4 * ncells as u64, g)?;
+            b.starts.ensure(gpu, 4 * (ncells as u64 + 1), g)?;
+            b.lists.ensure(gpu, 4 * self.slab_capacity as u64, g)?;
+            b.cells.ensure(gpu, 32, g)?;
+            b.slab.ensure(gpu, 4 * (layer * layers) as u64, g)?;
+            let read = gpu.scoped("a decode slab", || {
+                let (u1, u2) = (uniform(gpu, &slab_p), uniform(gpu, &brick_p));
+                let mut enc = gpu.device.create_command_encoder(&Default::default());
+                let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
+                let (ident, ident_bounds, cells) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?, b.cells.ensure(gpu, 0, false)?);
+                let (sc, ss, sl) = (b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
+                let (counts, starts, lists) = (b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
+                let slab = b.slab.ensure(gpu, 0, false)?;
+                if !frames_done {
+                    dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u1, params, hot, ranges]), groups_for(n as usize));
+                }
+                // The slab's primitives, from all of them.
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), 1);
+                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, sc, ss]), 1);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], 1);
+                // Each brick's, from the slab's.
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u2, ranges, sl, ss, cells, counts]), ncells);
+                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u2, counts, starts]), 1);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u2), (1, ranges), (2, sl), (3, ss), (4, cells), (6, starts), (7, lists)], ncells);
+                dispatch(gpu, &mut enc, timer, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
+                let times = timer.resolve(&mut enc).unwrap_or((slab, 0));
+                b.readback.record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;
+                gpu.queue.submit([enc.finish()]);
+                b.readback.read(gpu)
+            });
+            let read = self.timed(read)?;
+            frames_done = true;
+            let total = words(&read[1]).last().copied().unwrap_or(0) as usize;
+            if total > self.slab_capacity {
+                self.slab_capacity = total + total / 4;
+                self.reruns += 1;
+                continue;
+            }
+            out[z0 * layer..(z0 + layers) * layer].copy_from_slice(&floats(&read[0]));
+            bz += 1;
+        }
+        Ok(())
+    }
+}

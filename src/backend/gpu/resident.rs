@@ -1,0 +1,84 @@
+//! Resident training on the GPU: parameters and Adam's moments stay in
+//! device buffers between iterations; a step uploads only the batch's points
+//! and reads back only the list totals (and, when asked, four loss terms).
+//! Mirrors the iteration of encode/refine.rs: `point_loss_grad`, then
+//! `regularizers` and `Adam::step` (adam.wgsl).
+
+use super::{bytes, floats, GpuBackend, Pass};
+use crate::backend::{check_len, PointBatch, PointLoss, Resident};
+use crate::error::{Error, Result};
+use crate::math::kernel::Primitive;
+use crate::math::loss::{LossWeights, PointNorm, RegTerms};
+use crate::math::optim::{Adam, BETA1, BETA2};
+
+/// What the device holds between steps.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Loaded {
+    /// Primitives.
+    n: usize,
+    /// Adam's step count.
+    t: u32,
+}
+
+impl Resident for GpuBackend {
+    fn load(&mut self, params: &[Primitive], adam: &Adam) -> Result<()> {
+        check_len("Adam's m", adam.m.len(), params.len())?;
+        check_len("Adam's v", adam.v.len(), params.len())?;
+        self.loaded = None;
+        self.upload_params(params)?;
+        let moments: Vec<f32> = adam.m.iter().zip(&adam.v).flat_map(|(m, v)| m.iter().chain(v).copied()).collect();
+        self.bufs.moments.upload(&self.gpu, bytes(&moments), self.garbage)?;
+        self.loaded = Some(Loaded { n: params.len(), t: adam.t });
+        Ok(())
+    }
+
+    fn step(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<Option<(PointLoss, RegTerms)>> {
+        let Loaded { n, t } = self.loaded.ok_or_else(|| Error::arg("GPU backend: a resident step before any load"))?;
+        check_len("vref", batch.vref.len(), batch.pos.len())?;
+        if batch.is_empty() || n == 0 {
+            return Err(Error::arg("GPU backend: a resident step needs points and primitives"));
+        }
+        let (mut p, bricks, ncoarse) = self.upload_points(n, &batch.pos, Some(&batch.vref))?;
+        let norm = PointNorm::new(&batch.vref);
+        let t = t + 1;
+        // As loss.rs `regularizers` and optim.rs `Adam::step` compute them on the host.
+        let nf = n.max(1) as f32;
+        p.loss = [norm.inv_weight_sum, norm.inv_count, weights.val, weights.cov];
+        p.optim = [lr, 1.0 - BETA1.powi(t as i32), 1.0 - BETA2.powi(t as i32), 0.0];
+        p.reg = [weights.scale, weights.aniso, 1.0 / (3.0 * nf), 1.0 / nf];
+        p.stage[3] = 1;
+        p.coarse[2] = report as u32;
+        let (_, loss, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Resident { report })?;
+        self.loaded = Some(Loaded { n, t });
+        self.count_evaluations(&bricks, &starts);
+        Ok(report.then(|| {
+            let l = floats(&loss);
+            (PointLoss { val: l[0] as f64, cov: l[1] as f64 }, RegTerms { scale: l[2] as f64, aniso: l[3] as f64 })
+        }))
+    }
+
+    fn store(&mut self, params: &mut [Primitive], adam: &mut Adam) -> Result<()> {
+        let Loaded { n, t } = self.loaded.ok_or_else(|| Error::arg("GPU backend: a store before any load"))?;
+        check_len("params", params.len(), n)?;
+        let (gpu, b) = (&self.gpu, &mut self.bufs);
+        let read = gpu.scoped("reading the parameters back", || {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let (params, moments) = (b.params.ensure(gpu, 0, false)?, b.moments.ensure(gpu, 0, false)?);
+            b.readback.record(gpu, &mut enc, &[(params, 48 * n as u64), (moments, 96 * n as u64)])?;
+            gpu.queue.submit([enc.finish()]);
+            b.readback.read(gpu)
+        })?;
+        let (p, m) = (floats(&read[0]), floats(&read[1]));
+        for (i, out) in params.iter_mut().enumerate() {
+            out.copy_from_slice(&p[12 * i..12 * i + 12]);
+        }
+        adam.m.resize(n, [0.0; 12]);
+        adam.v.resize(n, [0.0; 12]);
+        for i in 0..n {
+            adam.m[i].copy_from_slice(&m[24 * i..24 * i + 12]);
+            adam.v[i].copy_from_slice(&m[24 * i + 12..24 * i + 24]);
+        }
+        adam.t = t;
+        Ok(())
+    }
+}
