@@ -1,7 +1,7 @@
 //! The GPU backend: the same [`Backend`] as the CPU's, run by wgpu compute
 //! shaders (Vulkan, Metal, DX12; Mesa's lavapipe in tests).
 //!
-//! A training call (`point_loss_grad`) records one command buffer:
+//! A training iteration is one command buffer (`points.rs`):
 //! 1. `frames`: each primitive's `Hot` record and the bricks its box overlaps;
 //! 2. `bin` `count`, `scan`, `bin` `fill`, twice: per coarse cell of 4^3
 //!    bricks the primitives that reach it, then per occupied brick its
@@ -9,20 +9,22 @@
 //!    workgroup per cell gathers, so no atomics); the lists get a capacity,
 //!    and the scans' totals, read back with the results, say whether they
 //!    fitted (if not, the call runs again with room for them);
-//! 3. `forward`: per brick, the points' density and numerator with the
-//!    candidates staged in workgroup memory, and each point's loss terms;
+//! 3. `forward`: per brick, the points' density and numerator, and each
+//!    point's loss terms;
 //! 4. `backward`: per (brick, candidate) the pair sums of `GradAcc`, each in
 //!    its own slot;
 //! 5. `reduce`: per primitive, its slots summed in brick order, then
-//!    `Frame::finalize`; `loss`: the batch's L_val and L_cov.
+//!    `Frame::finalize`; `loss`: the batch's loss terms;
+//! 6. resident training only (`resident.rs`): `adam`, the regularisers and
+//!    the Adam step on parameters and moments that stay on the device.
 //!
 //! No float atomics anywhere, so a call gives the same bits run after run
 //! on one adapter. The points are sorted into bricks on the host
-//! ([`PointBricks`], as the CPU backend does) and uploaded with the
-//! parameters; the gradient, the loss and the list sizes come back.
-//! `evaluate_points` runs steps 1-3 without the loss; `decode_lattice` bins
-//! per slab of lattice bricks (the slab's primitives, then each brick's)
-//! and gathers per lattice point (`decode.wgsl`).
+//! ([`crate::backend::bricks::PointBricks`], as the CPU backend does) and
+//! uploaded. `point_loss_grad` brings the gradient back; `evaluate_points`
+//! runs steps 1-3; `decode_lattice` (`decode.rs`) bins per slab of lattice
+//! bricks (the slab's primitives, then each brick's) and gathers per
+//! lattice point. docs/DESIGN.md "The GPU backend" has the whole account.
 
 pub mod device;
 
@@ -42,12 +44,6 @@ use super::{check_len, Backend, Lattice, PointBatch, PointLoss};
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use crate::math::loss::{LossWeights, PointNorm};
-
-/// Bytes of device memory per primitive, per point and per (brick,
-/// candidate) pair of a training call (docs/DESIGN.md "GPU backend").
-pub const BYTES_PER_PRIMITIVE: usize = 48 + 64 + 32 + 48 + 4;
-pub const BYTES_PER_POINT: usize = 16 + 8 + 16;
-pub const BYTES_PER_PAIR: usize = 4 + 48;
 
 pub struct GpuBackend {
     gpu: Gpu,
