@@ -6,11 +6,18 @@
 #   GSENC_ADAPTER=llvmpipe ITERS=100 bash benches/gpu.sh   # lavapipe: correctness only
 # Env: ITERS caps every row's iterations (default: the schedule's);
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
-# the CPU rows need not run the whole schedule); ROWS selects rows by name;
-# ROW_LIMIT (default 150 s) stops any one run, recorded as timed out, so the
-# script ends in time; INSITU=0 skips the in-situ run (benches/insitu.sh,
+# the CPU rows need not run the whole schedule; CPU_ITERS= runs the whole
+# schedule, which the PSNR gap needs); ROWS selects rows by name; REPEAT
+# (default 1) runs each GPU row that many times (the table takes medians)
+# while the script is younger than DEADLINE seconds (default 300);
+# ROW_LIMIT (default 150 s; 240 s for the in-situ run) stops any one run,
+# recorded as timed out, and
+# STOP_AFTER (seconds, default none) skips every run that would start later,
+# so the script ends in time; INSITU=0 skips the in-situ run (benches/insitu.sh,
 # one run of 8 steps, on the GPU backend); OUT (the device machine's output
-# folder) also receives the results.
+# folder) receives every result as soon as it exists. On a machine without a
+# Rust toolchain, GSENC_BIN names a prebuilt gsenc and INSITU_BIN a prebuilt
+# benches/insitu.c (both built elsewhere with --release), and nothing is built.
 # Prints one JSON line per run to bench-out/gpu.jsonl, the adapters to
 # bench-out/gpu-devices.json, and a Markdown table of the rows.
 set -euo pipefail
@@ -19,22 +26,32 @@ cd "$(dirname "$0")/.."
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out
 mkdir -p "$out"
-cargo build --release --locked --bin gsenc >&2
-bin=target/release/gsenc
+if [ -n "${GSENC_BIN:-}" ]; then
+    bin=$GSENC_BIN
+else
+    cargo build --release --locked --bin gsenc >&2
+    bin=target/release/gsenc
+fi
 log="$out/gpu.jsonl"
 rm -f "$log"
+keep() { [ -z "${OUT:-}" ] || cp "$@" "$OUT"/ 2>/dev/null || true; }
 "$bin" devices --json > "$out/gpu-devices.json"
 cat "$out/gpu-devices.json" >&2
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv > "$out/gpu-nvidia-smi.csv" || true
 lscpu | grep -E "Model name|^CPU\(s\)" > "$out/gpu-cpu.txt" || true
+keep "$out/gpu-devices.json" "$out/gpu-nvidia-smi.csv" "$out/gpu-cpu.txt"
 
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)
 h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
 want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
+late() { # true (and says so) when STOP_AFTER has passed
+    [ -n "${STOP_AFTER:-}" ] && [ "$SECONDS" -ge "$STOP_AFTER" ] && echo "[$1] skipped: STOP_AFTER=$STOP_AFTER s passed" >&2
+}
 
 run() { # name backend iteration-cap args...
     local name=$1 backend=$2 cap=$3; shift 3
     want "$name" || return 0
+    late "$name" && return 0
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")
     echo "[$name] $backend ${iters[*]}" >&2
@@ -44,12 +61,17 @@ run() { # name backend iteration-cap args...
     else
         echo "{\"row\": \"$name\", \"which\": \"$backend\", \"failed_or_timed_out\": true}" >> "$log"
     fi
+    keep "$log"
 }
 
 row() { # name args...: the row on the GPU, then on the CPU
     local name=$1; shift
-    run "$name" gpu "${ITERS:-}" "$@"
-    run "$name" cpu "${CPU_ITERS:-200}" "$@"
+    local i
+    for i in $(seq "${REPEAT:-1}"); do
+        [ "$i" = 1 ] || [ "$SECONDS" -lt "${DEADLINE:-300}" ] || break
+        run "$name" gpu "${ITERS:-}" "$@"
+    done
+    run "$name" cpu "${CPU_ITERS-200}" "$@"
 }
 
 row rm128_32k_matched "${rm_args[@]}" --downsample 2 --budget 32000 --schedule matched
@@ -61,45 +83,53 @@ row rm256_200k_full "${rm_args[@]}" --budget 200000 --schedule full
 if want decode_1024; then
     "$bin" encode grid "${h_args[@]}" --budget 4096 --schedule short --iters 100 --backend cpu -o "$out/gpu_decode_model.gsm" --quiet
     for backend in gpu cpu; do
+        late decode_1024 && break
         echo "[decode_1024] $backend" >&2
-        "$bin" decode "$out/gpu_decode_model.gsm" --dims 1024,1024,1024 --backend "$backend" -o "$out/gpu_decode.raw" --json \
-            | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='decode_1024'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
+        if result=$(timeout "${ROW_LIMIT:-150}" "$bin" decode "$out/gpu_decode_model.gsm" --dims 1024,1024,1024 --backend "$backend" -o "$out/gpu_decode.raw" --json); then
+            echo "$result" | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='decode_1024'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
+        else
+            echo "{\"row\": \"decode_1024\", \"which\": \"$backend\", \"failed_or_timed_out\": true}" >> "$log"
+        fi
         rm -f "$out/gpu_decode.raw"
+        keep "$log"
     done
 fi
 
 # Push latency and the solver's slowdown with the encoder on the GPU.
-if [ "${INSITU:-1}" = 1 ] && want insitu; then
-    GSENC_BACKEND=gpu timeout 240 bash benches/insitu.sh 1 8 600 > "$out/gpu-insitu.md" || echo "insitu: failed or timed out" >> "$out/gpu-insitu.md"
+if [ "${INSITU:-1}" = 1 ] && want insitu && ! late insitu; then
+    GSENC_BACKEND=gpu timeout "${ROW_LIMIT:-240}" bash benches/insitu.sh 1 8 600 > "$out/gpu-insitu.md" || echo "insitu: failed or timed out" >> "$out/gpu-insitu.md"
     cat "$out/gpu-insitu.md" >&2
+    keep "$out/gpu-insitu.md"
+    [ -z "${OUT:-}" ] || cp bench-out/insitu/runs.jsonl "$OUT/gpu-insitu-runs.jsonl" 2>/dev/null || true
 fi
 
 python3 - "$log" <<'PY' | tee "$out/gpu-table.md"
-import json, sys
+import json, statistics, sys
 rows = {}
 for line in open(sys.argv[1]):
     d = json.loads(line)
     if d.get("failed_or_timed_out"):
         print(f"<!-- {d['row']} on {d['which']}: failed or timed out -->")
         continue
-    rows.setdefault(d["row"], {})[d["which"]] = d
-print("| row | backend | iterations | voxel PSNR dB | loop s | s / iteration | GPU speed-up per iteration | PSNR gap dB |")
-print("|---|---|---|---|---|---|---|---|")
+    rows.setdefault(d["row"], {}).setdefault(d["which"], []).append(d)
+# Repeated runs: the median time; the PSNR of the first (runs on one
+# adapter are bitwise equal, so any run's PSNR is the same).
+sec = lambda runs: statistics.median(d["seconds"] for d in runs)
+print("| row | backend | runs | iterations | voxel PSNR dB | loop s (median) | s / iteration | GPU speed-up per iteration | PSNR gap dB |")
+print("|---|---|---|---|---|---|---|---|---|")
 for name, by in rows.items():
     if name == "decode_1024":
-        g, c = by.get("gpu"), by.get("cpu")
-        for w, d in by.items():
-            print(f"| {name} | {d.get('backend', w)} | | | {d['seconds']:.2f} | | {c['seconds'] / g['seconds']:.1f}x |  |" if w == "gpu" and c else f"| {name} | {w} | | | {d['seconds']:.2f} | | | |")
+        for w, runs in by.items():
+            ratio = f"{sec(by['cpu']) / sec(runs):.1f}x" if w == "gpu" and "cpu" in by else ""
+            print(f"| {name} | {runs[0].get('backend', w)} | {len(runs)} | | | {sec(runs):.2f} | | {ratio} | |")
         continue
-    per = {w: d["seconds"] / d["iterations"] for w, d in by.items()}
-    for w, d in by.items():
+    per = {w: sec(runs) / runs[0]["iterations"] for w, runs in by.items()}
+    for w, runs in by.items():
+        d = runs[0]
         ratio = f"{per['cpu'] / per['gpu']:.1f}x" if w == "gpu" and "cpu" in per else ""
         gap = ""
-        if w == "gpu" and "cpu" in by and by["cpu"]["iterations"] == d["iterations"]:
-            gap = f"{d['voxel_psnr'] - by['cpu']['voxel_psnr']:+.3f}"
-        print(f"| {name} | {d['backend']} | {d['iterations']} | {d['voxel_psnr']:.2f} | {d['seconds']:.2f} | {per[w]*1e3:.2f} ms | {ratio} | {gap} |")
+        if w == "gpu" and "cpu" in by and by["cpu"][0]["iterations"] == d["iterations"]:
+            gap = f"{d['voxel_psnr'] - by['cpu'][0]['voxel_psnr']:+.3f}"
+        print(f"| {name} | {d['backend']} | {len(runs)} | {d['iterations']} | {d['voxel_psnr']:.2f} | {sec(runs):.2f} | {per[w]*1e3:.2f} ms | {ratio} | {gap} |")
 PY
-if [ -n "${OUT:-}" ]; then
-    cp "$out"/gpu.jsonl "$out"/gpu-*.json "$out"/gpu-table.md "$out"/gpu-insitu.md "$OUT"/ 2>/dev/null || true
-    cp "$out"/gpu-nvidia-smi.csv "$out"/gpu-cpu.txt "$OUT"/ 2>/dev/null || true
-fi
+keep "$out/gpu-table.md"

@@ -7,13 +7,19 @@
 #   bash benches/insitu.sh [RUNS [STEPS [SWEEPS [BUDGET [ITERATIONS [WARM_ITERATIONS]]]]]]
 #   (defaults 3 runs, 12 steps, 1800 Jacobi sweeps a step (about 4 s here),
 #   4000 Gaussians, 200 iterations for step 0, 60 for warm steps)
+# INSITU_BIN names a prebuilt mock solver (the cc line below, run elsewhere)
+# for a machine without a Rust toolchain.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs=${1:-3} steps=${2:-12} sweeps=${3:-1800} budget=${4:-4000} iters=${5:-200} warm=${6:-60}
-cargo build --release --locked -p gsenc-capi >&2
 out=bench-out/insitu
 mkdir -p "$out"
-cc -std=c99 -O2 -Iinclude -Iexamples_c benches/insitu.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/insitu"
+if [ -n "${INSITU_BIN:-}" ]; then
+    cp "$INSITU_BIN" "$out/insitu"
+else
+    cargo build --release --locked -p gsenc-capi >&2
+    cc -std=c99 -O2 -Iinclude -Iexamples_c benches/insitu.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/insitu"
+fi
 : > "$out/runs.jsonl"
 for r in $(seq "$runs"); do
     for mode in 0 1; do
