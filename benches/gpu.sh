@@ -7,7 +7,8 @@
 # Env: ITERS caps every row's iterations (default: the schedule's);
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
 # the CPU rows need not run the whole schedule; CPU_ITERS= runs the whole
-# schedule, which the PSNR gap needs); ROWS selects rows by name; REPEAT
+# schedule, which the PSNR gap needs); ROWS selects rows by name, WHICH
+# the backends (default "gpu cpu"); REPEAT
 # (default 1) runs each GPU row that many times (the table takes medians)
 # while the script is younger than DEADLINE seconds (default 300);
 # ROW_LIMIT (default 150 s; 240 s for the in-situ run) stops any one run,
@@ -51,6 +52,7 @@ late() { # true (and says so) when STOP_AFTER has passed
 run() { # name backend iteration-cap args...
     local name=$1 backend=$2 cap=$3; shift 3
     want "$name" || return 0
+    [[ " ${WHICH:-gpu cpu} " == *" $backend "* ]] || return 0
     late "$name" && return 0
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")

@@ -24,11 +24,13 @@ struct Failing {
     error: fn() -> Error,
     resident: bool,
     held: Option<(Vec<Primitive>, Adam)>,
+    /// What the last `submit` computed, until `finish` returns it.
+    submitted: Option<Option<(PointLoss, RegTerms)>>,
     steps: usize,
 }
 
 fn failing(fail_at: usize, error: fn() -> Error, resident: bool) -> Failing {
-    Failing { inner: CpuBackend::new(), calls: 0, fail_at, error, resident, held: None, steps: 0 }
+    Failing { inner: CpuBackend::new(), calls: 0, fail_at, error, resident, held: None, submitted: None, steps: 0 }
 }
 
 impl Resident for Failing {
@@ -37,15 +39,21 @@ impl Resident for Failing {
         self.held = Some((params.to_vec(), adam.clone()));
         Ok(())
     }
-    fn step(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<Option<(PointLoss, RegTerms)>> {
+    fn submit(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()> {
         self.tick()?;
+        assert!(self.submitted.is_none(), "submit twice without finish");
         self.steps += 1;
         let (params, adam) = self.held.as_mut().expect("loaded");
         let mut grad = vec![[0.0; 12]; params.len()];
         let pl = self.inner.point_loss_grad(params, batch, weights, &mut grad)?;
         let reg = regularizers(params, weights, &mut grad);
         adam.step(params, &grad, lr);
-        Ok(report.then_some((pl, reg)))
+        self.submitted = Some(report.then_some((pl, reg)));
+        Ok(())
+    }
+    fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>> {
+        self.tick()?;
+        Ok(self.submitted.take().expect("finish after submit"))
     }
     fn store(&mut self, params: &mut [Primitive], adam: &mut Adam) -> Result<()> {
         self.tick()?;

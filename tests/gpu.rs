@@ -394,3 +394,43 @@ fn one_resident_adam_step_matches_the_host() {
     assert!(again.iter().flatten().zip(dev_p.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
     assert_eq!(again_a.t, 5);
 }
+
+/// A submitted resident step holds the device until `finish`: every other
+/// call in between is an error that leaves the step intact, and the step
+/// finished late is the step run at once, bit for bit.
+#[test]
+fn a_submitted_step_holds_the_device_until_it_finishes() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(23);
+    let params = random_model(&mut rng, 120, 24.0);
+    let b = random_batch(&mut rng, 1500, 24.0);
+    let w = LossWeights::default();
+    let adam = Adam::new(params.len());
+    let lr = 5e-3;
+    let r = g.resident().unwrap();
+    assert!(r.finish().is_err(), "finish without a submit");
+    r.load(&params, &adam).unwrap();
+    let at_once = r.step(&b, &w, lr, true).unwrap().unwrap();
+    let (mut at_once_p, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+    r.store(&mut at_once_p, &mut a).unwrap();
+
+    r.load(&params, &adam).unwrap();
+    r.submit(&b, &w, lr, true).unwrap();
+    assert!(r.submit(&b, &w, lr, true).is_err(), "a second submit");
+    let mut scratch = (vec![[0.0; 12]; params.len()], Adam::new(0));
+    assert!(r.store(&mut scratch.0, &mut scratch.1).is_err(), "a store");
+    assert!(r.load(&params, &adam).is_err(), "a load");
+    let (mut rho, mut n) = (vec![0.0; b.pos.len()], vec![0.0; b.pos.len()]);
+    assert!(g.evaluate_points(&params, &b.pos, &mut rho, &mut n).is_err(), "an evaluation");
+    let mut grad = vec![[0.0; 12]; params.len()];
+    assert!(g.point_loss_grad(&params, &b, &w, &mut grad).is_err(), "a gradient");
+    let lattice = Lattice { dims: [4, 4, 4], origin: [0.0; 3], step: [2.0; 3] };
+    assert!(g.decode_lattice(&params, &lattice, &mut vec![0.0; 64]).is_err(), "a decode");
+    let r = g.resident().unwrap();
+    let late = r.finish().unwrap().unwrap();
+    let (mut late_p, mut late_a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+    r.store(&mut late_p, &mut late_a).unwrap();
+    assert_eq!(late_a.t, 1);
+    assert_eq!((late.0.val.to_bits(), late.1.scale.to_bits()), (at_once.0.val.to_bits(), at_once.1.scale.to_bits()));
+    assert!(late_p.iter().flatten().zip(at_once_p.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+}

@@ -169,9 +169,20 @@ pub trait Resident {
     /// Puts `params` and `adam`'s moments and step count on the device.
     fn load(&mut self, params: &[Primitive], adam: &Adam) -> Result<()>;
 
-    /// One iteration at learning rate `lr`; returns the unweighted loss
-    /// terms when `report` (reading them costs a wait for the device).
-    fn step(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<Option<(PointLoss, RegTerms)>>;
+    /// Starts one iteration at learning rate `lr` and returns without
+    /// waiting for it, so that the host can draw the next batch meanwhile.
+    /// `finish` must follow before any other call.
+    fn submit(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()>;
+
+    /// Waits for the submitted iteration; returns its unweighted loss terms
+    /// when it was submitted with `report`.
+    fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>>;
+
+    /// One iteration: `submit`, then `finish`.
+    fn step(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<Option<(PointLoss, RegTerms)>> {
+        self.submit(batch, weights, lr, report)?;
+        self.finish()
+    }
 
     /// Copies the parameters, moments and step count back.
     fn store(&mut self, params: &mut [Primitive], adam: &mut Adam) -> Result<()>;

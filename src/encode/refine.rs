@@ -1,7 +1,7 @@
 //! The refinement loop: seeding (or a warm start), stratified points, the
 //! four-term loss, Adam with cosine decay, and relocation at 35/55/75 %.
 
-use crate::backend::{Backend, PointLoss};
+use crate::backend::{Backend, PointBatch, PointLoss};
 use crate::encode::config::{Cancel, EncodeConfig};
 use crate::encode::points::PointSampler;
 use crate::encode::relocate::{relocate, Relocation, RELOCATE_POINTS};
@@ -206,6 +206,8 @@ fn refine(
     // says whether the host's copies are current.
     let resident = backend.resident().is_some();
     let mut on_host = true;
+    // A batch drawn while the device ran the last step (resident only).
+    let mut ahead: Option<PointBatch> = None;
     let terms = |pl: PointLoss, reg: RegTerms| {
         let w = &cfg.weights;
         LossTerms {
@@ -235,7 +237,10 @@ fn refine(
             adam.v = permute(&adam.v, &order);
             relocations.push(r);
         }
-        let batch = sampler.draw(points, target.reference, target.samples);
+        let batch = match ahead.take() {
+            Some(b) => b,
+            None => sampler.draw(points, target.reference, target.samples),
+        };
         let lr = cosine_lr(cfg.learning_rate, t, iterations);
         if resident {
             let report = t % LOSS_EVERY == 0 || t + 1 == iterations;
@@ -244,7 +249,14 @@ fn refine(
                 r.load(&params, &adam)?;
                 on_host = false;
             }
-            if let Some((pl, reg)) = r.step(&batch, &cfg.weights, lr, report)? {
+            r.submit(&batch, &cfg.weights, lr, report)?;
+            // The next batch is drawn while the device works. The stream's
+            // order stays the host loop's: a relocation draws its own batch
+            // first, so none is drawn ahead of one.
+            if t + 1 < iterations && !reloc_at.contains(&(t + 1)) {
+                ahead = Some(sampler.draw(points, target.reference, target.samples));
+            }
+            if let Some((pl, reg)) = r.finish()? {
                 last = terms(pl, reg);
             }
         } else {

@@ -63,6 +63,10 @@ pub struct GpuBackend {
     evaluations: u64,
     /// What resident training holds on the device, after a `load`.
     loaded: Option<resident::Loaded>,
+    /// The point call submitted and not yet finished (points.rs).
+    in_flight: Option<points::InFlight>,
+    /// The resident step submitted and not yet finished (resident.rs).
+    step: Option<resident::Step>,
     /// Calls that ran again because the candidate lists overflowed.
     pub reruns: u64,
 }
@@ -106,6 +110,8 @@ impl GpuBackend {
             slab_capacity: 1 << 16,
             evaluations: 0,
             loaded: None,
+            in_flight: None,
+            step: None,
             reruns: 0,
         })
     }
@@ -117,6 +123,15 @@ impl GpuBackend {
         self.capacity = slots.max(1);
         self.coarse_capacity = slots.max(1);
         self.slab_capacity = slots.max(1);
+    }
+
+    /// An error when a submitted call has not been finished: every call
+    /// but `finish` needs the device to itself.
+    fn idle(&self, what: &str) -> Result<()> {
+        if self.in_flight.is_some() || self.step.is_some() {
+            return Err(Error::arg(format!("GPU backend: {what} while a submitted step is not finished")));
+        }
+        Ok(())
     }
 
     /// The adapter this backend runs on.
@@ -164,6 +179,7 @@ impl Backend for GpuBackend {
     }
 
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
+        self.idle("an evaluation")?;
         check_len("rho", rho.len(), pos.len())?;
         check_len("n", n.len(), pos.len())?;
         if pos.is_empty() {
@@ -187,6 +203,7 @@ impl Backend for GpuBackend {
     }
 
     fn point_loss_grad(&mut self, params: &[Primitive], batch: &PointBatch, weights: &LossWeights, grad: &mut [Primitive]) -> Result<PointLoss> {
+        self.idle("a gradient")?;
         check_len("grad", grad.len(), params.len())?;
         check_len("vref", batch.vref.len(), batch.pos.len())?;
         if batch.is_empty() || params.is_empty() {
@@ -209,6 +226,7 @@ impl Backend for GpuBackend {
     }
 
     fn decode_lattice(&mut self, params: &[Primitive], lattice: &Lattice, out: &mut [f32]) -> Result<()> {
+        self.idle("a decode")?;
         self.decode(params, lattice, out)
     }
 }

@@ -8,7 +8,7 @@ use super::buffers::uniform;
 use super::kernels::*;
 use super::{bytes, count_u32, seq, words, GpuBackend};
 use crate::backend::bricks::PointBricks;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 
 /// What a point call computes after the forward pass.
@@ -21,6 +21,16 @@ pub(super) enum Pass {
     /// A training step on the resident parameters (adam.wgsl); the loss
     /// terms come back when `report`.
     Resident { report: bool },
+}
+
+/// A point call submitted and not yet finished: what `finish_points`
+/// needs to submit it again when its lists overflow.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct InFlight {
+    pub p: Params,
+    pub nbricks: usize,
+    pub ncoarse: usize,
+    pub pass: Pass,
 }
 
 /// Bricks per coarse cell along each axis: the first level of training bins.
@@ -99,10 +109,48 @@ impl GpuBackend {
     /// Records frames, binning and the forward pass, then what `pass` adds,
     /// reads back `(rho_n or gradient, loss terms, brick list starts)`, and
     /// runs again with more room when a level of candidate lists overflowed.
-    pub(super) fn run_points(&mut self, mut p: Params, nbricks: usize, ncoarse: usize, pass: Pass) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
+    pub(super) fn run_points(&mut self, p: Params, nbricks: usize, ncoarse: usize, pass: Pass) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
+        self.submit_points(InFlight { p, nbricks, ncoarse, pass })?;
+        self.finish_points()
+    }
+
+    /// Waits for the call `submit_points` started and returns what
+    /// `run_points` does, submitting it again (and waiting) with more room
+    /// while a level of candidate lists overflows.
+    pub(super) fn finish_points(&mut self) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
+        loop {
+            let call = self.in_flight.take().ok_or_else(|| Error::arg("GPU backend: nothing submitted to finish"))?;
+            let gpu = &self.gpu;
+            let b = &mut self.bufs;
+            let out = gpu.scoped("reading a point pass back", || b.readback.read(gpu));
+            let out = self.timed(out)?;
+            let mut out = out.into_iter();
+            let mut next = || out.next().unwrap_or_default();
+            let (first, loss, starts, starts1) = (next(), next(), words(&next()), words(&next()));
+            let (total, total1) = (starts.last().copied().unwrap_or(0) as usize, starts1.last().copied().unwrap_or(0) as usize);
+            if total1 > self.coarse_capacity {
+                self.coarse_capacity = total1 + total1 / 4;
+            } else if total > self.capacity {
+                self.capacity = total + total / 4;
+            } else {
+                return Ok((first, loss, starts));
+            }
+            self.reruns += 1;
+            self.submit_points(call)?;
+        }
+    }
+
+    /// Records and submits a point call without waiting for it: the host
+    /// can prepare the next batch while the device works. `finish_points`
+    /// must follow before any other call.
+    pub(super) fn submit_points(&mut self, call: InFlight) -> Result<()> {
+        if self.in_flight.is_some() {
+            return Err(Error::arg("GPU backend: a call submitted before the last one finished"));
+        }
+        let InFlight { mut p, nbricks, ncoarse, pass } = call;
         let n = p.counts[0] as usize;
         let npts = p.counts[3] as usize;
-        loop {
+        {
             p.counts[2] = count_u32("candidate slots", self.capacity)?;
             p.coarse[0] = count_u32("coarse cells", ncoarse)?;
             p.coarse[1] = count_u32("candidate slots", self.coarse_capacity)?;
@@ -165,22 +213,15 @@ impl GpuBackend {
                 read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (ncoarse as u64 + 1)), times]);
                 b.readback.record(gpu, &mut enc, &read)?;
                 gpu.queue.submit([enc.finish()]);
-                b.readback.read(gpu)
+                Ok(())
             });
-            let out = self.timed(out)?;
-            let mut out = out.into_iter();
-            let mut next = || out.next().unwrap_or_default();
-            let (first, loss, starts, starts1) = (next(), next(), words(&next()), words(&next()));
-            let (total, total1) = (starts.last().copied().unwrap_or(0) as usize, starts1.last().copied().unwrap_or(0) as usize);
-            if total1 > self.coarse_capacity {
-                self.coarse_capacity = total1 + total1 / 4;
-            } else if total > self.capacity {
-                self.capacity = total + total / 4;
-            } else {
-                return Ok((first, loss, starts));
+            if let Err(e) = out {
+                self.timer.discard();
+                return Err(e);
             }
-            self.reruns += 1;
         }
+        self.in_flight = Some(InFlight { p, nbricks, ncoarse, pass });
+        Ok(())
     }
 
     /// Kernel evaluations of a forward pass: points times candidates per brick.

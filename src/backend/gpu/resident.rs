@@ -1,10 +1,14 @@
 //! Resident training on the GPU: parameters and Adam's moments stay in
 //! device buffers between iterations; a step uploads only the batch's points
 //! and reads back only the list totals (and, when asked, four loss terms).
+//! `submit` returns once the step is on the device's queue, so the host
+//! draws the next batch while the device works; `finish` waits for it.
 //! Mirrors the iteration of encode/refine.rs: `point_loss_grad`, then
 //! `regularizers` and `Adam::step` (adam.wgsl).
 
+use super::points::InFlight;
 use super::{bytes, floats, GpuBackend, Pass};
+use crate::backend::bricks::PointBricks;
 use crate::backend::{check_len, PointBatch, PointLoss, Resident};
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
@@ -20,8 +24,17 @@ pub(super) struct Loaded {
     t: u32,
 }
 
+/// A resident step submitted and not yet finished.
+pub(super) struct Step {
+    /// Adam's step count once it finishes.
+    t: u32,
+    bricks: PointBricks,
+    report: bool,
+}
+
 impl Resident for GpuBackend {
     fn load(&mut self, params: &[Primitive], adam: &Adam) -> Result<()> {
+        self.idle("a load")?;
         check_len("Adam's m", adam.m.len(), params.len())?;
         check_len("Adam's v", adam.v.len(), params.len())?;
         self.loaded = None;
@@ -32,8 +45,9 @@ impl Resident for GpuBackend {
         Ok(())
     }
 
-    fn step(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<Option<(PointLoss, RegTerms)>> {
+    fn submit(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()> {
         let Loaded { n, t } = self.loaded.ok_or_else(|| Error::arg("GPU backend: a resident step before any load"))?;
+        self.idle("a resident step")?;
         check_len("vref", batch.vref.len(), batch.pos.len())?;
         if batch.is_empty() || n == 0 {
             return Err(Error::arg("GPU backend: a resident step needs points and primitives"));
@@ -48,7 +62,16 @@ impl Resident for GpuBackend {
         p.reg = [weights.scale, weights.aniso, 1.0 / (3.0 * nf), 1.0 / nf];
         p.stage[3] = 1;
         p.coarse[2] = report as u32;
-        let (_, loss, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Resident { report })?;
+        let nbricks = bricks.ranges.len();
+        self.submit_points(InFlight { p, nbricks, ncoarse, pass: Pass::Resident { report } })?;
+        self.step = Some(Step { t, bricks, report });
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>> {
+        let Step { t, bricks, report } = self.step.take().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
+        let n = self.loaded.map_or(0, |l| l.n);
+        let (_, loss, starts) = self.finish_points()?;
         self.loaded = Some(Loaded { n, t });
         self.count_evaluations(&bricks, &starts);
         Ok(report.then(|| {
@@ -59,6 +82,7 @@ impl Resident for GpuBackend {
 
     fn store(&mut self, params: &mut [Primitive], adam: &mut Adam) -> Result<()> {
         let Loaded { n, t } = self.loaded.ok_or_else(|| Error::arg("GPU backend: a store before any load"))?;
+        self.idle("a store")?;
         check_len("params", params.len(), n)?;
         let (gpu, b) = (&self.gpu, &mut self.bufs);
         let read = gpu.scoped("reading the parameters back", || {
