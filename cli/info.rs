@@ -47,6 +47,8 @@ pub fn info(a: InfoArgs) -> Result<()> {
             "points": meta.points,
             "seed_init": meta.seed_init,
             "seed_sample": meta.seed_sample,
+            // Why the encode ran on the CPU after the GPU failed (null: it did not).
+            "fell_back": meta.fell_back,
             // Reference voxels where the model holds data (null: every voxel).
             "support_voxels": m.support.as_ref().map(|s| s.count()),
         }),

@@ -203,6 +203,7 @@ mod imp {
                     "points": i.meta.points,
                     "seed_init": i.meta.seed_init,
                     "seed_sample": i.meta.seed_sample,
+                    "fell_back": i.meta.fell_back,
                 }),
                 Err(why) => json!({ "entry": e.key.path(), "error": why.to_string() }),
             })

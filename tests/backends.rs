@@ -6,7 +6,11 @@ use common::*;
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::backend::select::{BackendChoice, BackendKind, Fallback};
 use gsenc::backend::{Backend, Lattice, PointBatch, PointLoss, Resident};
+use gsenc::encode::pipeline::{self, Request};
 use gsenc::encode::{encode, EncodeConfig, Schedule};
+use gsenc::field::{IndexFrame, Transform};
+use gsenc::format::{read_model_file, write_model};
+use gsenc::input::{Input, RangeSpec};
 use gsenc::input::Target;
 use gsenc::math::kernel::Primitive;
 use gsenc::math::loss::{regularizers, LossWeights, RegTerms};
@@ -123,6 +127,19 @@ fn a_device_lost_mid_encode_finishes_on_the_cpu_and_says_so() {
     assert!(out.fell_back.as_deref().is_some_and(|m| m.contains("device lost")), "{:?}", out.fell_back);
     // The stand-in computes what the CPU does, so the model is the same.
     assert_eq!(out.params, reference.params);
+    // The model file says so too (format 1.3), and a model whose encode ran
+    // where it was meant to stays a 1.2 file.
+    let frame = IndexFrame::for_grid(field.dims, [0.0; 3], 1.0).unwrap();
+    let input = Input::Grid { values: &field, frame };
+    let range = RangeSpec::FromData(Transform::Linear);
+    let mut auto = Fallback::with_gpu(Box::new(failing(25, lost, false)), None);
+    let (_, enc) = pipeline::encode(&input, &range, &Request::new(cfg.clone()), &mut auto, &mut |_| {}).unwrap();
+    let file = read_model_file(&write_model(&enc.model).unwrap()).unwrap();
+    assert_eq!(file.version, (1, 3));
+    assert!(file.model.meta.fell_back.as_deref().is_some_and(|m| m.contains("device lost")), "{:?}", file.model.meta.fell_back);
+    let (_, enc) = pipeline::encode(&input, &range, &Request::new(cfg.clone()), &mut CpuBackend::new(), &mut |_| {}).unwrap();
+    let file = read_model_file(&write_model(&enc.model).unwrap()).unwrap();
+    assert_eq!((file.version, file.model.meta.fell_back), ((1, 2), None));
     // And a backend that works keeps the work and reports no fall-back.
     let fine = || Error::Device("never".into());
     let mut auto = Fallback::with_gpu(Box::new(failing(usize::MAX, fine, false)), None);

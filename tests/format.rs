@@ -47,6 +47,7 @@ fn model_without_extras(n: usize, rng: &mut Rng) -> Model {
             time: None,
             rank: 0,
             encode_psnr: None,
+            fell_back: None,
         },
         // Centres inside the reference box, the rest spread like trained parameters.
         params: (0..n)
@@ -217,12 +218,14 @@ fn foreign_and_newer_files_are_rejected_with_clear_errors() {
 
 #[test]
 fn a_newer_minor_version_with_extra_header_fields_is_read() {
-    // A minor version past 1.2 carries the 1.2 fields (the support), then its own.
-    let m = model_with_support(4);
+    // A minor version past 1.3 carries the 1.3 fields (the support and the
+    // fall-back), then its own.
+    let mut m = model_with_support(4);
+    m.meta.fell_back = Some("device lost".into());
     let b = write_model(&m).unwrap();
     let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     let mut out = b[..16 + header_len].to_vec();
-    out[10..12].copy_from_slice(&3u16.to_le_bytes());
+    out[10..12].copy_from_slice(&4u16.to_le_bytes());
     out.extend_from_slice(b"future fields");
     out[12..16].copy_from_slice(&((header_len + 13) as u32).to_le_bytes());
     out.extend_from_slice(&b[16 + header_len..b.len() - 4]);
@@ -291,6 +294,27 @@ fn a_support_is_stored_in_version_1_2_and_a_model_without_one_stays_1_1() {
     let mut m = model(2);
     m.support = Support::from_reference(&Grid::new([4, 4, 4], vec![0.0; 64]).unwrap());
     assert!(matches!(write_model(&m), Err(Error::InvalidArgument(_))));
+}
+
+#[test]
+fn a_fall_back_is_stored_in_version_1_3_with_or_without_a_support() {
+    let why = "GPU 'NVIDIA H200': device lost";
+    for payload in Payload::ALL {
+        for mut m in [model(5), model_with_support(5)] {
+            m.meta.fell_back = Some(why.into());
+            let file = read_model_file(&write_model_as(&m, payload).unwrap()).unwrap();
+            assert_eq!(file.version, (1, 3));
+            assert_eq!(file.model.meta.fell_back.as_deref(), Some(why));
+            assert_eq!(file.model.support, m.support);
+        }
+    }
+    // A reason longer than a header string holds is cut at a character
+    // boundary, not refused: the model matters more than its note.
+    let mut m = model(2);
+    m.meta.fell_back = Some("é".repeat(40_000));
+    let back = read_model(&write_model(&m).unwrap()).unwrap().meta.fell_back.unwrap();
+    assert_eq!(back.len(), 65_534);
+    assert!(back.chars().all(|c| c == 'é'));
 }
 
 /// The header of a 1.2 file with its support frame replaced by `frame`,

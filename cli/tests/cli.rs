@@ -433,6 +433,7 @@ fn payloads_convert_info_and_sub_box_decode() {
     assert!((eval(&f32m) - psnr8).abs() < 0.5, "8-bit costs little PSNR");
     let i8 = info(&eightm);
     assert_eq!((i8["payload"].as_str(), i8["format"].as_str()), (Some("8bit"), Some("gsenc model 1.2")));
+    assert!(i8["fell_back"].is_null(), "an encode on the CPU it chose did not fall back");
     assert!((i8["encode_psnr"].as_f64().unwrap() - psnr8).abs() < 1e-9);
     assert_eq!(i8["time"].as_f64(), Some(2.5));
 

@@ -23,7 +23,10 @@ fn one_process_writes_another_reads() {
     // The command-line tool, another process, writes two steps...
     let mut files = Vec::new();
     for step in [5u64, 6] {
-        let m = model("rho", step, 1, 300, 0.5);
+        let mut m = model("rho", step, 1, 300, 0.5);
+        if step == 6 {
+            m.meta.fell_back = Some("GPU 'x': device lost (test)".into());
+        }
         let f = dir.join(format!("m{step}.gsm"));
         std::fs::write(&f, write_model_as(&m, Payload::Float32).unwrap()).unwrap();
         files.push((f, m));
@@ -42,6 +45,7 @@ fn one_process_writes_another_reads() {
         assert_eq!(payload, Payload::Bits8(CentreCoding::Fixed16));
         assert_eq!(back.params, payload.round_trip(&m.params).unwrap());
         assert_eq!(back.meta.encode_psnr, None, "a lossy payload cannot keep the float32 PSNR");
+        assert_eq!(back.meta.fell_back, m.meta.fell_back);
     }
     drop(s);
     // This process appends; the tool reads it back in another process.
@@ -56,6 +60,8 @@ fn one_process_writes_another_reads() {
     assert_eq!(entries[2]["primitives"], 100);
     assert_eq!(entries[2]["time"], 1.75);
     assert_eq!(entries[0]["payload"], "8bit-u16");
+    assert!(entries[0]["fell_back"].is_null());
+    assert_eq!(entries[1]["fell_back"], "GPU 'x': device lost (test)");
     // And extracts a model that equals what this process stored.
     let got = dir.join("got.gsm");
     let out = Command::new(gsenc_bin()).args(["store", "extract"]).arg(&path).arg("rho/7/1").arg("-o").arg(&got).output().unwrap();

@@ -158,6 +158,7 @@ pub fn encode_prepared(
         time: l.time,
         rank: l.rank,
         encode_psnr: None,
+        fell_back: output.fell_back.clone(),
     };
     let support = request.store_support.then(|| Support::from_reference(&prepared.reference)).flatten();
     let mut model = Model { meta, params: output.params.clone(), support };

@@ -1,8 +1,9 @@
-//! The model file (`.gsm`), version 1.2. All little-endian.
+//! The model file (`.gsm`), version 1.3. All little-endian.
 //!
 //! ```text
 //! 0   magic        8 bytes  "GSENCMDL"
-//! 8   major, minor u16, u16 (1, 2; 1, 1 when the model has no support)
+//! 8   major, minor u16, u16 (1, 2; 1, 1 when the model has no support;
+//!                           1, 3 when its encode fell back to the CPU)
 //! 12  header_len   u32      bytes of the header that follows
 //! 16  header       header_len bytes:
 //!       payload u32 (0 float32, 1 8-bit with float16 centres,
@@ -15,6 +16,8 @@
 //!       -- 1.2: support_len u32, then support_len bytes: one zstd frame of
 //!          the support's bits (`model::Support`: one per reference voxel,
 //!          x fastest, least significant bit first); 0: no support
+//!       -- 1.3: fell_back (u16 length + UTF-8): the device error after
+//!          which the encode ran on the CPU
 //!       -- a newer minor version may append fields; readers skip them.
 //! ..  payload      float32: count x 12 x f32, mu[3] l[3] q[4] alpha beta;
 //!                  8-bit: one zstd frame of the body in `quantize.rs`
@@ -31,9 +34,12 @@ use crate::format::quantize::{self, CentreCoding};
 
 pub const MAGIC: &[u8; 8] = b"GSENCMDL";
 pub const VERSION_MAJOR: u16 = 1;
-pub const VERSION_MINOR: u16 = 2;
-/// The minor version written for a model without a support: the file is
-/// then exactly what gsenc 1.1 wrote.
+pub const VERSION_MINOR: u16 = 3;
+/// The minor version written for a model with a support whose encode ran
+/// where it was meant to: the file is then exactly what gsenc 1.2 wrote.
+const MINOR_WITH_SUPPORT: u16 = 2;
+/// The minor version written for a model without a support (and no
+/// fall-back): the file is then exactly what gsenc 1.1 wrote.
 const MINOR_WITHOUT_SUPPORT: u16 = 1;
 /// Bytes a primitive of the float32 payload.
 pub const BYTES_PER_PRIMITIVE: usize = 48;
@@ -137,6 +143,15 @@ fn put_str(out: &mut Vec<u8>, s: &str) -> Result<()> {
     Ok(())
 }
 
+/// `s` cut to at most `max` bytes, at a character boundary.
+fn clip(s: &str, max: usize) -> &str {
+    let mut end = s.len().min(max);
+    while !s.is_char_boundary(end) {
+        end -= 1;
+    }
+    &s[..end]
+}
+
 /// Serialises a model with the float32 payload.
 pub fn write_model(model: &Model) -> Result<Vec<u8>> {
     write_model_as(model, Payload::Float32)
@@ -171,7 +186,7 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
     h.extend_from_slice(&m.time.unwrap_or(f64::NAN).to_le_bytes());
     h.extend_from_slice(&m.rank.to_le_bytes());
     h.extend_from_slice(&m.encode_psnr.unwrap_or(f64::NAN).to_le_bytes());
-    let minor = match &model.support {
+    let mut minor = match &model.support {
         None => MINOR_WITHOUT_SUPPORT,
         Some(support) => {
             if support.dims() != m.frame.dims {
@@ -181,9 +196,16 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
             let len = u32::try_from(packed.len()).map_err(|_| Error::arg("the support does not fit a model file"))?;
             h.extend_from_slice(&len.to_le_bytes());
             h.extend_from_slice(&packed);
-            VERSION_MINOR
+            MINOR_WITH_SUPPORT
         }
     };
+    if let Some(why) = &m.fell_back {
+        if minor == MINOR_WITHOUT_SUPPORT {
+            h.extend_from_slice(&0u32.to_le_bytes()); // no support
+        }
+        put_str(&mut h, clip(why, u16::MAX as usize))?;
+        minor = VERSION_MINOR;
+    }
 
     let mut out = Vec::with_capacity(PREFIX + h.len() + model.params.len() * BYTES_PER_PRIMITIVE + 4);
     out.extend_from_slice(MAGIC);
@@ -296,6 +318,7 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     } else {
         None
     };
+    let fell_back = if minor >= 3 { Some(h.string()?) } else { None };
 
     let body = bytes.len() - PREFIX - header_len - 4;
     match payload {
@@ -344,6 +367,7 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
             time,
             rank,
             encode_psnr,
+            fell_back,
         },
         params,
         support,

@@ -376,6 +376,9 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
     scalar_attr(g, "seed_init", &m.seed_init)?;
     scalar_attr(g, "seed_sample", &m.seed_sample)?;
     scalar_attr(g, "encode_psnr", &m.encode_psnr.unwrap_or(f64::NAN))?;
+    if let Some(why) = &m.fell_back {
+        scalar_str_attr(g, "fell_back", why)?;
+    }
     if let Some(support) = &model.support {
         // The packed bits, one per reference voxel (x fastest, least
         // significant bit first), deflated like the 8-bit codes.
@@ -438,6 +441,8 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
         time: unknown_is_none(f64a("time")?),
         rank: u32a("rank")?,
         encode_psnr: unknown_is_none(f64a("encode_psnr")?),
+        // Only where the encode fell back to the CPU.
+        fell_back: if g.attr("fell_back").is_ok() { Some(stra("fell_back")?) } else { None },
     };
     if EntryKey::of(&meta) != *key {
         return Err(bad(format!("says it is /{}/{}/rank_{}", meta.field, meta.step, meta.rank)));

@@ -34,6 +34,9 @@ pub struct ModelMeta {
     /// Voxel PSNR of the stored model against its reference at encode time,
     /// when it was measured (after any 8-bit quantisation).
     pub encode_psnr: Option<f64>,
+    /// Why the encode ran on the CPU although a GPU was chosen (`auto`
+    /// fell back after a device error); `None` when it ran where chosen.
+    pub fell_back: Option<String>,
 }
 
 impl ModelMeta {
@@ -53,6 +56,7 @@ impl ModelMeta {
             time: None,
             rank: 0,
             encode_psnr: None,
+            fell_back: None,
         }
     }
 }
