@@ -177,6 +177,42 @@ fn calls_are_bitwise_identical_run_to_run() {
     }
 }
 
+/// The passes that bin from every primitive split the primitives into
+/// chunks, one workgroup each; any chunk size gives the same lists, so the
+/// same bits: gradients, evaluations, a resident step and a decode, with
+/// chunks of 4096 (one chunk here), 64 and 7 (uneven, many per cell).
+#[test]
+fn chunked_binning_gives_the_same_bits() {
+    let Some(mut whole) = gpu() else { return };
+    let mut rng = Rng::new(29);
+    let params = random_model(&mut rng, 450, 40.0);
+    let b = random_batch(&mut rng, 4000, 40.0);
+    let w = LossWeights::default();
+    let lattice = Lattice { dims: [21, 18, 30], origin: [0.5, -1.0, 2.0], step: [2.0, 2.25, 1.5] };
+    let run = |g: &mut GpuBackend| {
+        let mut grad = vec![[0.0; 12]; params.len()];
+        let loss = g.point_loss_grad(&params, &b, &w, &mut grad).unwrap();
+        let (mut rho, mut n) = (vec![0.0; b.len()], vec![0.0; b.len()]);
+        g.evaluate_points(&params, &b.pos, &mut rho, &mut n).unwrap();
+        let mut decoded = vec![0.0; lattice.dims.iter().product()];
+        g.decode_lattice(&params, &lattice, &mut decoded).unwrap();
+        let r = g.resident().unwrap();
+        r.load(&params, &Adam::new(params.len())).unwrap();
+        r.step(&b, &w, 4e-3, false).unwrap();
+        let (mut stepped, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+        r.store(&mut stepped, &mut a).unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        (loss, bits(grad.as_flattened()), bits(&rho), bits(&n), bits(&decoded), bits(stepped.as_flattened()))
+    };
+    let reference = run(&mut whole);
+    assert!(reference.4.iter().any(|&x| f32::from_bits(x) > 0.0), "the decode must see primitives");
+    for chunk in [64, 7] {
+        let mut g = gpu().unwrap();
+        g.set_bin_chunk(chunk);
+        assert!(run(&mut g) == reference, "chunks of {chunk}");
+    }
+}
+
 #[test]
 fn overflowing_candidate_lists_run_again_with_the_same_result() {
     let Some(mut g) = gpu() else { return };

@@ -38,15 +38,19 @@ impl GpuBackend {
         };
         let layer = d[0] * d[1];
         let ncells = count_u32("bricks", nbx * nby)?;
+        let split = bin_split(params.len(), self.bin_chunk)?;
         let mut frames_done = false;
         let mut bz = 0;
         while bz < nbz {
             let z0 = bz * bs;
             let layers = bs.min(d[2] - z0);
-            let slab_p = Params { counts: [n, 1, n, 0], stage: [BIN_SLAB, bz as u32, z0 as u32, 0], ..base };
+            // The slab's list from every primitive, in chunks; each brick's
+            // from the slab's list whole.
+            let slab_p = Params { counts: [n, 1, n, 0], stage: [BIN_SLAB, bz as u32, z0 as u32, 0], bin: [split, 1, 0, 0], ..base };
             let brick_p = Params {
                 counts: [n, ncells, count_u32("candidate slots", self.slab_capacity)?, 0],
                 stage: [BIN_SLAB_BRICKS, bz as u32, z0 as u32, 0],
+                bin: [1, split, 0, 0],
                 ..base
             };
             let g = self.garbage;
@@ -54,8 +58,8 @@ impl GpuBackend {
             let k = &self.kernels;
             let timer = &mut self.timer;
             let b = &mut self.bufs;
-            b.coarse_counts.ensure(gpu, 4, g)?;
-            b.coarse_starts.ensure(gpu, 8, g)?;
+            b.coarse_counts.ensure(gpu, 4 * split as u64, g)?;
+            b.coarse_starts.ensure(gpu, 4 * (split as u64 + 1), g)?;
             b.coarse_lists.ensure(gpu, 4 * n as u64, g)?;
             b.counts.ensure(gpu, 4 * ncells as u64, g)?;
             b.starts.ensure(gpu, 4 * (ncells as u64 + 1), g)?;
@@ -74,9 +78,9 @@ impl GpuBackend {
                     dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u1, params, hot, ranges]), groups_for(n as usize));
                 }
                 // The slab's primitives, from all of them.
-                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), 1);
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), split);
                 dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, sc, ss]), 1);
-                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], 1);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], split);
                 // Each brick's, from the slab's.
                 dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u2, ranges, sl, ss, cells, counts]), ncells);
                 dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u2, counts, starts]), 1);

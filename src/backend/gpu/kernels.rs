@@ -22,6 +22,7 @@ pub struct Params {
     pub optim: [f32; 4],
     pub reg: [f32; 4],
     pub coarse: [u32; 4],
+    pub bin: [u32; 4],
 }
 
 /// math.wgsl `CELLS_*`: how a primitive's box maps to grid cells.
@@ -31,6 +32,17 @@ pub const CELLS_LATTICE: u32 = 1;
 pub const BIN_LISTED: u32 = 0;
 pub const BIN_SLAB: u32 = 1;
 pub const BIN_SLAB_BRICKS: u32 = 2;
+/// The most source entries one workgroup of a bin pass tests: a level that
+/// bins from every primitive splits each cell's source into chunks of this
+/// size, one workgroup each, so that a few coarse cells still fill the GPU.
+pub const BIN_CHUNK: usize = 4096;
+
+/// Chunks of `chunk` entries a bin pass over a source list of `len`
+/// entries splits it into.
+pub fn bin_split(len: usize, chunk: usize) -> Result<u32> {
+    super::count_u32("bin chunks", len.div_ceil(chunk.max(1)).max(1))
+}
+
 /// decode.wgsl `BS`: edge of a decode brick in lattice points.
 pub const DECODE_BRICK: usize = 8;
 /// Threads per workgroup of the per-primitive kernels (frames, reduce).

@@ -60,6 +60,9 @@ pub struct GpuBackend {
     coarse_capacity: usize,
     /// Room in the per-brick lists of a decode slab, grown on overflow.
     slab_capacity: usize,
+    /// Source entries a workgroup of a bin pass from every primitive tests
+    /// (`kernels::BIN_CHUNK`; tests make it small).
+    bin_chunk: usize,
     evaluations: u64,
     /// What resident training holds on the device, after a `load`.
     loaded: Option<resident::Loaded>,
@@ -108,6 +111,7 @@ impl GpuBackend {
             capacity: 1 << 16,
             coarse_capacity: 1 << 16,
             slab_capacity: 1 << 16,
+            bin_chunk: kernels::BIN_CHUNK,
             evaluations: 0,
             loaded: None,
             in_flight: None,
@@ -132,6 +136,13 @@ impl GpuBackend {
             return Err(Error::arg(format!("GPU backend: {what} while a submitted step is not finished")));
         }
         Ok(())
+    }
+
+    /// Splits the passes that bin from every primitive into chunks of
+    /// `entries` (default `kernels::BIN_CHUNK`); the results do not depend
+    /// on it, and tests use it to split small models.
+    pub fn set_bin_chunk(&mut self, entries: usize) {
+        self.bin_chunk = entries.max(1);
     }
 
     /// The adapter this backend runs on.

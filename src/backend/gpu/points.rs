@@ -93,7 +93,6 @@ impl GpuBackend {
         self.bufs.occupied.upload(&self.gpu, bytes(&bricks.occupied), g)?;
         let nb = bricks.ranges.len();
         self.bufs.counts.ensure(&self.gpu, 4 * nb as u64, g)?;
-        self.bufs.coarse_counts.ensure(&self.gpu, 2 * coarse.len() as u64, g)?;
         self.bufs.rho_n.ensure(&self.gpu, 8 * pos.len() as u64, g)?;
         self.bufs.terms.ensure(&self.gpu, 16 * pos.len() as u64, g)?;
         let p = Params {
@@ -154,13 +153,20 @@ impl GpuBackend {
             p.counts[2] = count_u32("candidate slots", self.capacity)?;
             p.coarse[0] = count_u32("coarse cells", ncoarse)?;
             p.coarse[1] = count_u32("candidate slots", self.coarse_capacity)?;
-            let coarse_p = Params { counts: [p.counts[0], p.coarse[0], p.coarse[1], 0], ..p };
+            // The coarse level bins from every primitive, in chunks; the
+            // brick level reads the coarse lists whole.
+            let split = bin_split(n, self.bin_chunk)?;
+            p.bin = [1, split, 0, 0];
+            let coarse_p = Params { counts: [p.counts[0], p.coarse[0], p.coarse[1], 0], bin: [split, 1, 0, 0], ..p };
+            let coarse_entries = ncoarse as u64 * split as u64;
+            let coarse_groups = count_u32("coarse bin workgroups", coarse_entries as usize)?;
             let g = self.garbage;
             let gpu = &self.gpu;
             let k = &self.kernels;
             let timer = &mut self.timer;
             let b = &mut self.bufs;
-            b.coarse_starts.ensure(gpu, 4 * (ncoarse as u64 + 1), g)?;
+            b.coarse_counts.ensure(gpu, 4 * coarse_entries, g)?;
+            b.coarse_starts.ensure(gpu, 4 * (coarse_entries + 1), g)?;
             b.coarse_lists.ensure(gpu, 4 * self.coarse_capacity as u64, g)?;
             b.starts.ensure(gpu, 4 * (nbricks as u64 + 1), g)?;
             b.lists.ensure(gpu, 4 * self.capacity as u64, g)?;
@@ -180,12 +186,12 @@ impl GpuBackend {
                 let (cells, counts, starts, lists) = (b.cells.ensure(gpu, 0, false)?, b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
                 let (bp, pts, rho_n, terms) = (b.brick_points.ensure(gpu, 0, false)?, b.points.ensure(gpu, 0, false)?, b.rho_n.ensure(gpu, 0, false)?, b.terms.ensure(gpu, 0, false)?);
                 let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
-                let (nb, nc) = (nbricks as u32, ncoarse as u32);
+                let nb = nbricks as u32;
                 dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
                 // Each coarse cell's primitives, from all of them.
-                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), nc);
+                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), coarse_groups);
                 dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, counts1, starts1]), 1);
-                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], nc);
+                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], coarse_groups);
                 // Each brick's, from its coarse cell's.
                 dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
                 dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u, counts, starts]), 1);
@@ -210,7 +216,7 @@ impl GpuBackend {
                     }
                 }
                 let times = timer.resolve(&mut enc).unwrap_or((loss, 0));
-                read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (ncoarse as u64 + 1)), times]);
+                read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (coarse_entries + 1)), times]);
                 b.readback.record(gpu, &mut enc, &read)?;
                 gpu.queue.submit([enc.finish()]);
                 Ok(())

@@ -21,7 +21,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     if g >= P.counts.x {
         return;
     }
-    if starts[P.counts.y] > P.counts.z || coarse_starts[P.coarse.x] > P.coarse.y {
+    if starts[P.counts.y] > P.counts.z || coarse_starts[P.coarse.x * max(P.bin.y, 1u)] > P.coarse.y {
         return;
     }
     var p: array<f32, 12>;

@@ -1,8 +1,12 @@
 // Binning: for every cell of a pass, the primitives of its source list
 // whose cell range overlaps the cell, in source order. One workgroup per
-// cell gathers, each thread over its own contiguous run of the source list
-// (no atomics, so every list is in a fixed order):
-//   `count`: how many, per cell;  (then scan.wgsl: each list's start)
+// (cell, chunk of its source list) gathers, each thread over its own
+// contiguous run of the chunk (no atomics, so every list is in a fixed
+// order); a pass from every primitive splits the source into chunks of
+// BIN_CHUNK (kernels.rs), so that a handful of coarse cells still gives the
+// GPU thousands of workgroups. Counts and starts are per (cell, chunk),
+// cell-major, so a cell's chunks follow each other in its list:
+//   `count`: how many, per (cell, chunk);  (then scan.wgsl: the starts)
 //   `fill`:  the lists themselves, written up to `P.counts.z` entries; the
 //            scan's total tells the host whether they fitted.
 // A cell's source list is its parent's list of the pass before: every
@@ -46,16 +50,24 @@ fn overlaps(g: u32, lo: vec3<u32>, hi: vec3<u32>) -> bool {
     return r0.w == 0u && all(r0.xyz <= hi) && all(r1 >= lo);
 }
 
-// Cell c's source list, clamped to the buffer (a parent list that
-// overflowed its capacity is read no further than it was written; the host
-// runs the call again anyway).
-fn source(c: u32) -> vec2<u32> {
+fn split() -> u32 {
+    return max(P.bin.x, 1u);
+}
+
+// Chunk k of cell c's source list, clamped to the buffer (a parent list
+// that overflowed its capacity is read no further than it was written; the
+// host runs the call again anyway).
+fn source(c: u32, k: u32) -> vec2<u32> {
     var parent = 0u;
     if P.stage.x == BIN_LISTED {
         parent = cells[2u * c].w;
     }
-    let e = min(src_starts[parent + 1u], arrayLength(&src));
-    return vec2<u32>(min(src_starts[parent], e), e);
+    let stride = max(P.bin.y, 1u);
+    let e = min(src_starts[(parent + 1u) * stride], arrayLength(&src));
+    let s = min(src_starts[parent * stride], e);
+    let per = (e - s + split() - 1u) / split();
+    let b = min(s + k * per, e);
+    return vec2<u32>(b, min(b + per, e));
 }
 
 // This thread's contiguous run of the source list: the runs follow each
@@ -81,12 +93,13 @@ fn hits(r: vec2<u32>, bx: array<vec3<u32>, 2>) -> u32 {
 @compute @workgroup_size(128)
 fn count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
          @builtin(local_invocation_index) lid: u32) {
-    let c = group_index(wid, nwg);
-    if c >= P.counts.y {
+    let g = group_index(wid, nwg);
+    if g >= P.counts.y * split() {
         return;
     }
+    let c = g / split();
     let bx = cell_box(c);
-    shared_u[lid] = hits(own_run(source(c), lid), bx);
+    shared_u[lid] = hits(own_run(source(c, g % split()), lid), bx);
     workgroupBarrier();
     for (var h = WG / 2u; h > 0u; h >>= 1u) {
         if lid < h {
@@ -95,19 +108,20 @@ fn count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
         workgroupBarrier();
     }
     if lid == 0u {
-        counts[c] = shared_u[0];
+        counts[g] = shared_u[0];
     }
 }
 
 @compute @workgroup_size(128)
 fn fill(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let c = group_index(wid, nwg);
-    if c >= P.counts.y {
+    let g = group_index(wid, nwg);
+    if g >= P.counts.y * split() {
         return;
     }
+    let c = g / split();
     let bx = cell_box(c);
-    let r = own_run(source(c), lid);
+    let r = own_run(source(c, g % split()), lid);
     let n = hits(r, bx);
     // Inclusive prefix sum of the runs' hit counts (Hillis-Steele): where
     // this run's hits go.
@@ -122,7 +136,7 @@ fn fill(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         shared_u[lid] += v;
         workgroupBarrier();
     }
-    var at = starts[c] + shared_u[lid] - n;
+    var at = starts[g] + shared_u[lid] - n;
     for (var i = r.x; i < r.y; i++) {
         let g = src[i];
         if overlaps(g, bx[0], bx[1]) {

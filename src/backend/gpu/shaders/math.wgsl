@@ -354,6 +354,12 @@ struct Params {
     // x: coarse cells; y: capacity of their lists; z: 1 to sum the
     // regularisers' values (loss.wgsl).
     coarse: vec4<u32>,
+    // Bin passes (bin.wgsl, scan.wgsl): x: chunks each cell's source list
+    // is split into, one workgroup each (0 reads as 1), so the counts and
+    // starts hold (cell, chunk) entries, cell-major; y: the same for the
+    // pass that made the source lists, so parent p's list runs from
+    // src_starts[p * y] to src_starts[(p + 1) * y] (0 reads as 1).
+    bin: vec4<u32>,
 }
 
 // Params.grid_dims.w

@@ -1,5 +1,6 @@
 // Exclusive prefix sum of `counts[0 .. n]` into `starts[0 .. n + 1]`
-// (`starts[n]` is the total), n = P.counts.y, in one workgroup: each thread
+// (`starts[n]` is the total), n = P.counts.y cells times P.bin.x chunks
+// (bin.wgsl), in one workgroup: each thread
 // sums a contiguous run, the workgroup scans the 256 run sums, each thread
 // writes its run. Integer sums, so the order does not matter; it is fixed
 // anyway. Mirrors the offsets pass of cpu.rs `csr`.
@@ -13,7 +14,7 @@ var<workgroup> sums: array<u32, WG>;
 
 @compute @workgroup_size(256)
 fn main(@builtin(local_invocation_index) lid: u32) {
-    let n = P.counts.y;
+    let n = P.counts.y * max(P.bin.x, 1u);
     let per = (n + WG - 1u) / WG;
     let b = min(lid * per, n);
     let e = min(b + per, n);
