@@ -6,7 +6,8 @@
 //! 2. `bin` `count`, `scan`, `bin` `fill`, twice: per coarse cell of 4^3
 //!    bricks the primitives that reach it, then per occupied brick its
 //!    candidates from its coarse cell's list, in primitive order (one
-//!    workgroup per cell gathers, so no atomics); the lists get a capacity,
+//!    workgroup per cell, or per chunk of its source list at the first
+//!    level, gathers, so no atomics); the lists get a capacity,
 //!    and the scans' totals, read back with the results, say whether they
 //!    fitted (if not, the call runs again with room for them);
 //! 3. `forward`: per brick, the points' density and numerator, and each

@@ -149,82 +149,80 @@ impl GpuBackend {
         let InFlight { mut p, nbricks, ncoarse, pass } = call;
         let n = p.counts[0] as usize;
         let npts = p.counts[3] as usize;
-        {
-            p.counts[2] = count_u32("candidate slots", self.capacity)?;
-            p.coarse[0] = count_u32("coarse cells", ncoarse)?;
-            p.coarse[1] = count_u32("candidate slots", self.coarse_capacity)?;
-            // The coarse level bins from every primitive, in chunks; the
-            // brick level reads the coarse lists whole.
-            let split = bin_split(n, self.bin_chunk)?;
-            p.bin = [1, split, 0, 0];
-            let coarse_p = Params { counts: [p.counts[0], p.coarse[0], p.coarse[1], 0], bin: [split, 1, 0, 0], ..p };
-            let coarse_entries = ncoarse as u64 * split as u64;
-            let coarse_groups = count_u32("coarse bin workgroups", coarse_entries as usize)?;
-            let g = self.garbage;
-            let gpu = &self.gpu;
-            let k = &self.kernels;
-            let timer = &mut self.timer;
-            let b = &mut self.bufs;
-            b.coarse_counts.ensure(gpu, 4 * coarse_entries, g)?;
-            b.coarse_starts.ensure(gpu, 4 * (coarse_entries + 1), g)?;
-            b.coarse_lists.ensure(gpu, 4 * self.coarse_capacity as u64, g)?;
-            b.starts.ensure(gpu, 4 * (nbricks as u64 + 1), g)?;
-            b.lists.ensure(gpu, 4 * self.capacity as u64, g)?;
-            b.loss.ensure(gpu, 16, g)?;
-            b.reg_terms.ensure(gpu, 8 * n as u64, g && pass != Pass::Gradient)?;
-            if pass != Pass::Evaluate {
-                b.partial.ensure(gpu, 48 * self.capacity as u64, g)?;
-                b.grad.ensure(gpu, 48 * n as u64, g)?;
-            }
-            let out = gpu.scoped("a point pass", || {
-                let (u, u1) = (uniform(gpu, &p), uniform(gpu, &coarse_p));
-                let mut enc = gpu.device.create_command_encoder(&Default::default());
-                let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
-                let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
-                let (cells1, counts1, starts1, lists1) =
-                    (b.coarse_cells.ensure(gpu, 0, false)?, b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
-                let (cells, counts, starts, lists) = (b.cells.ensure(gpu, 0, false)?, b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
-                let (bp, pts, rho_n, terms) = (b.brick_points.ensure(gpu, 0, false)?, b.points.ensure(gpu, 0, false)?, b.rho_n.ensure(gpu, 0, false)?, b.terms.ensure(gpu, 0, false)?);
-                let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
-                let nb = nbricks as u32;
-                dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
-                // Each coarse cell's primitives, from all of them.
-                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), coarse_groups);
-                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, counts1, starts1]), 1);
-                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], coarse_groups);
-                // Each brick's, from its coarse cell's.
-                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
-                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u, counts, starts]), 1);
-                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u), (1, ranges), (2, lists1), (3, starts1), (4, cells), (6, starts), (7, lists)], nb);
-                dispatch(gpu, &mut enc, timer, &k.forward, &seq(&[&u, hot, starts, lists, bp, pts, rho_n, terms]), nb);
-                let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
-                if pass == Pass::Evaluate {
-                    read[0].1 = 8 * npts as u64;
+        p.counts[2] = count_u32("candidate slots", self.capacity)?;
+        p.coarse[0] = count_u32("coarse cells", ncoarse)?;
+        p.coarse[1] = count_u32("candidate slots", self.coarse_capacity)?;
+        // The coarse level bins from every primitive, in chunks; the
+        // brick level reads the coarse lists whole.
+        let split = bin_split(n, self.bin_chunk)?;
+        p.bin = [1, split, 0, 0];
+        let coarse_p = Params { counts: [p.counts[0], p.coarse[0], p.coarse[1], 0], bin: [split, 1, 0, 0], ..p };
+        let coarse_entries = ncoarse as u64 * split as u64;
+        let coarse_groups = count_u32("coarse bin workgroups", coarse_entries as usize)?;
+        let g = self.garbage;
+        let gpu = &self.gpu;
+        let k = &self.kernels;
+        let timer = &mut self.timer;
+        let b = &mut self.bufs;
+        b.coarse_counts.ensure(gpu, 4 * coarse_entries, g)?;
+        b.coarse_starts.ensure(gpu, 4 * (coarse_entries + 1), g)?;
+        b.coarse_lists.ensure(gpu, 4 * self.coarse_capacity as u64, g)?;
+        b.starts.ensure(gpu, 4 * (nbricks as u64 + 1), g)?;
+        b.lists.ensure(gpu, 4 * self.capacity as u64, g)?;
+        b.loss.ensure(gpu, 16, g)?;
+        b.reg_terms.ensure(gpu, 8 * n as u64, g && pass != Pass::Gradient)?;
+        if pass != Pass::Evaluate {
+            b.partial.ensure(gpu, 48 * self.capacity as u64, g)?;
+            b.grad.ensure(gpu, 48 * n as u64, g)?;
+        }
+        let out = gpu.scoped("a point pass", || {
+            let (u, u1) = (uniform(gpu, &p), uniform(gpu, &coarse_p));
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
+            let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
+            let (cells1, counts1, starts1, lists1) =
+                (b.coarse_cells.ensure(gpu, 0, false)?, b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
+            let (cells, counts, starts, lists) = (b.cells.ensure(gpu, 0, false)?, b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
+            let (bp, pts, rho_n, terms) = (b.brick_points.ensure(gpu, 0, false)?, b.points.ensure(gpu, 0, false)?, b.rho_n.ensure(gpu, 0, false)?, b.terms.ensure(gpu, 0, false)?);
+            let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
+            let nb = nbricks as u32;
+            dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
+            // Each coarse cell's primitives, from all of them.
+            dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), coarse_groups);
+            dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, counts1, starts1]), 1);
+            dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], coarse_groups);
+            // Each brick's, from its coarse cell's.
+            dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
+            dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u, counts, starts]), 1);
+            dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u), (1, ranges), (2, lists1), (3, starts1), (4, cells), (6, starts), (7, lists)], nb);
+            dispatch(gpu, &mut enc, timer, &k.forward, &seq(&[&u, hot, starts, lists, bp, pts, rho_n, terms]), nb);
+            let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
+            if pass == Pass::Evaluate {
+                read[0].1 = 8 * npts as u64;
+            } else {
+                let (partial, occ, grad) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?);
+                dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), nb);
+                dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), groups_for(n));
+                if pass == Pass::Gradient {
+                    read = vec![(grad, 48 * n as u64), (loss, 8)];
                 } else {
-                    let (partial, occ, grad) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?);
-                    dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), nb);
-                    dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), groups_for(n));
-                    if pass == Pass::Gradient {
-                        read = vec![(grad, 48 * n as u64), (loss, 8)];
-                    } else {
-                        let moments = b.moments.ensure(gpu, 0, false)?;
-                        dispatch(gpu, &mut enc, timer, &k.adam, &seq(&[&u, grad, params, moments, reg_terms, starts, starts1]), groups_for(n));
-                    }
-                    if pass != (Pass::Resident { report: false }) {
-                        dispatch(gpu, &mut enc, timer, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);
-                        read[1].1 = 16;
-                    }
+                    let moments = b.moments.ensure(gpu, 0, false)?;
+                    dispatch(gpu, &mut enc, timer, &k.adam, &seq(&[&u, grad, params, moments, reg_terms, starts, starts1]), groups_for(n));
                 }
-                let times = timer.resolve(&mut enc).unwrap_or((loss, 0));
-                read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (coarse_entries + 1)), times]);
-                b.readback.record(gpu, &mut enc, &read)?;
-                gpu.queue.submit([enc.finish()]);
-                Ok(())
-            });
-            if let Err(e) = out {
-                self.timer.discard();
-                return Err(e);
+                if pass != (Pass::Resident { report: false }) {
+                    dispatch(gpu, &mut enc, timer, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);
+                    read[1].1 = 16;
+                }
             }
+            let times = timer.resolve(&mut enc).unwrap_or((loss, 0));
+            read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (coarse_entries + 1)), times]);
+            b.readback.record(gpu, &mut enc, &read)?;
+            gpu.queue.submit([enc.finish()]);
+            Ok(())
+        });
+        if let Err(e) = out {
+            self.timer.discard();
+            return Err(e);
         }
         self.in_flight = Some(InFlight { p, nbricks, ncoarse, pass });
         Ok(())
