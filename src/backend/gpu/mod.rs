@@ -131,9 +131,10 @@ impl GpuBackend {
     }
 
     /// An error when a submitted call has not been finished: every call
-    /// but `finish` needs the device to itself.
+    /// but `finish` needs the device to itself. (A submitted resident step
+    /// is always a call in flight until `finish` takes both.)
     fn idle(&self, what: &str) -> Result<()> {
-        if self.in_flight.is_some() || self.step.is_some() {
+        if self.in_flight.is_some() {
             return Err(Error::arg(format!("GPU backend: {what} while a submitted step is not finished")));
         }
         Ok(())

@@ -143,9 +143,7 @@ impl GpuBackend {
     /// can prepare the next batch while the device works. `finish_points`
     /// must follow before any other call.
     pub(super) fn submit_points(&mut self, call: InFlight) -> Result<()> {
-        if self.in_flight.is_some() {
-            return Err(Error::arg("GPU backend: a call submitted before the last one finished"));
-        }
+        self.idle("a call")?;
         let InFlight { mut p, nbricks, ncoarse, pass } = call;
         let n = p.counts[0] as usize;
         let npts = p.counts[3] as usize;

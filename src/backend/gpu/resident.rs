@@ -26,8 +26,8 @@ pub(super) struct Loaded {
 
 /// A resident step submitted and not yet finished.
 pub(super) struct Step {
-    /// Adam's step count once it finishes.
-    t: u32,
+    /// What the device will hold once it finishes.
+    loaded: Loaded,
     bricks: PointBricks,
     report: bool,
 }
@@ -64,15 +64,14 @@ impl Resident for GpuBackend {
         p.coarse[2] = report as u32;
         let nbricks = bricks.ranges.len();
         self.submit_points(InFlight { p, nbricks, ncoarse, pass: Pass::Resident { report } })?;
-        self.step = Some(Step { t, bricks, report });
+        self.step = Some(Step { loaded: Loaded { n, t }, bricks, report });
         Ok(())
     }
 
     fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>> {
-        let Step { t, bricks, report } = self.step.take().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
-        let n = self.loaded.map_or(0, |l| l.n);
+        let Step { loaded, bricks, report } = self.step.take().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
         let (_, loss, starts) = self.finish_points()?;
-        self.loaded = Some(Loaded { n, t });
+        self.loaded = Some(loaded);
         self.count_evaluations(&bricks, &starts);
         Ok(report.then(|| {
             let l = floats(&loss);

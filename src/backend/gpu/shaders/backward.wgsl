@@ -28,12 +28,11 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if b >= P.counts.y {
         return;
     }
-    let c0 = min(starts[b], P.counts.z);
-    let c1 = min(starts[b + 1u], P.counts.z);
+    let cand = written(starts[b], starts[b + 1u]);
     let pr = brick_points[b];
-    for (var j0 = c0; j0 < c1; j0 += WG) {
+    for (var j0 = cand.x; j0 < cand.y; j0 += WG) {
         let j = j0 + lid;
-        let live = j < c1;
+        let live = j < cand.y;
         var h: Hot;
         if live {
             h = hot[lists[j]];

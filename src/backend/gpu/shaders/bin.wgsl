@@ -79,6 +79,18 @@ fn own_run(s: vec2<u32>, lid: u32) -> vec2<u32> {
     return vec2<u32>(s.x + b, s.x + min(b + per, n));
 }
 
+// What workgroup g of a pass gathers: its cell's box, and this thread's
+// run of the cell's source chunk g % split().
+struct Work {
+    bx: array<vec3<u32>, 2>,
+    run: vec2<u32>,
+}
+
+fn work(g: u32, lid: u32) -> Work {
+    let c = g / split();
+    return Work(cell_box(c), own_run(source(c, g % split()), lid));
+}
+
 // Hits of cell box `bx` in the run `r`.
 fn hits(r: vec2<u32>, bx: array<vec3<u32>, 2>) -> u32 {
     var n = 0u;
@@ -97,9 +109,8 @@ fn count(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: ve
     if g >= P.counts.y * split() {
         return;
     }
-    let c = g / split();
-    let bx = cell_box(c);
-    shared_u[lid] = hits(own_run(source(c, g % split()), lid), bx);
+    let w = work(g, lid);
+    shared_u[lid] = hits(w.run, w.bx);
     workgroupBarrier();
     for (var h = WG / 2u; h > 0u; h >>= 1u) {
         if lid < h {
@@ -119,10 +130,8 @@ fn fill(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if g >= P.counts.y * split() {
         return;
     }
-    let c = g / split();
-    let bx = cell_box(c);
-    let r = own_run(source(c, g % split()), lid);
-    let n = hits(r, bx);
+    let w = work(g, lid);
+    let n = hits(w.run, w.bx);
     // Inclusive prefix sum of the runs' hit counts (Hillis-Steele): where
     // this run's hits go.
     shared_u[lid] = n;
@@ -137,11 +146,11 @@ fn fill(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         workgroupBarrier();
     }
     var at = starts[g] + shared_u[lid] - n;
-    for (var i = r.x; i < r.y; i++) {
-        let g = src[i];
-        if overlaps(g, bx[0], bx[1]) {
+    for (var i = w.run.x; i < w.run.y; i++) {
+        let prim = src[i];
+        if overlaps(prim, w.bx[0], w.bx[1]) {
             if at < P.counts.z {
-                lists[at] = g;
+                lists[at] = prim;
             }
             at += 1u;
         }

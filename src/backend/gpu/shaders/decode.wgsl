@@ -24,8 +24,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if b >= P.counts.y {
         return;
     }
-    let c0 = min(starts[b], P.counts.z);
-    let c1 = min(starts[b + 1u], P.counts.z);
+    let cand = written(starts[b], starts[b + 1u]);
     let corner = vec3<u32>(b % P.grid_dims.x, b / P.grid_dims.x, P.stage.y) * BS;
     var idx: array<vec3<u32>, PER>;
     var x: array<vec3<f32>, PER>;
@@ -36,13 +35,13 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         idx[q] = corner + vec3<u32>(l % BS, (l / BS) % BS, l / (BS * BS));
         x[q] = P.grid_lo.xyz + vec3<f32>(idx[q]) * P.grid_step.xyz;
     }
-    for (var t0 = c0; t0 < c1; t0 += WG) {
+    for (var t0 = cand.x; t0 < cand.y; t0 += WG) {
         workgroupBarrier();
-        if t0 + lid < c1 {
+        if t0 + lid < cand.y {
             tile[lid] = hot[lists[t0 + lid]];
         }
         workgroupBarrier();
-        let m = min(WG, c1 - t0);
+        let m = min(WG, cand.y - t0);
         for (var j = 0u; j < m; j++) {
             let h = tile[j];
             for (var q = 0u; q < PER; q++) {

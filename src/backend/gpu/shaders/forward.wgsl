@@ -34,8 +34,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     if b >= P.counts.y {
         return;
     }
-    let c0 = min(starts[b], P.counts.z);
-    let c1 = min(starts[b + 1u], P.counts.z);
+    let cand = written(starts[b], starts[b + 1u]);
     let pr = brick_points[b];
     for (var p0 = pr.x; p0 < pr.y; p0 += PTS) {
         let m = min(PTS, pr.y - p0);
@@ -48,7 +47,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         }
         var rho: array<f32, PTS>;
         var n: array<f32, PTS>;
-        for (var j = c0 + lid; j < c1; j += WG) {
+        for (var j = cand.x + lid; j < cand.y; j += WG) {
             let h = hot[lists[j]];
             for (var q = 0u; q < PTS; q++) {
                 let wk = h.w * kernel_at(h, x[q]).w;

@@ -371,6 +371,13 @@ const BIN_SLAB: u32 = 1u;
 const BIN_SLAB_BRICKS: u32 = 2u;
 const NONE: u32 = 0xffffffffu;
 
+// Entries [s, e) of a candidate list, clamped to the lists' capacity
+// P.counts.z: a level that overflowed is read no further than it was
+// written (its totals send the call back to the host, which runs it again).
+fn written(s: u32, e: u32) -> vec2<u32> {
+    return vec2<u32>(min(s, P.counts.z), min(e, P.counts.z));
+}
+
 // A linear workgroup index over a 2D dispatch (at most 65535 a side).
 fn group_index(wid: vec3<u32>, nwg: vec3<u32>) -> u32 {
     return wid.x + wid.y * nwg.x;

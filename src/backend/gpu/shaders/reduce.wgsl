@@ -13,10 +13,10 @@
 @group(0) @binding(6) var<storage, read> partial: array<vec4<f32>>;
 @group(0) @binding(7) var<storage, read_write> grad: array<f32>;
 
-// The place of `g` in the sorted list lists[s .. e], or NONE.
-fn find(g: u32, s: u32, e: u32) -> u32 {
-    var lo = s;
-    var hi = e;
+// The place of `g` in the sorted list lists[r.x .. r.y], or NONE.
+fn find(g: u32, r: vec2<u32>) -> u32 {
+    var lo = r.x;
+    var hi = r.y;
     while lo < hi {
         let mid = (lo + hi) / 2u;
         let v = lists[mid];
@@ -50,7 +50,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
                     if o == NONE {
                         continue;
                     }
-                    let j = find(g, min(starts[o], P.counts.z), min(starts[o + 1u], P.counts.z));
+                    let j = find(g, written(starts[o], starts[o + 1u]));
                     if j != NONE {
                         acc.a += partial[3u * j];
                         acc.b += partial[3u * j + 1u];
