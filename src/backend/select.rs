@@ -164,7 +164,7 @@ impl Fallback {
             // `auto` never takes a software adapter, whatever GSENC_ADAPTER says.
             match gpu_backend(Some(choice.gpu_index.unwrap_or(0)), None, choice.brick) {
                 Ok(g) => f.gpu = Some(g),
-                Err(e) => f.fail(e),
+                Err(e) => f.fail(&e),
             }
         }
         f
@@ -184,14 +184,14 @@ impl Fallback {
     fn run<R>(&mut self, mut call: impl FnMut(&mut dyn Backend) -> Result<R>) -> Result<R> {
         if let Some(g) = self.gpu.as_mut() {
             match call(g.as_mut()) {
-                Err(Error::Device(m)) => self.fail(Error::Device(m)),
+                Err(e @ Error::Device(_)) => self.fail(&e),
                 other => return other,
             }
         }
         call(&mut self.cpu)
     }
 
-    fn fail(&mut self, e: Error) {
+    fn fail(&mut self, e: &Error) {
         tracing::warn!(error = %e, "the GPU backend failed; continuing on the CPU");
         self.earlier += self.gpu.take().map_or(0, |g| g.kernel_evaluations());
         self.fell_back = Some(e.to_string());
@@ -234,8 +234,7 @@ impl Backend for Fallback {
         if self.gpu.is_none() || !matches!(error, Error::Device(_)) {
             return false;
         }
-        let e = Error::Device(error.to_string());
-        self.fail(e);
+        self.fail(error);
         true
     }
 
