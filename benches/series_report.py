@@ -1,61 +1,83 @@
-"""Table of the series benchmark (benches/series.sh): per step, the final
-validation PSNR of the independent encode and of each warm start, and the
-first iteration at which each warm start reaches the independent final PSNR.
-    python3 benches/series_report.py bench-out
+"""Tables of the series benchmark (benches/series.sh): per step, the final
+validation PSNR of the independent encode and of each warm-started series,
+the iterations each ran and the first at which it came within 0.3 dB of the
+independent final; then per series the targets of docs/BENCHMARKS.md.
+    python3 benches/series_report.py bench-out [series|static]
 """
 import csv
 import json
 import sys
 
 out = sys.argv[1]
+name = sys.argv[2] if len(sys.argv) > 2 else "series"
+TOLERANCE = 0.3
 
 
 def load(mode):
-    """Per step, [(iteration, validation PSNR, start)], from the run's CSV, or
-    (a run stopped before its CSV was written) the final PSNR of each step
-    from its JSON lines."""
-    runs = {}
+    """Per step: [(iteration, validation PSNR)] from the run's CSV, and the
+    run's JSON line (start, iterations, taken, moved, loop seconds)."""
+    logs, lines = {}, {}
     try:
-        rows = list(csv.DictReader(open(f"{out}/series_{mode}.csv")))
+        for l in open(f"{out}/{name}_{mode}.jsonl"):
+            d = json.loads(l)
+            if "step" in d:
+                lines[d["step"]] = d
     except FileNotFoundError:
-        try:
-            lines = [json.loads(l) for l in open(f"{out}/series_{mode}.jsonl") if '"step"' in l]
-        except FileNotFoundError:
-            return {}
-        # Leave a final-only CSV behind so that `gsenc plot-series` can draw it.
-        with open(f"{out}/series_{mode}.csv", "w") as f:
-            f.write("field,step,start,iteration,validation_psnr\n")
-            for d in lines:
-                f.write(f"speed,{d['step']},{d['start']},{d['iterations']},{d['validation_psnr']:.4f}\n")
-        return {d["step"]: [(d["iterations"], d["validation_psnr"], d["start"])] for d in lines}
-    for r in rows:
-        runs.setdefault(int(r["step"]), []).append((int(r["iteration"]), float(r["validation_psnr"]), r["start"]))
-    return runs
+        pass
+    try:
+        for r in csv.DictReader(open(f"{out}/{name}_{mode}.csv")):
+            logs.setdefault(int(r["step"]), []).append((int(r["iteration"]), float(r["validation_psnr"])))
+    except FileNotFoundError:
+        # A run stopped before its CSV was written: the finals of its lines.
+        logs = {s: [(d["iterations"], d["validation_psnr"])] for s, d in lines.items()}
+    return logs, lines
 
 
-indep = load("off")
-warm = {m: load(m) for m in ("coarse", "dense")}
-print("| step | independent final dB (3000 its) | coarse final dB | coarse reaches it at | dense final dB | dense reaches it at |")
-print("|---|---|---|---|---|---|")
-reached = {m: [0, 0] for m in warm}
+indep, indep_lines = load("off")
+modes = [m for m in ("auto", "paper", "dense", "coarse") if load(m)[0]]
+runs = {m: load(m) for m in modes}
+head = ["step", "independent final dB (3000 its)"]
+for m in modes:
+    head += [f"{m} final dB", f"{m} its", f"{m} within {TOLERANCE} dB at"]
+    if m == "auto":
+        head += ["auto start (moved)"]
+print("| " + " | ".join(head) + " |")
+print("|" + "---|" * len(head))
+summary = {m: {"n": 0, "ok": 0, "its": 0, "worst": float("inf"), "loop": 0.0, "indep_loop": 0.0, "reached_half": 0} for m in modes}
 for step in sorted(indep):
     target = indep[step][-1][1]
     cells = [str(step), f"{target:.2f}"]
-    for m, runs in warm.items():
-        log = runs.get(step)
+    for m in modes:
+        logs, lines = runs[m]
+        log, line = logs.get(step), lines.get(step, {})
         if not log:
-            cells += ["-", "-"]
+            cells += ["-", "-", "-"] + (["-"] if m == "auto" else [])
             continue
-        if log[0][2] == "independent":
-            cells += [f"{log[-1][1]:.2f}", "(first step: independent)"]
+        final, its = log[-1][1], line.get("iterations", log[-1][0])
+        if line.get("start", "") == "independent":
+            cells += [f"{final:.2f}", str(its), "(first step: independent)"] + (["-"] if m == "auto" else [])
             continue
-        hit = next((it for it, p, _ in log if p >= target), None)
-        total = log[-1][0]
-        reached[m][1] += 1
-        if hit is not None and hit <= 1500:
-            reached[m][0] += 1
-        cells += [f"{log[-1][1]:.2f}", f"{hit} of {total}" if hit is not None else f"not in {total}"]
+        hit = next((it for it, p in log if p >= target - TOLERANCE), None)
+        s = summary[m]
+        s["n"] += 1
+        s["its"] += its
+        s["ok"] += final >= target - TOLERANCE
+        s["reached_half"] += hit is not None and hit <= 1500
+        s["worst"] = min(s["worst"], final - target)
+        s["loop"] += line.get("loop_seconds", 0.0)
+        s["indep_loop"] += indep_lines.get(step, {}).get("loop_seconds", 0.0)
+        cells += [f"{final:.2f}", str(its), str(hit) if hit is not None else "not reached"]
+        if m == "auto":
+            cells += [f"{line.get('taken')} ({line.get('moved')})"]
     print("| " + " | ".join(cells) + " |")
-for m, (ok, n) in reached.items():
-    if n:
-        print(f"\n{m}: reaches the independent final PSNR within 1500 iterations (50 % of 3000) on {ok} of {n} warm steps")
+print()
+for m, s in summary.items():
+    if not s["n"]:
+        continue
+    print(
+        f"- {m}: ends within {TOLERANCE} dB of the independent final (or above it) on {s['ok']} of {s['n']} warm steps; "
+        f"gets there within 1500 iterations on {s['reached_half']}; worst {s['worst']:+.2f} dB; "
+        f"mean iterations {s['its'] / s['n']:.0f} ({100 * s['its'] / s['n'] / 3000:.0f} % of 3000); "
+        f"loop time of the warm steps {s['loop']:.0f} s vs {s['indep_loop']:.0f} s independent "
+        f"({100 * s['loop'] / max(s['indep_loop'], 1e-9):.0f} %)"
+    )

@@ -20,6 +20,10 @@ pub const GSENC_SCHEDULE_SHORT: i32 = 2;
 pub const GSENC_WARM_OFF: i32 = 0;
 pub const GSENC_WARM_COARSE: i32 = 1;
 pub const GSENC_WARM_DENSE: i32 = 2;
+/// The previous model, repaired where it misses the new step, or a fresh
+/// seeding, whichever validates best; stops when the validation PSNR stops
+/// rising (`warm_iterations`, or the schedule's, being the cap).
+pub const GSENC_WARM_AUTO: i32 = 3;
 /// Value transforms (`gsenc_config.transform`).
 pub const GSENC_TRANSFORM_LINEAR: i32 = 0;
 pub const GSENC_TRANSFORM_LOG10: i32 = 1;
@@ -70,7 +74,7 @@ pub struct gsenc_config {
     pub budget: u64,
     /// `GSENC_SCHEDULE_*` of first and independent steps (default matched).
     pub schedule: i32,
-    /// `GSENC_WARM_*` (default dense).
+    /// `GSENC_WARM_*` (default auto).
     pub warm_start: i32,
     /// Iterations and points per iteration; 0 keeps the schedule's.
     pub iterations: u32,
@@ -108,7 +112,7 @@ pub struct gsenc_config {
     /// only. Copied at create.
     pub output_dir: *const c_char,
     /// Iterations of a warm-started step; 0 keeps the regime's (1000
-    /// coarse, 1500 dense).
+    /// coarse, 1500 dense; auto: at most the schedule's).
     pub warm_iterations: u32,
     /// `GSENC_QUEUE_*`: what a push does when the queue's memory is taken
     /// (default block).
@@ -142,7 +146,7 @@ impl gsenc_config {
             struct_size: CONFIG_SIZE,
             budget: 32_000,
             schedule: GSENC_SCHEDULE_MATCHED,
-            warm_start: GSENC_WARM_DENSE,
+            warm_start: GSENC_WARM_AUTO,
             iterations: 0,
             points: 0,
             transform: GSENC_TRANSFORM_LINEAR,
@@ -228,6 +232,7 @@ impl Settings {
             GSENC_WARM_OFF => WarmStart::Off,
             GSENC_WARM_COARSE => WarmStart::Coarse,
             GSENC_WARM_DENSE => WarmStart::Dense,
+            GSENC_WARM_AUTO => WarmStart::Auto,
             w => return Err(bad(format!("unknown warm start {w}"))),
         };
         let transform = match c.transform {

@@ -36,7 +36,10 @@ module gsenc
     integer(c_int32_t), parameter, public :: GSENC_DTYPE_FLOAT32 = 0, GSENC_DTYPE_FLOAT64 = 1
     integer(c_int32_t), parameter, public :: GSENC_SCHEDULE_FULL = 0, GSENC_SCHEDULE_MATCHED = 1, &
         GSENC_SCHEDULE_SHORT = 2
-    integer(c_int32_t), parameter, public :: GSENC_WARM_OFF = 0, GSENC_WARM_COARSE = 1, GSENC_WARM_DENSE = 2
+    integer(c_int32_t), parameter, public :: GSENC_WARM_OFF = 0, GSENC_WARM_COARSE = 1, GSENC_WARM_DENSE = 2, &
+        GSENC_WARM_AUTO = 3
+    integer(c_int32_t), parameter, public :: GSENC_WARM_TAKEN_NONE = 0, GSENC_WARM_TAKEN_KEPT = 1, &
+        GSENC_WARM_TAKEN_REPAIRED = 2, GSENC_WARM_TAKEN_FRESH = 3
     integer(c_int32_t), parameter, public :: GSENC_TRANSFORM_LINEAR = 0, GSENC_TRANSFORM_LOG10 = 1
     integer(c_int32_t), parameter, public :: GSENC_PAYLOAD_F32 = 0, GSENC_PAYLOAD_8BIT = 1, &
         GSENC_PAYLOAD_8BIT_U16 = 2
@@ -129,6 +132,7 @@ module gsenc
         integer(c_int32_t) :: rank = 0, iterations = 0
         integer(c_int32_t) :: warm_started = 0
         real(c_double) :: encode_psnr = 0
+        integer(c_int32_t) :: fell_back = 0, warm_taken = 0, warm_moved = 0
     end type
 
     ! The C functions, under their C names with a `_c` suffix.

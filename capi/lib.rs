@@ -60,7 +60,7 @@ mod tests {
     use super::config::*;
     use super::inputs::*;
     use super::jobs::*;
-    use super::model::gsenc_model_info;
+    use super::model::*;
     use super::status::gsenc_status;
     use std::mem::{offset_of, size_of};
 
@@ -118,11 +118,12 @@ mod tests {
             [12, 16, 24, 48, 72, 80, 104, 112, 120]
         );
         assert_eq!([GSENC_CELLS_BOXES, GSENC_CELLS_HEXAHEDRA], [0, 1]);
-        assert_eq!(size_of::<gsenc_model_info>(), 112);
+        assert_eq!(size_of::<gsenc_model_info>(), 128);
         assert_eq!(
-            [offset_of!(gsenc_model_info, count), offset_of!(gsenc_model_info, dims), offset_of!(gsenc_model_info, origin), offset_of!(gsenc_model_info, spacing), offset_of!(gsenc_model_info, step), offset_of!(gsenc_model_info, time), offset_of!(gsenc_model_info, rank), offset_of!(gsenc_model_info, iterations), offset_of!(gsenc_model_info, warm_started), offset_of!(gsenc_model_info, encode_psnr)],
-            [8, 16, 40, 64, 72, 80, 88, 92, 96, 104]
+            [offset_of!(gsenc_model_info, count), offset_of!(gsenc_model_info, dims), offset_of!(gsenc_model_info, origin), offset_of!(gsenc_model_info, spacing), offset_of!(gsenc_model_info, step), offset_of!(gsenc_model_info, time), offset_of!(gsenc_model_info, rank), offset_of!(gsenc_model_info, iterations), offset_of!(gsenc_model_info, warm_started), offset_of!(gsenc_model_info, encode_psnr), offset_of!(gsenc_model_info, fell_back), offset_of!(gsenc_model_info, warm_taken), offset_of!(gsenc_model_info, warm_moved)],
+            [8, 16, 40, 64, 72, 80, 88, 92, 96, 104, 112, 116, 120]
         );
+        assert_eq!([GSENC_WARM_TAKEN_NONE, GSENC_WARM_TAKEN_KEPT, GSENC_WARM_TAKEN_REPAIRED, GSENC_WARM_TAKEN_FRESH], [0, 1, 2, 3]);
         assert_eq!(size_of::<gsenc_status>(), 4);
         let statuses = [
             gsenc_status::Ok,
@@ -145,7 +146,7 @@ mod tests {
             assert_eq!(*s as i32, i as i32);
         }
         assert_eq!([GSENC_SCHEDULE_FULL, GSENC_SCHEDULE_MATCHED, GSENC_SCHEDULE_SHORT], [0, 1, 2]);
-        assert_eq!([GSENC_WARM_OFF, GSENC_WARM_COARSE, GSENC_WARM_DENSE], [0, 1, 2]);
+        assert_eq!([GSENC_WARM_OFF, GSENC_WARM_COARSE, GSENC_WARM_DENSE, GSENC_WARM_AUTO], [0, 1, 2, 3]);
         assert_eq!([GSENC_TRANSFORM_LINEAR, GSENC_TRANSFORM_LOG10], [0, 1]);
         assert_eq!([GSENC_PAYLOAD_F32, GSENC_PAYLOAD_8BIT, GSENC_PAYLOAD_8BIT_U16], [0, 1, 2]);
         assert_eq!([super::GSENC_DTYPE_FLOAT32, super::GSENC_DTYPE_FLOAT64], [0, 1]);

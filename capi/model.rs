@@ -9,7 +9,7 @@ use gsenc::backend::cpu::CpuBackend;
 use gsenc::backend::select::BackendChoice;
 use gsenc::backend::Backend;
 use gsenc::field::IndexBox;
-use gsenc::model::{Model, DEFAULT_SLAB_VOXELS};
+use gsenc::model::{Model, WarmTaken, DEFAULT_SLAB_VOXELS};
 use std::os::raw::c_char;
 
 /// Opaque model; read with `gsenc_model_read`, free with `gsenc_model_destroy`.
@@ -40,7 +40,24 @@ pub struct gsenc_model_info {
     /// Voxel PSNR (dB) of the stored model against its reference at encode
     /// time; NaN when not measured.
     pub encode_psnr: f64,
+    /// Non-zero when the encode ran on the CPU although a GPU was chosen
+    /// (`auto` fell back after a device error; `gsenc info` says why).
+    pub fell_back: i32,
+    /// `GSENC_WARM_TAKEN_*`: the start an `auto` warm step took (NONE for
+    /// every other encode).
+    pub warm_taken: i32,
+    /// Gaussians the `auto` warm start's repair moved.
+    pub warm_moved: u32,
 }
+
+/// `gsenc_model_info.warm_taken`.
+pub const GSENC_WARM_TAKEN_NONE: i32 = 0;
+/// The previous step's model as it was.
+pub const GSENC_WARM_TAKEN_KEPT: i32 = 1;
+/// The previous model, `warm_moved` Gaussians re-seeded where it missed.
+pub const GSENC_WARM_TAKEN_REPAIRED: i32 = 2;
+/// A fresh seeding from the step's own data.
+pub const GSENC_WARM_TAKEN_FRESH: i32 = 3;
 
 fn model_ref<'a>(model: *const gsenc_model, what: &str) -> Result<&'a Model, Failure> {
     crate::handles::check(model, Kind::Model, what)?;
@@ -110,6 +127,13 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
             iterations: m.meta.iterations,
             warm_started: m.meta.schedule.starts_with("warm-") as i32,
             encode_psnr: m.meta.encode_psnr.unwrap_or(f64::NAN),
+            fell_back: m.meta.fell_back.is_some() as i32,
+            warm_taken: m.meta.warm.map_or(GSENC_WARM_TAKEN_NONE, |w| match w.taken {
+                WarmTaken::Kept => GSENC_WARM_TAKEN_KEPT,
+                WarmTaken::Repaired => GSENC_WARM_TAKEN_REPAIRED,
+                WarmTaken::Fresh => GSENC_WARM_TAKEN_FRESH,
+            }),
+            warm_moved: m.meta.warm.map_or(0, |w| w.moved),
         };
         // SAFETY: as above.
         unsafe { info.write(value) };

@@ -49,6 +49,10 @@ pub fn info(a: InfoArgs) -> Result<()> {
             "seed_sample": meta.seed_sample,
             // Why the encode ran on the CPU after the GPU failed (null: it did not).
             "fell_back": meta.fell_back,
+            // The start an `auto` warm step took and the primitives its
+            // repair moved (null: not an `auto` warm step).
+            "warm_start": meta.warm.map(|w| w.taken.name()),
+            "warm_moved": meta.warm.map(|w| w.moved),
             // Reference voxels where the model holds data (null: every voxel).
             "support_voxels": m.support.as_ref().map(|s| s.count()),
         }),

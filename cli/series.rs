@@ -31,9 +31,12 @@ pub struct EncodeSeriesArgs {
     /// from the particles.
     #[arg(long)]
     as_grid: bool,
-    /// Warm start of every step after the first: off (each step on its own),
-    /// coarse (1000 iterations, no relocation) or dense (1500, relocation on).
-    #[arg(long, default_value = "dense", value_parser = one_of(&WarmStart::ALL, WarmStart::name))]
+    /// Warm start of every step after the first: auto (the previous model,
+    /// repaired where it misses, or a fresh seeding, whichever validates
+    /// best; stops when the validation PSNR stops rising, within the
+    /// schedule's iterations), off (each step on its own), coarse (1000
+    /// iterations, no relocation) or dense (1500, relocation on).
+    #[arg(long, default_value = "auto", value_parser = one_of(&WarmStart::ALL, WarmStart::name))]
     warm: WarmStart,
     /// Budget and schedule of the first step and of independent steps
     /// (`--no-relocation` there too, as the paper's independent time steps).
@@ -209,6 +212,10 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
         }
         let stored_at = sink.as_mut().expect("opened above").put(&e.model, payload)?;
         let start = if e.warm_started { warm.name() } else { "independent" };
+        let label = match e.model.meta.warm {
+            Some(w) => format!("{start}/{}", w.taken.name()),
+            None => start.to_owned(),
+        };
         if let Some(f) = csv.as_mut() {
             for (it, p) in &e.output.validation {
                 f.write(format!("{},{row},{start},{it},{p:.4}\n", a.field).as_bytes())?;
@@ -218,6 +225,8 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             "step": row,
             "start": start,
             "iterations": e.output.iterations,
+            "taken": e.model.meta.warm.map(|w| w.taken.name()),
+            "moved": e.model.meta.warm.map(|w| w.moved),
             "voxel_psnr": psnr,
             "occupied_psnr": occupied,
             "validation_psnr": e.output.validation.last().map(|v| v.1),
@@ -233,7 +242,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             println!("{line}");
         } else {
             eprintln!(
-                "step {row:>4} {start:<11} {:>5} its  voxel PSNR {psnr:6.2} dB  validation {:6.2} dB  {:6.1} s",
+                "step {row:>4} {label:<14} {:>5} its  voxel PSNR {psnr:6.2} dB  validation {:6.2} dB  {:6.1} s",
                 e.output.iterations,
                 e.output.validation.last().map_or(f64::NAN, |v| v.1),
                 e.output.loop_seconds

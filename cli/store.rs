@@ -204,6 +204,8 @@ mod imp {
                     "seed_init": i.meta.seed_init,
                     "seed_sample": i.meta.seed_sample,
                     "fell_back": i.meta.fell_back,
+                    "warm_start": i.meta.warm.map(|w| w.taken.name()),
+                    "warm_moved": i.meta.warm.map(|w| w.moved),
                 }),
                 Err(why) => json!({ "entry": e.key.path(), "error": why.to_string() }),
             })

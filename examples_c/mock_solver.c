@@ -13,8 +13,9 @@
  * waits (gsenc_wait) to print each step's PSNR; a production code would
  * push and go on (see benches/insitu.c).
  *
- * usage: mock_solver OUTPUT_DIR [STEPS [BUDGET [ITERATIONS [WARM_ITERATIONS]]]]
- * (defaults 20 steps, 3000 Gaussians, the schedules' iterations). */
+ * usage: mock_solver OUTPUT_DIR [STEPS [BUDGET [ITERATIONS [WARM_ITERATIONS [WARM]]]]]
+ * (defaults 20 steps, 3000 Gaussians, the schedules' iterations, warm
+ * starts "auto"; WARM is off, coarse, dense or auto). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -136,7 +137,7 @@ static int build_amr(amr_cells *c, double t) {
 
 int main(int argc, char **argv) {
     if (argc < 2) {
-        fprintf(stderr, "usage: %s OUTPUT_DIR [STEPS [BUDGET [ITERATIONS [WARM_ITERATIONS]]]]\n", argv[0]);
+        fprintf(stderr, "usage: %s OUTPUT_DIR [STEPS [BUDGET [ITERATIONS [WARM_ITERATIONS [WARM]]]]]\n", argv[0]);
         return 2;
     }
     int steps = argc > 2 ? atoi(argv[2]) : 20;
@@ -145,7 +146,16 @@ int main(int argc, char **argv) {
     cfg.budget = argc > 3 ? strtoull(argv[3], NULL, 10) : 3000;
     cfg.iterations = argc > 4 ? (uint32_t)atoi(argv[4]) : 0;
     cfg.warm_iterations = argc > 5 ? (uint32_t)atoi(argv[5]) : 0;
-    cfg.warm_start = GSENC_WARM_DENSE;
+    const char *warm = argc > 6 ? argv[6] : "auto";
+    const char *names[] = {"off", "coarse", "dense", "auto"};
+    const int32_t modes[] = {GSENC_WARM_OFF, GSENC_WARM_COARSE, GSENC_WARM_DENSE, GSENC_WARM_AUTO};
+    cfg.warm_start = -1;
+    for (int i = 0; i < 4; i++)
+        if (strcmp(warm, names[i]) == 0) cfg.warm_start = modes[i];
+    if (cfg.warm_start < 0) {
+        fprintf(stderr, "mock_solver: unknown warm start '%s' (off, coarse, dense or auto)\n", warm);
+        return 2;
+    }
     cfg.fixed_range = 1; /* the solver knows its field's range */
     cfg.value_min = 0.0;
     cfg.value_max = 4.0;

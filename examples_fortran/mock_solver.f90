@@ -35,7 +35,7 @@ program mock_solver_f
     cfg%budget = int_arg(3, 3000)
     cfg%iterations = int_arg(4, 0)
     cfg%warm_iterations = int_arg(5, 0)
-    cfg%warm_start = GSENC_WARM_DENSE
+    cfg%warm_start = GSENC_WARM_AUTO
     cfg%fixed_range = 1
     cfg%value_min = 0
     cfg%value_max = 4

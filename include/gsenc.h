@@ -53,6 +53,13 @@
 #define GSENC_WARM_DENSE 2
 
 /*
+ The previous model, repaired where it misses the new step, or a fresh
+ seeding, whichever validates best; stops when the validation PSNR stops
+ rising (`warm_iterations`, or the schedule's, being the cap).
+ */
+#define GSENC_WARM_AUTO 3
+
+/*
  Value transforms (`gsenc_config.transform`).
  */
 #define GSENC_TRANSFORM_LINEAR 0
@@ -144,6 +151,26 @@
  Dropped by `gsenc_encoder_cancel`.
  */
 #define GSENC_JOB_CANCELLED 5
+
+/*
+ `gsenc_model_info.warm_taken`.
+ */
+#define GSENC_WARM_TAKEN_NONE 0
+
+/*
+ The previous step's model as it was.
+ */
+#define GSENC_WARM_TAKEN_KEPT 1
+
+/*
+ The previous model, `warm_moved` Gaussians re-seeded where it missed.
+ */
+#define GSENC_WARM_TAKEN_REPAIRED 2
+
+/*
+ A fresh seeding from the step's own data.
+ */
+#define GSENC_WARM_TAKEN_FRESH 3
 
 /*
  What a call did. Values are fixed and only ever appended to.
@@ -252,7 +279,7 @@ typedef struct {
    */
   int32_t schedule;
   /*
-   `GSENC_WARM_*` (default dense).
+   `GSENC_WARM_*` (default auto).
    */
   int32_t warm_start;
   /*
@@ -314,7 +341,7 @@ typedef struct {
   const char *output_dir;
   /*
    Iterations of a warm-started step; 0 keeps the regime's (1000
-   coarse, 1500 dense).
+   coarse, 1500 dense; auto: at most the schedule's).
    */
   uint32_t warm_iterations;
   /*
@@ -524,6 +551,20 @@ typedef struct {
    time; NaN when not measured.
    */
   double encode_psnr;
+  /*
+   Non-zero when the encode ran on the CPU although a GPU was chosen
+   (`auto` fell back after a device error; `gsenc info` says why).
+   */
+  int32_t fell_back;
+  /*
+   `GSENC_WARM_TAKEN_*`: the start an `auto` warm step took (NONE for
+   every other encode).
+   */
+  int32_t warm_taken;
+  /*
+   Gaussians the `auto` warm start's repair moved.
+   */
+  uint32_t warm_moved;
 } gsenc_model_info;
 
 #ifdef __cplusplus

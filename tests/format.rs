@@ -5,7 +5,7 @@ use gsenc::field::{Grid, IndexBox, IndexFrame, Transform, ValueRange};
 use gsenc::format::StepIndex;
 use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Payload, BYTES_PER_PRIMITIVE};
 use gsenc::format::quantize::CentreCoding;
-use gsenc::model::{Model, ModelMeta, Support};
+use gsenc::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use gsenc::math::rng::Rng;
 use gsenc::Error;
 
@@ -48,6 +48,7 @@ fn model_without_extras(n: usize, rng: &mut Rng) -> Model {
             rank: 0,
             encode_psnr: None,
             fell_back: None,
+            warm: None,
         },
         // Centres inside the reference box, the rest spread like trained parameters.
         params: (0..n)
@@ -218,14 +219,15 @@ fn foreign_and_newer_files_are_rejected_with_clear_errors() {
 
 #[test]
 fn a_newer_minor_version_with_extra_header_fields_is_read() {
-    // A minor version past 1.3 carries the 1.3 fields (the support and the
-    // fall-back), then its own.
+    // A minor version past 1.4 carries the 1.4 fields (the support, the
+    // fall-back, the warm record), then its own.
     let mut m = model_with_support(4);
     m.meta.fell_back = Some("device lost".into());
+    m.meta.warm = Some(WarmRecord { taken: WarmTaken::Fresh, moved: 3 });
     let b = write_model(&m).unwrap();
     let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     let mut out = b[..16 + header_len].to_vec();
-    out[10..12].copy_from_slice(&4u16.to_le_bytes());
+    out[10..12].copy_from_slice(&5u16.to_le_bytes());
     out.extend_from_slice(b"future fields");
     out[12..16].copy_from_slice(&((header_len + 13) as u32).to_le_bytes());
     out.extend_from_slice(&b[16 + header_len..b.len() - 4]);
@@ -315,6 +317,35 @@ fn a_fall_back_is_stored_in_version_1_3_with_or_without_a_support() {
     let back = read_model(&write_model(&m).unwrap()).unwrap().meta.fell_back.unwrap();
     assert_eq!(back.len(), 65_534);
     assert!(back.chars().all(|c| c == 'é'));
+}
+
+#[test]
+fn a_warm_record_is_stored_in_version_1_4_and_a_foreign_one_refused() {
+    for payload in Payload::ALL {
+        for fell_back in [None, Some("device lost".to_owned())] {
+            for mut m in [model(5), model_with_support(5)] {
+                m.meta.fell_back = fell_back.clone();
+                m.meta.warm = Some(WarmRecord { taken: WarmTaken::Repaired, moved: 4 });
+                let file = read_model_file(&write_model_as(&m, payload).unwrap()).unwrap();
+                assert_eq!(file.version, (1, 4));
+                assert_eq!(file.model.meta.warm, m.meta.warm);
+                assert_eq!(file.model.meta.fell_back, fell_back, "1.4 reads an empty fall-back as none");
+                assert_eq!(file.model.support, m.support);
+            }
+        }
+    }
+    // The record is the header's last 5 bytes: a start code past `fresh`
+    // is refused (with a valid checksum, so the check is the code's).
+    let mut m = model(3);
+    m.meta.warm = Some(WarmRecord { taken: WarmTaken::Kept, moved: 0 });
+    let mut b = write_model(&m).unwrap();
+    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    b[16 + header_len - 5] = 3;
+    let n = b.len();
+    let crc = crc32fast::hash(&b[..n - 4]);
+    b[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    let e = read_model(&b).unwrap_err();
+    assert!(matches!(e, Error::Format(_)) && e.to_string().contains("unknown warm start 3"), "{e}");
 }
 
 /// The header of a 1.2 file with its support frame replaced by `frame`,

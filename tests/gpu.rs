@@ -13,7 +13,7 @@ use gsenc::backend::gpu::GpuBackend;
 use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch};
 use gsenc::encode::config::EncodeConfig;
 use gsenc::encode::relocate::relocate;
-use gsenc::encode::{encode, Schedule};
+use gsenc::encode::{encode, encode_validated, Schedule, Validation, WarmStart};
 use gsenc::field::{Grid, Transform, ValueRange};
 use gsenc::input::Target;
 use gsenc::io::raw::{read_raw, DType, Order};
@@ -469,4 +469,33 @@ fn a_submitted_step_holds_the_device_until_it_finishes() {
     assert_eq!(late_a.t, 1);
     assert_eq!((late.0.val.to_bits(), late.1.scale.to_bits()), (at_once.0.val.to_bits(), at_once.1.scale.to_bits()));
     assert!(late_p.iter().flatten().zip(at_once_p.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
+
+/// An `auto` warm step on the device (its start chosen and its end decided
+/// by validation scores taken there, resident training, the best parameters
+/// kept) lands within a third of a dB of the same step on the CPU, and gives
+/// the same bits when run again.
+#[test]
+fn an_auto_warm_step_matches_the_cpu_backend() {
+    let Some(mut g) = gpu() else { return };
+    let field = hydrogen32();
+    let t = Target { reference: &field, samples: &field };
+    let mut cfg = EncodeConfig::new(250, Schedule::Short);
+    cfg.iterations = Some(100);
+    cfg.points = Some(2048);
+    let prev = encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap().params;
+    // The next step: the field moved 5 voxels along x.
+    let dx = field.dims[0];
+    let moved = Grid::new(field.dims, (0..field.len()).map(|i| if i % dx >= 5 { field.values[i - 5] } else { 0.0 }).collect()).unwrap();
+    let t = Target { reference: &moved, samples: &moved };
+    let auto = WarmStart::Auto.step_config(&cfg);
+    let v = Validation::from_reference(&moved, 2048, 3, 10).unwrap();
+    let run = |b: &mut dyn Backend| encode_validated(&t, &auto, Some(&prev), Some(&v), b, &mut |_| {}).unwrap();
+    let (cpu, on_gpu) = (run(&mut CpuBackend::new()), run(&mut g));
+    assert!(on_gpu.warm.is_some() && on_gpu.iterations <= 100, "{:?} {}", on_gpu.warm, on_gpu.iterations);
+    let (a, b) = (cpu.validation.last().unwrap().1, on_gpu.validation.last().unwrap().1);
+    assert!((a - b).abs() <= 0.3, "cpu {a:.3} dB ({:?}), gpu {b:.3} dB ({:?})", cpu.warm, on_gpu.warm);
+    let again = run(&mut g);
+    assert_eq!((again.warm, again.iterations), (on_gpu.warm, on_gpu.iterations));
+    assert!(on_gpu.params.iter().flatten().zip(again.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
 }

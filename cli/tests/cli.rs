@@ -611,6 +611,35 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
     assert!(!other.exists());
 }
 
+#[test]
+fn encode_series_warm_starts_auto_by_default_and_says_what_it_took() {
+    let dir = tmpdir("series-auto");
+    let [pos, hh, val] = write_particle_series(&dir, 2);
+    let out = dir.join("models");
+    let (code, stdout, err) = gsenc(&[
+        "encode-series", "--positions", pos.to_str().unwrap(), "--smoothing-length", hh.to_str().unwrap(),
+        "--values", val.to_str().unwrap(), "--count", "300", "--dims", "16", "--bounds", "0,0,0,1.2,1,1",
+        "--budget", "60", "--schedule", "short", "--iters", "200", "--points", "512", "--validation-every", "20",
+        "--validation-points", "2000", "--field", "rho", "--quiet", "--json", "-o", out.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let lines: Vec<serde_json::Value> = stdout.lines().map(json).collect();
+    assert_eq!(lines[0]["start"], "independent");
+    assert!(lines[0]["taken"].is_null());
+    assert_eq!(lines[1]["start"], "auto");
+    let taken = lines[1]["taken"].as_str().unwrap();
+    assert!(["kept", "repaired", "fresh"].contains(&taken), "{taken}");
+    assert!(lines[1]["iterations"].as_u64().unwrap() <= 200, "the schedule's iterations are the cap");
+    let model = out.join("rho_000001.gsm");
+    let (code, stdout, err) = gsenc(&["info", "--json", model.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let info = json(&stdout);
+    assert_eq!(info["warm_start"], taken);
+    assert_eq!(info["warm_moved"], lines[1]["moved"]);
+    assert_eq!(info["schedule"], "warm-auto");
+    assert_eq!(info["iterations"], lines[1]["iterations"]);
+}
+
 /// With the `hdf5` feature the series goes into one store, a complete model
 /// per step, readable like any store entry.
 #[cfg(feature = "hdf5")]

@@ -9,6 +9,7 @@ use common::tmpdir;
 use gsenc::format::quantize::CentreCoding;
 use gsenc::format::{write_model_as, Payload};
 use gsenc::io::store::{EntryKey, Store};
+use gsenc::model::{WarmRecord, WarmTaken};
 use std::process::Command;
 
 fn gsenc_bin() -> &'static str {
@@ -26,6 +27,7 @@ fn one_process_writes_another_reads() {
         let mut m = model("rho", step, 1, 300, 0.5);
         if step == 6 {
             m.meta.fell_back = Some("GPU 'x': device lost (test)".into());
+            m.meta.warm = Some(WarmRecord { taken: WarmTaken::Repaired, moved: 17 });
         }
         let f = dir.join(format!("m{step}.gsm"));
         std::fs::write(&f, write_model_as(&m, Payload::Float32).unwrap()).unwrap();
@@ -46,6 +48,7 @@ fn one_process_writes_another_reads() {
         assert_eq!(back.params, payload.round_trip(&m.params).unwrap());
         assert_eq!(back.meta.encode_psnr, None, "a lossy payload cannot keep the float32 PSNR");
         assert_eq!(back.meta.fell_back, m.meta.fell_back);
+        assert_eq!(back.meta.warm, m.meta.warm);
     }
     drop(s);
     // This process appends; the tool reads it back in another process.
@@ -62,6 +65,8 @@ fn one_process_writes_another_reads() {
     assert_eq!(entries[0]["payload"], "8bit-u16");
     assert!(entries[0]["fell_back"].is_null());
     assert_eq!(entries[1]["fell_back"], "GPU 'x': device lost (test)");
+    assert!(entries[0]["warm_start"].is_null());
+    assert_eq!((&entries[1]["warm_start"], &entries[1]["warm_moved"]), (&serde_json::json!("repaired"), &serde_json::json!(17)));
     // And extracts a model that equals what this process stored.
     let got = dir.join("got.gsm");
     let out = Command::new(gsenc_bin()).args(["store", "extract"]).arg(&path).arg("rho/7/1").arg("-o").arg(&got).output().unwrap();

@@ -68,6 +68,11 @@ pub struct EncodeConfig {
     pub weights: LossWeights,
     /// True for SPH particle input (longer full schedule).
     pub particles: bool,
+    /// An `auto` warm start: begin from the previous model, repaired, or a
+    /// fresh seeding, whichever validates best (`repair.rs`), and stop when
+    /// the validation PSNR stops rising (`plateau.rs`), `iterations` being
+    /// the cap. Needs a validation set.
+    pub adaptive: bool,
     /// Not part of the model: lets another thread stop the encode between
     /// iterations (it then fails with `Error::Cancelled`).
     pub cancel: Option<Cancel>,
@@ -99,6 +104,7 @@ impl EncodeConfig {
             learning_rate: 8e-3,
             weights: LossWeights::default(),
             particles: false,
+            adaptive: false,
             cancel: None,
         }
     }
@@ -127,10 +133,16 @@ pub enum WarmStart {
     Coarse,
     /// From the previous model: 1500 iterations with relocation (dense stride).
     Dense,
+    /// From the previous model as it is, repaired where it misses the new
+    /// step, or a fresh seeding, whichever validates best; the iterations
+    /// stop when the validation PSNR stops rising, within the base
+    /// schedule's (or the series' warm iterations); no relocation (the
+    /// repair is its relocation). The default.
+    Auto,
 }
 
 impl WarmStart {
-    pub const ALL: [WarmStart; 3] = [WarmStart::Off, WarmStart::Coarse, WarmStart::Dense];
+    pub const ALL: [WarmStart; 4] = [WarmStart::Off, WarmStart::Coarse, WarmStart::Dense, WarmStart::Auto];
 
     pub fn from_name(s: &str) -> Result<WarmStart> {
         by_name(&WarmStart::ALL, WarmStart::name, s, "warm start")
@@ -141,6 +153,7 @@ impl WarmStart {
             WarmStart::Off => "off",
             WarmStart::Coarse => "coarse",
             WarmStart::Dense => "dense",
+            WarmStart::Auto => "auto",
         }
     }
 
@@ -156,6 +169,10 @@ impl WarmStart {
             WarmStart::Dense => {
                 cfg.iterations = Some(1500);
                 cfg.relocation = true;
+            }
+            WarmStart::Auto => {
+                cfg.relocation = false;
+                cfg.adaptive = true;
             }
         }
         cfg

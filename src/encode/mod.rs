@@ -6,14 +6,17 @@
 //! it will be stored, and build the model with its metadata. Below it:
 //! [`config`] (budget, schedules, warm regimes), [`seeding`] (the three
 //! streams), [`points`] (the stratified training points), [`relocate`],
-//! [`refine`] (the optimisation loop) and [`validation`] (a fixed point set
-//! scored along the way).
+//! [`refine`] (the optimisation loop), [`validation`] (a fixed point set
+//! scored along the way), and for `auto` warm starts [`repair`] (where the
+//! previous model misses the new step) and [`plateau`] (when to stop).
 
 pub mod config;
 pub mod pipeline;
+pub mod plateau;
 pub mod points;
 pub mod refine;
 pub mod relocate;
+pub mod repair;
 pub mod seeding;
 pub mod validation;
 

@@ -139,7 +139,17 @@ pub fn encode_prepared(
         Start::Seeded => None,
         Start::Warm { params, .. } => Some(params),
     };
-    let output = encode_validated(&prepared.target(), &cfg, init, request.validation, backend, progress)?;
+    // An adaptive step decides on validation points: its own when the
+    // caller scores none.
+    let own;
+    let validation = match request.validation {
+        None if cfg.adaptive => {
+            own = auto_validation(prepared, cfg.iterations(), request.store_support)?;
+            Some(&own)
+        }
+        v => v,
+    };
+    let output = encode_validated(&prepared.target(), &cfg, init, validation, backend, progress)?;
 
     let l = &request.labels;
     let meta = ModelMeta {
@@ -159,6 +169,7 @@ pub fn encode_prepared(
         rank: l.rank,
         encode_psnr: None,
         fell_back: output.fell_back.clone(),
+        warm: output.warm,
     };
     let support = request.store_support.then(|| Support::from_reference(&prepared.reference)).flatten();
     let mut model = Model { meta, params: output.params.clone(), support };
@@ -169,6 +180,19 @@ pub fn encode_prepared(
     let decode_seconds = started.elapsed().as_secs_f64();
     model.meta.encode_psnr = Some(psnr);
     Ok(Encoded { model, output, config: cfg, warm_started: init.is_some(), psnr, decoded, decode_seconds })
+}
+
+/// Validation points of an `auto` warm step whose caller scores none.
+pub const AUTO_VALIDATION_POINTS: usize = 1 << 14;
+const AUTO_VALIDATION_SEED: u64 = 0xa070_5eed;
+
+/// The validation set an `auto` warm step of at most `cap` iterations
+/// scores when its caller gives none: `AUTO_VALIDATION_POINTS` voxel
+/// centres, scored every `cap / 20` iterations (10 to 50).
+fn auto_validation(prepared: &Prepared, cap: usize, support: bool) -> Result<Validation> {
+    let every = (cap / 20).clamp(10, 50);
+    let v = Validation::from_reference(&prepared.reference, AUTO_VALIDATION_POINTS, AUTO_VALIDATION_SEED, every)?;
+    Ok(Validation { support, ..v })
 }
 
 /// `model` as a reader of it stored with `payload` sees it, decoded on its

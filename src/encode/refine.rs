@@ -3,7 +3,9 @@
 
 use crate::backend::{Backend, PointBatch, PointLoss};
 use crate::encode::config::{Cancel, EncodeConfig};
+use crate::encode::plateau::Plateau;
 use crate::encode::points::PointSampler;
+use crate::encode::repair::choose_start;
 use crate::encode::relocate::{relocate, Relocation, RELOCATE_POINTS};
 use crate::encode::seeding::{seed, Seeding};
 use crate::encode::validation::Validation;
@@ -13,6 +15,7 @@ use crate::input::Target;
 use crate::math::kernel::{morton_key, Primitive};
 use crate::math::loss::{regularizers, RegTerms};
 use crate::math::optim::{cosine_lr, Adam};
+use crate::model::WarmRecord;
 use std::time::Instant;
 
 /// Reported after every iteration.
@@ -37,15 +40,20 @@ pub struct EncodeOutput {
     /// The model, in spatial (Morton) order of the centres: the order of a
     /// model's primitives carries no meaning.
     pub params: Vec<Primitive>,
+    /// Iterations run (fewer than the configuration's when an adaptive
+    /// step stopped early).
     pub iterations: usize,
     pub points: usize,
+    /// How an adaptive warm start began.
+    pub warm: Option<WarmRecord>,
     /// The seeding result, absent for a warm start.
     pub seeding: Option<Seeding>,
     /// Each relocation pass; its indices refer to the primitive order at that
     /// moment (the encoder re-sorts spatially after every pass).
     pub relocations: Vec<Relocation>,
     pub last_loss: LossTerms,
-    /// Seconds in seeding (or copying the warm start).
+    /// Seconds in seeding (or preparing the warm start: for an adaptive
+    /// one, the repair and the scoring of its candidates).
     pub seed_seconds: f64,
     /// Seconds in the optimisation loop (the paper's reported time).
     pub loop_seconds: f64,
@@ -153,7 +161,23 @@ fn refine(
             return Err(Error::arg("validation set is empty, mismatched, or has a zero interval"));
         }
     }
+    if cfg.adaptive && validation.is_none() {
+        return Err(Error::arg("an adaptive encode needs a validation set"));
+    }
     let t_seed = Instant::now();
+    // An adaptive warm start begins from the previous model, repaired, or
+    // a fresh seeding (repair.rs).
+    let mut warm = None;
+    let chosen;
+    let init = match (init, validation) {
+        (Some(p), Some(v)) if cfg.adaptive => {
+            let (params, record) = choose_start(target, p, cfg.seed_init, v, backend)?;
+            warm = Some(record);
+            chosen = params;
+            Some(&chosen[..])
+        }
+        _ => init,
+    };
     // Primitives are kept in spatial (Morton) order, which makes the backend's
     // candidate blocks compact; the seeding record follows the same permutation.
     let (mut params, seeding) = match init {
@@ -191,16 +215,20 @@ fn refine(
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; n];
     let mut relocations = vec![];
     let mut last = LossTerms::default();
-    let mut scores = Vec::new();
+    let mut scores: Vec<(usize, f64)> = Vec::new();
     let mut validation_seconds = 0.0;
-    let mut score = |t: usize, params: &[Primitive], backend: &mut dyn Backend| -> Result<()> {
-        if let Some(v) = validation {
-            let started = Instant::now();
-            scores.push((t, v.psnr(backend, params)?));
-            validation_seconds += started.elapsed().as_secs_f64();
-        }
-        Ok(())
+    let mut score = |t: usize, params: &[Primitive], backend: &mut dyn Backend| -> Result<Option<f64>> {
+        let Some(v) = validation else { return Ok(None) };
+        let started = Instant::now();
+        let psnr = v.psnr(backend, params)?;
+        scores.push((t, psnr));
+        validation_seconds += started.elapsed().as_secs_f64();
+        Ok(Some(psnr))
     };
+    // An adaptive step stops when its validation PSNR stops rising
+    // (plateau.rs) and keeps its best-scoring parameters.
+    let mut plateau = validation.filter(|_| cfg.adaptive).map(|v| Plateau::new(iterations, v.every));
+    let mut best: Option<(f64, Vec<Primitive>)> = None;
     // A resident backend keeps the parameters and moments on its device;
     // they come back to the host only when the host needs them. `on_host`
     // says whether the host's copies are current.
@@ -218,13 +246,21 @@ fn refine(
             total: w.val as f64 * pl.val + w.cov as f64 * pl.cov + w.scale as f64 * reg.scale + w.aniso as f64 * reg.aniso,
         }
     };
-    for t in 0..iterations {
+    let end = |plateau: &Option<Plateau>| plateau.as_ref().map_or(iterations, Plateau::end);
+    let mut t = 0;
+    while t < end(&plateau) {
         if cfg.cancel.as_ref().is_some_and(Cancel::is_set) {
             return Err(Error::Cancelled(format!("at iteration {t} of {iterations}")));
         }
         if t % validation.map_or(usize::MAX, |v| v.every) == 0 {
             to_host(&mut params, &mut adam, &mut on_host, backend)?;
-            score(t, &params, backend)?;
+            let psnr = score(t, &params, backend)?;
+            if let (Some(p), Some(psnr)) = (plateau.as_mut(), psnr) {
+                p.score(t, psnr, cfg.learning_rate);
+                if best.as_ref().is_none_or(|b| psnr > b.0) {
+                    best = Some((psnr, params.clone()));
+                }
+            }
         }
         if reloc_at.contains(&t) {
             to_host(&mut params, &mut adam, &mut on_host, backend)?;
@@ -241,9 +277,9 @@ fn refine(
             Some(b) => b,
             None => sampler.draw(points, target.reference, target.samples),
         };
-        let lr = cosine_lr(cfg.learning_rate, t, iterations);
+        let lr = plateau.as_ref().map_or_else(|| cosine_lr(cfg.learning_rate, t, iterations), |p| p.lr(cfg.learning_rate, t));
         if resident {
-            let report = t % LOSS_EVERY == 0 || t + 1 == iterations;
+            let report = t % LOSS_EVERY == 0 || t + 1 == end(&plateau);
             let r = backend.resident().expect("checked above");
             if on_host {
                 r.load(&params, &adam)?;
@@ -253,7 +289,9 @@ fn refine(
             // The next batch is drawn while the device works. The stream's
             // order stays the host loop's: a relocation draws its own batch
             // first, so none is drawn ahead of one.
-            if t + 1 < iterations && !reloc_at.contains(&(t + 1)) {
+            // (An adaptive step's end moves only at a score, never below
+            // the iteration after it.)
+            if t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1)) {
                 ahead = Some(sampler.draw(points, target.reference, target.samples));
             }
             if let Some((pl, reg)) = r.finish()? {
@@ -268,16 +306,28 @@ fn refine(
         if !last.total.is_finite() {
             return Err(Error::data(format!("loss is not finite at iteration {t}: {last:?}")));
         }
-        progress(&Progress { iteration: t + 1, iterations, loss: last.total });
+        progress(&Progress { iteration: t + 1, iterations: end(&plateau), loss: last.total });
+        t += 1;
     }
     to_host(&mut params, &mut adam, &mut on_host, backend)?;
-    score(iterations, &params, backend)?;
+    let last_psnr = score(t, &params, backend)?;
+    if let (Some((psnr, kept)), Some(last_psnr)) = (best, last_psnr) {
+        if psnr > last_psnr {
+            // The last entry of the log scores what the encode returns.
+            params = kept;
+            if let Some(l) = scores.last_mut() {
+                l.1 = psnr;
+            }
+        }
+    }
+    let run = t;
     let loop_seconds = t_loop.elapsed().as_secs_f64();
     tracing::info!(loop_seconds, loss = last.total, backend = %backend.name(), "encode done");
     Ok(EncodeOutput {
         params,
-        iterations,
+        iterations: run,
         points,
+        warm,
         seeding,
         relocations,
         last_loss: last,

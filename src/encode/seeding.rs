@@ -53,6 +53,19 @@ impl Seeding {
 
 /// Seeds `n` primitives from `samples` on a reference grid of `dims`.
 pub fn seed(samples: &dyn SampleSet, dims: [usize; 3], n: usize, seed: u64) -> Result<Seeding> {
+    seed_with_spread(samples, dims, n, seed, spread(samples.len(), n))
+}
+
+/// The factor of a spread seed's scale: the cube root of the samples per
+/// primitive, at least 1.
+pub fn spread(samples: usize, n: usize) -> f32 {
+    (samples as f32 / n as f32).cbrt().max(1.0)
+}
+
+/// [`seed`] with the factor of the spread streams' scales given: a seeding
+/// of part of the samples (a warm start's repair, `repair.rs`) scales its
+/// seeds as a seeding of all of them would.
+pub fn seed_with_spread(samples: &dyn SampleSet, dims: [usize; 3], n: usize, seed: u64, spread: f32) -> Result<Seeding> {
     let ns = samples.len();
     if ns == 0 {
         return Err(Error::data("no samples to seed from"));
@@ -64,7 +77,6 @@ pub fn seed(samples: &dyn SampleSet, dims: [usize; 3], n: usize, seed: u64) -> R
     let n_imp = (IMPORTANCE_SHARE * n as f64).round() as usize;
     let peak_share = (PEAK_SHARE * n as f64).round() as usize;
     let mut out = Seeding { params: Vec::with_capacity(n), stream: Vec::with_capacity(n), sample: Vec::with_capacity(n) };
-    let spread = (ns as f32 / n as f32).cbrt().max(1.0);
     let push = |out: &mut Seeding, idx: usize, stream: Stream, jitter: Option<[f32; 3]>| {
         let s = samples.get(idx);
         let (sigma, weight) = match stream {

@@ -1,9 +1,10 @@
-//! The model file (`.gsm`), version 1.3. All little-endian.
+//! The model file (`.gsm`), version 1.4. All little-endian.
 //!
 //! ```text
 //! 0   magic        8 bytes  "GSENCMDL"
 //! 8   major, minor u16, u16 (1, 2; 1, 1 when the model has no support;
-//!                           1, 3 when its encode fell back to the CPU)
+//!                           1, 3 when its encode fell back to the CPU;
+//!                           1, 4 when it is an `auto` warm start)
 //! 12  header_len   u32      bytes of the header that follows
 //! 16  header       header_len bytes:
 //!       payload u32 (0 float32, 1 8-bit with float16 centres,
@@ -17,7 +18,9 @@
 //!          the support's bits (`model::Support`: one per reference voxel,
 //!          x fastest, least significant bit first); 0: no support
 //!       -- 1.3: fell_back (u16 length + UTF-8): the device error after
-//!          which the encode ran on the CPU
+//!          which the encode ran on the CPU (1.4: empty when it did not)
+//!       -- 1.4: warm start taken u8 (0 kept, 1 repaired, 2 fresh),
+//!          primitives moved u32
 //!       -- a newer minor version may append fields; readers skip them.
 //! ..  payload      float32: count x 12 x f32, mu[3] l[3] q[4] alpha beta;
 //!                  8-bit: one zstd frame of the body in `quantize.rs`
@@ -29,12 +32,15 @@
 use crate::error::{by_name, Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::math::kernel::Primitive;
-use crate::model::{Model, ModelMeta, Support};
+use crate::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use crate::format::quantize::{self, CentreCoding};
 
 pub const MAGIC: &[u8; 8] = b"GSENCMDL";
 pub const VERSION_MAJOR: u16 = 1;
-pub const VERSION_MINOR: u16 = 3;
+pub const VERSION_MINOR: u16 = 4;
+/// The minor version written for a model whose encode fell back to the CPU
+/// and that is no `auto` warm start: the file is then what gsenc 1.3 wrote.
+const MINOR_FELL_BACK: u16 = 3;
 /// The minor version written for a model with a support whose encode ran
 /// where it was meant to: the file is then exactly what gsenc 1.2 wrote.
 const MINOR_WITH_SUPPORT: u16 = 2;
@@ -199,11 +205,16 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
             MINOR_WITH_SUPPORT
         }
     };
-    if let Some(why) = &m.fell_back {
+    if m.fell_back.is_some() || m.warm.is_some() {
         if minor == MINOR_WITHOUT_SUPPORT {
             h.extend_from_slice(&0u32.to_le_bytes()); // no support
         }
-        put_str(&mut h, clip(why, u16::MAX as usize))?;
+        put_str(&mut h, clip(m.fell_back.as_deref().unwrap_or(""), u16::MAX as usize))?;
+        minor = MINOR_FELL_BACK;
+    }
+    if let Some(w) = m.warm {
+        h.push(w.taken.code());
+        h.extend_from_slice(&w.moved.to_le_bytes());
         minor = VERSION_MINOR;
     }
 
@@ -318,7 +329,14 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     } else {
         None
     };
-    let fell_back = if minor >= 3 { Some(h.string()?) } else { None };
+    let fell_back = if minor >= 3 { Some(h.string()?).filter(|s| minor == 3 || !s.is_empty()) } else { None };
+    let warm = if minor >= 4 {
+        let code = h.take(1)?[0];
+        let taken = WarmTaken::from_code(code).ok_or_else(|| Error::format(format!("unknown warm start {code}")))?;
+        Some(WarmRecord { taken, moved: h.u32()? })
+    } else {
+        None
+    };
 
     let body = bytes.len() - PREFIX - header_len - 4;
     match payload {
@@ -368,6 +386,7 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
             rank,
             encode_psnr,
             fell_back,
+            warm,
         },
         params,
         support,

@@ -24,7 +24,7 @@ use crate::format::Payload;
 use crate::io::atomic::temporary_path;
 use crate::format::check_field_name;
 use crate::math::kernel::Primitive;
-use crate::model::{Model, ModelMeta, Support};
+use crate::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
 use hdf5::plist::file_access::{CacheDecreaseMode, CacheIncreaseMode, FlashIncreaseMode, MetadataCacheConfig};
 use hdf5::plist::file_create::FileSpaceStrategy;
@@ -379,6 +379,10 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
     if let Some(why) = &m.fell_back {
         scalar_str_attr(g, "fell_back", why)?;
     }
+    if let Some(w) = &m.warm {
+        scalar_str_attr(g, "warm_start", w.taken.name())?;
+        scalar_attr(g, "warm_moved", &w.moved)?;
+    }
     if let Some(support) = &model.support {
         // The packed bits, one per reference voxel (x fastest, least
         // significant bit first), deflated like the 8-bit codes.
@@ -443,6 +447,14 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
         encode_psnr: unknown_is_none(f64a("encode_psnr")?),
         // Only where the encode fell back to the CPU.
         fell_back: if g.attr("fell_back").is_ok() { Some(stra("fell_back")?) } else { None },
+        // Only for an `auto` warm-started step.
+        warm: if g.attr("warm_start").is_ok() {
+            let name = stra("warm_start")?;
+            let taken = WarmTaken::ALL.into_iter().find(|t| t.name() == name).ok_or_else(|| bad(format!("has an unknown warm start '{name}'")))?;
+            Some(WarmRecord { taken, moved: u32a("warm_moved")? })
+        } else {
+            None
+        },
     };
     if EntryKey::of(&meta) != *key {
         return Err(bad(format!("says it is /{}/{}/rank_{}", meta.field, meta.step, meta.rank)));

@@ -37,6 +37,49 @@ pub struct ModelMeta {
     /// Why the encode ran on the CPU although a GPU was chosen (`auto`
     /// fell back after a device error); `None` when it ran where chosen.
     pub fell_back: Option<String>,
+    /// How an `auto` warm-started step began; `None` for every other encode.
+    pub warm: Option<WarmRecord>,
+}
+
+/// The start an `auto` warm-started step took (METHOD.md "Warm start").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WarmTaken {
+    /// The previous step's model as it was.
+    Kept,
+    /// The previous model with `moved` primitives re-seeded where it missed.
+    Repaired,
+    /// A fresh seeding from the step's own samples.
+    Fresh,
+}
+
+impl WarmTaken {
+    pub const ALL: [WarmTaken; 3] = [WarmTaken::Kept, WarmTaken::Repaired, WarmTaken::Fresh];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            WarmTaken::Kept => "kept",
+            WarmTaken::Repaired => "repaired",
+            WarmTaken::Fresh => "fresh",
+        }
+    }
+
+    /// The model file's code (FORMAT.md).
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+
+    pub fn from_code(c: u8) -> Option<WarmTaken> {
+        WarmTaken::ALL.get(c as usize).copied()
+    }
+}
+
+/// What an `auto` warm start did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct WarmRecord {
+    pub taken: WarmTaken,
+    /// Primitives the repair moved: 0 with `Kept`; with `Fresh`, those of
+    /// the repaired start that lost to the fresh seeding.
+    pub moved: u32,
 }
 
 impl ModelMeta {
@@ -57,6 +100,7 @@ impl ModelMeta {
             rank: 0,
             encode_psnr: None,
             fell_back: None,
+            warm: None,
         }
     }
 }

@@ -46,7 +46,7 @@ int main(void) {
     CHECK(sizeof(gsenc_grid) == 104 && offsetof(gsenc_grid, strides) == 48 && offsetof(gsenc_grid, spacing) == 96, "gsenc_grid layout");
     CHECK(sizeof(gsenc_particles) == 96 && offsetof(gsenc_particles, values) == 80, "gsenc_particles layout");
     CHECK(sizeof(gsenc_cells) == 128 && offsetof(gsenc_cells, connectivity) == 104 && offsetof(gsenc_cells, value_stride) == 120, "gsenc_cells layout");
-    CHECK(sizeof(gsenc_model_info) == 112 && offsetof(gsenc_model_info, rank) == 88 && offsetof(gsenc_model_info, warm_started) == 96 && offsetof(gsenc_model_info, encode_psnr) == 104, "gsenc_model_info layout");
+    CHECK(sizeof(gsenc_model_info) == 128 && offsetof(gsenc_model_info, rank) == 88 && offsetof(gsenc_model_info, warm_started) == 96 && offsetof(gsenc_model_info, encode_psnr) == 104 && offsetof(gsenc_model_info, fell_back) == 112 && offsetof(gsenc_model_info, warm_moved) == 120, "gsenc_model_info layout");
     CHECK(sizeof(gsenc_status) == 4 && GSENC_STATUS_INTERNAL == 9 && GSENC_STATUS_STRUCT_SIZE == 8 && GSENC_STATUS_BUSY == 10
               && GSENC_STATUS_SKIPPED == 11 && GSENC_STATUS_CANCELLED == 12 && GSENC_STATUS_MPI == 13
               && GSENC_STATUS_DEVICE == 14, "gsenc_status values");
@@ -60,7 +60,7 @@ int main(void) {
     CHECK(strstr(last_error(), "struct_size") != NULL, "message names struct_size");
     cfg.struct_size = sizeof cfg;
     EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_OK);
-    CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_DENSE && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED
+    CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_AUTO && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED
               && cfg.backend == GSENC_BACKEND_AUTO && cfg.gpu_index == -1, "defaults");
     EXPECT(gsenc_config_init(NULL), GSENC_STATUS_NULL_POINTER);
 

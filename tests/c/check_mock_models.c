@@ -1,6 +1,6 @@
 /* Checks the models the mock solvers wrote, through the installed library
  * alone (built with pkg-config): for every field and step, the model file
- * exists, says its step, warm-started after step 0, holds the budget, and
+ * exists, says its step, warm-started after step 0 (and, `auto`, the start it took), holds the budget, and
  * decodes to the mock field (mock_field.h, computed here independently of
  * the solver) with a PSNR above a floor taken from the field itself:
  * FLOOR dB above the PSNR of the best constant (the field's mean), i.e. the
@@ -84,6 +84,11 @@ int main(int argc, char **argv) {
             CHECK(gsenc_model_info_get(m, &info) == GSENC_STATUS_OK, "info of %s", path);
             CHECK(info.step == (uint64_t)s, "%s says step %llu", path, (unsigned long long)info.step);
             CHECK(info.warm_started == (s > 0), "%s: warm_started %d at step %d", path, info.warm_started, s);
+            /* The mock warm-starts `auto`: every warm step says what it took. */
+            CHECK((s > 0) == (info.warm_taken >= GSENC_WARM_TAKEN_KEPT && info.warm_taken <= GSENC_WARM_TAKEN_FRESH) &&
+                      (s > 0 || info.warm_taken == GSENC_WARM_TAKEN_NONE) && info.warm_moved <= budget && info.fell_back == 0,
+                  "%s: warm_taken %d, warm_moved %u, fell_back %d at step %d", path, info.warm_taken, info.warm_moved,
+                  info.fell_back, s);
             CHECK(info.count == budget, "%s holds %llu Gaussians, budget %llu", path, (unsigned long long)info.count,
                   (unsigned long long)budget);
             CHECK(fabs(info.time - t) < 1e-12, "%s: time %g, want %g", path, info.time, t);
