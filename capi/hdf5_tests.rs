@@ -58,7 +58,9 @@ fn the_c_api_appends_every_step_to_an_hdf5_store() {
             assert_eq!(keys, [0, 1, 2]);
             let (m, _) = store.read(&EntryKey { field: "rho".into(), step: 2, rank: 0 }).unwrap();
             assert_eq!(m.meta.encode_psnr, Some(psnr[2]));
-            assert_eq!(m.meta.schedule, "warm-dense");
+            assert_eq!(m.meta.schedule, "warm-auto", "the default warm start");
+            assert!(m.meta.warm.is_some(), "an auto step's record survives the store");
+            assert!(m.meta.iterations <= 20, "warm_iterations caps an auto step: {}", m.meta.iterations);
             let mut job: gsenc_job = std::mem::zeroed();
             job.struct_size = std::mem::size_of::<gsenc_job>();
             assert_eq!(gsenc_poll(enc, field.as_ptr(), 2, &mut job), gsenc_status::Ok);
