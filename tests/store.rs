@@ -12,6 +12,7 @@ use gsenc::backend::cpu::CpuBackend;
 use gsenc::format::{write_model_as, Payload};
 use gsenc::io::series::{write_decoded_series, xdmf_path, SeriesOptions};
 use gsenc::io::store::{EntryKey, Store};
+use gsenc::model::{WarmRecord, WarmTaken};
 use gsenc::format::quantize::CentreCoding;
 use gsenc::Error;
 use std::path::Path;
@@ -93,6 +94,23 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     }
     assert!(matches!(Store::open_read(&newer), Err(Error::Version(_))));
     assert!(matches!(Store::open_read(dir.join("missing.h5")), Err(Error::Io { .. })));
+
+    // An `auto` step's record round-trips; a start the reader does not know
+    // is refused with the entry's name.
+    let warm = dir.join("warm.h5");
+    let mut w = model("rho", 5, 0, 40, 0.5);
+    w.meta.warm = Some(WarmRecord { taken: WarmTaken::Fresh, moved: 9 });
+    Store::open_append(&warm).unwrap().append(&w, Payload::Float32).unwrap();
+    assert_eq!(Store::open_read(&warm).unwrap().read(&EntryKey::of(&w.meta)).unwrap().0.meta.warm, w.meta.warm);
+    {
+        let f = hdf5::File::open_rw(&warm).unwrap();
+        let g = f.group("rho/5/rank_0").unwrap();
+        g.delete_attr("warm_start").unwrap();
+        let v: hdf5::types::VarLenUnicode = "sideways".parse().unwrap();
+        g.new_attr::<hdf5::types::VarLenUnicode>().create("warm_start").unwrap().write_scalar(&v).unwrap();
+    }
+    let e = Store::open_read(&warm).unwrap().read(&EntryKey::of(&w.meta)).unwrap_err();
+    assert!(matches!(e, Error::Format(_)) && e.to_string().contains("rho/5/rank_0 has an unknown warm start 'sideways'"), "{e}");
 }
 
 /// h5dump, from HDF5's own tools, reads the store without gsenc.

@@ -143,3 +143,16 @@ fn the_record_survives_the_model_file() {
     assert_eq!(back.version, (1, 4));
     assert_eq!(back.model.meta.fell_back, None);
 }
+
+#[test]
+fn an_adaptive_encode_without_validation_points_is_refused() {
+    // The pipeline always gives one; a caller of the encoder directly must.
+    let g = first();
+    let range = gsenc::field::ValueRange::from_data(&g.values, Transform::Linear).unwrap();
+    let reference = Grid::new(DIMS, range.normalize(&g.values).unwrap().values).unwrap();
+    let t = gsenc::input::Target { reference: &reference, samples: &reference };
+    let cfg = WarmStart::Auto.step_config(&config());
+    let prev = gsenc::encode::encode(&t, &config(), None, &mut CpuBackend::new(), &mut |_| {}).unwrap().params;
+    let e = gsenc::encode::encode_validated(&t, &cfg, Some(&prev), None, &mut CpuBackend::new(), &mut |_| {}).err().unwrap();
+    assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("needs a validation set"), "{e}");
+}

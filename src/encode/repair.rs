@@ -19,8 +19,8 @@
 //!    samples alone for `k` primitives, with the scale a seeding of all
 //!    samples would give (the same samples per primitive there).
 //!
-//! Whether the repaired start or a fresh seeding is better is decided on
-//! validation points by the caller (`refine.rs` `warm_start`).
+//! Whether the previous model, the repaired one or a fresh seeding starts
+//! the step is decided on validation points by [`choose_start`].
 
 use crate::backend::Backend;
 use crate::encode::relocate::effective_support;
@@ -108,10 +108,14 @@ pub fn repair(target: &Target, prev: &[Primitive], seed: u64, backend: &mut dyn 
     let mut params = prev.to_vec();
     if k > 0 {
         // Vanished primitives with no high-residual sample to go to are
-        // seeded over all samples instead.
-        let pool = if high.is_empty() { (0..ns).collect() } else { high };
-        // The samples of the whole step the pool stands for.
-        let represented = (pool.len() as f64 * ns as f64 / if pool.len() == ns { ns } else { scored } as f64).round() as usize;
+        // seeded over all samples instead. `represented`: the samples of
+        // the whole step the pool stands for.
+        let (pool, represented) = if high.is_empty() {
+            ((0..ns).collect(), ns)
+        } else {
+            let represented = (high.len() as f64 * ns as f64 / scored as f64).round() as usize;
+            (high, represented)
+        };
         let subset = Subset { inner: samples, idx: pool };
         let seeds = seed_with_spread(&subset, target.reference.dims, k, seed ^ REPAIR_SEED, spread(represented, k))?;
         for (&i, p) in moved.iter().zip(seeds.params) {

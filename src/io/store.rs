@@ -450,7 +450,7 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
         // Only for an `auto` warm-started step.
         warm: if g.attr("warm_start").is_ok() {
             let name = stra("warm_start")?;
-            let taken = WarmTaken::ALL.into_iter().find(|t| t.name() == name).ok_or_else(|| bad(format!("has an unknown warm start '{name}'")))?;
+            let taken = WarmTaken::from_name(&name).map_err(|_| bad(format!("has an unknown warm start '{name}'")))?;
             Some(WarmRecord { taken, moved: u32a("warm_moved")? })
         } else {
             None

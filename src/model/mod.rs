@@ -55,6 +55,10 @@ pub enum WarmTaken {
 impl WarmTaken {
     pub const ALL: [WarmTaken; 3] = [WarmTaken::Kept, WarmTaken::Repaired, WarmTaken::Fresh];
 
+    pub fn from_name(s: &str) -> Result<WarmTaken> {
+        crate::error::by_name(&WarmTaken::ALL, WarmTaken::name, s, "warm start taken")
+    }
+
     pub fn name(self) -> &'static str {
         match self {
             WarmTaken::Kept => "kept",
