@@ -35,14 +35,14 @@ module gsenc
         GSENC_STATUS_DEVICE = 14
     integer(c_int32_t), parameter, public :: GSENC_DTYPE_FLOAT32 = 0, GSENC_DTYPE_FLOAT64 = 1
     integer(c_int32_t), parameter, public :: GSENC_SCHEDULE_FULL = 0, GSENC_SCHEDULE_MATCHED = 1, &
-        GSENC_SCHEDULE_SHORT = 2
+        GSENC_SCHEDULE_SHORT = 2, GSENC_SCHEDULE_TUNED = 3
     integer(c_int32_t), parameter, public :: GSENC_WARM_OFF = 0, GSENC_WARM_COARSE = 1, GSENC_WARM_DENSE = 2, &
         GSENC_WARM_AUTO = 3
     integer(c_int32_t), parameter, public :: GSENC_WARM_TAKEN_NONE = 0, GSENC_WARM_TAKEN_KEPT = 1, &
         GSENC_WARM_TAKEN_REPAIRED = 2, GSENC_WARM_TAKEN_FRESH = 3
     integer(c_int32_t), parameter, public :: GSENC_TRANSFORM_LINEAR = 0, GSENC_TRANSFORM_LOG10 = 1
     integer(c_int32_t), parameter, public :: GSENC_PAYLOAD_F32 = 0, GSENC_PAYLOAD_8BIT = 1, &
-        GSENC_PAYLOAD_8BIT_U16 = 2
+        GSENC_PAYLOAD_8BIT_U16 = 2, GSENC_PAYLOAD_PACKED = 3
     integer(c_int32_t), parameter, public :: GSENC_CELLS_BOXES = 0, GSENC_CELLS_HEXAHEDRA = 1
     integer(c_int32_t), parameter, public :: GSENC_QUEUE_BLOCK = 0, GSENC_QUEUE_SKIP = 1, GSENC_QUEUE_BUSY = 2
     integer(c_int32_t), parameter, public :: GSENC_OUTPUT_FOLDER = 0, GSENC_OUTPUT_HDF5 = 1

@@ -130,8 +130,9 @@ pub struct TrainingArgs {
     /// Number of Gaussians.
     #[arg(long)]
     pub budget: usize,
-    /// full (3000 x 16384; 4000 iterations for particles), matched (1500 x 3072)
-    /// or short (500 x 8192).
+    /// full (3000 x 16384; 4000 iterations for particles), matched (1500 x 3072),
+    /// short (500 x 8192), or tuned (matched at 5x its learning rate: most of
+    /// full's quality at matched's cost; gsenc's, not the paper's).
     #[arg(long, default_value = "matched", value_parser = one_of(&Schedule::ALL, Schedule::name))]
     pub schedule: Schedule,
     /// Override the schedule's iterations.

@@ -12,7 +12,9 @@ use std::path::PathBuf;
 #[derive(Args)]
 pub struct ConvertArgs {
     model: PathBuf,
-    /// Payload of the new file: f32, 8bit or 8bit-u16.
+    /// Payload of the new file: f32, 8bit, 8bit-u16 or packed (at the
+    /// model's own precision when it was packed, else a fixed default:
+    /// no reference is at hand to measure one).
     #[arg(long, value_parser = one_of(&Payload::ALL, Payload::name))]
     payload: Payload,
     /// Output model file (may not be the input).

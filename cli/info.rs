@@ -31,6 +31,10 @@ pub fn info(a: InfoArgs) -> Result<()> {
             "primitives": m.len(),
             "bytes": bytes,
             "bytes_per_primitive": bytes as f64 / m.len().max(1) as f64,
+            // The primitives alone, without header, support and checksum.
+            "payload_bytes_per_primitive": file.payload_bytes as f64 / m.len().max(1) as f64,
+            // Bits per parameter group of the packed payload (null: another payload).
+            "precision": (file.payload == gsenc::format::Payload::Packed).then(|| meta.precision.map(precision_json)).flatten(),
             "field": meta.field,
             "step": meta.step,
             "time": meta.time,
@@ -58,5 +62,11 @@ pub fn info(a: InfoArgs) -> Result<()> {
         }),
     );
     Ok(())
+}
+
+/// The packed payload's bits per parameter group, by group name.
+pub fn precision_json(p: gsenc::format::packed::Precision) -> serde_json::Value {
+    let groups = gsenc::format::packed::GROUPS.iter().enumerate().map(|(g, name)| (name.to_string(), json!(p.get(g))));
+    serde_json::Value::Object(groups.collect())
 }
 

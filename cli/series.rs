@@ -54,7 +54,7 @@ pub struct EncodeSeriesArgs {
     /// value range, exactly as an unbroken run would.
     #[arg(long)]
     resume_from: Option<PathBuf>,
-    /// Payload of every step's model: f32, 8bit or 8bit-u16.
+    /// Payload of every step's model: f32, 8bit, 8bit-u16 or packed.
     #[arg(long, default_value = "f32", value_parser = one_of(&Payload::ALL, Payload::name))]
     payload: Payload,
     /// Output: an HDF5 store (.h5, needs the hdf5 feature) or a folder of

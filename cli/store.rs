@@ -22,7 +22,7 @@ pub struct StoreAddArgs {
     store: PathBuf,
     #[arg(required = true)]
     models: Vec<PathBuf>,
-    /// Payload in the store: f32, 8bit or 8bit-u16 (default: each model's own).
+    /// Payload in the store: f32, 8bit, 8bit-u16 or packed (default: each model's own).
     #[arg(long, value_parser = one_of(&Payload::ALL, Payload::name))]
     payload: Option<Payload>,
     #[arg(long)]

@@ -4,6 +4,7 @@
 use gsenc::field::{Grid, IndexBox, IndexFrame, Transform, ValueRange};
 use gsenc::format::StepIndex;
 use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Payload, BYTES_PER_PRIMITIVE};
+use gsenc::format::packed::Precision;
 use gsenc::format::quantize::CentreCoding;
 use gsenc::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use gsenc::math::rng::Rng;
@@ -49,6 +50,7 @@ fn model_without_extras(n: usize, rng: &mut Rng) -> Model {
             encode_psnr: None,
             fell_back: None,
             warm: None,
+            precision: None,
         },
         // Centres inside the reference box, the rest spread like trained parameters.
         params: (0..n)
@@ -121,7 +123,7 @@ fn eight_bit_payloads_keep_every_parameter_within_its_quantisation_step() {
         assert_eq!(file.payload, payload);
         assert_eq!(file.version, (1, 1));
         assert_eq!(file.model.meta, m.meta);
-        assert_eq!(file.model.params, payload.round_trip(&m.params).unwrap());
+        assert_eq!(file.model.params, payload.round_trip(&m).unwrap());
         for k in 0..12 {
             let allowed = allowed_error(&m.params, k, centres);
             for (a, b) in m.params.iter().zip(&file.model.params) {
@@ -129,7 +131,7 @@ fn eight_bit_payloads_keep_every_parameter_within_its_quantisation_step() {
             }
         }
         // Storing what was read again does not drift (convert back and forth).
-        let again = payload.round_trip(&file.model.params).unwrap();
+        let again = payload.round_trip(&file.model).unwrap();
         for (a, b) in again.iter().zip(&file.model.params) {
             for k in 0..12 {
                 assert!((a[k] - b[k]).abs() <= 1e-6 * b[k].abs().max(1.0), "{centres:?} parameter {k} drifts: {} vs {}", a[k], b[k]);
@@ -144,6 +146,85 @@ fn eight_bit_payloads_keep_every_parameter_within_its_quantisation_step() {
     assert_eq!(read_model(&write_model(&eight).unwrap()).unwrap(), eight);
 }
 
+/// The stored primitive nearest to `p` by centre (the packed payload
+/// stores primitives in Morton order).
+fn stored_twin<'a>(p: &[f32; 12], stored: &'a [[f32; 12]]) -> &'a [f32; 12] {
+    let d2 = |q: &[f32; 12]| (0..3).map(|a| (p[a] - q[a]).powi(2)).sum::<f32>();
+    stored.iter().min_by(|a, b| d2(a).total_cmp(&d2(b))).unwrap()
+}
+
+fn sigmoid(x: f32) -> f64 {
+    1.0 / (1.0 + (-(x as f64)).exp())
+}
+
+/// The rotation matrix of a quaternion (w, x, y, z), normalised.
+fn rotation(q: &[f32]) -> [[f64; 3]; 3] {
+    let n = q.iter().map(|v| (*v as f64).powi(2)).sum::<f64>().sqrt();
+    let [w, x, y, z] = [0, 1, 2, 3].map(|i| q[i] as f64 / n);
+    [
+        [1.0 - 2.0 * (y * y + z * z), 2.0 * (x * y - w * z), 2.0 * (x * z + w * y)],
+        [2.0 * (x * y + w * z), 1.0 - 2.0 * (x * x + z * z), 2.0 * (y * z - w * x)],
+        [2.0 * (x * z - w * y), 2.0 * (y * z + w * x), 1.0 - 2.0 * (x * x + y * y)],
+    ]
+}
+
+/// Asserts that each of `stored` (Morton order) is within the packed
+/// payload's steps at `precision` of its twin in `params`.
+fn assert_within_packed_steps(params: &[[f32; 12]], stored: &[[f32; 12]], precision: Precision) {
+    let (lo, hi) = (0.4f64.ln(), 8f64.ln());
+    let (beta_lo, beta_hi) = params.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), p| (a.min(p[11]), b.max(p[11])));
+    let half = |bits: u8, span: f64| span / ((1u32 << bits) - 1) as f64 * 0.5 + 1e-5;
+    for (i, p) in params.iter().enumerate() {
+        let s = stored_twin(p, stored);
+        for a in 0..3 {
+            assert!((p[a] - s[a]).abs() as f64 <= 0.5f64.powi(precision.centre as i32 + 1) + 1e-4, "{precision:?} centre {i}");
+            let l = (p[3 + a] as f64).clamp(lo, hi);
+            assert!((l - s[3 + a] as f64).abs() <= half(precision.scale, hi - lo), "{precision:?} scale {i}");
+        }
+        assert!((sigmoid(p[10]) - sigmoid(s[10])).abs() <= 0.5f64.powi(precision.value as i32 + 1) + 1e-6, "{precision:?} value {i}");
+        assert!((p[11] - s[11]).abs() as f64 <= half(precision.weight, (beta_hi - beta_lo) as f64), "{precision:?} weight {i}");
+        // The rotation: exactly none for a sphere; else within the
+        // components' step, which may be coarser the rounder the primitive.
+        if s[3] == s[4] && s[4] == s[5] {
+            assert_eq!(&s[6..10], &[1.0, 0.0, 0.0, 0.0], "{precision:?} sphere {i}");
+        } else {
+            let (r, t) = (rotation(&p[6..10]), rotation(&s[6..10]));
+            let err = (0..9).map(|k| (r[k / 3][k % 3] - t[k / 3][k % 3]).abs()).fold(0.0, f64::max);
+            let step = std::f64::consts::SQRT_2 / ((1u32 << precision.rotation) - 1) as f64;
+            let spread = (s[3].max(s[4]).max(s[5]) - s[3].min(s[4]).min(s[5])) as f64 / (hi - lo);
+            let allowed = (8.0 * step).max(8.0 * step / (3.0 * spread)).min(2.0);
+            assert!(err <= allowed, "{precision:?} rotation {i}: {err} > {allowed}");
+        }
+    }
+}
+
+#[test]
+fn the_packed_payload_keeps_every_group_within_its_step_and_records_its_precision() {
+    let mut m = model(400);
+    // A few spheres: equal log scales, whose rotation is not stored.
+    for p in m.params.iter_mut().take(40) {
+        (p[4], p[5]) = (p[3], p[3]);
+    }
+    for precision in [Precision::DEFAULT, Precision { centre: 2, scale: 4, rotation: 3, value: 5, weight: 3 }, Precision::FINEST] {
+        m.meta.precision = Some(precision);
+        let bytes = write_model_as(&m, Payload::Packed).unwrap();
+        let file = read_model_file(&bytes).unwrap();
+        assert_eq!(file.payload, Payload::Packed);
+        assert_eq!(file.version, (1, 1), "no new header field: the payload code tells");
+        assert_eq!(file.model.meta, m.meta, "the precision is read back from the payload");
+        assert_eq!(file.model.params, Payload::Packed.round_trip(&m).unwrap(), "what an encoder scores is what is read");
+        assert_within_packed_steps(&m.params, &file.model.params, precision);
+        // Storing what was read again stays within the steps of it.
+        let again = read_model(&write_model_as(&file.model, Payload::Packed).unwrap()).unwrap();
+        assert_within_packed_steps(&file.model.params, &again.params, precision);
+    }
+    // The default is well below the 8-bit payloads.
+    m.meta.precision = None;
+    let packed = write_model_as(&m, Payload::Packed).unwrap().len();
+    let eight = write_model_as(&m, Payload::Bits8(CentreCoding::Fixed16)).unwrap().len();
+    assert!(packed < eight, "packed {packed} bytes, 8bit-u16 {eight}");
+}
+
 #[test]
 fn constant_arrays_and_empty_models_survive_the_8_bit_payload() {
     let mut m = model(7);
@@ -153,9 +234,14 @@ fn constant_arrays_and_empty_models_survive_the_8_bit_payload() {
     }
     for payload in Payload::ALL {
         let back = read_model(&write_model_as(&m, payload).unwrap()).unwrap();
-        assert!(back.params.iter().all(|p| p[5] == 1.25 && p[11] == -2.0), "{payload:?}");
-        let empty = model(0);
-        assert_eq!(read_model(&write_model_as(&empty, payload).unwrap()).unwrap(), empty);
+        assert!(back.params.iter().all(|p| p[11] == -2.0), "{payload:?}");
+        // The packed payload quantises log scales over the kernel's fixed band, not their own range.
+        assert!(back.params.iter().all(|p| p[5] == 1.25 || payload == Payload::Packed), "{payload:?}");
+        let mut empty = model(0);
+        let back = read_model(&write_model_as(&empty, payload).unwrap()).unwrap();
+        // A packed file tells the precision it was written at.
+        empty.meta.precision = (payload == Payload::Packed).then_some(Precision::DEFAULT);
+        assert_eq!(back, empty);
     }
 }
 
@@ -171,8 +257,18 @@ fn unstorable_parameters_are_refused_on_write() {
     far.params[2][0] = 70000.0;
     let e = write_model_as(&far, Payload::Bits8(CentreCoding::Float16)).unwrap_err();
     assert!(e.to_string().contains("8bit-u16"), "{e}");
+    // The packed payload's default lattice coarsens to fit a wide domain
+    // (70,000 voxels: 1/16 voxel, within 2^21 steps)...
+    let packed = read_model_file(&write_model_as(&far, Payload::Packed).unwrap()).unwrap();
+    assert_eq!(packed.model.meta.precision, Some(Precision { centre: 4, ..Precision::DEFAULT }));
+    let twin = stored_twin(&far.params[2], &packed.model.params);
+    assert!((twin[0] - 70000.0).abs() <= 1.0 / 32.0 + 0.004, "{}", twin[0]);
     let back = read_model(&write_model_as(&far, Payload::Bits8(CentreCoding::Fixed16)).unwrap()).unwrap();
     assert!((back.params[2][0] - 70000.0).abs() < 1.0);
+    // ...down to whole voxels; beyond 2^21 voxels it is refused.
+    far.params[2][0] = 3.0e6;
+    let e = write_model_as(&far, Payload::Packed).unwrap_err();
+    assert!(e.to_string().contains("8bit-u16"), "{e}");
 }
 
 #[test]

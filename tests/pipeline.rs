@@ -9,7 +9,8 @@ use gsenc::encode::pipeline::{self, config_for, Labels, Request, Start};
 use gsenc::encode::{encode, EncodeConfig, Schedule, WarmStart};
 use gsenc::field::{IndexFrame, Transform, ValueRange};
 use gsenc::format::quantize::CentreCoding;
-use gsenc::format::{read_model, write_model_as, Payload};
+use gsenc::format::packed::Precision;
+use gsenc::format::{read_model, read_model_file, write_model_as, Payload};
 use gsenc::input::particles::Particles;
 use gsenc::input::{prepare, Form, Input, Placement, RangeSpec};
 use gsenc::math::rng::Rng;
@@ -28,6 +29,12 @@ fn the_schedule_follows_the_form_and_the_start() {
     assert_eq!((warm(WarmStart::Coarse, None).iterations(), warm(WarmStart::Coarse, None).relocation), (1000, false));
     assert_eq!((warm(WarmStart::Dense, None).iterations(), warm(WarmStart::Dense, None).relocation), (1500, true));
     assert_eq!(warm(WarmStart::Dense, Some(70)).iterations(), 70);
+    // gsenc's `tuned`: matched's iterations and points at five times its learning rate.
+    let tuned = config_for(&EncodeConfig::new(100, Schedule::Tuned), Form::Particles, &Start::Seeded);
+    let matched = config_for(&EncodeConfig::new(100, Schedule::Matched), Form::Particles, &Start::Seeded);
+    assert_eq!((tuned.iterations(), tuned.points()), (matched.iterations(), matched.points()));
+    assert!((tuned.learning_rate - 5.0 * matched.learning_rate).abs() < 1e-7, "{}", tuned.learning_rate);
+    assert_eq!(Schedule::from_name("tuned").unwrap(), Schedule::Tuned);
     // A caller's overrides stand for a seeded encode.
     let mut short = base.clone();
     short.iterations = Some(12);
@@ -98,4 +105,74 @@ fn particles_run_the_longer_full_schedule_and_a_warm_start_its_regime() {
     let second = pipeline::encode_prepared(&prepared, &warm, &mut CpuBackend::new(), &mut |_| {}).unwrap();
     assert!(second.warm_started && second.output.seeding.is_none() && second.output.relocations.is_empty());
     assert_eq!((second.model.meta.schedule.as_str(), second.output.iterations), ("warm-coarse", 1000));
+}
+
+#[test]
+fn a_packed_encode_measures_its_precision_and_loses_at_most_a_tenth_of_a_db() {
+    let g = blobs([28, 24, 20], 5, 6);
+    // Empty corners (a support) and a field without one.
+    let holed: Vec<f32> = g.values.iter().map(|&v| if v < 0.05 { 0.0 } else { v }).collect();
+    for (values, store_support) in [(holed, true), (g.values.clone(), false)] {
+        let grid = gsenc::field::Grid::new(g.dims, values).unwrap();
+        let frame = IndexFrame::for_grid(grid.dims, [0.0; 3], 1.0).unwrap();
+        let mut cfg = EncodeConfig::new(300, Schedule::Short);
+        cfg.iterations = Some(200);
+        let request = Request { payload: Payload::Packed, store_support, ..Request::new(cfg) };
+        let range = RangeSpec::FromData(Transform::Linear);
+        let input = Input::Grid { values: &grid, frame };
+        let (prepared, encoded) = pipeline::encode(&input, &range, &request, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+        let precision = encoded.model.meta.precision.expect("a packed encode measures its precision");
+        assert_ne!(precision, Precision::FINEST, "the search gave up no bit");
+        assert_eq!(encoded.model.support.is_some(), store_support);
+
+        // Independently: the file as written, decoded on the whole lattice,
+        // against the float32 model's decode.
+        let bytes = write_model_as(&encoded.model, Payload::Packed).unwrap();
+        let file = read_model_file(&bytes).unwrap();
+        assert_eq!(file.model.meta.precision, Some(precision));
+        let reference = &prepared.reference.values;
+        let stored = voxel_psnr(&file.model.decode(&mut CpuBackend::new(), None).unwrap().values, reference);
+        let float = voxel_psnr(&encoded.model.decode(&mut CpuBackend::new(), None).unwrap().values, reference);
+        assert!((stored - encoded.psnr).abs() < 1e-9, "file {stored} dB, recorded {} dB", encoded.psnr);
+        assert_eq!(encoded.float32_psnr, Some(float));
+        assert!(float - stored <= 0.1, "support {store_support}: the packed payload lost {} dB", float - stored);
+        assert!(float - stored > 0.0, "support {store_support}: nothing was lost: the precision was not lowered");
+
+        // Smaller than the 8-bit payload of the same model.
+        let eight = read_model_file(&write_model_as(&encoded.model, Payload::Bits8(CentreCoding::Fixed16)).unwrap()).unwrap();
+        assert!(file.payload_bytes * 10 < eight.payload_bytes * 8, "packed {} bytes, 8bit-u16 {}", file.payload_bytes, eight.payload_bytes);
+
+        // The same input gives the same file.
+        let (_, again) = pipeline::encode(&input, &range, &request, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+        assert_eq!(write_model_as(&again.model, Payload::Packed).unwrap(), bytes);
+    }
+}
+
+#[test]
+fn the_tuned_schedule_trains_at_its_own_rate_and_says_so() {
+    let g = blobs([20, 16, 12], 3, 4);
+    let frame = IndexFrame::for_grid(g.dims, [0.0; 3], 1.0).unwrap();
+    let range = RangeSpec::FromData(Transform::Linear);
+    let run = |schedule| {
+        let mut cfg = EncodeConfig::new(120, schedule);
+        cfg.iterations = Some(80);
+        cfg.points = Some(1024);
+        cfg.relocation = false; // Adam's steps alone, which scale with the rate
+        pipeline::encode(&Input::Grid { values: &g, frame }, &range, &Request::new(cfg), &mut CpuBackend::new(), &mut |_| {}).unwrap().1
+    };
+    let (tuned, matched) = (run(Schedule::Tuned), run(Schedule::Matched));
+    assert_eq!(tuned.model.meta.schedule, "tuned");
+    // The same seeding and points: only the learning rate differs, and it is
+    // used: Adam's steps are about the rate each, so the centres travel further.
+    assert_ne!(tuned.model.params, matched.model.params);
+    let moved = |e: &pipeline::Encoded, seeded: &[[f32; 12]]| e.model.params.iter().zip(seeded).map(|(a, b)| (a[0] - b[0]).abs() as f64).sum::<f64>();
+    let mut cfg = EncodeConfig::new(120, Schedule::Matched);
+    cfg.iterations = Some(0);
+    let seeded = run_with(&g, frame, cfg);
+    assert!(moved(&tuned, &seeded) > 1.3 * moved(&matched, &seeded), "centres moved {} (tuned) vs {} (matched)", moved(&tuned, &seeded), moved(&matched, &seeded));
+}
+
+fn run_with(g: &gsenc::field::Grid, frame: IndexFrame, cfg: EncodeConfig) -> Vec<[f32; 12]> {
+    let range = RangeSpec::FromData(Transform::Linear);
+    pipeline::encode(&Input::Grid { values: g, frame }, &range, &Request::new(cfg), &mut CpuBackend::new(), &mut |_| {}).unwrap().1.model.params
 }

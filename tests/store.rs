@@ -13,6 +13,7 @@ use gsenc::format::{write_model_as, Payload};
 use gsenc::io::series::{write_decoded_series, xdmf_path, SeriesOptions};
 use gsenc::io::store::{EntryKey, Store};
 use gsenc::model::{WarmRecord, WarmTaken};
+use gsenc::format::packed::Precision;
 use gsenc::format::quantize::CentreCoding;
 use gsenc::Error;
 use std::path::Path;
@@ -28,7 +29,11 @@ fn every_payload_round_trips_with_its_metadata() {
         let mut s = Store::open_append(&path).unwrap();
         for (i, payload) in Payload::ALL.into_iter().enumerate() {
             for rank in 0..2 {
-                let m = model("density", 10 + i as u64, rank, 1000 + 7 * i, 0.5);
+                let mut m = model("density", 10 + i as u64, rank, 1000 + 7 * i, 0.5);
+                // A packed entry keeps the precision its encode measured.
+                if payload == Payload::Packed {
+                    m.meta.precision = Some(Precision { centre: 3 + rank as u8, scale: 6, rotation: 7, value: 9, weight: 5 });
+                }
                 s.append(&m, payload).unwrap();
                 stored.push((m, payload));
             }
@@ -48,7 +53,7 @@ fn every_payload_round_trips_with_its_metadata() {
         assert_eq!(back_payload, *payload, "{}", key.path());
         assert_eq!(back.meta, m.meta, "{}", key.path());
         // Exactly what the .gsm file of that payload holds: one quantisation.
-        assert_eq!(back.params, payload.round_trip(&m.params).unwrap(), "{}", key.path());
+        assert_eq!(back.params, payload.round_trip(&m).unwrap(), "{}", key.path());
         let info = entries.iter().find(|e| e.key == key).unwrap().content.as_ref().unwrap();
         assert_eq!(info.count, m.params.len() as u64);
     }

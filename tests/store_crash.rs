@@ -93,7 +93,7 @@ fn writers_killed_mid_append_leave_earlier_steps_readable() {
             let want = model("rho", step, 0, CRASH_PRIMS, 0.5);
             let (got, payload) =
                 s.read(&EntryKey::of(&want.meta)).unwrap_or_else(|e| panic!("round {round}: step {step} lost: {e}"));
-            assert_eq!(got.params, payload.round_trip(&want.params).unwrap(), "round {round}: step {step}");
+            assert_eq!(got.params, payload.round_trip(&want).unwrap(), "round {round}: step {step}");
         }
         // The append that was cut short is absent, whole, or listed as unreadable.
         for e in entries.iter().filter(|e| !confirmed.contains(&e.key.step)) {
@@ -101,7 +101,7 @@ fn writers_killed_mid_append_leave_earlier_steps_readable() {
             if e.content.is_ok() {
                 let want = model("rho", e.key.step, 0, CRASH_PRIMS, 0.5);
                 let (got, payload) = s.read(&e.key).unwrap();
-                assert_eq!(got.params, payload.round_trip(&want.params).unwrap(), "round {round}: partial step");
+                assert_eq!(got.params, payload.round_trip(&want).unwrap(), "round {round}: partial step");
             }
         }
     }

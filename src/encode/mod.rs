@@ -7,13 +7,15 @@
 //! [`config`] (budget, schedules, warm regimes), [`seeding`] (the three
 //! streams), [`points`] (the stratified training points), [`relocate`],
 //! [`refine`] (the optimisation loop), [`validation`] (a fixed point set
-//! scored along the way), and for `auto` warm starts [`repair`] (where the
+//! scored along the way), [`precision`] (what the packed payload needs),
+//! and for `auto` warm starts [`repair`] (where the
 //! previous model misses the new step) and [`plateau`] (when to stop).
 
 pub mod config;
 pub mod pipeline;
 pub mod plateau;
 pub mod points;
+pub mod precision;
 pub mod refine;
 pub mod relocate;
 pub mod repair;

@@ -12,17 +12,20 @@
 //! 4. **Build the model**: its metadata, and its support (where the
 //!    reference holds data; METHOD.md "Support") unless the request asks
 //!    for the paper's model.
-//! 5. **Score the model as it will be stored**: the payload's round trip,
-//!    decoded on the reference lattice with the support, against the
-//!    reference.
+//! 5. **Score the model as it will be stored**: for the packed payload,
+//!    first measure the precision it needs ([`crate::encode::precision`]);
+//!    then the payload's round trip, decoded on the reference lattice with
+//!    the support, against the reference.
 //!
 //! No I/O: the caller writes the model ([`crate::io`]).
 
 use crate::backend::{Backend, Lattice};
 use crate::encode::config::{EncodeConfig, WarmStart};
+use crate::encode::precision::{choose_precision, finer, MAX_PSNR_LOSS_DB, SEARCH_ALLOWANCES};
 use crate::encode::refine::{encode_validated, EncodeOutput, Progress};
 use crate::encode::validation::Validation;
 use crate::error::Result;
+use crate::format::packed::Precision;
 use crate::format::Payload;
 use crate::input::{prepare, Form, Input, Prepared, RangeSpec};
 use crate::math::kernel::Primitive;
@@ -94,9 +97,13 @@ pub struct Encoded {
     pub warm_started: bool,
     /// Voxel PSNR of the model as stored against the reference.
     pub psnr: f64,
+    /// That of the float32 model, where the payload's precision was
+    /// measured against it (packed).
+    pub float32_psnr: Option<f64>,
     /// That decode, on the reference lattice (x fastest), for further scores.
     pub decoded: Vec<f32>,
-    /// Seconds of the payload round trip and the decode.
+    /// Seconds of the payload round trip and the decode (and of measuring
+    /// the packed payload's precision).
     pub decode_seconds: f64,
 }
 
@@ -170,16 +177,41 @@ pub fn encode_prepared(
         encode_psnr: None,
         fell_back: output.fell_back.clone(),
         warm: output.warm,
+        precision: None,
     };
     let support = request.store_support.then(|| Support::from_reference(&prepared.reference)).flatten();
     let mut model = Model { meta, params: output.params.clone(), support };
 
     let started = Instant::now();
-    let decoded = decode_as_stored(request.payload, &model, backend)?;
-    let psnr = voxel_psnr(&decoded, &prepared.reference.values);
+    let reference = &prepared.reference.values;
+    let (decoded, psnr, float32_psnr) = if request.payload == Payload::Packed {
+        // The precision measured on a sample, checked on the whole lattice.
+        let exact = voxel_psnr(&decode_as_stored(Payload::Float32, &model, backend)?, reference);
+        let mut allowances = SEARCH_ALLOWANCES.iter();
+        let finest = Precision::FINEST.fitting(&model.params).unwrap_or(Precision::FINEST);
+        let mut p = finest;
+        loop {
+            if let Some(&allowed) = allowances.next() {
+                p = choose_precision(&model.params, &prepared.reference, model.support.is_some(), allowed, backend)?;
+            }
+            model.meta.precision = Some(p);
+            let decoded = decode_as_stored(request.payload, &model, backend)?;
+            let psnr = voxel_psnr(&decoded, reference);
+            if exact - psnr <= MAX_PSNR_LOSS_DB || p == finest {
+                break (decoded, psnr, Some(exact));
+            }
+            if allowances.len() == 0 {
+                p = finer(p, finest);
+            }
+        }
+    } else {
+        let decoded = decode_as_stored(request.payload, &model, backend)?;
+        let psnr = voxel_psnr(&decoded, reference);
+        (decoded, psnr, None)
+    };
     let decode_seconds = started.elapsed().as_secs_f64();
     model.meta.encode_psnr = Some(psnr);
-    Ok(Encoded { model, output, config: cfg, warm_started: init.is_some(), psnr, decoded, decode_seconds })
+    Ok(Encoded { model, output, config: cfg, warm_started: init.is_some(), psnr, float32_psnr, decoded, decode_seconds })
 }
 
 /// Validation points of an `auto` warm step whose caller scores none.
@@ -199,7 +231,7 @@ fn auto_validation(prepared: &Prepared, cap: usize, support: bool) -> Result<Val
 /// reference lattice (support included). Fails on parameters the payload
 /// cannot store.
 pub fn decode_as_stored(payload: Payload, model: &Model, backend: &mut dyn Backend) -> Result<Vec<f32>> {
-    let stored = Model { meta: model.meta.clone(), params: payload.round_trip(&model.params)?, support: model.support.clone() };
+    let stored = Model { meta: model.meta.clone(), params: payload.round_trip(model)?, support: model.support.clone() };
     let dims = model.meta.frame.dims;
     let mut decoded = vec![0f32; dims.iter().product()];
     stored.decode_lattice(backend, &Lattice::reference(dims), &mut decoded)?;

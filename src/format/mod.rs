@@ -1,11 +1,14 @@
 //! The file formats, bytes in and bytes out (no file system here: `io/`
 //! writes them): the model file `.gsm` ([`model_file`], docs/FORMAT.md), its
-//! payloads and the 8-bit export ([`quantize`]), the step index `.gsi` of a
+//! payloads: the 8-bit export ([`quantize`]) and the packed one ([`packed`],
+//! on the bit stream of [`bits`]), the step index `.gsi` of a
 //! decomposed step ([`step_index`]), and how models are named on disk
 //! ([`names`]).
 
+pub mod bits;
 pub mod model_file;
 pub mod names;
+pub mod packed;
 pub mod quantize;
 pub mod step_index;
 

@@ -8,7 +8,8 @@
 //! 12  header_len   u32      bytes of the header that follows
 //! 16  header       header_len bytes:
 //!       payload u32 (0 float32, 1 8-bit with float16 centres,
-//!                    2 8-bit with uint16 fixed-point centres), count u64,
+//!                    2 8-bit with uint16 fixed-point centres, 3 packed),
+//!       count u64,
 //!       dims 3 x u32, bmin 3 x f64, gamma f64,
 //!       vmin f64, vmax f64, transform u32 (0 linear, 1 log10),
 //!       step u64, iterations u32, points u32, seed_init u64, seed_sample u64,
@@ -23,7 +24,8 @@
 //!          primitives moved u32
 //!       -- a newer minor version may append fields; readers skip them.
 //! ..  payload      float32: count x 12 x f32, mu[3] l[3] q[4] alpha beta;
-//!                  8-bit: one zstd frame of the body in `quantize.rs`
+//!                  8-bit: one zstd frame of the body in `quantize.rs`;
+//!                  packed: the layout in `packed.rs`
 //! ..  crc32        u32 over every byte before it
 //! ```
 //! Readers reject a foreign magic, a newer major version, any size mismatch
@@ -33,6 +35,7 @@ use crate::error::{by_name, Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::math::kernel::Primitive;
 use crate::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
+use crate::format::packed::{Packed, Precision};
 use crate::format::quantize::{self, CentreCoding};
 
 pub const MAGIC: &[u8; 8] = b"GSENCMDL";
@@ -74,17 +77,21 @@ pub enum Payload {
     Float32,
     /// The paper's 8-bit export, then zstd (METHOD.md "Payloads").
     Bits8(CentreCoding),
+    /// Each parameter group at the bits its model's encode measured it
+    /// needs, in Morton order (`packed.rs`, METHOD.md "Payloads").
+    Packed,
 }
 
 impl Payload {
-    pub const ALL: [Payload; 3] =
-        [Payload::Float32, Payload::Bits8(CentreCoding::Float16), Payload::Bits8(CentreCoding::Fixed16)];
+    pub const ALL: [Payload; 4] =
+        [Payload::Float32, Payload::Bits8(CentreCoding::Float16), Payload::Bits8(CentreCoding::Fixed16), Payload::Packed];
 
     pub fn code(self) -> u32 {
         match self {
             Payload::Float32 => 0,
             Payload::Bits8(CentreCoding::Float16) => 1,
             Payload::Bits8(CentreCoding::Fixed16) => 2,
+            Payload::Packed => 3,
         }
     }
 
@@ -92,12 +99,13 @@ impl Payload {
         Payload::ALL.into_iter().find(|p| p.code() == code)
     }
 
-    /// The command line's and the C API's name: `f32`, `8bit`, `8bit-u16`.
+    /// The command line's and the C API's name: `f32`, `8bit`, `8bit-u16`, `packed`.
     pub fn name(self) -> &'static str {
         match self {
             Payload::Float32 => "f32",
             Payload::Bits8(CentreCoding::Float16) => "8bit",
             Payload::Bits8(CentreCoding::Fixed16) => "8bit-u16",
+            Payload::Packed => "packed",
         }
     }
 
@@ -105,17 +113,28 @@ impl Payload {
         by_name(&Payload::ALL, Payload::name, name, "payload")
     }
 
-    /// The parameters as a reader of this payload will see them, so that an
-    /// encoder can score what it stores.
-    pub fn round_trip(self, params: &[Primitive]) -> Result<Vec<Primitive>> {
+    /// The parameters of `model` as a reader of this payload will see them
+    /// (in the order stored), so that an encoder can score what it stores.
+    pub fn round_trip(self, model: &Model) -> Result<Vec<Primitive>> {
+        let params = &model.params;
         match self {
             Payload::Float32 => Ok(params.to_vec()),
             Payload::Bits8(c) => {
                 check_storable(params, self)?;
                 quantize::dequantize(&quantize::quantize(params, c), params.len(), c)
             }
+            Payload::Packed => {
+                check_storable(params, self)?;
+                Packed::of(params, packed_precision(model))?.params()
+            }
         }
     }
+}
+
+/// The precision a model is packed with: the one its encode measured, else
+/// the default (with centres as coarse as a wide domain needs).
+pub fn packed_precision(model: &Model) -> Precision {
+    model.meta.precision.unwrap_or_else(|| Precision::DEFAULT.fitting(&model.params).unwrap_or(Precision::DEFAULT))
 }
 
 /// A model as read from a file, with how it was stored.
@@ -125,6 +144,8 @@ pub struct ModelFile {
     pub payload: Payload,
     /// Major and minor version of the file.
     pub version: (u16, u16),
+    /// Bytes of its payload (the primitives), without header and checksum.
+    pub payload_bytes: usize,
 }
 
 fn check_storable(params: &[Primitive], payload: Payload) -> Result<()> {
@@ -237,6 +258,7 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
             let packed = zstd::bulk::compress(&body, ZSTD_LEVEL).map_err(|e| Error::format(format!("zstd: {e}")))?;
             out.extend_from_slice(&packed);
         }
+        Payload::Packed => out.extend_from_slice(&packed_payload(model)?),
     }
     let crc = crc32fast::hash(&out);
     out.extend_from_slice(&crc.to_le_bytes());
@@ -305,7 +327,8 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     }
     let mut h = Cursor { b: &bytes[PREFIX..PREFIX + header_len], at: 0 };
     let pcode = h.u32()?;
-    let payload = Payload::from_code(pcode).ok_or_else(|| Error::format(format!("unknown payload kind {pcode}")))?;
+    let payload = Payload::from_code(pcode)
+        .ok_or_else(|| Error::format(format!("unknown payload kind {pcode} (corrupted, or written by a newer gsenc)")))?;
     let count = h.u64()?;
     let dims = [h.u32()? as usize, h.u32()? as usize, h.u32()? as usize];
     let bmin = [h.f64()?, h.f64()?, h.f64()?];
@@ -348,10 +371,10 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
                 )));
             }
         }
-        Payload::Bits8(_) if count > MAX_8BIT_COUNT => {
+        Payload::Bits8(_) | Payload::Packed if count > MAX_8BIT_COUNT => {
             return Err(Error::format(format!("model header claims {count} primitives (corrupted)")));
         }
-        Payload::Bits8(_) => {}
+        Payload::Bits8(_) | Payload::Packed => {}
     }
     let stored_crc = u32::from_le_bytes(bytes[bytes.len() - 4..].try_into().unwrap());
     if crc32fast::hash(&bytes[..bytes.len() - 4]) != stored_crc {
@@ -364,9 +387,13 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     let support = packed_support.map(|b| read_support(b, dims)).transpose()?;
     let start = PREFIX + header_len;
     let stored = &bytes[start..start + body];
-    let params = match payload {
-        Payload::Float32 => read_f32_payload(stored),
-        Payload::Bits8(c) => read_8bit_payload(stored, count as usize, c)?,
+    let (params, precision) = match payload {
+        Payload::Float32 => (read_f32_payload(stored), None),
+        Payload::Bits8(c) => (read_8bit_payload(stored, count as usize, c)?, None),
+        Payload::Packed => {
+            let packed = read_packed_payload(stored, count as usize)?;
+            (packed.params()?, Some(packed.precision))
+        }
     };
     if params.iter().any(|p| p.iter().any(|v| !v.is_finite())) {
         return Err(Error::format("model file holds non-finite parameters"));
@@ -387,11 +414,12 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
             encode_psnr,
             fell_back,
             warm,
+            precision,
         },
         params,
         support,
     };
-    Ok(ModelFile { model, payload, version: (major, minor) })
+    Ok(ModelFile { model, payload, version: (major, minor), payload_bytes: body })
 }
 
 fn read_f32_payload(stored: &[u8]) -> Vec<Primitive> {
@@ -410,6 +438,18 @@ fn read_f32_payload(stored: &[u8]) -> Vec<Primitive> {
 fn read_8bit_payload(stored: &[u8], count: usize, centres: CentreCoding) -> Result<Vec<Primitive>> {
     let body = unpack(stored, quantize::body_len(count, centres), &format!("8-bit payload of {count} primitives"))?;
     quantize::dequantize(&body, count, centres)
+}
+
+/// The packed payload of `model` (at its measured precision, else the
+/// default), as a model file and an HDF5 store hold it.
+pub fn packed_payload(model: &Model) -> Result<Vec<u8>> {
+    Packed::of(&model.params, packed_precision(model))?.to_bytes(ZSTD_LEVEL)
+}
+
+/// The packed payload's codes; each symbol frame must unpack to
+/// exactly the length its count and precision give.
+pub fn read_packed_payload(stored: &[u8], count: usize) -> Result<Packed> {
+    Packed::from_bytes(stored, count, &|frame, want| unpack(frame, want, &format!("packed payload of {count} primitives")))
 }
 
 fn read_support(stored: &[u8], dims: [usize; 3]) -> Result<Support> {

@@ -39,7 +39,7 @@ pub struct Affine {
 }
 
 impl Affine {
-    fn of(values: impl Iterator<Item = f32>) -> Affine {
+    pub(crate) fn of(values: impl Iterator<Item = f32>) -> Affine {
         let (lo, hi) = values.fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
         if lo > hi {
             Affine { lo: 0.0, hi: 0.0 }
@@ -48,7 +48,7 @@ impl Affine {
         }
     }
 
-    fn encode(&self, v: f32, levels: f32) -> f32 {
+    pub(crate) fn encode(&self, v: f32, levels: f32) -> f32 {
         if self.hi > self.lo {
             ((v - self.lo) / (self.hi - self.lo) * levels).round().clamp(0.0, levels)
         } else {
@@ -56,11 +56,11 @@ impl Affine {
         }
     }
 
-    fn decode(&self, k: f32, levels: f32) -> f32 {
+    pub(crate) fn decode(&self, k: f32, levels: f32) -> f32 {
         self.lo + (self.hi - self.lo) * (k / levels)
     }
 
-    fn check(self) -> Result<Affine> {
+    pub(crate) fn check(self) -> Result<Affine> {
         if !(self.lo.is_finite() && self.hi.is_finite() && self.hi >= self.lo) {
             return Err(Error::format("8-bit payload has an invalid min/max table"));
         }

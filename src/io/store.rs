@@ -20,6 +20,8 @@
 
 use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
+use crate::format::model_file::{packed_payload, read_packed_payload};
+use crate::format::packed::Precision;
 use crate::format::Payload;
 use crate::io::atomic::temporary_path;
 use crate::format::check_field_name;
@@ -131,7 +133,7 @@ impl Store {
     pub fn append(&mut self, model: &Model, payload: Payload) -> Result<()> {
         let key = EntryKey::of(&model.meta);
         check_field_name(&key.field)?;
-        payload.round_trip(&model.params)?; // refuses unstorable parameters before touching the file
+        payload.round_trip(model)?; // refuses unstorable parameters before touching the file
         let err = h5(&self.path);
         let step_name = key.step.to_string();
         let rank_name = format!("rank_{}", key.rank);
@@ -210,9 +212,9 @@ impl Store {
             .group(&key.path())
             .map_err(|_| Error::arg(format!("{} holds no model {}", self.path.display(), key.path())))?;
         let info = read_info(&g, key, &self.path)?;
-        let params = read_params(&g, &info, &self.path)?;
+        let (params, precision) = read_params(&g, &info, &self.path)?;
         let support = read_support(&g, &info, &self.path)?;
-        Ok((Model { meta: info.meta, params, support }, info.payload))
+        Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
     }
 }
 
@@ -357,6 +359,11 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
             }
             maps_attrs(&rows_dataset(g, "codes", 9, &q.codes, true)?, &q.maps)?;
         }
+        Payload::Packed => {
+            // The model file's packed payload as it is (already entropy-coded).
+            let bytes = packed_payload(model).map_err(|e| hdf5::Error::from(e.to_string()))?;
+            g.new_dataset::<u8>().shape(bytes.len()).create("packed")?.write_raw(&bytes)?;
+        }
     }
     scalar_str_attr(g, "payload", payload.name())?;
     scalar_attr(g, "count", &(n as u64))?;
@@ -455,12 +462,17 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
         } else {
             None
         },
+        precision: None, // read with the parameters
     };
     if EntryKey::of(&meta) != *key {
         return Err(bad(format!("says it is /{}/{}/rank_{}", meta.field, meta.step, meta.rank)));
     }
     let count = u64a("count")?;
-    let names: &[&str] = if payload == Payload::Float32 { &["params"] } else { &["centres", "codes"] };
+    let names: &[&str] = match payload {
+        Payload::Float32 => &["params"],
+        Payload::Bits8(_) => &["centres", "codes"],
+        Payload::Packed => &["packed"],
+    };
     let mut stored_bytes = 0;
     for name in names {
         stored_bytes += g.dataset(name).map_err(|_| bad(format!("has no dataset '{name}'")))?.storage_size();
@@ -489,11 +501,20 @@ fn read_maps(ds: &Dataset, len: usize, bad: &dyn Fn(String) -> Error) -> Result<
     Ok(lo.into_iter().zip(hi).map(|(lo, hi)| Affine { lo, hi }).collect())
 }
 
-fn read_params(g: &Group, info: &EntryInfo, path: &Path) -> Result<Vec<Primitive>> {
+/// The entry's primitives, and the packed payload's precision when it has one.
+fn read_params(g: &Group, info: &EntryInfo, path: &Path) -> Result<(Vec<Primitive>, Option<Precision>)> {
     let key = EntryKey::of(&info.meta);
     let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), key.path()));
     let n = usize::try_from(info.count).map_err(|_| bad("count exceeds this machine's memory".into()))?;
+    let mut precision = None;
     let params = match info.payload {
+        Payload::Packed => {
+            let ds = g.dataset("packed").map_err(|_| bad("has no dataset 'packed'".into()))?;
+            let bytes: Vec<u8> = ds.read_raw().map_err(|e| bad(format!("dataset packed: {e}")))?;
+            let packed = read_packed_payload(&bytes, n).map_err(|e| bad(e.to_string()))?;
+            precision = Some(packed.precision);
+            packed.params().map_err(|e| bad(e.to_string()))?
+        }
         Payload::Float32 => {
             let (_, rows) = read_rows::<f32>(g, "params", 12, n, &bad)?;
             (0..n).map(|i| std::array::from_fn(|k| rows[k * n + i])).collect()
@@ -519,5 +540,5 @@ fn read_params(g: &Group, info: &EntryInfo, path: &Path) -> Result<Vec<Primitive
     if params.iter().any(|p: &Primitive| p.iter().any(|v| !v.is_finite())) {
         return Err(bad("holds non-finite parameters".into()));
     }
-    Ok(params)
+    Ok((params, precision))
 }

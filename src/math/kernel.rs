@@ -290,17 +290,39 @@ impl GradAcc {
 /// primitives sorted by it makes neighbours in memory neighbours in space, so
 /// the CPU backend's blocks of candidates are compact and can be skipped whole.
 pub fn morton_key(p: &Primitive) -> u64 {
-    fn spread(v: u64) -> u64 {
-        let mut x = v & 0x1f_ffff;
-        x = (x | x << 32) & 0x1f_0000_0000_ffff;
-        x = (x | x << 16) & 0x1f_0000_ff00_00ff;
-        x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
-        x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
-        (x | x << 2) & 0x1249_2492_4924_9249
-    }
     // Saturating float-to-int: NaN and negatives map to 0.
     let c = |a: usize| p[layout::MU + a].clamp(0.0, 2_000_000.0) as u64;
-    spread(c(0)) | spread(c(1)) << 1 | spread(c(2)) << 2
+    morton([c(0), c(1), c(2)])
+}
+
+/// The Morton key of three 21-bit codes: bit `j` of code `a` at bit `3j + a`.
+pub fn morton(c: [u64; 3]) -> u64 {
+    spread(c[0]) | spread(c[1]) << 1 | spread(c[2]) << 2
+}
+
+/// The codes of a Morton key ([`morton`]'s inverse).
+pub fn unmorton(k: u64) -> [u64; 3] {
+    [compact(k), compact(k >> 1), compact(k >> 2)]
+}
+
+/// Spreads the 21 low bits of `v` to every third bit.
+fn spread(v: u64) -> u64 {
+    let mut x = v & 0x1f_ffff;
+    x = (x | x << 32) & 0x1f_0000_0000_ffff;
+    x = (x | x << 16) & 0x1f_0000_ff00_00ff;
+    x = (x | x << 8) & 0x100f_00f0_0f00_f00f;
+    x = (x | x << 4) & 0x10c3_0c30_c30c_30c3;
+    (x | x << 2) & 0x1249_2492_4924_9249
+}
+
+/// Gathers every third bit of `x` into the 21 low bits ([`spread`]'s inverse).
+fn compact(x: u64) -> u64 {
+    let mut x = x & 0x1249_2492_4924_9249;
+    x = (x | x >> 2) & 0x10c3_0c30_c30c_30c3;
+    x = (x | x >> 4) & 0x100f_00f0_0f00_f00f;
+    x = (x | x >> 8) & 0x1f_0000_ff00_00ff;
+    x = (x | x >> 16) & 0x1f_0000_0000_ffff;
+    (x | x >> 32) & 0x1f_ffff
 }
 
 /// A primitive's parameters for an isotropic, unrotated Gaussian.
@@ -319,6 +341,20 @@ pub fn isotropic(mu: [f32; 3], sigma: f32, value: f32, weight: f32) -> Primitive
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn morton_keys_interleave_and_invert() {
+        let mut rng = crate::math::rng::Rng::new(5);
+        for _ in 0..1000 {
+            let c = [rng.below(1 << 21), rng.below(1 << 21), rng.below(1 << 21)];
+            assert_eq!(unmorton(morton(c)), c);
+        }
+        assert_eq!(morton([1, 0, 0]), 1);
+        assert_eq!(morton([0, 1, 0]), 2);
+        assert_eq!(morton([0, 0, 1]), 4);
+        assert_eq!(morton([3, 0, 0]), 0b1001);
+    }
+
 
     #[test]
     fn box_is_tight_for_rotated_ellipsoid() {

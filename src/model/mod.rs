@@ -10,6 +10,7 @@ pub use support::Support;
 use crate::backend::{Backend, Lattice};
 use crate::error::{Error, Result};
 use crate::field::{Grid, IndexBox, IndexFrame, ValueRange};
+use crate::format::packed::Precision;
 use crate::math::kernel::Primitive;
 
 /// Decoding metadata stored with every model.
@@ -39,6 +40,10 @@ pub struct ModelMeta {
     pub fell_back: Option<String>,
     /// How an `auto` warm-started step began; `None` for every other encode.
     pub warm: Option<WarmRecord>,
+    /// The bits per parameter group the packed payload needs for this
+    /// model, as its encode measured them (`encode::precision`) or as read
+    /// from a packed file; `None`: not measured (packed at the default).
+    pub precision: Option<Precision>,
 }
 
 /// The start an `auto` warm-started step took (METHOD.md "Warm start").
@@ -105,6 +110,7 @@ impl ModelMeta {
             encode_psnr: None,
             fell_back: None,
             warm: None,
+            precision: None,
         }
     }
 }

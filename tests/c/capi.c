@@ -73,6 +73,7 @@ int main(void) {
     cfg.threads = 2;
     cfg.dims[0] = cfg.dims[1] = cfg.dims[2] = 16;
     cfg.output_dir = dir;
+    cfg.payload = GSENC_PAYLOAD_PACKED; /* precision measured per model: the PSNR stored is the file's */
 
     gsenc_encoder *enc = (gsenc_encoder *)1;
     EXPECT(gsenc_encoder_create(NULL, &enc), GSENC_STATUS_NULL_POINTER);
@@ -151,6 +152,11 @@ int main(void) {
 
     /* The written model of step 1, read back: its decode matches evaluation at cell centres. */
     snprintf(path, sizeof path, "%s/rho_000001.gsm", dir);
+    FILE *written = fopen(path, "rb");
+    unsigned char head[20];
+    CHECK(written && fread(head, 1, sizeof head, written) == sizeof head, "read %s", path);
+    fclose(written);
+    CHECK(head[16] == GSENC_PAYLOAD_PACKED && head[17] == 0, "the model file's payload code is packed: %d", head[16]);
     gsenc_model *model = NULL;
     EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_OK);
     gsenc_model_info info;

@@ -1,0 +1,170 @@
+//! The packed payload's precision, chosen per model by measuring
+//! (METHOD.md "Payloads"): the fewest bits per parameter group that keep
+//! the stored model's PSNR against its reference within
+//! [`MAX_PSNR_LOSS_DB`] of the float32 model's.
+//!
+//! The measure is the PSNR at [`POINTS`] voxel centres drawn from the
+//! reference (from its support when the model stores one: elsewhere both
+//! decode to exactly 0, so the ratio of the errors, and so the PSNR change,
+//! is the whole lattice's). The search allows the caller's loss on the
+//! sample:
+//!
+//! 1. each group in turn is searched alone (bisection), the others held at
+//!    their finest ([`Precision::FINEST`], with centres as coarse as a wide
+//!    domain needs), for the fewest bits that cost at most a fifth of the
+//!    allowance;
+//! 2. then, while the allowance lasts, the group whose next bit costs the
+//!    least PSNR per stored bit (three numbers a primitive for centres,
+//!    scales and rotations, one for values and weights) gives it up;
+//! 3. should the groups together exceed the allowance, every group gains a
+//!    bit until they do not.
+//!
+//! The caller checks the choice on the whole lattice: the pipeline decodes
+//! the stored model there anyway, and searches again with a smaller
+//! allowance ([`SEARCH_ALLOWANCES`]) when the sample's estimate missed.
+
+use crate::backend::Backend;
+use crate::encode::validation::Validation;
+use crate::error::{Error, Result};
+use crate::field::Grid;
+use crate::format::packed::{Packed, Precision, GROUPS};
+use crate::math::kernel::Primitive;
+use crate::math::loss::MASK_REF;
+use crate::math::rng::Rng;
+use std::collections::HashMap;
+
+/// The most the packed payload may lower a model's PSNR, in dB.
+pub const MAX_PSNR_LOSS_DB: f64 = 0.1;
+/// The losses (dB) the search allows on the sample, tried in turn until the
+/// whole lattice's loss is within [`MAX_PSNR_LOSS_DB`].
+pub const SEARCH_ALLOWANCES: [f64; 3] = [0.1, 0.06, 0.03];
+/// Numbers a primitive stores per bit of each group.
+const NUMBERS: [f64; 5] = [3.0, 3.0, 3.0, 1.0, 1.0];
+/// Voxel centres the search scores.
+pub const POINTS: usize = 1 << 16;
+const SEED: u64 = 0x9ac4_ed00;
+
+/// The precision to pack `params` with, allowing a loss of `allowed` dB on
+/// the sample: see the module documentation. `support`: whether the model
+/// stores its support. A model without primitives, or a reference with
+/// nothing to score, gets the default.
+pub fn choose_precision(params: &[Primitive], reference: &Grid, support: bool, allowed: f64, backend: &mut dyn Backend) -> Result<Precision> {
+    let Some(sample) = sample(reference, support) else { return Ok(Precision::DEFAULT) };
+    if params.is_empty() {
+        return Ok(Precision::DEFAULT);
+    }
+    // Centres of a domain too wide for the finest lattice get a coarser one;
+    // one too wide for whole voxels cannot be packed (`Packed::of` says so).
+    let finest = Precision::FINEST.fitting(params).ok_or_else(|| Packed::of(params, Precision::FINEST).err().unwrap_or_else(|| Error::data("centres too far apart for the packed payload")))?;
+    let exact = sample.psnr(backend, params)?;
+    let mut seen = HashMap::new();
+    let mut loss = |p: Precision| -> Result<f64> {
+        if let Some(&l) = seen.get(&p) {
+            return Ok(l);
+        }
+        let l = exact - sample.psnr(backend, &Packed::of(params, p)?.params()?)?;
+        seen.insert(p, l);
+        Ok(l)
+    };
+    // The loss of one group alone is about its share of the added error:
+    // a fifth of the allowed error, in dB.
+    let total_err = 10f64.powf(allowed / 10.0) - 1.0;
+    let group_loss = 10.0 * (1.0 + total_err / GROUPS.len() as f64).log10();
+    let mut chosen = finest;
+    for g in 0..GROUPS.len() {
+        // The fewest bits in [lo, finest] whose loss is within the group's share.
+        let (mut lo, mut hi) = (Precision::min_bits(g), finest.get(g));
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            if loss(finest.with(g, mid))? <= group_loss {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        chosen = chosen.with(g, lo);
+    }
+    let mut now = loss(chosen)?;
+    loop {
+        let mut best: Option<(f64, Precision, f64)> = None;
+        for (g, numbers) in NUMBERS.iter().enumerate() {
+            if chosen.get(g) == Precision::min_bits(g) {
+                continue;
+            }
+            let candidate = chosen.with(g, chosen.get(g) - 1);
+            let l = loss(candidate)?;
+            let per_number = (l - now).max(0.0) / numbers;
+            if l <= allowed && best.is_none_or(|b| per_number < b.0) {
+                best = Some((per_number, candidate, l));
+            }
+        }
+        let Some((_, candidate, l)) = best else { break };
+        (chosen, now) = (candidate, l);
+    }
+    while loss(chosen)? > allowed && chosen != finest {
+        chosen = finer(chosen, finest);
+    }
+    Ok(chosen)
+}
+
+/// One bit more in every group not yet at `finest`'s.
+pub fn finer(p: Precision, finest: Precision) -> Precision {
+    (0..GROUPS.len()).fold(p, |p, g| p.with(g, (p.get(g) + 1).min(finest.get(g))))
+}
+
+/// [`POINTS`] voxel centres of `reference`, drawn uniformly with
+/// replacement from its support (the voxels above the mask) when the model
+/// stores one, else from every voxel; `None` when there is none. Memory is
+/// that of the draws, whatever the lattice: ranks among the candidates are
+/// drawn, sorted, and found in one pass (the points stay in draw order).
+fn sample(reference: &Grid, support: bool) -> Option<Validation> {
+    let candidate = |i: usize| !support || reference.values[i] > MASK_REF;
+    let count = (0..reference.len()).filter(|&i| candidate(i)).count();
+    if count == 0 {
+        return None;
+    }
+    let mut rng = Rng::new(SEED);
+    // (rank among the candidates, draw), in rank order.
+    let mut ranks: Vec<(usize, usize)> = (0..POINTS).map(|d| (rng.below(count as u64) as usize, d)).collect();
+    ranks.sort_unstable();
+    let mut picks = vec![0; POINTS]; // voxel of each draw, in draw order
+    let (mut rank, mut next) = (0, ranks.iter().peekable());
+    for i in (0..reference.len()).filter(|&i| candidate(i)) {
+        while let Some(&(_, draw)) = next.next_if(|r| r.0 == rank) {
+            picks[draw] = i;
+        }
+        rank += 1;
+    }
+    let [dx, dy, _] = reference.dims;
+    Some(Validation {
+        points: picks.iter().map(|&i| [(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]).collect(),
+        values: picks.iter().map(|&i| reference.values[i]).collect(),
+        every: 1,
+        support,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_sample_is_drawn_from_the_support_only_and_covers_it() {
+        // A 40^3 lattice with data in one octant only.
+        let dims = [40, 40, 40];
+        let values: Vec<f32> = (0..64000).map(|i| if i % 40 < 20 && i / 40 % 40 < 20 && i / 1600 < 20 { 0.5 } else { 0.0 }).collect();
+        let grid = Grid::new(dims, values).unwrap();
+        let s = sample(&grid, true).unwrap();
+        assert_eq!(s.points.len(), POINTS);
+        assert!(s.points.iter().all(|p| p.iter().all(|&c| c < 20.0)), "a point outside the support");
+        assert!(s.values.iter().all(|&v| v == 0.5));
+        // Every octant of the support's own 20^3 box is drawn from.
+        let mut octants = [0usize; 8];
+        s.points.iter().for_each(|p| octants[(p[0] >= 10.0) as usize + 2 * (p[1] >= 10.0) as usize + 4 * (p[2] >= 10.0) as usize] += 1);
+        assert!(octants.iter().all(|&n| n > POINTS / 16), "{octants:?}");
+        // Without a support, every voxel is a candidate; with no data at all, none.
+        let all = sample(&grid, false).unwrap();
+        assert!(all.points.iter().any(|p| p[0] >= 20.0));
+        assert!(sample(&Grid::new(dims, vec![0.0; 64000]).unwrap(), true).is_none());
+    }
+}

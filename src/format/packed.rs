@@ -1,0 +1,507 @@
+//! The packed payload (gsenc's; METHOD.md "Payloads", FORMAT.md "The packed
+//! payload"): each parameter group quantised to the bits a [`Precision`]
+//! gives it, the primitives in Morton order of their quantised centres so
+//! that a centre costs only the gap to the one before it.
+//!
+//! | group | stored as | with `b` bits |
+//! |---|---|---|
+//! | centre | `mu` on a lattice of `2^-b` voxel from an integer origin per axis; the Morton key of the three codes; the keys sorted, their gaps coded as a class (the gap's bit length, a symbol) and the bits below its highest | `b` = 0..=8 |
+//! | scale | `l` clamped to `[ln 0.4, ln 8]` (the kernel's band: lossless), uniform | `2^b` levels over the band |
+//! | rotation | `q / |q|` with its largest component made positive: that component's index (2 bits) and the other three, uniform over `[-1/√2, 1/√2]`; none for a sphere (three equal scale codes), fewer bits the closer to one ([`rotation_bits`]) | up to `2^b` levels |
+//! | value | `s = sigmoid(alpha)`, the cell `floor(s 2^b)`, read back at its middle | `2^b` cells |
+//! | weight | `beta`, uniform over the model's own `[min, max]` | `2^b` levels |
+//!
+//! ```text
+//! precision   5 x u8: centre, scale, rotation, value, weight bits
+//! origin      3 x f64: the integer origin of the centre lattice per axis
+//! weight map  lo f32, hi f32
+//! streams     6 x (u32 byte length, one zstd frame of symbols): scale (3N,
+//!             axis by axis), rotation index (T: the primitives that are no
+//!             sphere), rotation (3T, component by component), value (N),
+//!             weight (N), centre gap class (N); a symbol of up to 8 bits
+//!             is one byte, of 9 to 16 two: the stream's low bytes first,
+//!             then its high bytes
+//! gap bits    to the end: for each gap of class c > 1 its c - 1 low bits,
+//!             least significant first; zero padding to a byte
+//! ```
+//! All numbers little-endian. zstd, one frame per stream so that each gets
+//! its own Huffman table, stores each stream within 3 % of its order-0
+//! entropy or below it (docs/BENCHMARKS.md "Quality per byte"), so no coder
+//! of its own is kept here.
+
+use crate::error::{Error, Result};
+use crate::format::bits::{BitReader, BitWriter};
+use crate::format::quantize::Affine;
+use crate::math::kernel::{layout, morton, unmorton, Primitive, SIGMA_MAX, SIGMA_MIN};
+
+/// Bits per parameter group of the packed payload.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Precision {
+    /// Centres on a lattice of `2^-centre` voxel (0..=8).
+    pub centre: u8,
+    /// Each log scale (1..=16).
+    pub scale: u8,
+    /// Each of the three stored rotation components (1..=16).
+    pub rotation: u8,
+    /// The value `sigmoid(alpha)` (1..=16).
+    pub value: u8,
+    /// The weight logit `beta` (1..=16).
+    pub weight: u8,
+}
+
+/// Names of the groups, in the order of [`Precision::get`].
+pub const GROUPS: [&str; 5] = ["centre", "scale", "rotation", "value", "weight"];
+/// Finest centre lattice: 1/256 voxel.
+pub const MAX_CENTRE_BITS: u8 = 8;
+/// Most bits of the other groups.
+pub const MAX_BITS: u8 = 16;
+/// Symbol streams of the payload.
+pub const STREAMS: usize = 6;
+/// Most centre codes per axis: 21 bits, so that a Morton key fits 63.
+const AXIS_BITS: u32 = 21;
+
+impl Precision {
+    /// The precision a model is packed with when its encode measured none
+    /// (a model converted from another payload, no reference at hand;
+    /// centres coarser where a domain is too wide for it, [`Precision::fitting`]):
+    /// finer than every measured choice on the benchmark corpus
+    /// (docs/BENCHMARKS.md "Quality per byte").
+    pub const DEFAULT: Precision = Precision { centre: 5, scale: 10, rotation: 9, value: 11, weight: 9 };
+    /// Where the measured search starts, and the most it will give a group.
+    pub const FINEST: Precision = Precision { centre: 7, scale: 12, rotation: 12, value: 14, weight: 12 };
+
+    /// Bits of group `g` (in the order of [`GROUPS`]).
+    pub fn get(&self, g: usize) -> u8 {
+        [self.centre, self.scale, self.rotation, self.value, self.weight][g]
+    }
+
+    /// This precision with group `g` at `bits`.
+    pub fn with(mut self, g: usize, bits: u8) -> Precision {
+        *[&mut self.centre, &mut self.scale, &mut self.rotation, &mut self.value, &mut self.weight][g] = bits;
+        self
+    }
+
+    /// Fewest bits group `g` may have.
+    pub fn min_bits(g: usize) -> u8 {
+        if g == 0 {
+            0
+        } else {
+            1
+        }
+    }
+
+    /// Most bits group `g` may have.
+    pub fn max_bits(g: usize) -> u8 {
+        if g == 0 {
+            MAX_CENTRE_BITS
+        } else {
+            MAX_BITS
+        }
+    }
+
+    /// This precision with its centre lattice made coarse enough for the
+    /// centres of `params` to fit 2^21 steps an axis (unchanged when they
+    /// do); `None` when not even whole voxels fit (centres over 2^21
+    /// voxels apart).
+    pub fn fitting(self, params: &[Primitive]) -> Option<Precision> {
+        let span = (0..3)
+            .map(|a| {
+                let (lo, hi) = params.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), p| {
+                    let v = p[layout::MU + a] as f64;
+                    (lo.min(v), hi.max(v))
+                });
+                if lo <= hi { hi - lo.floor() } else { 0.0 }
+            })
+            .fold(0.0, f64::max);
+        // The code of the farthest centre must round below 2^21.
+        (0..=self.centre).rev().find(|&c| (span * (1u64 << c) as f64).round() < (1u64 << AXIS_BITS) as f64).map(|c| Precision { centre: c, ..self })
+    }
+
+    pub fn check(&self) -> Result<Precision> {
+        for (g, name) in GROUPS.iter().enumerate() {
+            let b = self.get(g);
+            if b < Precision::min_bits(g) || b > Precision::max_bits(g) {
+                return Err(Error::format(format!(
+                    "packed payload: {b} bits for the {name} group (allowed {}..={})",
+                    Precision::min_bits(g),
+                    Precision::max_bits(g)
+                )));
+            }
+        }
+        Ok(*self)
+    }
+}
+
+/// The packed payload's numbers before the lossless stage: every primitive's
+/// codes, in the stored (Morton) order. [`Packed::params`] is what a reader
+/// of the payload gets, so an encoder scores exactly what it stores.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Packed {
+    pub precision: Precision,
+    pub origin: [f64; 3],
+    pub weight_map: Affine,
+    /// Morton keys of the centre codes, ascending.
+    pub keys: Vec<u64>,
+    /// Scale codes, three arrays of N (axis by axis).
+    pub scale: Vec<u16>,
+    /// For each primitive whose scale codes differ (the others are
+    /// spheres: their rotation is not stored), which quaternion component
+    /// was dropped (0..=3).
+    pub rotation_index: Vec<u8>,
+    /// The other three components' codes of those primitives, three arrays
+    /// (each at the primitive's own [`rotation_bits`]).
+    pub rotation: Vec<u16>,
+    pub value: Vec<u16>,
+    pub weight: Vec<u16>,
+}
+
+/// Bits of a primitive's rotation components at group precision `bits`,
+/// given its scale codes at `scale_bits`; 0 for a sphere (equal codes),
+/// whose rotation changes nothing. A rotation error `theta` moves the
+/// kernel by about `theta (1 - sigma_min / sigma_max)`, and that factor is
+/// below `3 D / levels` for scale codes `D` apart (`ln 20 < 3`): each
+/// halving of it gives up one bit, down to one.
+pub fn rotation_bits(scale: [u16; 3], scale_bits: u8, bits: u8) -> u8 {
+    let d = *scale.iter().max().unwrap() as u64 - *scale.iter().min().unwrap() as u64;
+    if d == 0 {
+        return 0;
+    }
+    let levels = (1u64 << scale_bits) - 1;
+    let mut spare = 0;
+    while spare + 1 < bits && 3 * d << (spare + 1) <= levels {
+        spare += 1;
+    }
+    bits - spare
+}
+
+/// The log scales the kernel distinguishes: it clamps `exp(l)` to this band.
+fn scale_band() -> (f64, f64) {
+    ((SIGMA_MIN as f64).ln(), (SIGMA_MAX as f64).ln())
+}
+const ROT_RANGE: f64 = std::f64::consts::FRAC_1_SQRT_2;
+
+fn levels(bits: u8) -> f64 {
+    ((1u32 << bits) - 1) as f64
+}
+
+fn uniform_code(v: f64, lo: f64, hi: f64, bits: u8) -> u16 {
+    (((v - lo) / (hi - lo)).clamp(0.0, 1.0) * levels(bits)).round() as u16
+}
+
+fn uniform_value(k: u16, lo: f64, hi: f64, bits: u8) -> f64 {
+    lo + (hi - lo) * (k as f64 / levels(bits))
+}
+
+/// A unit quaternion with its largest component made positive: the index
+/// of that component and the other three in order.
+fn smallest_three(unit: [f64; 4]) -> (u8, [f64; 3]) {
+    let m = (0..4).fold(0, |m, i| if unit[i].abs() > unit[m].abs() { i } else { m });
+    let sign = if unit[m] < 0.0 { -1.0 } else { 1.0 };
+    let mut rest = [0.0; 3];
+    let mut j = 0;
+    for (i, v) in unit.iter().enumerate() {
+        if i != m {
+            rest[j] = sign * v;
+            j += 1;
+        }
+    }
+    (m as u8, rest)
+}
+
+/// `q / |q|` of a primitive; the identity where the kernel reads one (a
+/// norm of 1e-12 or less, `math::kernel::Frame::new`).
+fn unit_quaternion(p: &Primitive) -> [f64; 4] {
+    let q: [f64; 4] = std::array::from_fn(|i| p[layout::QUAT + i] as f64);
+    let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if norm > 1e-12 && norm.is_finite() {
+        q.map(|v| v / norm)
+    } else {
+        [1.0, 0.0, 0.0, 0.0]
+    }
+}
+
+/// The gap's class: 0 for no gap, else one more than the position of its
+/// highest set bit; the bits below that one follow on the bit stream.
+fn gap_class(d: u64) -> u8 {
+    (64 - d.leading_zeros()) as u8
+}
+
+impl Packed {
+    /// Quantises primitives (all finite) at `precision`. Fails when the
+    /// centres span more than 2^21 lattice steps on an axis.
+    pub fn of(params: &[Primitive], precision: Precision) -> Result<Packed> {
+        let precision = precision.check().map_err(|e| Error::arg(e.to_string()))?;
+        let n = params.len();
+        let cells = (1u64 << precision.centre) as f64;
+        let mut origin = [0f64; 3];
+        for (a, o) in origin.iter_mut().enumerate() {
+            let lo = params.iter().map(|p| p[layout::MU + a] as f64).fold(f64::INFINITY, f64::min);
+            *o = if lo.is_finite() { lo.floor() } else { 0.0 };
+        }
+        let mut keyed = Vec::with_capacity(n);
+        for (i, p) in params.iter().enumerate() {
+            let mut c = [0u64; 3];
+            for a in 0..3 {
+                let code = ((p[layout::MU + a] as f64 - origin[a]) * cells).round();
+                if !(code >= 0.0 && code < (1u64 << AXIS_BITS) as f64) {
+                    return Err(Error::data(format!(
+                        "primitive {i}'s centre is {:.0} voxels from the others on axis {a}: beyond the packed payload's 2^{} steps of 2^-{} voxel; use the 8bit-u16 payload",
+                        code / cells,
+                        AXIS_BITS,
+                        precision.centre
+                    )));
+                }
+                c[a] = code as u64;
+            }
+            keyed.push((morton(c), i));
+        }
+        keyed.sort_unstable(); // the index breaks ties: deterministic
+        let order: Vec<usize> = keyed.iter().map(|&(_, i)| i).collect();
+        let sorted = |f: &dyn Fn(&Primitive) -> u16| -> Vec<u16> { order.iter().map(|&i| f(&params[i])).collect() };
+
+        let (llo, lhi) = scale_band();
+        let mut scale = Vec::with_capacity(3 * n);
+        for a in 0..3 {
+            scale.extend(sorted(&|p| uniform_code(p[layout::LOG_SCALE + a] as f64, llo, lhi, precision.scale)));
+        }
+        let mut rotation_index = Vec::new();
+        let mut rotation: [Vec<u16>; 3] = Default::default();
+        for (j, &i) in order.iter().enumerate() {
+            let bits = rotation_bits([scale[j], scale[n + j], scale[2 * n + j]], precision.scale, precision.rotation);
+            if bits > 0 {
+                let (m, rest) = smallest_three(unit_quaternion(&params[i]));
+                rotation_index.push(m);
+                (0..3).for_each(|c| rotation[c].push(uniform_code(rest[c], -ROT_RANGE, ROT_RANGE, bits)));
+            }
+        }
+        let top = (1u32 << precision.value) - 1;
+        let value = sorted(&|p| {
+            let s = 1.0 / (1.0 + (-(p[layout::ALPHA] as f64)).exp());
+            ((s * (1u64 << precision.value) as f64).floor() as u32).min(top) as u16
+        });
+        let weight_map = Affine::of(params.iter().map(|p| p[layout::BETA]));
+        let wl = levels(precision.weight) as f32;
+        let weight = sorted(&|p| weight_map.encode(p[layout::BETA], wl) as u16);
+        let keys = keyed.iter().map(|k| k.0).collect();
+        Ok(Packed { precision, origin, weight_map, keys, scale, rotation_index, rotation: rotation.concat(), value, weight })
+    }
+
+    pub fn len(&self) -> usize {
+        self.keys.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.keys.is_empty()
+    }
+
+    /// Rotation bits of every primitive, in the stored order.
+    fn rotation_bits(&self) -> Vec<u8> {
+        let n = self.len();
+        let p = self.precision;
+        (0..n).map(|j| rotation_bits([self.scale[j], self.scale[n + j], self.scale[2 * n + j]], p.scale, p.rotation)).collect()
+    }
+
+    /// The primitives these codes stand for, in the stored order.
+    pub fn params(&self) -> Result<Vec<Primitive>> {
+        let n = self.len();
+        let p = self.precision.check()?;
+        let bad_len = || Error::format(format!("packed payload: arrays of the wrong length for {n} primitives"));
+        if self.scale.len() != 3 * n || self.value.len() != n || self.weight.len() != n {
+            return Err(bad_len());
+        }
+        let too_big = |v: &[u16], bits: u8| v.iter().any(|&k| (k as u32) >= 1 << bits);
+        if too_big(&self.scale, p.scale) || too_big(&self.value, p.value) || too_big(&self.weight, p.weight) {
+            return Err(Error::format("packed payload: a code beyond its group's bits"));
+        }
+        let rbits = self.rotation_bits();
+        let turned = rbits.iter().filter(|&&b| b > 0).count();
+        if self.rotation_index.len() != turned || self.rotation.len() != 3 * turned {
+            return Err(bad_len());
+        }
+        if self.origin.iter().any(|o| !o.is_finite()) {
+            return Err(Error::format("packed payload: non-finite centre origin"));
+        }
+        let wmap = self.weight_map.check().map_err(|_| Error::format("packed payload: invalid weight map"))?;
+        let step = 1.0 / (1u64 << p.centre) as f64;
+        let (llo, lhi) = scale_band();
+        let mut out = vec![[0f32; 12]; n];
+        let mut t = 0; // rotations read
+        for (i, prim) in out.iter_mut().enumerate() {
+            let c = unmorton(self.keys[i]);
+            for a in 0..3 {
+                prim[layout::MU + a] = (self.origin[a] + c[a] as f64 * step) as f32;
+                prim[layout::LOG_SCALE + a] = uniform_value(self.scale[a * n + i], llo, lhi, p.scale) as f32;
+            }
+            let mut q = [1.0, 0.0, 0.0, 0.0];
+            if rbits[i] > 0 {
+                let m = self.rotation_index[t] as usize;
+                let codes = [self.rotation[t], self.rotation[turned + t], self.rotation[2 * turned + t]];
+                t += 1;
+                if m > 3 || codes.iter().any(|&k| (k as u32) >= 1 << rbits[i]) {
+                    return Err(Error::format("packed payload: a rotation code beyond its bits"));
+                }
+                let rest = codes.map(|k| uniform_value(k, -ROT_RANGE, ROT_RANGE, rbits[i]));
+                q[m] = (1.0 - rest.iter().map(|v| v * v).sum::<f64>()).max(0.0).sqrt();
+                let others = (0..4).filter(|&k| k != m);
+                others.zip(rest).for_each(|(k, v)| q[k] = v);
+            }
+            for (k, qk) in q.iter().enumerate() {
+                prim[layout::QUAT + k] = *qk as f32;
+            }
+            let s = (self.value[i] as f64 + 0.5) / (1u64 << p.value) as f64;
+            prim[layout::ALPHA] = (s / (1.0 - s)).ln() as f32;
+            prim[layout::BETA] = wmap.decode(self.weight[i] as f32, levels(p.weight) as f32);
+        }
+        Ok(out)
+    }
+
+    /// The gaps between consecutive keys (the first from 0).
+    fn gaps(&self) -> impl Iterator<Item = u64> + '_ {
+        self.keys.iter().scan(0u64, |prev, &k| Some(k - std::mem::replace(prev, k)))
+    }
+
+    /// The stored payload: the layout in the module documentation.
+    pub fn to_bytes(&self, zstd_level: i32) -> Result<Vec<u8>> {
+        let p = self.precision;
+        let mut out = Vec::new();
+        out.extend_from_slice(&[p.centre, p.scale, p.rotation, p.value, p.weight]);
+        self.origin.iter().for_each(|o| out.extend_from_slice(&o.to_le_bytes()));
+        out.extend_from_slice(&self.weight_map.lo.to_le_bytes());
+        out.extend_from_slice(&self.weight_map.hi.to_le_bytes());
+        for stream in self.streams() {
+            let frame = zstd::bulk::compress(&stream, zstd_level).map_err(|e| Error::format(format!("zstd: {e}")))?;
+            let len = u32::try_from(frame.len()).map_err(|_| Error::arg("a packed symbol array does not fit a model file"))?;
+            out.extend_from_slice(&len.to_le_bytes());
+            out.extend_from_slice(&frame);
+        }
+        let mut w = BitWriter::default();
+        for d in self.gaps() {
+            let class = gap_class(d) as u32;
+            if class > 1 {
+                w.put(d, class - 1); // the bits below the highest
+            }
+        }
+        out.extend_from_slice(&w.finish());
+        Ok(out)
+    }
+
+    /// The symbol arrays, uncompressed, one per stream as laid out in the
+    /// module documentation.
+    pub fn streams(&self) -> [Vec<u8>; STREAMS] {
+        let p = self.precision;
+        let bytes = |codes: &mut dyn Iterator<Item = u16>, wide: bool| -> Vec<u8> {
+            let codes: Vec<u16> = codes.collect();
+            let mut out: Vec<u8> = codes.iter().map(|&k| k as u8).collect();
+            if wide {
+                out.extend(codes.iter().map(|&k| (k >> 8) as u8));
+            }
+            out
+        };
+        [
+            bytes(&mut self.scale.iter().copied(), p.scale > 8),
+            bytes(&mut self.rotation_index.iter().map(|&m| m as u16), false),
+            bytes(&mut self.rotation.iter().copied(), p.rotation > 8),
+            bytes(&mut self.value.iter().copied(), p.value > 8),
+            bytes(&mut self.weight.iter().copied(), p.weight > 8),
+            bytes(&mut self.gaps().map(|d| gap_class(d) as u16), false),
+        ]
+    }
+
+    /// Parses a stored payload of `n` primitives. `unpack` inflates a zstd
+    /// frame to exactly the length it is given, or fails.
+    pub fn from_bytes(stored: &[u8], n: usize, unpack: &dyn Fn(&[u8], usize) -> Result<Vec<u8>>) -> Result<Packed> {
+        let short = || Error::format("packed payload is truncated");
+        let fixed = 5 + 24 + 8;
+        if stored.len() < fixed {
+            return Err(short());
+        }
+        let precision = Precision { centre: stored[0], scale: stored[1], rotation: stored[2], value: stored[3], weight: stored[4] }.check()?;
+        let f64_at = |at: usize| f64::from_le_bytes(stored[at..at + 8].try_into().unwrap());
+        let f32_at = |at: usize| f32::from_le_bytes(stored[at..at + 4].try_into().unwrap());
+        let origin = [f64_at(5), f64_at(13), f64_at(21)];
+        let weight_map = Affine { lo: f32_at(29), hi: f32_at(33) };
+        let mut rest = &stored[fixed..];
+        let mut next = |count: usize, bits: u8| -> Result<Vec<u16>> {
+            let len = rest.get(..4).ok_or_else(short)?;
+            let len = u32::from_le_bytes(len.try_into().unwrap()) as usize;
+            let frame = rest.get(4..4 + len).ok_or_else(short)?;
+            rest = &rest[4 + len..];
+            let wide = bits > 8;
+            let b = unpack(frame, count * if wide { 2 } else { 1 })?;
+            Ok(if wide { (0..count).map(|i| b[i] as u16 | (b[count + i] as u16) << 8).collect() } else { b.iter().map(|&v| v as u16).collect() })
+        };
+        let scale = next(3 * n, precision.scale)?;
+        if scale.iter().any(|&k| (k as u32) >= 1 << precision.scale) {
+            return Err(Error::format("packed payload: a scale code beyond its bits"));
+        }
+        let turned = (0..n).filter(|&j| rotation_bits([scale[j], scale[n + j], scale[2 * n + j]], precision.scale, precision.rotation) > 0).count();
+        let rotation_index = next(turned, 2)?.into_iter().map(|m| m as u8).collect();
+        let rotation = next(3 * turned, precision.rotation)?;
+        let value = next(n, precision.value)?;
+        let weight = next(n, precision.weight)?;
+        let classes = next(n, 8)?;
+        let mut r = BitReader::new(rest);
+        let mut keys = Vec::with_capacity(n);
+        let mut key = 0u64;
+        for class in classes {
+            let gap = match class {
+                0 => 0,
+                c @ 1..=63 => 1 << (c - 1) | r.get(c as u32 - 1)?,
+                c => return Err(Error::format(format!("packed payload: centre gap class {c}"))),
+            };
+            key = key.checked_add(gap).filter(|&k| k < 1 << (3 * AXIS_BITS)).ok_or_else(|| Error::format("packed payload: a centre key beyond its range"))?;
+            keys.push(key);
+        }
+        if !r.only_padding_left() {
+            return Err(Error::format("packed payload: bytes left after the centres"));
+        }
+        Ok(Packed { precision, origin, weight_map, keys, scale, rotation_index, rotation, value, weight })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::rng::Rng;
+
+    #[test]
+    fn smallest_three_rebuilds_the_rotation_up_to_sign() {
+        let mut rng = Rng::new(9);
+        for _ in 0..500 {
+            let q: [f64; 4] = std::array::from_fn(|_| rng.normal());
+            let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+            let unit = q.map(|v| v / n);
+            let (m, rest) = smallest_three(unit);
+            let big = (1.0 - rest.iter().map(|v| v * v).sum::<f64>()).sqrt();
+            assert!((big - unit[m as usize].abs()).abs() < 1e-9);
+            assert!(rest.iter().all(|v| v.abs() <= ROT_RANGE + 1e-12));
+        }
+    }
+}
+
+#[cfg(test)]
+mod round_trip_tests {
+    use super::*;
+    use crate::math::rng::Rng;
+
+    fn unpack(frame: &[u8], want: usize) -> Result<Vec<u8>> {
+        let got = zstd::bulk::decompress(frame, want).map_err(|e| Error::format(e.to_string()))?;
+        if got.len() != want {
+            return Err(Error::format("length"));
+        }
+        Ok(got)
+    }
+
+    #[test]
+    fn bytes_read_back_to_the_same_codes() {
+        let mut rng = Rng::new(1);
+        let params: Vec<Primitive> = (0..500).map(|_| std::array::from_fn(|k| if k < 3 { rng.range(-3.0, 60.0) as f32 } else { rng.normal() as f32 })).collect();
+        for p in [Precision::DEFAULT, Precision::FINEST, Precision { centre: 0, scale: 1, rotation: 1, value: 1, weight: 1 }] {
+            let packed = Packed::of(&params, p).unwrap();
+            let bytes = packed.to_bytes(3).unwrap();
+            let back = Packed::from_bytes(&bytes, params.len(), &unpack).unwrap();
+            assert_eq!(back, packed);
+            back.params().unwrap();
+        }
+    }
+}
