@@ -147,7 +147,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "voxel_psnr": encoded.psnr,
         // The float32 model's, where the payload's precision was measured against it (packed).
         "float32_psnr": encoded.float32_psnr,
-        "precision": encoded.model.meta.precision.filter(|_| o.payload == Payload::Packed).map(crate::info::precision_json),
+        "precision": encoded.model.meta.precision.map(crate::info::precision_json),
         "payload_bytes": payload_bytes,
         "sampled_psnr": sampled_psnr(&encoded.decoded, &reference.values),
         "occupied_psnr": occupied_psnr(&encoded.decoded, &reference.values),

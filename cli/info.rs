@@ -34,7 +34,7 @@ pub fn info(a: InfoArgs) -> Result<()> {
             // The primitives alone, without header, support and checksum.
             "payload_bytes_per_primitive": file.payload_bytes as f64 / m.len().max(1) as f64,
             // Bits per parameter group of the packed payload (null: another payload).
-            "precision": (file.payload == gsenc::format::Payload::Packed).then(|| meta.precision.map(precision_json)).flatten(),
+            "precision": meta.precision.map(precision_json),
             "field": meta.field,
             "step": meta.step,
             "time": meta.time,

@@ -21,11 +21,10 @@
 
 use crate::backend::{Backend, Lattice};
 use crate::encode::config::{EncodeConfig, WarmStart};
-use crate::encode::precision::{choose_precision, finer, MAX_PSNR_LOSS_DB, SEARCH_ALLOWANCES};
+use crate::encode::precision::measure_precision;
 use crate::encode::refine::{encode_validated, EncodeOutput, Progress};
 use crate::encode::validation::Validation;
 use crate::error::Result;
-use crate::format::packed::Precision;
 use crate::format::Payload;
 use crate::input::{prepare, Form, Input, Prepared, RangeSpec};
 use crate::math::kernel::Primitive;
@@ -183,30 +182,12 @@ pub fn encode_prepared(
     let mut model = Model { meta, params: output.params.clone(), support };
 
     let started = Instant::now();
-    let reference = &prepared.reference.values;
     let (decoded, psnr, float32_psnr) = if request.payload == Payload::Packed {
-        // The precision measured on a sample, checked on the whole lattice.
-        let exact = voxel_psnr(&decode_as_stored(Payload::Float32, &model, backend)?, reference);
-        let mut allowances = SEARCH_ALLOWANCES.iter();
-        let finest = Precision::FINEST.fitting(&model.params).unwrap_or(Precision::FINEST);
-        let mut p = finest;
-        loop {
-            if let Some(&allowed) = allowances.next() {
-                p = choose_precision(&model.params, &prepared.reference, model.support.is_some(), allowed, backend)?;
-            }
-            model.meta.precision = Some(p);
-            let decoded = decode_as_stored(request.payload, &model, backend)?;
-            let psnr = voxel_psnr(&decoded, reference);
-            if exact - psnr <= MAX_PSNR_LOSS_DB || p == finest {
-                break (decoded, psnr, Some(exact));
-            }
-            if allowances.len() == 0 {
-                p = finer(p, finest);
-            }
-        }
+        let m = measure_precision(&mut model, &prepared.reference, backend)?;
+        (m.decoded, m.psnr, Some(m.float32_psnr))
     } else {
         let decoded = decode_as_stored(request.payload, &model, backend)?;
-        let psnr = voxel_psnr(&decoded, reference);
+        let psnr = voxel_psnr(&decoded, &prepared.reference.values);
         (decoded, psnr, None)
     };
     let decode_seconds = started.elapsed().as_secs_f64();

@@ -19,18 +19,23 @@
 //! 3. should the groups together exceed the allowance, every group gains a
 //!    bit until they do not.
 //!
-//! The caller checks the choice on the whole lattice: the pipeline decodes
-//! the stored model there anyway, and searches again with a smaller
-//! allowance ([`SEARCH_ALLOWANCES`]) when the sample's estimate missed.
+//! [`measure_precision`] then checks the choice on the whole lattice (the
+//! pipeline decodes the stored model there anyway, to score it), and
+//! searches again with a smaller allowance ([`SEARCH_ALLOWANCES`]) when the
+//! sample's estimate missed.
 
 use crate::backend::Backend;
+use crate::encode::pipeline::decode_as_stored;
 use crate::encode::validation::Validation;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::field::Grid;
 use crate::format::packed::{Packed, Precision, GROUPS};
+use crate::format::Payload;
 use crate::math::kernel::Primitive;
 use crate::math::loss::MASK_REF;
 use crate::math::rng::Rng;
+use crate::model::metrics::voxel_psnr;
+use crate::model::Model;
 use std::collections::HashMap;
 
 /// The most the packed payload may lower a model's PSNR, in dB.
@@ -44,6 +49,49 @@ const NUMBERS: [f64; 5] = [3.0, 3.0, 3.0, 1.0, 1.0];
 pub const POINTS: usize = 1 << 16;
 const SEED: u64 = 0x9ac4_ed00;
 
+/// A packed model's decode on its reference lattice, as stored.
+pub struct Measured {
+    /// x fastest.
+    pub decoded: Vec<f32>,
+    /// Voxel PSNR of `decoded` against the reference.
+    pub psnr: f64,
+    /// That of the float32 model.
+    pub float32_psnr: f64,
+}
+
+/// Sets `model`'s packed precision: chosen on the sample, then checked on
+/// the whole reference lattice, where it must lose at most
+/// [`MAX_PSNR_LOSS_DB`]; when it loses more, searched again with the next
+/// smaller allowance, and after the last one given a bit more in every
+/// group until it passes (or is at its finest).
+pub fn measure_precision(model: &mut Model, reference: &Grid, backend: &mut dyn Backend) -> Result<Measured> {
+    let float32_psnr = voxel_psnr(&decode_as_stored(Payload::Float32, model, backend)?, &reference.values);
+    let finest = finest_for(&model.params);
+    let mut allowances = SEARCH_ALLOWANCES.iter();
+    let mut p = finest;
+    loop {
+        if let Some(&allowed) = allowances.next() {
+            p = choose_precision(&model.params, reference, model.support.is_some(), allowed, backend)?;
+        }
+        model.meta.precision = Some(p);
+        let decoded = decode_as_stored(Payload::Packed, model, backend)?;
+        let psnr = voxel_psnr(&decoded, &reference.values);
+        if float32_psnr - psnr <= MAX_PSNR_LOSS_DB || p == finest {
+            return Ok(Measured { decoded, psnr, float32_psnr });
+        }
+        if allowances.len() == 0 {
+            p = finer(p, finest);
+        }
+    }
+}
+
+/// [`Precision::FINEST`] with centres as coarse as a wide domain needs. A
+/// domain too wide even for whole voxels keeps it: packing then fails with
+/// `Packed::of`'s error.
+fn finest_for(params: &[Primitive]) -> Precision {
+    Precision::FINEST.fitting(params).unwrap_or(Precision::FINEST)
+}
+
 /// The precision to pack `params` with, allowing a loss of `allowed` dB on
 /// the sample: see the module documentation. `support`: whether the model
 /// stores its support. A model without primitives, or a reference with
@@ -53,9 +101,7 @@ pub fn choose_precision(params: &[Primitive], reference: &Grid, support: bool, a
     if params.is_empty() {
         return Ok(Precision::DEFAULT);
     }
-    // Centres of a domain too wide for the finest lattice get a coarser one;
-    // one too wide for whole voxels cannot be packed (`Packed::of` says so).
-    let finest = Precision::FINEST.fitting(params).ok_or_else(|| Packed::of(params, Precision::FINEST).err().unwrap_or_else(|| Error::data("centres too far apart for the packed payload")))?;
+    let finest = finest_for(params);
     let exact = sample.psnr(backend, params)?;
     let mut seen = HashMap::new();
     let mut loss = |p: Precision| -> Result<f64> {
@@ -108,7 +154,7 @@ pub fn choose_precision(params: &[Primitive], reference: &Grid, support: bool, a
 }
 
 /// One bit more in every group not yet at `finest`'s.
-pub fn finer(p: Precision, finest: Precision) -> Precision {
+fn finer(p: Precision, finest: Precision) -> Precision {
     (0..GROUPS.len()).fold(p, |p, g| p.with(g, (p.get(g) + 1).min(finest.get(g))))
 }
 

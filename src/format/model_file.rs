@@ -58,8 +58,9 @@ const PREFIX: usize = 16;
 const MAX_HEADER: usize = 1 << 30;
 /// zstd level of a stored support.
 const SUPPORT_ZSTD_LEVEL: i32 = 19;
-/// Most primitives an 8-bit payload may claim (its body is decompressed into
-/// memory sized from the count, so the count is bounded before allocating).
+/// Most primitives an 8-bit or packed payload may claim (its body is
+/// decompressed into memory sized from the count, so the count is bounded
+/// before allocating).
 const MAX_8BIT_COUNT: u64 = 1 << 32;
 /// The most a zstd frame can unpack to per stored byte: an RLE block spends
 /// 4 bytes on 128 KiB. A count the stored bytes cannot hold is refused before
