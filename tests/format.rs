@@ -485,3 +485,31 @@ fn a_corrupted_support_behind_a_valid_checksum_is_refused() {
     // An empty frame is no support.
     assert_eq!(read_model(&with_support_frame(&[])).unwrap().support, None);
 }
+
+/// A packed payload damaged behind a valid checksum: the payload's own
+/// checks answer, with format errors that say what is wrong.
+#[test]
+fn a_corrupted_packed_payload_behind_a_valid_checksum_is_refused() {
+    let bytes = write_model_as(&model(50), Payload::Packed).unwrap();
+    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let start = 16 + header_len;
+    let resealed = |edit: &dyn Fn(&mut Vec<u8>)| {
+        let mut b = bytes[..bytes.len() - 4].to_vec();
+        edit(&mut b);
+        let crc = crc32fast::hash(&b);
+        b.extend_from_slice(&crc.to_le_bytes());
+        b
+    };
+    // Resealed unchanged, it reads (the helper is sound).
+    assert!(read_model(&resealed(&|_| {})).is_ok());
+    let cases: [(&dyn Fn(&mut Vec<u8>), &str); 4] = [
+        (&|b| b[start + 1] = 0, "scale group"),             // scale bits out of range
+        (&|b| b[start] = 9, "centre group"),                // centre bits out of range
+        (&|b| b.push(0xff), "left after the centres"),      // stray bytes after the gap bits
+        (&|b| b.truncate(b.len() - 3), "ends early"),       // the gap bits cut short
+    ];
+    for (edit, why) in cases {
+        let e = read_model(&resealed(edit)).unwrap_err();
+        assert!(matches!(&e, Error::Format(m) if m.contains(why)), "{why}: {e}");
+    }
+}
