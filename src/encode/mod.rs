@@ -7,7 +7,8 @@
 //! [`config`] (budget, schedules, warm regimes), [`seeding`] (the three
 //! streams), [`points`] (the stratified training points), [`relocate`],
 //! [`refine`] (the optimisation loop), [`validation`] (a fixed point set
-//! scored along the way), [`precision`] (what the packed payload needs),
+//! scored along the way), [`precision`] (what the packed payload needs), [`stored`] (a model decoded
+//! as its file will read),
 //! and for `auto` warm starts [`repair`] (where the
 //! previous model misses the new step) and [`plateau`] (when to stop).
 
@@ -20,6 +21,7 @@ pub mod refine;
 pub mod relocate;
 pub mod repair;
 pub mod seeding;
+pub mod stored;
 pub mod validation;
 
 pub use config::{Cancel, EncodeConfig, Schedule, WarmStart};

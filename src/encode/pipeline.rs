@@ -19,10 +19,11 @@
 //!
 //! No I/O: the caller writes the model ([`crate::io`]).
 
-use crate::backend::{Backend, Lattice};
+use crate::backend::Backend;
 use crate::encode::config::{EncodeConfig, WarmStart};
 use crate::encode::precision::measure_precision;
 use crate::encode::refine::{encode_validated, EncodeOutput, Progress};
+pub use crate::encode::stored::decode_as_stored;
 use crate::encode::validation::Validation;
 use crate::error::Result;
 use crate::format::Payload;
@@ -206,15 +207,4 @@ fn auto_validation(prepared: &Prepared, cap: usize, support: bool) -> Result<Val
     let every = (cap / 20).clamp(10, 50);
     let v = Validation::from_reference(&prepared.reference, AUTO_VALIDATION_POINTS, AUTO_VALIDATION_SEED, every)?;
     Ok(Validation { support, ..v })
-}
-
-/// `model` as a reader of it stored with `payload` sees it, decoded on its
-/// reference lattice (support included). Fails on parameters the payload
-/// cannot store.
-pub fn decode_as_stored(payload: Payload, model: &Model, backend: &mut dyn Backend) -> Result<Vec<f32>> {
-    let stored = Model { meta: model.meta.clone(), params: payload.round_trip(model)?, support: model.support.clone() };
-    let dims = model.meta.frame.dims;
-    let mut decoded = vec![0f32; dims.iter().product()];
-    stored.decode_lattice(backend, &Lattice::reference(dims), &mut decoded)?;
-    Ok(decoded)
 }

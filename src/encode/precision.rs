@@ -25,7 +25,7 @@
 //! sample's estimate missed.
 
 use crate::backend::Backend;
-use crate::encode::pipeline::decode_as_stored;
+use crate::encode::stored::decode_as_stored;
 use crate::encode::validation::Validation;
 use crate::error::Result;
 use crate::field::Grid;
