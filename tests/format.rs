@@ -5,6 +5,7 @@ use gsenc::field::{Grid, IndexBox, IndexFrame, Transform, ValueRange};
 use gsenc::format::StepIndex;
 use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Payload, BYTES_PER_PRIMITIVE};
 use gsenc::format::packed::Precision;
+use gsenc::format::support_coding;
 use gsenc::format::quantize::CentreCoding;
 use gsenc::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use gsenc::math::rng::Rng;
@@ -461,10 +462,10 @@ fn with_support_frame(frame: &[u8]) -> Vec<u8> {
     out
 }
 
-/// Bytes of the support frame of a file written by [`write_model`].
+/// Bytes of the stored support of a file written by [`write_model`].
 fn support_bytes(b: &[u8]) -> usize {
-    let packed = zstd::bulk::compress(model_with_support(2).support.unwrap().bits(), 19).unwrap();
-    assert!(b.windows(packed.len()).any(|w| w == packed.as_slice()), "the file holds the support frame");
+    let packed = support_coding::encode(&model_with_support(2).support.unwrap(), 19).unwrap();
+    assert!(b.windows(packed.len()).any(|w| w == packed.as_slice()), "the file holds the stored support");
     packed.len()
 }
 
@@ -484,6 +485,19 @@ fn a_corrupted_support_behind_a_valid_checksum_is_refused() {
     }
     // An empty frame is no support.
     assert_eq!(read_model(&with_support_frame(&[])).unwrap().support, None);
+    // Both codings read back to the same support, whichever the writer took.
+    let support = model_with_support(2).support.unwrap();
+    let stored = support_coding::encode(&support, 19).unwrap();
+    let zstd_frame = zstd::bulk::compress(&bits, 19).unwrap();
+    for frame in [&stored, &zstd_frame] {
+        assert_eq!(read_model(&with_support_frame(frame)).unwrap().support.as_ref(), Some(&support));
+    }
+    // A range coding (the smaller here) cut short, or with a stray byte, is refused.
+    assert_eq!(stored[0], 1, "the support is range-coded");
+    for frame in [&stored[..stored.len() - 1], &[stored.as_slice(), &[0]].concat()[..]] {
+        let e = read_model(&with_support_frame(frame)).unwrap_err();
+        assert!(matches!(&e, Error::Format(m) if m.contains("support is corrupted")), "{e}");
+    }
 }
 
 /// A packed payload damaged behind a valid checksum: the payload's own
@@ -502,9 +516,12 @@ fn a_corrupted_packed_payload_behind_a_valid_checksum_is_refused() {
     };
     // Resealed unchanged, it reads (the helper is sound).
     assert!(read_model(&resealed(&|_| {})).is_ok());
-    let cases: [(&dyn Fn(&mut Vec<u8>), &str); 4] = [
+    // The first stream's body follows precision, origin, weight map and its length.
+    let first_stream = start + 5 + 24 + 8 + 4;
+    let cases: [(&dyn Fn(&mut Vec<u8>), &str); 5] = [
         (&|b| b[start + 1] = 0, "scale group"),             // scale bits out of range
         (&|b| b[start] = 9, "centre group"),                // centre bits out of range
+        (&|b| b[first_stream] = 9, "neither a zstd frame"), // a stream of no known coding
         (&|b| b.push(0xff), "left after the centres"),      // stray bytes after the gap bits
         (&|b| b.truncate(b.len() - 3), "ends early"),       // the gap bits cut short
     ];
@@ -512,4 +529,23 @@ fn a_corrupted_packed_payload_behind_a_valid_checksum_is_refused() {
         let e = read_model(&resealed(edit)).unwrap_err();
         assert!(matches!(&e, Error::Format(m) if m.contains(why)), "{why}: {e}");
     }
+}
+
+/// A packed model written before the range coding (every stream a zstd
+/// frame: `fuzz/seeds/packed.gsm`, committed then) still reads, to the
+/// primitives the range-coded rewrite of it holds, in fewer bytes.
+#[test]
+fn a_packed_model_of_zstd_streams_still_reads() {
+    let old = include_bytes!("../fuzz/seeds/packed.gsm");
+    let file = read_model_file(old).unwrap();
+    assert_eq!(file.payload, Payload::Packed);
+    let header_len = u32::from_le_bytes(old[12..16].try_into().unwrap()) as usize;
+    let first_stream = 16 + header_len + 5 + 24 + 8 + 4;
+    assert_eq!(old[first_stream..first_stream + 4], [0x28, 0xB5, 0x2F, 0xFD], "the seed's streams are zstd frames");
+    let new = write_model_as(&file.model, Payload::Packed).unwrap();
+    assert_eq!(new[first_stream], 1, "rewritten, the streams are range-coded");
+    assert!(new.len() < old.len(), "{} bytes rewritten, {} before", new.len(), old.len());
+    let again = read_model_file(&new).unwrap();
+    assert_eq!(again.model.params, file.model.params);
+    assert_eq!(again.model.meta.precision, file.model.meta.precision);
 }

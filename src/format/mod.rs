@@ -9,8 +9,11 @@ pub mod bits;
 pub mod model_file;
 pub mod names;
 pub mod packed;
+pub mod packed_streams;
 pub mod quantize;
+pub mod range;
 pub mod step_index;
+pub mod support_coding;
 
 pub use model_file::{read_model, read_model_file, write_model, write_model_as, ModelFile, Payload, BYTES_PER_PRIMITIVE, MAGIC, VERSION_MAJOR, VERSION_MINOR};
 pub use names::{check_field_name, model_file_name, step_index_file_name};

@@ -15,9 +15,9 @@
 //!       step u64, iterations u32, points u32, seed_init u64, seed_sample u64,
 //!       schedule (u16 length + UTF-8), field (u16 length + UTF-8),
 //!       -- 1.1: time f64 (NaN: unknown), rank u32, encode_psnr f64 (NaN: unknown)
-//!       -- 1.2: support_len u32, then support_len bytes: one zstd frame of
-//!          the support's bits (`model::Support`: one per reference voxel,
-//!          x fastest, least significant bit first); 0: no support
+//!       -- 1.2: support_len u32, then support_len bytes: the support
+//!          (`model::Support`: one bit per reference voxel), as
+//!          `support_coding.rs` stores it; 0: no support
 //!       -- 1.3: fell_back (u16 length + UTF-8): the device error after
 //!          which the encode ran on the CPU (1.4: empty when it did not)
 //!       -- 1.4: warm start taken u8 (0 kept, 1 repaired, 2 fresh),
@@ -37,6 +37,7 @@ use crate::math::kernel::Primitive;
 use crate::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use crate::format::packed::{Packed, Precision};
 use crate::format::quantize::{self, CentreCoding};
+use crate::format::support_coding;
 
 pub const MAGIC: &[u8; 8] = b"GSENCMDL";
 pub const VERSION_MAJOR: u16 = 1;
@@ -220,7 +221,7 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
             if support.dims() != m.frame.dims {
                 return Err(Error::arg(format!("the support's lattice {:?} is not the model's {:?}", support.dims(), m.frame.dims)));
             }
-            let packed = zstd::bulk::compress(support.bits(), SUPPORT_ZSTD_LEVEL).map_err(|e| Error::format(format!("zstd: {e}")))?;
+            let packed = support_coding::encode(support, SUPPORT_ZSTD_LEVEL)?;
             let len = u32::try_from(packed.len()).map_err(|_| Error::arg("the support does not fit a model file"))?;
             h.extend_from_slice(&len.to_le_bytes());
             h.extend_from_slice(&packed);
@@ -454,10 +455,7 @@ pub fn read_packed_payload(stored: &[u8], count: usize) -> Result<Packed> {
 }
 
 fn read_support(stored: &[u8], dims: [usize; 3]) -> Result<Support> {
-    let voxels = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n <= 1 << 36);
-    let voxels = voxels.ok_or_else(|| Error::format(format!("model header holds a support of dims {dims:?}")))?;
-    let bits = unpack(stored, voxels.div_ceil(8), "support")?;
-    Support::from_bits(dims, bits).map_err(|e| Error::format(format!("support is corrupted: {e}")))
+    support_coding::decode(stored, dims, &|frame, want| unpack(frame, want, "support"))
 }
 
 /// One zstd frame that must unpack to exactly `want` bytes. A length the

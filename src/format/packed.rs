@@ -15,22 +15,20 @@
 //! precision   5 x u8: centre, scale, rotation, value, weight bits
 //! origin      3 x f64: the integer origin of the centre lattice per axis
 //! weight map  lo f32, hi f32
-//! streams     6 x (u32 byte length, one zstd frame of symbols): scale (3N,
-//!             axis by axis), rotation index (T: the primitives that are no
-//!             sphere), rotation (3T, component by component), value (N),
-//!             weight (N), centre gap class (N); a symbol of up to 8 bits
-//!             is one byte, of 9 to 16 two: the stream's low bytes first,
-//!             then its high bytes
+//! streams     6 x (u32 byte length, body): scale (3N, axis by axis),
+//!             rotation index (T: the primitives that are no sphere),
+//!             rotation (3T, component by component), value (N), weight
+//!             (N), centre gap class (N); each body a zstd frame or a range
+//!             coding under contexts, whichever is smaller
+//!             ([`crate::format::packed_streams`])
 //! gap bits    to the end: for each gap of class c > 1 its c - 1 low bits,
 //!             least significant first; zero padding to a byte
 //! ```
-//! All numbers little-endian. zstd, one frame per stream so that each gets
-//! its own Huffman table, stores each stream within 3 % of its order-0
-//! entropy or below it (docs/BENCHMARKS.md "Quality per byte"), so no coder
-//! of its own is kept here.
+//! All numbers little-endian.
 
 use crate::error::{Error, Result};
 use crate::format::bits::{BitReader, BitWriter};
+use crate::format::packed_streams::Stream;
 use crate::format::quantize::Affine;
 use crate::math::kernel::{layout, morton, unmorton, Primitive, SIGMA_MAX, SIGMA_MIN};
 
@@ -368,11 +366,12 @@ impl Packed {
         self.origin.iter().for_each(|o| out.extend_from_slice(&o.to_le_bytes()));
         out.extend_from_slice(&self.weight_map.lo.to_le_bytes());
         out.extend_from_slice(&self.weight_map.hi.to_le_bytes());
-        for stream in self.streams() {
-            let frame = zstd::bulk::compress(&stream, zstd_level).map_err(|e| Error::format(format!("zstd: {e}")))?;
-            let len = u32::try_from(frame.len()).map_err(|_| Error::arg("a packed symbol array does not fit a model file"))?;
+        let turned: Vec<u8> = self.rotation_bits().into_iter().filter(|&b| b > 0).collect();
+        for (stream, symbols) in self.streams(&turned) {
+            let stored = stream.encode(&symbols, zstd_level)?;
+            let len = u32::try_from(stored.len()).map_err(|_| Error::arg("a packed symbol array does not fit a model file"))?;
             out.extend_from_slice(&len.to_le_bytes());
-            out.extend_from_slice(&frame);
+            out.extend_from_slice(&stored);
         }
         let mut w = BitWriter::default();
         for d in self.gaps() {
@@ -385,25 +384,20 @@ impl Packed {
         Ok(out)
     }
 
-    /// The symbol arrays, uncompressed, one per stream as laid out in the
-    /// module documentation.
-    pub fn streams(&self) -> [Vec<u8>; STREAMS] {
+    /// The symbol streams, in the stored order, each with what its
+    /// contexts read; `turned` the rotation bits of the primitives whose
+    /// rotation is stored.
+    fn streams<'a>(&'a self, turned: &'a [u8]) -> [(Stream<'a>, Vec<u16>); STREAMS] {
         let p = self.precision;
-        let bytes = |codes: &mut dyn Iterator<Item = u16>, wide: bool| -> Vec<u8> {
-            let codes: Vec<u16> = codes.collect();
-            let mut out: Vec<u8> = codes.iter().map(|&k| k as u8).collect();
-            if wide {
-                out.extend(codes.iter().map(|&k| (k >> 8) as u8));
-            }
-            out
-        };
+        let n = self.len();
+        let scale_x = &self.scale[..n];
         [
-            bytes(&mut self.scale.iter().copied(), p.scale > 8),
-            bytes(&mut self.rotation_index.iter().map(|&m| m as u16), false),
-            bytes(&mut self.rotation.iter().copied(), p.rotation > 8),
-            bytes(&mut self.value.iter().copied(), p.value > 8),
-            bytes(&mut self.weight.iter().copied(), p.weight > 8),
-            bytes(&mut self.gaps().map(|d| gap_class(d) as u16), false),
+            (Stream::Scale { bits: p.scale }, self.scale.clone()),
+            (Stream::RotationIndex, self.rotation_index.iter().map(|&m| m as u16).collect()),
+            (Stream::Rotation { bits: p.rotation, rbits: turned }, self.rotation.clone()),
+            (Stream::Value { bits: p.value }, self.value.clone()),
+            (Stream::Weight { bits: p.weight, scale_x, scale_bits: p.scale }, self.weight.clone()),
+            (Stream::GapClass, self.gaps().map(|d| gap_class(d) as u16).collect()),
         ]
     }
 
@@ -421,25 +415,24 @@ impl Packed {
         let origin = [f64_at(5), f64_at(13), f64_at(21)];
         let weight_map = Affine { lo: f32_at(29), hi: f32_at(33) };
         let mut rest = &stored[fixed..];
-        let mut next = |count: usize, bits: u8| -> Result<Vec<u16>> {
+        let mut next = |stream: Stream, count: usize| -> Result<Vec<u16>> {
             let len = rest.get(..4).ok_or_else(short)?;
             let len = u32::from_le_bytes(len.try_into().unwrap()) as usize;
-            let frame = rest.get(4..4 + len).ok_or_else(short)?;
+            let body = rest.get(4..4 + len).ok_or_else(short)?;
             rest = &rest[4 + len..];
-            let wide = bits > 8;
-            let b = unpack(frame, count * if wide { 2 } else { 1 })?;
-            Ok(if wide { (0..count).map(|i| b[i] as u16 | (b[count + i] as u16) << 8).collect() } else { b.iter().map(|&v| v as u16).collect() })
+            stream.decode(body, count, unpack)
         };
-        let scale = next(3 * n, precision.scale)?;
-        if scale.iter().any(|&k| (k as u32) >= 1 << precision.scale) {
+        let p = precision;
+        let scale = next(Stream::Scale { bits: p.scale }, 3 * n)?;
+        if scale.iter().any(|&k| (k as u32) >= 1 << p.scale) {
             return Err(Error::format("packed payload: a scale code beyond its bits"));
         }
-        let turned = (0..n).filter(|&j| rotation_bits([scale[j], scale[n + j], scale[2 * n + j]], precision.scale, precision.rotation) > 0).count();
-        let rotation_index = next(turned, 2)?.into_iter().map(|m| m as u8).collect();
-        let rotation = next(3 * turned, precision.rotation)?;
-        let value = next(n, precision.value)?;
-        let weight = next(n, precision.weight)?;
-        let classes = next(n, 8)?;
+        let turned: Vec<u8> = (0..n).map(|j| rotation_bits([scale[j], scale[n + j], scale[2 * n + j]], p.scale, p.rotation)).filter(|&b| b > 0).collect();
+        let rotation_index = next(Stream::RotationIndex, turned.len())?.into_iter().map(|m| m as u8).collect();
+        let rotation = next(Stream::Rotation { bits: p.rotation, rbits: &turned }, 3 * turned.len())?;
+        let value = next(Stream::Value { bits: p.value }, n)?;
+        let weight = next(Stream::Weight { bits: p.weight, scale_x: &scale[..n], scale_bits: p.scale }, n)?;
+        let classes = next(Stream::GapClass, n)?;
         let mut r = BitReader::new(rest);
         let mut keys = Vec::with_capacity(n);
         let mut key = 0u64;
