@@ -7,7 +7,6 @@ use crate::handles::Kind;
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::backend::select::BackendChoice;
-use gsenc::backend::Backend;
 use gsenc::field::IndexBox;
 use gsenc::model::{Model, WarmTaken, DEFAULT_SLAB_VOXELS};
 use std::os::raw::c_char;
@@ -197,13 +196,10 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
         if pts.iter().any(|v| !v.is_finite()) {
             return fail(gsenc_status::InvalidData, "gsenc_model_evaluate: a point is not finite");
         }
-        let f = &m.meta.frame;
-        let index: Vec<[f32; 3]> =
-            pts.chunks_exact(3).map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)).collect();
-        let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
-        CpuBackend::new().evaluate_points(&m.params, &index, &mut rho, &mut num)?;
-        for i in 0..n {
-            out[i] = m.meta.range.denormalize(m.value_at(index[i], rho[i], num[i])) as f32;
+        let points: Vec<[f64; 3]> = pts.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
+        let values = m.evaluate(&mut CpuBackend::new(), &points)?;
+        for (o, v) in out.iter_mut().zip(values) {
+            *o = m.meta.range.denormalize(v) as f32;
         }
         Ok(())
     })

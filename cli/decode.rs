@@ -5,10 +5,9 @@
 use crate::args::{parse_box, parse_dims, BackendArgs, GridOutput};
 use crate::output::{is_vti, kernel_seconds, output_unit, peak_rss_bytes, print_result};
 use clap::Args;
-use gsenc::domain::pieces::{blend, merge};
 use gsenc::encode::with_threads;
 use gsenc::field::IndexBox;
-use gsenc::io::{read_model_file, read_step, vti, AtomicFile};
+use gsenc::io::{read_field, vti, AtomicFile};
 use gsenc::{Error, Result};
 use serde_json::json;
 use std::path::PathBuf;
@@ -49,25 +48,20 @@ pub struct DecodeArgs {
 
 pub fn decode(a: DecodeArgs) -> Result<()> {
     let t = Instant::now();
-    // One step index names every rank's model of a step; else the models given.
-    let (index, pieces) = match a.model.as_slice() {
-        [index] if index.extension().is_some_and(|e| e == "gsi") => {
-            let (index, pieces) = read_step(index)?;
-            (Some(index), pieces)
-        }
-        models => (None, models.iter().map(|p| read_model_file(p).map(|f| f.model)).collect::<Result<Vec<_>>>()?),
-    };
-    let model = merge(&pieces)?;
+    let field = read_field(&a.model)?;
+    let model = &field.merged;
     let f = &model.meta.frame;
     let dims = a.dims.unwrap_or(f.dims);
     let region = match (a.sub_box, a.piece) {
         (Some([x0, y0, z0, x1, y1, z1]), _) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
         (None, Some(i)) => {
-            let piece = pieces.get(i).ok_or_else(|| Error::arg(format!("--piece {i}: only {} models given", pieces.len())))?;
+            if i >= field.pieces.len() {
+                return Err(Error::arg(format!("--piece {i}: only {} models given", field.pieces.len())));
+            }
             if dims != f.dims {
                 return Err(Error::arg("--piece decodes on the models' own lattice; leave out --dims"));
             }
-            f.box_of(&piece.meta.frame)?
+            field.piece_box(i)?
         }
         (None, None) => IndexBox::whole(dims),
     };
@@ -88,21 +82,7 @@ pub fn decode(a: DecodeArgs) -> Result<()> {
     };
     let mut backend = a.device.choice().open()?;
     let backend = backend.as_mut();
-    with_threads(a.output.threads, || match index.as_ref().filter(|_| !a.additive) {
-        // A step's pieces, each decoded on its own box and blended, in slabs of z layers.
-        Some(index) => {
-            let (global, boxes) = index.layout();
-            let layers = (a.slab_voxels / (region.dims()[0] * region.dims()[1]).max(1)).max(1);
-            let mut z = region.lo[2];
-            while z < region.hi[2] {
-                let slab = IndexBox { lo: [region.lo[0], region.lo[1], z], hi: [region.hi[0], region.hi[1], (z + layers).min(region.hi[2])] };
-                write(&blend(&global, &pieces, &boxes, index.halo, dims, slab, backend)?.values)?;
-                z = slab.hi[2];
-            }
-            Ok(())
-        }
-        None => model.decode_streaming(backend, dims, region, a.slab_voxels, &mut write),
-    })??;
+    with_threads(a.output.threads, || field.decode_streaming(backend, dims, region, a.additive, a.slab_voxels, &mut write))??;
     if is_vti {
         file.write(vti::VTI_SUFFIX)?;
     }

@@ -7,6 +7,7 @@ use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
 use gsenc::encode::with_threads;
+use gsenc::format::info::precision_json;
 use gsenc::format::{read_model_file, write_model_as, Payload};
 use gsenc::input::{prepare, Input};
 use gsenc::io::write_atomic;
@@ -147,7 +148,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "voxel_psnr": encoded.psnr,
         // The float32 model's, where the payload's precision was measured against it (packed).
         "float32_psnr": encoded.float32_psnr,
-        "precision": encoded.model.meta.precision.map(crate::info::precision_json),
+        "precision": encoded.model.meta.precision.map(precision_json),
         "payload_bytes": payload_bytes,
         "sampled_psnr": sampled_psnr(&encoded.decoded, &reference.values),
         "occupied_psnr": occupied_psnr(&encoded.decoded, &reference.values),

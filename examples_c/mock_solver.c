@@ -11,7 +11,8 @@
  * "tracers" and "amr"; gsenc's thread encodes them (each warm-started from
  * its previous step) and writes OUTPUT_DIR/FIELD_STEP.gsm. This mock then
  * waits (gsenc_wait) to print each step's PSNR; a production code would
- * push and go on (see benches/insitu.c).
+ * push and go on (see benches/insitu.c). An OUTPUT_DIR ending in ".h5"
+ * is an HDF5 store instead (gsenc built with HDF5): every model in one file.
  *
  * usage: mock_solver OUTPUT_DIR [STEPS [BUDGET [ITERATIONS [WARM_ITERATIONS [WARM]]]]]
  * (defaults 20 steps, 3000 Gaussians, the schedules' iterations, warm
@@ -166,6 +167,8 @@ int main(int argc, char **argv) {
     }
     cfg.has_bounds = 1;
     cfg.output_dir = argv[1];
+    size_t len = strlen(argv[1]);
+    if (len > 3 && strcmp(argv[1] + len - 3, ".h5") == 0) cfg.output_format = GSENC_OUTPUT_HDF5;
     cfg.threads = 0; /* this mock waits for every step (to print its PSNR), so the encode may use every core */
     gsenc_encoder *enc = NULL;
     if (check(gsenc_encoder_create(&cfg, &enc), "gsenc_encoder_create")) return 1;

@@ -19,6 +19,7 @@ command -v cmake >/dev/null || need_apt+=(cmake make)
 command -v gfortran >/dev/null || need_apt+=(gfortran)
 command -v mpicc >/dev/null && command -v mpirun >/dev/null || need_apt+=(libopenmpi-dev openmpi-bin)
 ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1 || need_apt+=(mesa-vulkan-drivers libvulkan1)
+python3 -c "import ensurepip, venv" 2>/dev/null || need_apt+=(python3-venv)
 [ -e /usr/lib/llvm-14/lib/libclang.so ] || ls /usr/lib/llvm-*/lib/libclang.so >/dev/null 2>&1 || need_apt+=(libclang-dev)
 if [ ${#need_apt[@]} -gt 0 ]; then
     if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then

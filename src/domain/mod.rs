@@ -1,10 +1,12 @@
 //! Pieces of a decomposed domain: the per-rank models of one step on one
 //! global lattice. [`halo`] routes each rank's data to every piece it reaches
 //! (pure, tested without MPI); [`pieces`] turns the models of a step into one
-//! global field (the halo blend, or the additive merge); `mpi` (feature
+//! global field (the halo blend, or the additive merge); [`global`] is what a
+//! decode reads (a model, pieces, or a step); `mpi` (feature
 //! `mpi`) is the only code that calls MPI: per-rank encoders over the
 //! simulation's communicator, above the background queue.
 
+pub mod global;
 pub mod halo;
 #[cfg(feature = "mpi")]
 pub mod mpi;

@@ -475,15 +475,9 @@ mod tests {
 #[cfg(test)]
 mod round_trip_tests {
     use super::*;
+    use crate::format::test_support::unpack;
     use crate::math::rng::Rng;
 
-    fn unpack(frame: &[u8], want: usize) -> Result<Vec<u8>> {
-        let got = zstd::bulk::decompress(frame, want).map_err(|e| Error::format(e.to_string()))?;
-        if got.len() != want {
-            return Err(Error::format("length"));
-        }
-        Ok(got)
-    }
 
     #[test]
     fn bytes_read_back_to_the_same_codes() {

@@ -186,15 +186,9 @@ impl Stream<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::format::test_support::unpack;
     use crate::math::rng::Rng;
 
-    fn unpack(frame: &[u8], want: usize) -> Result<Vec<u8>> {
-        let got = zstd::bulk::decompress(frame, want).map_err(|e| Error::format(e.to_string()))?;
-        if got.len() != want {
-            return Err(Error::format("length"));
-        }
-        Ok(got)
-    }
 
     /// Both codings of every stream kind read back, at every width.
     #[test]

@@ -166,15 +166,9 @@ pub fn decode(stored: &[u8], dims: [usize; 3], unpack: &dyn Fn(&[u8], usize) -> 
 mod tests {
     use super::*;
     use crate::field::Grid;
+    use crate::format::test_support::unpack;
     use crate::math::rng::Rng;
 
-    fn unpack(frame: &[u8], want: usize) -> Result<Vec<u8>> {
-        let got = zstd::bulk::decompress(frame, want).map_err(|e| Error::format(e.to_string()))?;
-        if got.len() != want {
-            return Err(Error::format("length"));
-        }
-        Ok(got)
-    }
 
     fn of_bits(dims: [usize; 3], inside: impl Fn(usize, usize, usize) -> bool) -> Support {
         let n: usize = dims.iter().product();

@@ -16,4 +16,4 @@ pub mod store;
 pub mod vti;
 
 pub use atomic::{write_atomic, AtomicFile};
-pub use models::{read_model_file, read_step, ModelFolder};
+pub use models::{read_field, read_model_file, read_step, ModelFolder};

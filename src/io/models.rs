@@ -1,9 +1,11 @@
 //! Model files on disk: written into a folder by the background queue's
-//! sink, read back naming the file in errors, and the models of a step index.
+//! sink, read back naming the file in errors, the models of a step index,
+//! and the global field a decode reads.
 
 use crate::error::{Error, Result};
 use crate::format::{model_file_name, read_model_file as parse_model_file, write_model_as, ModelFile, Payload, StepIndex};
 use crate::io::atomic::write_atomic;
+use crate::domain::global::GlobalField;
 use crate::model::Model;
 use crate::series::queue::ModelSink;
 use std::path::{Path, PathBuf};
@@ -56,3 +58,18 @@ pub fn read_step(index_path: &Path) -> Result<(StepIndex, Vec<Model>)> {
     Ok((index, models))
 }
 
+
+/// What `gsenc decode` and the Python package's `read` take: one step index
+/// (`.gsi`: the step's pieces, blended), or the models of one field (one
+/// model, or the pieces of a domain, merged).
+pub fn read_field(paths: &[PathBuf]) -> Result<GlobalField> {
+    match paths {
+        [] => Err(Error::arg("no model to read")),
+        [index] if index.extension().is_some_and(|e| e == "gsi") => {
+            let (index, pieces) = read_step(index)?;
+            GlobalField::of_step(index, pieces)
+        }
+        [one] => Ok(GlobalField::of_model(read_model_file(one)?.model)),
+        models => GlobalField::of_pieces(models.iter().map(|p| read_model_file(p).map(|f| f.model)).collect::<Result<Vec<_>>>()?),
+    }
+}

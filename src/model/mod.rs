@@ -203,6 +203,20 @@ impl Model {
         Ok(())
     }
 
+    /// The decoded value (normalised) at world points, each finite: what a
+    /// decode gives at a voxel centre, anywhere in space.
+    pub fn evaluate(&self, backend: &mut dyn Backend, points: &[[f64; 3]]) -> Result<Vec<f32>> {
+        if let Some(i) = points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
+            return Err(Error::data(format!("point {i} is not finite")));
+        }
+        let f = &self.meta.frame;
+        let index: Vec<[f32; 3]> = points.iter().map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)).collect();
+        let n = points.len();
+        let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
+        backend.evaluate_points(&self.params, &index, &mut rho, &mut num)?;
+        Ok((0..n).map(|i| self.value_at(index[i], rho[i], num[i])).collect())
+    }
+
     /// The decoded value at index-frame points, from their `(rho, n)`.
     pub fn value_at(&self, u: [f32; 3], rho: f32, n: f32) -> f32 {
         let v = crate::math::loss::v_eval(rho, n);

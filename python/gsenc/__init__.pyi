@@ -1,0 +1,97 @@
+"""Types of the package `gsenc` (see gsenc/__init__.py for the full documentation)."""
+
+from os import PathLike
+from typing import Any, Callable, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from ._gsenc import HAS_HDF5 as HAS_HDF5, Model as Model, ModelError as ModelError, Store as Store, __version__ as __version__
+
+_Path = Union[str, "PathLike[str]"]
+_Vec3 = Tuple[float, float, float]
+_Progress = Union[None, bool, Callable[[int, int, float], Any]]
+
+PRIMITIVE_DTYPE: np.dtype
+
+def read(path: _Path, field: Optional[str] = None, step: Optional[int] = None, rank: Optional[int] = None) -> Model: ...
+def open_store(path: _Path) -> Store: ...
+def encode_grid(
+    array: np.ndarray,
+    budget: int,
+    *,
+    schedule: str = "matched",
+    range: Optional[Tuple[float, float]] = None,
+    log10: bool = False,
+    origin: _Vec3 = (0.0, 0.0, 0.0),
+    spacing: float = 1.0,
+    payload: str = "f32",
+    field: str = "scalar",
+    step: int = 0,
+    time: Optional[float] = None,
+    rank: int = 0,
+    iterations: Optional[int] = None,
+    points: Optional[int] = None,
+    seed: int = 0,
+    sample_seed: int = 1,
+    relocation: bool = True,
+    support: bool = True,
+    threads: Optional[int] = None,
+    backend: str = "auto",
+    progress: _Progress = None,
+) -> Model: ...
+def encode_particles(
+    positions: np.ndarray,
+    smoothing_length: np.ndarray,
+    values: np.ndarray,
+    mass: Optional[np.ndarray] = None,
+    *,
+    budget: int,
+    dims: Optional[Tuple[int, int, int]] = None,
+    fit_dims: Optional[int] = None,
+    bounds: Optional[Tuple[_Vec3, _Vec3]] = None,
+    schedule: str = "matched",
+    range: Optional[Tuple[float, float]] = None,
+    log10: bool = False,
+    payload: str = "f32",
+    field: str = "scalar",
+    step: int = 0,
+    time: Optional[float] = None,
+    rank: int = 0,
+    iterations: Optional[int] = None,
+    points: Optional[int] = None,
+    seed: int = 0,
+    sample_seed: int = 1,
+    relocation: bool = True,
+    support: bool = True,
+    threads: Optional[int] = None,
+    backend: str = "auto",
+    progress: _Progress = None,
+) -> Model: ...
+def encode_cells(
+    centers: np.ndarray,
+    values: np.ndarray,
+    sizes: Optional[np.ndarray] = None,
+    volumes: Optional[np.ndarray] = None,
+    *,
+    budget: int,
+    dims: Optional[Tuple[int, int, int]] = None,
+    fit_dims: Optional[int] = None,
+    bounds: Optional[Tuple[_Vec3, _Vec3]] = None,
+    schedule: str = "matched",
+    range: Optional[Tuple[float, float]] = None,
+    log10: bool = False,
+    payload: str = "f32",
+    field: str = "scalar",
+    step: int = 0,
+    time: Optional[float] = None,
+    rank: int = 0,
+    iterations: Optional[int] = None,
+    points: Optional[int] = None,
+    seed: int = 0,
+    sample_seed: int = 1,
+    relocation: bool = True,
+    support: bool = True,
+    threads: Optional[int] = None,
+    backend: str = "auto",
+    progress: _Progress = None,
+) -> Model: ...

@@ -1,0 +1,194 @@
+//! `gsenc.encode_grid`, `encode_particles` and `encode_cells`: numpy
+//! arrays into the library's inputs, then its one encode pipeline (as the
+//! command line and the C API run it), with the GIL released. Keyword
+//! options arrive as a dict from `gsenc/__init__.py`, which spells them
+//! out and documents them.
+
+use crate::arrays::{grid_values, triples, values, values_f64};
+use crate::errors::IntoPy;
+use crate::model::{backend_choice, in_memory, Model};
+use gsenc::encode::pipeline::{self, Labels, Request, Start};
+use gsenc::encode::{with_threads, Cancel, EncodeConfig, Schedule};
+use gsenc::field::{Bounds, Grid, IndexFrame, Transform, ValueRange};
+use gsenc::format::Payload;
+use gsenc::input::cells::{CellSize, Cells};
+use gsenc::input::particles::Particles;
+use gsenc::input::{Input, Placement, RangeSpec};
+use pyo3::exceptions::{PyTypeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// Options every encode takes (their defaults are `gsenc/__init__.py`'s).
+struct Options {
+    request: Request<'static>,
+    range: RangeSpec,
+    threads: Option<usize>,
+    backend: String,
+}
+
+const OPTIONS: [&str; 17] = [
+    "budget", "schedule", "range", "log10", "payload", "field", "step", "time", "rank", "iterations", "points", "seed", "sample_seed", "relocation", "support", "threads", "backend",
+];
+
+fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
+    for key in o.keys() {
+        let key: String = key.extract()?;
+        if !OPTIONS.contains(&key.as_str()) {
+            return Err(PyTypeError::new_err(format!("unknown encode option '{key}'")));
+        }
+    }
+    fn get<'py, T: pyo3::conversion::FromPyObjectOwned<'py>>(o: &Bound<'py, PyDict>, key: &str) -> PyResult<Option<T>> {
+        match o.get_item(key)? {
+            Some(v) if !v.is_none() => v.extract::<T>().map(Some).map_err(|e| {
+                let e: PyErr = e.into();
+                PyTypeError::new_err(format!("{key}: {e}"))
+            }),
+            _ => Ok(None),
+        }
+    }
+    let budget: usize = get(o, "budget")?.ok_or_else(|| PyTypeError::new_err("budget is required"))?;
+    let schedule = Schedule::from_name(&get::<String>(o, "schedule")?.unwrap_or_else(|| "matched".into())).py_err()?;
+    let mut config = EncodeConfig::new(budget, schedule);
+    config.iterations = get(o, "iterations")?;
+    config.points = get(o, "points")?;
+    config.seed_init = get(o, "seed")?.unwrap_or(0);
+    config.seed_sample = get(o, "sample_seed")?.unwrap_or(1);
+    config.relocation = get(o, "relocation")?.unwrap_or(true);
+    let transform = if get(o, "log10")?.unwrap_or(false) { Transform::Log10 } else { Transform::Linear };
+    let range = match get::<(f64, f64)>(o, "range")? {
+        Some((lo, hi)) => RangeSpec::Fixed(ValueRange::new(lo, hi, transform).py_err()?),
+        None => RangeSpec::FromData(transform),
+    };
+    let payload = Payload::from_name(&get::<String>(o, "payload")?.unwrap_or_else(|| "f32".into())).py_err()?;
+    let labels = Labels { field: get(o, "field")?.unwrap_or_else(|| "scalar".into()), step: get(o, "step")?.unwrap_or(0), time: get(o, "time")?, rank: get(o, "rank")?.unwrap_or(0) };
+    gsenc::format::check_field_name(&labels.field).py_err()?;
+    let request = Request { config, start: Start::Seeded, payload, store_support: get(o, "support")?.unwrap_or(true), labels, validation: None };
+    Ok(Options { request, range, threads: get(o, "threads")?, backend: get(o, "backend")?.unwrap_or_else(|| "auto".into()) })
+}
+
+/// Runs the pipeline on `input` without the GIL. `progress(iteration,
+/// iterations, loss)` is called every 10 iterations (and at the last);
+/// Ctrl-C, or an exception from `progress`, stops the encode between
+/// iterations and is raised.
+fn run(py: Python<'_>, input: Input<'_>, mut o: Options, progress: Option<Py<PyAny>>) -> PyResult<Model> {
+    let choice = backend_choice(&o.backend)?;
+    let cancel = Cancel::default();
+    o.request.config.cancel = Some(cancel.clone());
+    let mut raised: Option<PyErr> = None;
+    let (request, range, threads) = (&o.request, &o.range, o.threads);
+    let encoded = py.detach(|| -> gsenc::Result<pipeline::Encoded> {
+        let mut backend = choice.open()?;
+        let mut report = |p: &gsenc::encode::refine::Progress| {
+            if p.iteration % 10 != 0 && p.iteration != p.iterations {
+                return;
+            }
+            Python::attach(|py| {
+                let outcome = py.check_signals().and_then(|_| match &progress {
+                    Some(f) => f.call1(py, (p.iteration, p.iterations, p.loss)).map(drop),
+                    None => Ok(()),
+                });
+                if let Err(e) = outcome {
+                    raised.get_or_insert(e);
+                    cancel.set(true);
+                }
+            })
+        };
+        let (_, encoded) = with_threads(threads, || pipeline::encode(&input, range, request, backend.as_mut(), &mut report))??;
+        Ok(encoded)
+    });
+    if let Some(e) = raised {
+        return Err(e);
+    }
+    let mut encoded = encoded.py_err()?;
+    // The model as its payload stores it (what its PSNR scores, and what a
+    // reader of the written file gets), so that it decodes as the file will.
+    let payload = o.request.payload;
+    let unquantized = encoded.model.clone();
+    encoded.model.params = payload.round_trip(&encoded.model).py_err()?;
+    let mut model = in_memory(encoded.model, payload, Some(encoded.psnr), "gsenc model (encoded, not yet written)");
+    model.unquantized = Some(unquantized);
+    model.info.insert("float32_psnr".into(), serde_json::json!(encoded.float32_psnr));
+    Ok(model)
+}
+
+/// Encodes a 3D array `[z][y][x]` (see `gsenc.encode_grid`).
+#[pyfunction]
+#[pyo3(signature = (array, origin, spacing, options, progress=None))]
+pub fn encode_grid(py: Python<'_>, array: &Bound<'_, PyAny>, origin: [f64; 3], spacing: f64, options: &Bound<'_, PyDict>, progress: Option<Py<PyAny>>) -> PyResult<Model> {
+    let o = self::options(options)?;
+    let (dims, values) = grid_values(array, "array")?;
+    let grid = Grid::new(dims, values).py_err()?;
+    let frame = IndexFrame::for_grid(dims, origin, spacing).py_err()?;
+    run(py, Input::Grid { values: &grid, frame }, o, progress)
+}
+
+/// Where particles or cells are deposited: `dims`, or `fit_dims` voxels
+/// along the longest axis of `bounds` (default the data's).
+fn placement(place: &Bound<'_, PyDict>, data_bounds: impl FnOnce() -> Bounds) -> PyResult<Placement> {
+    let dims: Option<[usize; 3]> = place.get_item("dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
+    let fit: Option<usize> = place.get_item("fit_dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
+    let bounds: Option<([f64; 3], [f64; 3])> = place.get_item("bounds")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
+    let bounds = bounds.map(|(min, max)| Bounds { min, max });
+    let dims = match (dims, fit) {
+        (Some(_), Some(_)) => return Err(PyValueError::new_err("give dims or fit_dims, not both")),
+        (Some(d), None) => d,
+        (None, Some(n)) => bounds.unwrap_or_else(data_bounds).fitted_dims(n).py_err()?,
+        (None, None) => return Err(PyValueError::new_err("give dims (x, y, z) or fit_dims (voxels along the longest axis)")),
+    };
+    Ok(Placement { dims, bounds })
+}
+
+/// Encodes SPH particles against their deposit (see `gsenc.encode_particles`).
+#[pyfunction]
+#[pyo3(signature = (positions, smoothing_length, values, mass, place, options, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn encode_particles(
+    py: Python<'_>,
+    positions: &Bound<'_, PyAny>,
+    smoothing_length: &Bound<'_, PyAny>,
+    values: &Bound<'_, PyAny>,
+    mass: Option<&Bound<'_, PyAny>>,
+    place: &Bound<'_, PyDict>,
+    options: &Bound<'_, PyDict>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Model> {
+    let o = self::options(options)?;
+    let positions = triples(positions, "positions")?;
+    let smoothing_length = values_f64(smoothing_length, "smoothing_length")?;
+    let values = self::values(values, "values")?;
+    let mass = match mass {
+        Some(m) => self::values(m, "mass")?,
+        None => vec![1.0; positions.len()],
+    };
+    let particles = Particles { positions: &positions, smoothing_length: &smoothing_length, mass: &mass, values: &values };
+    let placement = placement(place, || particles.bounds())?;
+    run(py, Input::Particles { particles: &particles, placement }, o, progress)
+}
+
+/// Encodes hexahedral cells against their deposit (see `gsenc.encode_cells`).
+#[pyfunction]
+#[pyo3(signature = (centers, values, sizes, volumes, place, options, progress=None))]
+#[allow(clippy::too_many_arguments)]
+pub fn encode_cells(
+    py: Python<'_>,
+    centers: &Bound<'_, PyAny>,
+    values: &Bound<'_, PyAny>,
+    sizes: Option<&Bound<'_, PyAny>>,
+    volumes: Option<&Bound<'_, PyAny>>,
+    place: &Bound<'_, PyDict>,
+    options: &Bound<'_, PyDict>,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<Model> {
+    let o = self::options(options)?;
+    let centres = triples(centers, "centers")?;
+    let values = self::values(values, "values")?;
+    let (edges, vols) = match (sizes, volumes) {
+        (Some(s), None) => (triples(s, "sizes")?, vec![]),
+        (None, Some(v)) => (vec![], values_f64(v, "volumes")?),
+        _ => return Err(PyValueError::new_err("give sizes (an (n, 3) array of cell edges) or volumes, one of them")),
+    };
+    let size = if vols.is_empty() { CellSize::Edges(&edges) } else { CellSize::Volumes(&vols) };
+    let cells = Cells { centres: &centres, size, values: &values };
+    let placement = placement(place, || cells.bounds())?;
+    run(py, Input::Cells { cells: &cells, placement }, o, progress)
+}

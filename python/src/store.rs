@@ -1,0 +1,128 @@
+//! `gsenc.open_store`: an HDF5 store's entries (field, step, rank), and
+//! `gsenc.read` of one of them. The file is opened for each call and
+//! closed again, so that a writer (a running simulation) is never held up
+//! by a reader left open in a notebook.
+
+use crate::errors::IntoPy;
+use crate::model::{in_memory, Model};
+use gsenc::io::store::{EntryKey, Store as H5Store};
+use pyo3::exceptions::PyValueError;
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+use std::path::{Path, PathBuf};
+
+/// An HDF5 store of models, as listed when it was opened.
+#[pyclass(module = "gsenc", frozen)]
+pub struct Store {
+    path: PathBuf,
+    /// Key and, for a readable entry, (payload name, primitives, stored bytes); else why not.
+    entries: Vec<(EntryKey, Result<(String, u64, u64), String>)>,
+}
+
+/// Opens an HDF5 store and lists its entries.
+#[pyfunction]
+pub fn open_store(py: Python<'_>, path: PathBuf) -> PyResult<Store> {
+    let entries = py
+        .detach(|| -> gsenc::Result<_> {
+            let store = H5Store::open_read(&path)?;
+            Ok(store.entries()?.into_iter().map(|e| (e.key, e.content.map(|i| (i.payload.name().to_string(), i.count, i.stored_bytes)).map_err(|e| e.to_string()))).collect())
+        })
+        .py_err()?;
+    Ok(Store { path, entries })
+}
+
+/// The entry of `path` that `field`, `step` and `rank` name; any of them may
+/// be left out where the store holds only one choice.
+fn choose(entries: &[EntryKey], path: &Path, field: Option<&str>, step: Option<u64>, rank: Option<u32>) -> PyResult<EntryKey> {
+    let matching: Vec<&EntryKey> =
+        entries.iter().filter(|k| field.is_none_or(|f| k.field == f) && step.is_none_or(|s| k.step == s) && rank.is_none_or(|r| k.rank == r)).collect();
+    match matching.as_slice() {
+        [one] => Ok((*one).clone()),
+        [] => Err(PyValueError::new_err(format!(
+            "{} holds no entry with field {field:?}, step {step:?}, rank {rank:?} (open_store lists them)",
+            path.display()
+        ))),
+        many => Err(PyValueError::new_err(format!(
+            "{} holds {} entries with field {field:?}, step {step:?}, rank {rank:?}: give field, step and rank (open_store lists them)",
+            path.display(),
+            many.len()
+        ))),
+    }
+}
+
+/// `gsenc.read` of a store entry.
+pub fn read_entry(py: Python<'_>, path: &Path, field: Option<String>, step: Option<u64>, rank: Option<u32>) -> PyResult<Model> {
+    py.detach(|| -> PyResult<Model> {
+        let store = H5Store::open_read(path).py_err()?;
+        let keys: Vec<EntryKey> = store.entries().py_err()?.into_iter().map(|e| e.key).collect();
+        let key = choose(&keys, path, field.as_deref(), step, rank)?;
+        let (model, payload) = store.read(&key).py_err()?;
+        let psnr = model.meta.encode_psnr;
+        Ok(in_memory(model, payload, psnr, "gsenc store entry"))
+    })
+}
+
+#[pymethods]
+impl Store {
+    /// Every entry: field, step, rank, payload, primitives, bytes (or the
+    /// error that makes it unreadable, such as an append cut short).
+    #[getter]
+    fn entries<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        self.entries
+            .iter()
+            .map(|(k, content)| {
+                let d = PyDict::new(py);
+                d.set_item("field", &k.field)?;
+                d.set_item("step", k.step)?;
+                d.set_item("rank", k.rank)?;
+                match content {
+                    Ok((payload, count, bytes)) => {
+                        d.set_item("payload", payload)?;
+                        d.set_item("primitives", count)?;
+                        d.set_item("bytes", bytes)?;
+                    }
+                    Err(why) => d.set_item("error", why)?,
+                }
+                Ok(d)
+            })
+            .collect()
+    }
+
+    /// The fields, sorted.
+    fn fields(&self) -> Vec<String> {
+        let mut f: Vec<String> = self.entries.iter().map(|(k, _)| k.field.clone()).collect();
+        f.dedup();
+        f
+    }
+
+    /// The steps of `field`, ascending.
+    fn steps(&self, field: &str) -> Vec<u64> {
+        let mut s: Vec<u64> = self.entries.iter().filter(|(k, _)| k.field == field).map(|(k, _)| k.step).collect();
+        s.dedup();
+        s
+    }
+
+    /// The ranks of `field` at `step`, ascending.
+    fn ranks(&self, field: &str, step: u64) -> Vec<u32> {
+        self.entries.iter().filter(|(k, _)| k.field == field && k.step == step).map(|(k, _)| k.rank).collect()
+    }
+
+    /// Reads one entry (see `gsenc.read`).
+    #[pyo3(signature = (field=None, step=None, rank=None))]
+    fn read(&self, py: Python<'_>, field: Option<String>, step: Option<u64>, rank: Option<u32>) -> PyResult<Model> {
+        read_entry(py, &self.path, field, step, rank)
+    }
+
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    fn __len__(&self) -> usize {
+        self.entries.len()
+    }
+
+    fn __repr__(&self) -> String {
+        format!("<gsenc.Store {}: {} entries of fields {:?}>", self.path.display(), self.entries.len(), self.fields())
+    }
+}

@@ -1,0 +1,123 @@
+"""Models read and decoded from Python give what the command-line tool gives,
+bit for bit: model files of every payload, a step index of two pieces, and a
+store written by the C API."""
+
+import json
+
+import numpy as np
+import pytest
+
+import gsenc
+from conftest import QUICK, blobs, read_raw
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("decode") / "blobs.gsm"
+    gsenc.encode_grid(blobs(), 150, **QUICK).write(path)
+    return path
+
+
+@pytest.mark.parametrize("payload", ["f32", "8bit", "8bit-u16", "packed"])
+def test_a_decode_is_the_tools_bit_for_bit(tmp_path, model_file, cli, payload):
+    path = tmp_path / f"m_{payload}.gsm"
+    gsenc.read(model_file).write(path, payload=payload)
+    model = gsenc.read(path)
+    assert model.info["payload"] == payload
+    cases = [
+        ({}, [], model.dims),
+        (dict(dims=(30, 25, 21)), ["--dims", "30,25,21"], (30, 25, 21)),
+        (dict(box=(3, 2, 1, 20, 17, 9)), ["--box", "3,2,1,20,17,9"], (17, 15, 8)),
+        (dict(normalized=True), ["--normalized"], model.dims),
+    ]
+    for kwargs, args, dims in cases:
+        out = tmp_path / "out.raw"
+        cli("decode", path, "-o", out, "--backend", "cpu", *args)
+        ours = model.decode(backend="cpu", **kwargs)
+        assert ours.shape == (dims[2], dims[1], dims[0]) and ours.dtype == np.float32
+        np.testing.assert_array_equal(ours, read_raw(out, dims), err_msg=f"{payload} {kwargs}")
+
+
+def test_info_is_the_tools(model_file, cli):
+    theirs = json.loads(cli("info", model_file, "--json"))
+    assert gsenc.read(model_file).info == theirs
+
+
+def test_evaluate_matches_the_decode_at_voxel_centres(model_file):
+    model = gsenc.read(model_file)
+    grid = model.decode(backend="cpu")
+    (ox, oy, oz), (sx, sy, sz) = model.geometry()
+    nx, ny, nz = model.dims
+    Z, Y, X = np.meshgrid(oz + sz * np.arange(nz), oy + sy * np.arange(ny), ox + sx * np.arange(nx), indexing="ij")
+    points = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    values = model.evaluate(points)
+    # Another summation order than the lattice's: equal to float rounding.
+    np.testing.assert_allclose(values, grid.ravel(), rtol=1e-5, atol=1e-4)
+    assert np.abs(values).max() > 50, "the field is not empty"
+    # Normalised values are the same map of the decode.
+    np.testing.assert_allclose(model.evaluate(points[:100], normalized=True), model.decode(normalized=True).ravel()[:100], rtol=1e-5, atol=1e-6)
+
+
+def test_primitives_are_the_models_parameters(model_file):
+    model = gsenc.read(model_file)
+    p, flat = model.primitives, model.params()
+    assert p.dtype == gsenc.PRIMITIVE_DTYPE and p.shape == (len(model),) == (150,)
+    np.testing.assert_array_equal(p["mu"], flat[:, 0:3])
+    np.testing.assert_array_equal(p["quat"], flat[:, 6:10])
+    np.testing.assert_array_equal(p["beta"], flat[:, 11])
+    # Centres in the index frame: inside the reference lattice, give or take its border.
+    assert (p["mu"] > -2).all() and (p["mu"] < np.array(model.dims) + 1).all()
+
+
+def test_a_step_index_decodes_as_the_tools_blend(tmp_path, cli):
+    """Two pieces of a 32 x 16 x 16 field, overlapping by 8 voxels (a halo of
+    4), each encoded on its own box and named by a step index."""
+    field = blobs((32, 16, 16))
+    lo, hi = [(0, 0, 0), (12, 0, 0)], [(20, 16, 16), (32, 16, 16)]
+    pieces = []
+    for rank in (0, 1):
+        part = field[:, :, lo[rank][0]:hi[rank][0]]
+        model = gsenc.encode_grid(part, 80, origin=(lo[rank][0], 0, 0), range=(0.0, 220.0), field="rho", step=4, rank=rank, **QUICK)
+        name = "rho_000004.gsm" if rank == 0 else "rho_000004_r1.gsm"
+        model.write(tmp_path / name)
+        pieces.append(dict(rank=rank, model=name, lo=list(lo[rank]), hi=list(hi[rank]),
+                           world_min=[lo[rank][a] - 0.5 for a in range(3)], world_max=[hi[rank][a] - 0.5 for a in range(3)]))
+    index = dict(format="gsenc-step-index", version=1, field="rho", step=4, time=None, ranks=2, halo=4,
+                 range=dict(vmin=0.0, vmax=220.0, transform="linear"), dims=[32, 16, 16], bmin=[-0.5, -0.5, -0.5],
+                 gamma=1.0, pieces=pieces)
+    (tmp_path / "rho_000004.gsi").write_text(json.dumps(index))
+    step = gsenc.read(tmp_path / "rho_000004.gsi")
+    assert step.info["pieces"] == 2 and step.dims == (32, 16, 16) and len(step) == 160
+    for kwargs, args in [({}, []), (dict(additive=True), ["--additive"]), (dict(dims=(40, 20, 20)), ["--dims", "40,20,20"])]:
+        cli("decode", tmp_path / "rho_000004.gsi", "-o", tmp_path / "out.raw", "--backend", "cpu", *args)
+        dims = kwargs.get("dims", (32, 16, 16))
+        np.testing.assert_array_equal(step.decode(backend="cpu", **kwargs), read_raw(tmp_path / "out.raw", dims), err_msg=str(kwargs))
+    # The blend is not the additive decode (the pieces' tails differ across the halo).
+    assert not np.array_equal(step.decode(), step.decode(additive=True))
+    # One model's operations refuse a step of several, clearly.
+    for call in (lambda: step.evaluate(np.zeros((1, 3))), lambda: step.write(tmp_path / "x.gsm")):
+        with pytest.raises(ValueError, match="step of 2 pieces"):
+            call()
+
+
+def test_a_store_written_by_the_c_api_reads_as_the_tool_extracts_it(tmp_path, cli, mock_solver):
+    import subprocess
+
+    store = tmp_path / "run.h5"
+    done = subprocess.run([mock_solver, store, "2", "120", "30", "20", "off"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    s = gsenc.open_store(store)
+    assert s.fields() == ["amr", "grid", "tracers"] and s.steps("grid") == [0, 1] and s.ranks("grid", 1) == [0]
+    assert len(s) == 6 and all(e["primitives"] == 120 and "error" not in e for e in s.entries)
+    for field in s.fields():
+        model = s.read(field, 1)
+        assert model.info["field"] == field and model.info["step"] == 1 and model.psnr > 10
+        cli("store", "extract", store, f"{field}/1/0", "-o", tmp_path / f"{field}.gsm")
+        cli("decode", tmp_path / f"{field}.gsm", "-o", tmp_path / "out.raw", "--backend", "cpu")
+        np.testing.assert_array_equal(model.decode(backend="cpu"), read_raw(tmp_path / "out.raw", model.dims), err_msg=field)
+        # gsenc.read of the store names the same entry.
+        np.testing.assert_array_equal(gsenc.read(store, field=field, step=1).params(), model.params())
+    with pytest.raises(ValueError, match="6 entries"):
+        gsenc.read(store)
+    with pytest.raises(ValueError, match="no entry"):
+        s.read("grid", 7)

@@ -1,0 +1,94 @@
+//! What a decode reads: one model, the models of a domain's pieces, or a
+//! step index with the models it names, as one global field. The command
+//! line's `decode` and the Python package's `Model.decode` both decode
+//! through [`GlobalField::decode_streaming`], so they give the same values.
+
+use crate::backend::Backend;
+use crate::domain::pieces::{blend, merge};
+use crate::error::{Error, Result};
+use crate::field::IndexBox;
+use crate::format::StepIndex;
+use crate::model::Model;
+
+/// One global field and where it came from.
+pub struct GlobalField {
+    /// The step index, when the field is a step's (its pieces are then
+    /// blended across their halos).
+    pub index: Option<StepIndex>,
+    /// The models, in rank order for a step.
+    pub pieces: Vec<Model>,
+    /// Every piece's primitives in one model on the global lattice (the
+    /// model itself when there is one piece).
+    pub merged: Model,
+}
+
+impl GlobalField {
+    /// The field of one model.
+    pub fn of_model(model: Model) -> GlobalField {
+        GlobalField { index: None, merged: model.clone(), pieces: vec![model] }
+    }
+
+    /// The additive field of the models of a domain's pieces.
+    pub fn of_pieces(pieces: Vec<Model>) -> Result<GlobalField> {
+        let merged = merge(&pieces)?;
+        Ok(GlobalField { index: None, pieces, merged })
+    }
+
+    /// The field of a step index and the models it names (rank order,
+    /// checked against it by [`crate::io::read_step`]).
+    pub fn of_step(index: StepIndex, pieces: Vec<Model>) -> Result<GlobalField> {
+        let merged = merge(&pieces)?;
+        Ok(GlobalField { index: Some(index), pieces, merged })
+    }
+
+    /// The region of piece `i` on the global lattice.
+    pub fn piece_box(&self, i: usize) -> Result<IndexBox> {
+        let piece = self.pieces.get(i).ok_or_else(|| Error::arg(format!("piece {i}: the field has {} pieces", self.pieces.len())))?;
+        self.merged.meta.frame.box_of(&piece.meta.frame)
+    }
+
+    /// Decodes `region` of a lattice of `dims` over the global box in slabs
+    /// of whole z layers (at most `slab_voxels` voxels each), handing each
+    /// slab (x fastest, normalised values) to `sink` in order. A step's
+    /// pieces are each decoded on their own box and blended across their
+    /// halos, unless `additive` (every piece's primitives decoded together).
+    pub fn decode_streaming(
+        &self,
+        backend: &mut dyn Backend,
+        dims: [usize; 3],
+        region: IndexBox,
+        additive: bool,
+        slab_voxels: usize,
+        sink: &mut dyn FnMut(&[f32]) -> Result<()>,
+    ) -> Result<()> {
+        match self.index.as_ref().filter(|_| !additive) {
+            Some(index) => {
+                region.check_within(dims)?;
+                let (global, boxes) = index.layout();
+                let layers = (slab_voxels / (region.dims()[0] * region.dims()[1]).max(1)).max(1);
+                let mut z = region.lo[2];
+                while z < region.hi[2] {
+                    let slab = IndexBox { lo: [region.lo[0], region.lo[1], z], hi: [region.hi[0], region.hi[1], (z + layers).min(region.hi[2])] };
+                    sink(&blend(&global, &self.pieces, &boxes, index.halo, dims, slab, backend)?.values)?;
+                    z = slab.hi[2];
+                }
+                Ok(())
+            }
+            None => self.merged.decode_streaming(backend, dims, region, slab_voxels, sink),
+        }
+    }
+
+    /// [`GlobalField::decode_streaming`] into one array (x fastest), with
+    /// every value passed through `unit`.
+    pub fn decode(&self, backend: &mut dyn Backend, dims: [usize; 3], region: IndexBox, additive: bool, unit: &dyn Fn(f32) -> f32) -> Result<Vec<f32>> {
+        region.check_within(dims)?;
+        let n: usize = region.dims().iter().product();
+        let mut out = Vec::new();
+        out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
+        self.decode_streaming(backend, dims, region, additive, crate::model::DEFAULT_SLAB_VOXELS, &mut |slab| {
+            out.extend(slab.iter().map(|&v| unit(v)));
+            Ok(())
+        })?;
+        Ok(out)
+    }
+}

@@ -1,0 +1,69 @@
+//! Every header field of a model file as one JSON object: what `gsenc
+//! info --json` prints and the Python package's `Model.info` holds.
+
+use crate::format::packed::{Precision, GROUPS};
+use crate::format::ModelFile;
+use crate::model::Model;
+use serde_json::{json, Map, Value};
+
+/// The fields of `file`, whose stored form takes `bytes` bytes.
+pub fn model_info(file: &ModelFile, bytes: u64) -> Value {
+    let m = &file.model;
+    let mut info = keys(json!({
+        "format": format!("gsenc model {}.{}", file.version.0, file.version.1),
+        "payload": file.payload.name(),
+        "primitives": m.len(),
+        "bytes": bytes,
+        "bytes_per_primitive": bytes as f64 / m.len().max(1) as f64,
+        // The primitives alone, without header, support and checksum.
+        "payload_bytes_per_primitive": file.payload_bytes as f64 / m.len().max(1) as f64,
+    }));
+    info.extend(meta_info(m));
+    Value::Object(info)
+}
+
+/// What a model's header holds beyond its payload: its metadata.
+pub fn meta_info(m: &Model) -> Map<String, Value> {
+    let meta = &m.meta;
+    keys(json!({
+        // Bits per parameter group of the packed payload (null: another payload).
+        "precision": meta.precision.map(precision_json),
+        "field": meta.field,
+        "step": meta.step,
+        "time": meta.time,
+        "rank": meta.rank,
+        "encode_psnr": meta.encode_psnr,
+        "dims": meta.frame.dims,
+        "bounds_min": meta.frame.bmin,
+        "gamma": meta.frame.gamma,
+        "value_min": meta.range.vmin,
+        "value_max": meta.range.vmax,
+        "transform": meta.range.transform.name(),
+        "schedule": meta.schedule,
+        "iterations": meta.iterations,
+        "points": meta.points,
+        "seed_init": meta.seed_init,
+        "seed_sample": meta.seed_sample,
+        // Why the encode ran on the CPU after the GPU failed (null: it did not).
+        "fell_back": meta.fell_back,
+        // The start an `auto` warm step took and the primitives its
+        // repair moved (null: not an `auto` warm step).
+        "warm_start": meta.warm.map(|w| w.taken.name()),
+        "warm_moved": meta.warm.map(|w| w.moved),
+        // Reference voxels where the model holds data (null: every voxel).
+        "support_voxels": m.support.as_ref().map(|s| s.count()),
+    }))
+}
+
+fn keys(v: Value) -> Map<String, Value> {
+    match v {
+        Value::Object(map) => map,
+        _ => unreachable!("an object literal"),
+    }
+}
+
+/// The packed payload's bits per parameter group, by group name.
+pub fn precision_json(p: Precision) -> Value {
+    let groups = GROUPS.iter().enumerate().map(|(g, name)| (name.to_string(), json!(p.get(g))));
+    Value::Object(groups.collect())
+}
