@@ -92,6 +92,15 @@ def test_progress_is_reported_and_an_exception_from_it_stops_the_encode():
     assert calls == [10], "the encode stopped at the first report"
 
 
+def test_progress_true_draws_a_bar(capsys):
+    """Without tqdm installed (this test environment has none), a text bar on stderr."""
+    with pytest.raises(ImportError):
+        import tqdm  # noqa: F401
+    gsenc.encode_grid(blobs(), 50, progress=True, **QUICK)
+    err = capsys.readouterr().err
+    assert "40/40 it" in err and "loss" in err and err.endswith("\n")
+
+
 def test_the_gil_is_released_while_encoding():
     """A Python thread runs on while another encodes: with the GIL held it
     would stop for the whole encode."""
