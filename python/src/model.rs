@@ -38,10 +38,7 @@ impl Model {
     fn one(&self, what: &str) -> PyResult<&gsenc::model::Model> {
         match self.field.pieces.as_slice() {
             [one] => Ok(one),
-            pieces => Err(PyValueError::new_err(format!(
-                "{what} takes one model; this is a step of {} pieces (read each piece's .gsm, or decode the step)",
-                pieces.len()
-            ))),
+            pieces => Err(PyValueError::new_err(format!("{what} takes one model; this is a step of {} pieces (read each piece's .gsm)", pieces.len()))),
         }
     }
 }
@@ -141,16 +138,17 @@ impl Model {
     }
 
     /// The decoded value at world points (an (n, 3) array of x, y, z), in
-    /// data units (or normalised): what a decode gives at a voxel centre.
-    #[pyo3(signature = (points, normalized=false, threads=None))]
-    fn evaluate<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>, normalized: bool, threads: Option<usize>) -> PyResult<Bound<'py, PyArray1<f32>>> {
-        let model = self.one("evaluate")?;
+    /// data units (or normalised): what a decode gives at a voxel centre (a
+    /// step's pieces blended as its decode blends them, unless `additive`).
+    #[pyo3(signature = (points, normalized=false, additive=false, threads=None))]
+    fn evaluate<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>, normalized: bool, additive: bool, threads: Option<usize>) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let points = triples(points, "points")?;
+        let range = self.field.merged.meta.range;
         let values = py
             .detach(|| -> gsenc::Result<Vec<f32>> {
                 let mut cpu = gsenc::backend::cpu::CpuBackend::new();
-                let v = with_threads(threads, || model.evaluate(&mut cpu, &points))??;
-                Ok(if normalized { v } else { v.into_iter().map(|v| model.meta.range.denormalize(v) as f32).collect() })
+                let v = with_threads(threads, || self.field.evaluate(&mut cpu, &points, additive))??;
+                Ok(if normalized { v } else { v.into_iter().map(|v| range.denormalize(v) as f32).collect() })
             })
             .py_err()?;
         Ok(vector(py, values))

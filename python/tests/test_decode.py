@@ -93,11 +93,16 @@ def test_a_step_index_decodes_as_the_tools_blend(tmp_path, cli):
         dims = kwargs.get("dims", (32, 16, 16))
         np.testing.assert_array_equal(step.decode(backend="cpu", **kwargs), read_raw(tmp_path / "out.raw", dims), err_msg=str(kwargs))
     # The blend is not the additive decode (the pieces' tails differ across the halo).
-    assert not np.array_equal(step.decode(), step.decode(additive=True))
-    # One model's operations refuse a step of several, clearly.
-    for call in (lambda: step.evaluate(np.zeros((1, 3))), lambda: step.write(tmp_path / "x.gsm")):
-        with pytest.raises(ValueError, match="step of 2 pieces"):
-            call()
+    blended, additive = step.decode(), step.decode(additive=True)
+    assert not np.array_equal(blended, additive)
+    # Evaluated at the voxel centres, the step gives its decode, blended or additive.
+    Z, Y, X = np.meshgrid(np.arange(16.0), np.arange(16.0), np.arange(32.0), indexing="ij")
+    centres = np.stack([X.ravel(), Y.ravel(), Z.ravel()], axis=1)
+    np.testing.assert_allclose(step.evaluate(centres), blended.ravel(), rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(step.evaluate(centres, additive=True), additive.ravel(), rtol=1e-5, atol=1e-4)
+    # Writing is per model: a step of several refuses, clearly.
+    with pytest.raises(ValueError, match="step of 2 pieces"):
+        step.write(tmp_path / "x.gsm")
 
 
 def test_a_store_written_by_the_c_api_reads_as_the_tool_extracts_it(tmp_path, cli, mock_solver):

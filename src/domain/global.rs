@@ -4,7 +4,7 @@
 //! through [`GlobalField::decode_streaming`], so they give the same values.
 
 use crate::backend::Backend;
-use crate::domain::pieces::{blend, merge};
+use crate::domain::pieces::{blend, blend_points, merge};
 use crate::error::{Error, Result};
 use crate::field::IndexBox;
 use crate::format::StepIndex;
@@ -75,6 +75,18 @@ impl GlobalField {
                 Ok(())
             }
             None => self.merged.decode_streaming(backend, dims, region, slab_voxels, sink),
+        }
+    }
+
+    /// The field (normalised) at world points, each finite: a step's pieces
+    /// blended as its decode blends them, unless `additive`.
+    pub fn evaluate(&self, backend: &mut dyn Backend, points: &[[f64; 3]], additive: bool) -> Result<Vec<f32>> {
+        match self.index.as_ref().filter(|_| !additive) {
+            Some(index) => {
+                let (global, boxes) = index.layout();
+                blend_points(&global, &self.pieces, &boxes, index.halo, points, backend)
+            }
+            None => self.merged.evaluate(backend, points),
         }
     }
 

@@ -143,15 +143,7 @@ pub fn blend(
         };
         let mut values = vec![0f32; dims.iter().product()];
         piece.decode_lattice(backend, &lattice, &mut values)?;
-        // The weight along one axis: 1 inside, falling to 0 at a box side
-        // that borders another rank (not at the domain's edge).
-        let ramp = |a: usize, u: f64| {
-            let t = halo.max(1) as f64;
-            let low = if b.lo[a] == 0 { 1.0 } else { ((u - (b.lo[a] as f64 - 0.5)) / t).clamp(0.0, 1.0) };
-            let high = if b.hi[a] == global.dims[a] { 1.0 } else { (((b.hi[a] as f64 - 0.5) - u) / t).clamp(0.0, 1.0) };
-            low.min(high)
-        };
-        let w: [Vec<f64>; 3] = std::array::from_fn(|a| (lo[a]..hi[a]).map(|i| ramp(a, centre(a, i))).collect());
+        let w: [Vec<f64>; 3] = std::array::from_fn(|a| (lo[a]..hi[a]).map(|i| ramp(b, global.dims, halo, a, centre(a, i))).collect());
         for k in 0..dims[2] {
             for j in 0..dims[1] {
                 let wjk = w[1][j] * w[2][k];
@@ -166,4 +158,50 @@ pub fn blend(
     }
     let values = sum.iter().zip(&weight).map(|(&s, &w)| if w > 0.0 { (s / w) as f32 } else { 0.0 }).collect();
     crate::field::Grid::new(rd, values)
+}
+
+/// A piece's blend weight along axis `a` at global index coordinate `u`
+/// (voxel centres at whole numbers): 1 inside its box, falling to 0 across
+/// the halo at a side that borders another rank (not at the domain's edge).
+fn ramp(b: &IndexBox, global_dims: [usize; 3], halo: usize, a: usize, u: f64) -> f64 {
+    let t = halo.max(1) as f64;
+    let low = if b.lo[a] == 0 { 1.0 } else { ((u - (b.lo[a] as f64 - 0.5)) / t).clamp(0.0, 1.0) };
+    let high = if b.hi[a] == global_dims[a] { 1.0 } else { (((b.hi[a] as f64 - 0.5) - u) / t).clamp(0.0, 1.0) };
+    low.min(high)
+}
+
+/// [`blend`] at world points (each finite) instead of on a lattice: each
+/// piece whose box holds a point (as `blend` counts it) evaluates it, and
+/// the values are blended with the same weights; 0 where no piece does.
+pub fn blend_points(
+    global: &IndexFrame,
+    pieces: &[Model],
+    boxes: &[IndexBox],
+    halo: usize,
+    points: &[[f64; 3]],
+    backend: &mut dyn crate::backend::Backend,
+) -> Result<Vec<f32>> {
+    if pieces.len() != boxes.len() || pieces.is_empty() {
+        return Err(Error::arg("blend needs one box per piece"));
+    }
+    if let Some(i) = points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
+        return Err(Error::data(format!("point {i} is not finite")));
+    }
+    let u: Vec<[f64; 3]> = points.iter().map(|p| std::array::from_fn(|a| (p[a] - global.bmin[a]) * global.gamma - 0.5)).collect();
+    let mut sum = vec![0f64; points.len()];
+    let mut weight = vec![0f64; points.len()];
+    for (piece, b) in pieces.iter().zip(boxes) {
+        // A lattice decode gives a piece the voxel centres u with lo <= u <= hi.
+        let inside: Vec<usize> = (0..points.len()).filter(|&i| (0..3).all(|a| u[i][a] >= b.lo[a] as f64 && u[i][a] <= b.hi[a] as f64)).collect();
+        if inside.is_empty() {
+            continue;
+        }
+        let values = piece.evaluate(backend, &inside.iter().map(|&i| points[i]).collect::<Vec<_>>())?;
+        for (&i, v) in inside.iter().zip(values) {
+            let w: f64 = (0..3).map(|a| ramp(b, global.dims, halo, a, u[i][a])).product();
+            sum[i] += w * v as f64;
+            weight[i] += w;
+        }
+    }
+    Ok(sum.iter().zip(&weight).map(|(&s, &w)| if w > 0.0 { (s / w) as f32 } else { 0.0 }).collect())
 }
