@@ -200,6 +200,38 @@ fn blend_uses_each_piece_only_inside_its_box() {
     }
 }
 
+/// At world points the blend is the lattice blend: at every voxel centre
+/// (of the reference lattice and of a finer one) the two agree to float
+/// rounding, and a point outside every piece is 0.
+#[test]
+fn blend_at_points_is_the_lattice_blend() {
+    use gsenc::domain::pieces::{blend, blend_points};
+    let whole = blobs(DIMS, 7, 5);
+    let a = encode_model(&slab(&whole, 0, CUT + 6), 0, 150);
+    let b = encode_model(&slab(&whole, CUT - 6, DIMS[0]), CUT - 6, 150);
+    let global = IndexFrame { dims: DIMS, bmin: a.meta.frame.bmin, gamma: 2.0 };
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [CUT + 6, DIMS[1], DIMS[2]] }, IndexBox { lo: [CUT - 6, 0, 0], hi: DIMS }];
+    let pieces = [a, b];
+    for dims in [DIMS, [2 * DIMS[0], DIMS[1], DIMS[2]]] {
+        let g = blend(&global, &pieces, &boxes, 6, dims, IndexBox::whole(dims), &mut CpuBackend::new()).unwrap();
+        let step: [f64; 3] = std::array::from_fn(|a| DIMS[a] as f64 / dims[a] as f64 / global.gamma);
+        let points: Vec<[f64; 3]> = (0..g.values.len())
+            .map(|i| {
+                let c = g.coords(i);
+                std::array::from_fn(|a| global.bmin[a] + (c[a] as f64 + 0.5) * step[a])
+            })
+            .collect();
+        let at = blend_points(&global, &pieces, &boxes, 6, &points, &mut CpuBackend::new()).unwrap();
+        let worst = at.iter().zip(&g.values).map(|(p, l)| (p - l).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-5, "dims {dims:?}: points differ from the lattice by {worst}");
+        assert!(g.values.iter().any(|&v| v > 0.1), "the field is not empty");
+    }
+    let far = [[global.bmin[0] - 50.0, 0.0, 0.0]];
+    assert_eq!(blend_points(&global, &pieces, &boxes, 6, &far, &mut CpuBackend::new()).unwrap(), vec![0.0]);
+    let e = blend_points(&global, &pieces, &boxes, 6, &[[f64::NAN, 0.0, 0.0]], &mut CpuBackend::new()).unwrap_err();
+    assert!(matches!(e, Error::InvalidData(_)), "{e}");
+}
+
 /// Pieces with supports: the merged model's support is each piece's own
 /// on its box, and the blend decodes each piece with its support, so the
 /// global field is 0 wherever the pieces' data are empty.
