@@ -396,7 +396,7 @@ impl Packed {
             (Stream::RotationIndex, self.rotation_index.iter().map(|&m| m as u16).collect()),
             (Stream::Rotation { bits: p.rotation, rbits: turned }, self.rotation.clone()),
             (Stream::Value { bits: p.value }, self.value.clone()),
-            (Stream::Weight { bits: p.weight, scale_x, scale_bits: p.scale }, self.weight.clone()),
+            (Stream::Weight { bits: p.weight, scale_x, scale_bits: p.scale, value: &self.value }, self.weight.clone()),
             (Stream::GapClass, self.gaps().map(|d| gap_class(d) as u16).collect()),
         ]
     }
@@ -431,7 +431,7 @@ impl Packed {
         let rotation_index = next(Stream::RotationIndex, turned.len())?.into_iter().map(|m| m as u8).collect();
         let rotation = next(Stream::Rotation { bits: p.rotation, rbits: &turned }, 3 * turned.len())?;
         let value = next(Stream::Value { bits: p.value }, n)?;
-        let weight = next(Stream::Weight { bits: p.weight, scale_x: &scale[..n], scale_bits: p.scale }, n)?;
+        let weight = next(Stream::Weight { bits: p.weight, scale_x: &scale[..n], scale_bits: p.scale, value: &value }, n)?;
         let classes = next(Stream::GapClass, n)?;
         let mut r = BitReader::new(rest);
         let mut keys = Vec::with_capacity(n);

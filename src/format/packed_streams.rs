@@ -11,7 +11,7 @@
 //! | rotation index | none |
 //! | rotation | its own bit count ([`crate::format::packed::rotation_bits`]): the symbol's width |
 //! | value | the top bits of the value before it |
-//! | weight | the top bits of its own x scale |
+//! | weight | whether its own value is 0 (a primitive that carries no value), and the top bits of its own x scale |
 //! | centre gap class | none |
 //!
 //! Contexts take at most [`CONTEXT_BUDGET`] bits together with the symbol,
@@ -38,8 +38,9 @@ pub enum Stream<'a> {
     /// Three arrays of rotation codes, each code `rbits[t]` bits wide.
     Rotation { bits: u8, rbits: &'a [u8] },
     Value { bits: u8 },
-    /// Weight codes; `scale_x` the x scale codes (`scale_bits` bits) of the same primitives.
-    Weight { bits: u8, scale_x: &'a [u16], scale_bits: u8 },
+    /// Weight codes; `scale_x` the x scale codes (`scale_bits` bits) and
+    /// `value` the value codes of the same primitives.
+    Weight { bits: u8, scale_x: &'a [u16], scale_bits: u8, value: &'a [u16] },
     GapClass,
 }
 
@@ -71,7 +72,7 @@ impl Stream<'_> {
             }
             Stream::Rotation { bits, .. } => bits as usize + 1,
             Stream::Value { .. } => 1 << self.feature_bits(8, 1),
-            Stream::Weight { .. } => 1 << self.feature_bits(4, 1),
+            Stream::Weight { .. } => 2 << self.feature_bits(4, 1),
             Stream::RotationIndex | Stream::GapClass => 1,
         }
     }
@@ -95,7 +96,10 @@ impl Stream<'_> {
                 (b as usize, b)
             }
             Stream::Value { bits } => (i.checked_sub(1).map_or(0, |j| top(done[j], bits, self.feature_bits(8, 1))), bits),
-            Stream::Weight { bits, scale_x, scale_bits } => (top(scale_x[i], scale_bits, self.feature_bits(4, 1)), bits),
+            Stream::Weight { bits, scale_x, scale_bits, value } => {
+                let k = self.feature_bits(4, 1);
+                (((value[i] == 0) as usize) << k | top(scale_x[i], scale_bits, k), bits)
+            }
             Stream::RotationIndex | Stream::GapClass => (0, self.bits()),
         }
     }
@@ -105,7 +109,7 @@ impl Stream<'_> {
         let ok = match *self {
             Stream::Scale { .. } => count % 3 == 0,
             Stream::Rotation { rbits, bits } => count == 3 * rbits.len() && rbits.iter().all(|&b| (1..=bits).contains(&b)),
-            Stream::Weight { scale_x, .. } => scale_x.len() == count,
+            Stream::Weight { scale_x, value, .. } => scale_x.len() == count && value.len() == count,
             _ => true,
         };
         if ok {
@@ -206,7 +210,7 @@ mod tests {
                 (Stream::RotationIndex, codes(n, 2)),
                 (Stream::Rotation { bits, rbits: &rbits }, rotation),
                 (Stream::Value { bits }, codes(n, bits)),
-                (Stream::Weight { bits, scale_x: &scale_x, scale_bits: 7 }, codes(n, bits)),
+                (Stream::Weight { bits, scale_x: &scale_x, scale_bits: 7, value: &scale_x }, codes(n, bits)),
                 (Stream::GapClass, codes(n, CLASS_BITS)),
             ];
             for (stream, symbols) in &cases {
