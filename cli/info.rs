@@ -16,7 +16,7 @@ pub struct InfoArgs {
 }
 
 pub fn info(a: InfoArgs) -> Result<()> {
-    if store::is_hdf5_file(&a.model) {
+    if gsenc::io::is_hdf5_file(&a.model) {
         return store::info(&a.model, a.json);
     }
     let file = gsenc::io::read_model_file(&a.model)?;

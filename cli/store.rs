@@ -65,13 +65,6 @@ pub struct DecodeSeriesArgs {
     out: OutputFlags,
 }
 
-/// Whether `path` starts with HDF5's signature (then `info` reads it as a store).
-pub fn is_hdf5_file(path: &Path) -> bool {
-    use std::io::Read;
-    let mut head = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok() && &head == b"\x89HDF\r\n\x1a\n"
-}
-
 #[cfg(not(feature = "hdf5"))]
 mod imp {
     use super::*;

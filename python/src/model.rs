@@ -47,12 +47,6 @@ pub fn backend_choice(backend: &str) -> PyResult<BackendChoice> {
     Ok(BackendChoice { kind: BackendKind::from_name(backend).py_err()?, gpu_index: None, brick: None })
 }
 
-/// Whether `path` starts like an HDF5 file.
-fn is_hdf5(path: &PathBuf) -> bool {
-    let mut magic = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| std::io::Read::read_exact(&mut f, &mut magic)).is_ok() && &magic == b"\x89HDF\r\n\x1a\n"
-}
-
 /// Reads a model file (`.gsm`), a step index (`.gsi`: every rank's model
 /// of a step, decoded as one global field, blended across the halos), or
 /// an entry of an HDF5 store (`field`, `step`, `rank`: each may be left out
@@ -60,7 +54,7 @@ fn is_hdf5(path: &PathBuf) -> bool {
 #[pyfunction]
 #[pyo3(signature = (path, field=None, step=None, rank=None))]
 pub fn read(py: Python<'_>, path: PathBuf, field: Option<String>, step: Option<u64>, rank: Option<u32>) -> PyResult<Model> {
-    if is_hdf5(&path) {
+    if gsenc::io::is_hdf5_file(&path) {
         #[cfg(feature = "hdf5")]
         return crate::store::read_entry(py, &path, field, step, rank);
         #[cfg(not(feature = "hdf5"))]

@@ -18,12 +18,8 @@
 //! so a stream's probabilities fit in 2 MiB whatever its precision.
 
 use crate::error::{Error, Result};
-use crate::format::range::{BitTrees, Decoder, Encoder};
+use crate::format::range::{BitTrees, Decoder, Encoder, RANGE_TAG, ZSTD_MAGIC};
 
-/// What opens a zstd frame.
-const ZSTD_MAGIC: [u8; 4] = [0x28, 0xB5, 0x2F, 0xFD];
-/// What opens a range-coded stream.
-const RANGE_TAG: u8 = 1;
 /// Bits of context and symbol together.
 const CONTEXT_BUDGET: u8 = 20;
 /// Bits of a centre gap class (0..=63).

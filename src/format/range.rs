@@ -7,6 +7,13 @@
 
 use crate::error::{Error, Result};
 
+/// What opens a stored body that this coder wrote (the packed payload's
+/// streams, a support), telling it from a zstd frame, which opens with
+/// [`ZSTD_MAGIC`].
+pub const RANGE_TAG: u8 = 1;
+/// What opens a zstd frame.
+pub const ZSTD_MAGIC: [u8; 4] = [0x28, 0xB5, 0x2F, 0xFD];
+
 /// Probabilities code in units of `2^-PROB_BITS`.
 const PROB_BITS: u32 = 15;
 /// They are kept in units of `2^-STATE_BITS`, so that they can come as

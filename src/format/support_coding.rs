@@ -7,13 +7,9 @@
 //! better (round shapes that repeat row after row).
 
 use crate::error::{Error, Result};
-use crate::format::range::{BitTrees, Decoder, Encoder};
+use crate::format::range::{BitTrees, Decoder, Encoder, RANGE_TAG, ZSTD_MAGIC};
 use crate::model::Support;
 
-/// What opens a zstd frame.
-const ZSTD_MAGIC: [u8; 4] = [0x28, 0xB5, 0x2F, 0xFD];
-/// What opens a range-coded support.
-const RANGE_TAG: u8 = 1;
 /// Lattices of more voxels are stored as zstd frames only (range coding
 /// takes about 10 ns a voxel, each way).
 pub const MAX_RANGE_VOXELS: usize = 1 << 27;

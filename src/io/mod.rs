@@ -16,4 +16,13 @@ pub mod store;
 pub mod vti;
 
 pub use atomic::{write_atomic, AtomicFile};
+
+/// Whether `path` starts with HDF5's signature (an HDF5 store, as opposed
+/// to a model file); false when it cannot be read. Builds without the
+/// `hdf5` feature have it too, to say that a store needs that feature.
+pub fn is_hdf5_file(path: &std::path::Path) -> bool {
+    use std::io::Read;
+    let mut head = [0u8; 8];
+    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok() && &head == b"\x89HDF\r\n\x1a\n"
+}
 pub use models::{read_field, read_model_file, read_step, ModelFolder};
