@@ -5,7 +5,7 @@ use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Args;
 use gsenc::backend::select::{BackendChoice, BackendKind};
 use gsenc::encode::{EncodeConfig, Schedule};
-use gsenc::field::{Bounds, Grid, IndexFrame, Transform, ValueRange};
+use gsenc::field::{Bounds, Grid, IndexFrame};
 use gsenc::input::cells::{CellSize, Cells};
 use gsenc::input::particles::Particles;
 use gsenc::input::{Placement, RangeSpec};
@@ -96,11 +96,7 @@ pub struct ValueArgs {
 
 impl ValueArgs {
     pub fn spec(&self) -> Result<RangeSpec> {
-        let transform = if self.log10 { Transform::Log10 } else { Transform::Linear };
-        Ok(match self.range {
-            Some([lo, hi]) => RangeSpec::Fixed(ValueRange::new(lo, hi, transform)?),
-            None => RangeSpec::FromData(transform),
-        })
+        RangeSpec::of(self.range, self.log10)
     }
 }
 
@@ -195,12 +191,7 @@ pub struct PlacementArgs {
 impl PlacementArgs {
     /// The placement, with --fit-dims resolved against the given or the data's bounds.
     pub fn resolve(&self, data_bounds: impl FnOnce() -> Bounds) -> Result<Placement> {
-        let dims = match (self.dims, self.fit_dims) {
-            (Some(d), _) => d,
-            (None, Some(n)) => self.bounds.unwrap_or_else(data_bounds).fitted_dims(n)?,
-            (None, None) => return Err(Error::arg("give --dims or --fit-dims")),
-        };
-        Ok(Placement { dims, bounds: self.bounds })
+        Placement::resolve(self.dims, self.fit_dims, self.bounds, data_bounds)
     }
 }
 

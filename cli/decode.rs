@@ -49,14 +49,14 @@ pub struct DecodeArgs {
 pub fn decode(a: DecodeArgs) -> Result<()> {
     let t = Instant::now();
     let field = read_field(&a.model)?;
-    let model = &field.merged;
+    let model = &field.merged();
     let f = &model.meta.frame;
     let dims = a.dims.unwrap_or(f.dims);
     let region = match (a.sub_box, a.piece) {
         (Some([x0, y0, z0, x1, y1, z1]), _) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
         (None, Some(i)) => {
-            if i >= field.pieces.len() {
-                return Err(Error::arg(format!("--piece {i}: only {} models given", field.pieces.len())));
+            if i >= field.pieces().len() {
+                return Err(Error::arg(format!("--piece {i}: only {} models given", field.pieces().len())));
             }
             if dims != f.dims {
                 return Err(Error::arg("--piece decodes on the models' own lattice; leave out --dims"));

@@ -9,7 +9,7 @@ use crate::errors::IntoPy;
 use crate::model::{backend_choice, in_memory, Model};
 use gsenc::encode::pipeline::{self, Labels, Request, Start};
 use gsenc::encode::{with_threads, Cancel, EncodeConfig, Schedule};
-use gsenc::field::{Bounds, Grid, IndexFrame, Transform, ValueRange};
+use gsenc::field::{Bounds, Grid, IndexFrame};
 use gsenc::format::Payload;
 use gsenc::input::cells::{CellSize, Cells};
 use gsenc::input::particles::Particles;
@@ -54,11 +54,7 @@ fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
     config.seed_init = get(o, "seed")?.unwrap_or(0);
     config.seed_sample = get(o, "sample_seed")?.unwrap_or(1);
     config.relocation = get(o, "relocation")?.unwrap_or(true);
-    let transform = if get(o, "log10")?.unwrap_or(false) { Transform::Log10 } else { Transform::Linear };
-    let range = match get::<(f64, f64)>(o, "range")? {
-        Some((lo, hi)) => RangeSpec::Fixed(ValueRange::new(lo, hi, transform).py_err()?),
-        None => RangeSpec::FromData(transform),
-    };
+    let range = RangeSpec::of(get::<[f64; 2]>(o, "range")?, get(o, "log10")?.unwrap_or(false)).py_err()?;
     let payload = Payload::from_name(&get::<String>(o, "payload")?.unwrap_or_else(|| "f32".into())).py_err()?;
     let labels = Labels { field: get(o, "field")?.unwrap_or_else(|| "scalar".into()), step: get(o, "step")?.unwrap_or(0), time: get(o, "time")?, rank: get(o, "rank")?.unwrap_or(0) };
     gsenc::format::check_field_name(&labels.field).py_err()?;
@@ -128,14 +124,7 @@ fn placement(place: &Bound<'_, PyDict>, data_bounds: impl FnOnce() -> Bounds) ->
     let dims: Option<[usize; 3]> = place.get_item("dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
     let fit: Option<usize> = place.get_item("fit_dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
     let bounds: Option<([f64; 3], [f64; 3])> = place.get_item("bounds")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
-    let bounds = bounds.map(|(min, max)| Bounds { min, max });
-    let dims = match (dims, fit) {
-        (Some(_), Some(_)) => return Err(PyValueError::new_err("give dims or fit_dims, not both")),
-        (Some(d), None) => d,
-        (None, Some(n)) => bounds.unwrap_or_else(data_bounds).fitted_dims(n).py_err()?,
-        (None, None) => return Err(PyValueError::new_err("give dims (x, y, z) or fit_dims (voxels along the longest axis)")),
-    };
-    Ok(Placement { dims, bounds })
+    Placement::resolve(dims, fit, bounds.map(|(min, max)| Bounds { min, max }), data_bounds).py_err()
 }
 
 /// Encodes SPH particles against their deposit (see `gsenc.encode_particles`).

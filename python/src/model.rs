@@ -36,7 +36,7 @@ pub struct Model {
 impl Model {
     /// The model of one piece, or a clear error for a step of several.
     fn one(&self, what: &str) -> PyResult<&gsenc::model::Model> {
-        match self.field.pieces.as_slice() {
+        match self.field.pieces() {
             [one] => Ok(one),
             pieces => Err(PyValueError::new_err(format!("{what} takes one model; this is a step of {} pieces (read each piece's .gsm)", pieces.len()))),
         }
@@ -67,11 +67,11 @@ pub fn read(py: Python<'_>, path: PathBuf, field: Option<String>, step: Option<u
         if path.extension().is_some_and(|e| e == "gsi") {
             let field = read_field(std::slice::from_ref(&path))?;
             let Some(index) = field.index.as_ref() else { return Err(gsenc::Error::format("not a step index")) };
-            let mut info = gsenc::format::info::meta_info(&field.merged);
+            let mut info = gsenc::format::info::meta_info(&field.merged());
             info.insert("format".into(), json!(format!("gsenc step index {}", index.version)));
-            info.insert("pieces".into(), json!(field.pieces.len()));
+            info.insert("pieces".into(), json!(field.pieces().len()));
             info.insert("halo".into(), json!(index.halo));
-            info.insert("primitives".into(), json!(field.merged.len()));
+            info.insert("primitives".into(), json!(field.merged().len()));
             info.insert("encode_psnr".into(), Value::Null);
             return Ok(Model { field, info, payload: Payload::Float32, psnr: None, unquantized: None });
         }
@@ -115,12 +115,12 @@ impl Model {
         backend: &str,
     ) -> PyResult<Bound<'py, PyArray3<f32>>> {
         let choice = backend_choice(backend)?;
-        let dims = dims.unwrap_or(self.field.merged.meta.frame.dims);
+        let dims = dims.unwrap_or(self.field.merged().meta.frame.dims);
         let region = match r#box {
             Some([x0, y0, z0, x1, y1, z1]) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
             None => IndexBox::whole(dims),
         };
-        let range = self.field.merged.meta.range;
+        let range = self.field.merged().meta.range;
         let values = py
             .detach(|| -> gsenc::Result<Vec<f32>> {
                 let mut backend = choice.open()?;
@@ -137,7 +137,7 @@ impl Model {
     #[pyo3(signature = (points, normalized=false, additive=false, threads=None))]
     fn evaluate<'py>(&self, py: Python<'py>, points: &Bound<'py, PyAny>, normalized: bool, additive: bool, threads: Option<usize>) -> PyResult<Bound<'py, PyArray1<f32>>> {
         let points = triples(points, "points")?;
-        let range = self.field.merged.meta.range;
+        let range = self.field.merged().meta.range;
         let values = py
             .detach(|| -> gsenc::Result<Vec<f32>> {
                 let mut cpu = gsenc::backend::cpu::CpuBackend::new();
@@ -182,7 +182,7 @@ impl Model {
     /// The reference lattice's dims (x, y, z).
     #[getter]
     fn dims(&self) -> (usize, usize, usize) {
-        let [x, y, z] = self.field.merged.meta.frame.dims;
+        let [x, y, z] = self.field.merged().meta.frame.dims;
         (x, y, z)
     }
 
@@ -190,7 +190,7 @@ impl Model {
     /// lattice of `dims` (default the model's own) over the model's box.
     #[pyo3(signature = (dims=None))]
     fn geometry(&self, dims: Option<[usize; 3]>) -> ((f64, f64, f64), (f64, f64, f64)) {
-        let f = &self.field.merged.meta.frame;
+        let f = &self.field.merged().meta.frame;
         let dims = dims.unwrap_or(f.dims);
         let s = [0, 1, 2].map(|i| f.dims[i] as f64 / dims[i].max(1) as f64 / f.gamma);
         let o = [0, 1, 2].map(|i| f.bmin[i] + 0.5 * s[i]);
@@ -200,7 +200,7 @@ impl Model {
     /// The primitives, one row of 12 float32 each: centre (3, index frame),
     /// log scales (3), rotation quaternion (4), alpha, beta.
     fn params<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        let p = &self.field.merged.params;
+        let p = &self.field.merged().params;
         let flat: Vec<f32> = p.iter().flatten().copied().collect();
         let a = numpy::ndarray::Array2::from_shape_vec((p.len(), 12), flat).map_err(|e| PyValueError::new_err(e.to_string()))?;
         Ok(numpy::IntoPyArray::into_pyarray(a, py))
@@ -211,19 +211,19 @@ impl Model {
     #[getter]
     fn primitives<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
         let dtype = py.import("gsenc")?.getattr("PRIMITIVE_DTYPE")?;
-        self.params(py)?.call_method1("view", (dtype,))?.call_method1("reshape", (self.field.merged.len(),))
+        self.params(py)?.call_method1("view", (dtype,))?.call_method1("reshape", (self.field.merged().len(),))
     }
 
     fn __len__(&self) -> usize {
-        self.field.merged.len()
+        self.field.merged().len()
     }
 
     fn __repr__(&self) -> String {
-        let m = &self.field.merged.meta;
-        let pieces = match self.field.pieces.len() {
+        let m = &self.field.merged().meta;
+        let pieces = match self.field.pieces().len() {
             1 => String::new(),
             n => format!(", {n} pieces"),
         };
-        format!("<gsenc.Model '{}' step {}: {} primitives on {:?}{pieces}>", m.field, m.step, self.field.merged.len(), m.frame.dims)
+        format!("<gsenc.Model '{}' step {}: {} primitives on {:?}{pieces}>", m.field, m.step, self.field.merged().len(), m.frame.dims)
     }
 }

@@ -16,35 +16,46 @@ pub struct GlobalField {
     /// blended across their halos).
     pub index: Option<StepIndex>,
     /// The models, in rank order for a step.
-    pub pieces: Vec<Model>,
-    /// Every piece's primitives in one model on the global lattice (the
-    /// model itself when there is one piece).
-    pub merged: Model,
+    pieces: Vec<Model>,
+    /// Every piece's primitives in one model on the global lattice; `None`
+    /// for one model, which is its own merge (see [`GlobalField::merged`]).
+    merged: Option<Model>,
 }
 
 impl GlobalField {
     /// The field of one model.
     pub fn of_model(model: Model) -> GlobalField {
-        GlobalField { index: None, merged: model.clone(), pieces: vec![model] }
+        GlobalField { index: None, merged: None, pieces: vec![model] }
     }
 
     /// The additive field of the models of a domain's pieces.
     pub fn of_pieces(pieces: Vec<Model>) -> Result<GlobalField> {
-        let merged = merge(&pieces)?;
+        let merged = Some(merge(&pieces)?);
         Ok(GlobalField { index: None, pieces, merged })
     }
 
     /// The field of a step index and the models it names (rank order,
     /// checked against it by [`crate::io::read_step`]).
     pub fn of_step(index: StepIndex, pieces: Vec<Model>) -> Result<GlobalField> {
-        let merged = merge(&pieces)?;
+        let merged = Some(merge(&pieces)?);
         Ok(GlobalField { index: Some(index), pieces, merged })
+    }
+
+    /// The models, in rank order for a step (never empty).
+    pub fn pieces(&self) -> &[Model] {
+        &self.pieces
+    }
+
+    /// Every piece's primitives in one model on the global lattice (the
+    /// model itself when there is one).
+    pub fn merged(&self) -> &Model {
+        self.merged.as_ref().unwrap_or(&self.pieces[0])
     }
 
     /// The region of piece `i` on the global lattice.
     pub fn piece_box(&self, i: usize) -> Result<IndexBox> {
         let piece = self.pieces.get(i).ok_or_else(|| Error::arg(format!("piece {i}: the field has {} pieces", self.pieces.len())))?;
-        self.merged.meta.frame.box_of(&piece.meta.frame)
+        self.merged().meta.frame.box_of(&piece.meta.frame)
     }
 
     /// Decodes `region` of a lattice of `dims` over the global box in slabs
@@ -74,7 +85,7 @@ impl GlobalField {
                 }
                 Ok(())
             }
-            None => self.merged.decode_streaming(backend, dims, region, slab_voxels, sink),
+            None => self.merged().decode_streaming(backend, dims, region, slab_voxels, sink),
         }
     }
 
@@ -86,7 +97,7 @@ impl GlobalField {
                 let (global, boxes) = index.layout();
                 blend_points(&global, &self.pieces, &boxes, index.halo, points, backend)
             }
-            None => self.merged.evaluate(backend, points),
+            None => self.merged().evaluate(backend, points),
         }
     }
 

@@ -24,6 +24,21 @@ pub struct Placement {
     pub bounds: Option<Bounds>,
 }
 
+impl Placement {
+    /// The placement from `dims`, or from `fit_dims` voxels along the longest
+    /// axis of `bounds` (those of the data, asked for only then); exactly one
+    /// of the two must be given.
+    pub fn resolve(dims: Option<[usize; 3]>, fit_dims: Option<usize>, bounds: Option<Bounds>, data_bounds: impl FnOnce() -> Bounds) -> Result<Placement> {
+        let dims = match (dims, fit_dims) {
+            (Some(_), Some(_)) => return Err(Error::arg("give the dims or the voxels along the longest axis (fit dims), not both")),
+            (Some(d), None) => d,
+            (None, Some(n)) => bounds.unwrap_or_else(data_bounds).fitted_dims(n)?,
+            (None, None) => return Err(Error::arg("give the dims (x, y, z) or the voxels along the longest axis (fit dims)")),
+        };
+        Ok(Placement { dims, bounds })
+    }
+}
+
 /// How values are normalised to `[0, 1]`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum RangeSpec {
@@ -37,6 +52,16 @@ pub enum RangeSpec {
 }
 
 impl RangeSpec {
+    /// A given `[lo, hi]` range (in data units) or the data's own, under
+    /// `log10` or not.
+    pub fn of(range: Option<[f64; 2]>, log10: bool) -> Result<RangeSpec> {
+        let transform = if log10 { Transform::Log10 } else { Transform::Linear };
+        Ok(match range {
+            Some([lo, hi]) => RangeSpec::Fixed(ValueRange::new(lo, hi, transform)?),
+            None => RangeSpec::FromData(transform),
+        })
+    }
+
     pub fn resolve(&self, values: &[f32]) -> Result<ValueRange> {
         match *self {
             RangeSpec::FromData(t) => ValueRange::from_data(values, t),

@@ -21,8 +21,19 @@ pub use atomic::{write_atomic, AtomicFile};
 /// to a model file); false when it cannot be read. Builds without the
 /// `hdf5` feature have it too, to say that a store needs that feature.
 pub fn is_hdf5_file(path: &std::path::Path) -> bool {
+    hdf5_signature(path).unwrap_or(false)
+}
+
+/// Whether `path` starts with HDF5's signature (gsenc stores have no user
+/// block); an error only when the file cannot be opened or read, not when
+/// it is shorter than the signature.
+pub fn hdf5_signature(path: &std::path::Path) -> std::io::Result<bool> {
     use std::io::Read;
     let mut head = [0u8; 8];
-    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut head)).is_ok() && &head == b"\x89HDF\r\n\x1a\n"
+    match std::fs::File::open(path)?.read_exact(&mut head) {
+        Ok(()) => Ok(&head == b"\x89HDF\r\n\x1a\n"),
+        Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => Ok(false),
+        Err(e) => Err(e),
+    }
 }
 pub use models::{read_field, read_model_file, read_step, ModelFolder};

@@ -113,7 +113,7 @@ impl Store {
         if !path.exists() {
             return Err(Error::io(&path, std::io::Error::from(std::io::ErrorKind::NotFound)));
         }
-        if !has_hdf5_signature(&path)? {
+        if !super::hdf5_signature(&path).map_err(|e| Error::io(&path, e))? {
             return Err(Error::format(format!("'{}' is not an HDF5 file", path.display())));
         }
         let file = File::open(&path).map_err(h5(&path))?;
@@ -216,15 +216,6 @@ impl Store {
         let support = read_support(&g, &info, &self.path)?;
         Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
     }
-}
-
-/// HDF5's signature at the start of the file (gsenc stores have no user block).
-fn has_hdf5_signature(path: &Path) -> Result<bool> {
-    use std::io::Read;
-    let mut head = [0u8; 8];
-    let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let got = f.read(&mut head).map_err(|e| Error::io(path, e))?;
-    Ok(got == 8 && &head == b"\x89HDF\r\n\x1a\n")
 }
 
 /// A metadata cache that keeps every dirty entry until the next flush.
