@@ -89,6 +89,32 @@ fn encode_eval_info_decode_round_trip() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// The chunk loops are compiled for AVX-512, AVX2 and the baseline and
+/// chosen at run time (`GSENC_SIMD` caps the level); all three execute the
+/// same float operations in the same order, so the models are identical.
+/// On a CPU without AVX-512 (or AVX2) the higher levels fall back to what
+/// it has, and the test compares fewer builds.
+#[test]
+fn every_simd_build_of_the_cpu_backend_gives_the_same_model() {
+    let dir = tmpdir("simd");
+    let (input, _) = write_input(&dir);
+    let model = |level: &str| {
+        let m = dir.join(format!("{level}.gsm"));
+        let out = Command::new(env!("CARGO_BIN_EXE_gsenc"))
+            .args(["encode", "grid", "--input", input.to_str().unwrap(), "--dims", "20,16,12", "--dtype", "f32", "--budget", "200"])
+            .args(["--schedule", "short", "--iters", "80", "--points", "1500", "--backend", "cpu", "--quiet", "-o", m.to_str().unwrap()])
+            .env("GSENC_SIMD", level)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        std::fs::read(m).unwrap()
+    };
+    let best = model("avx512");
+    assert_eq!(gsenc::format::read_model(&best).unwrap().params.len(), 200);
+    assert!(model("avx2") == best, "the AVX2 build's model differs from the AVX-512 build's");
+    assert!(model("baseline") == best, "the baseline build's model differs from the AVX-512 build's");
+}
+
 #[test]
 fn bad_inputs_fail_with_codes_and_messages() {
     let dir = tmpdir("errors");

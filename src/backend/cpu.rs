@@ -75,9 +75,11 @@ const EMPTY_BLOCK: Block = Block {
 };
 
 /// Kernels and scaled local coordinates of a block's lanes at `x`, computed
-/// in local arrays only, so that the loop vectorises.
+/// in local arrays only, so that the loop vectorises; adds `w K` to `rho`
+/// and `w K s` to `num` in the same loop (apart, the compiler turned those
+/// sums into scalar code).
 #[inline(always)]
-fn block_kernels(blk: &Block, x: [f32; 3]) -> (Lane, [Lane; 3]) {
+fn block_kernels(blk: &Block, x: [f32; 3], rho: &mut Lane, num: &mut Lane) -> (Lane, [Lane; 3]) {
     let mut k = [0.0f32; LANES];
     let mut y = [[0.0f32; LANES]; 3];
     let a = &blk.a;
@@ -91,6 +93,9 @@ fn block_kernels(blk: &Block, x: [f32; 3]) -> (Lane, [Lane; 3]) {
         let d2 = u0 * u0 + u1 * u1 + u2 * u2;
         let e = crate::math::kernel::exp_neg_half(d2);
         k[l] = if d2 < CUTOFF_D2 { e } else { 0.0 };
+        let wk = blk.w[l] * k[l];
+        rho[l] += wk;
+        num[l] += wk * blk.s[l];
         y[0][l] = u0;
         y[1][l] = u1;
         y[2][l] = u2;
@@ -127,7 +132,6 @@ fn block_pair_terms(blk: &Block, ev: &BlockEval, g_rho: f32, g_n: f32) -> [Lane;
 struct BlockEval {
     k: Lane,
     y: [Lane; 3],
-    active: bool,
 }
 
 /// The candidates of one brick, the current point's kernels, and the brick's
@@ -137,6 +141,10 @@ struct BrickSoa {
     blocks: Vec<Block>,
     eval: Vec<BlockEval>,
     acc: Vec<[Lane; 12]>,
+    /// The blocks whose box holds the current point, in block order:
+    /// `inside[..n_inside]`.
+    inside: Vec<u32>,
+    n_inside: usize,
 }
 
 impl BrickSoa {
@@ -145,6 +153,8 @@ impl BrickSoa {
         self.blocks.clear();
         self.blocks.resize(nb, EMPTY_BLOCK);
         self.eval.resize(nb, BlockEval::default());
+        self.inside.resize(nb, 0);
+        self.n_inside = 0;
         if with_grad {
             self.acc.clear();
             self.acc.resize(nb, [[0.0; LANES]; 12]);
@@ -173,26 +183,28 @@ impl BrickSoa {
     /// depends only on the candidates.
     #[inline(always)]
     fn forward(&mut self, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
+        // First the blocks whose box holds the point, listed without a
+        // branch; then their kernels, in block order. A branch per block
+        // would be mispredicted about a third of the time, and each miss
+        // would throw away the overlap of consecutive blocks' exp chains.
+        let mut n_in = 0;
+        for (b, blk) in self.blocks.iter().enumerate() {
+            let bb = &blk.bbox;
+            // `&`, not `&&`: six comparisons and no branch.
+            let inside = (x[0] >= bb[0]) & (x[1] >= bb[1]) & (x[2] >= bb[2]) & (x[0] <= bb[3]) & (x[1] <= bb[4]) & (x[2] <= bb[5]);
+            self.inside[n_in] = b as u32;
+            n_in += inside as usize;
+        }
+        self.n_inside = n_in;
         let mut rho = [0.0f32; LANES];
         let mut num = [0.0f32; LANES];
-        let mut active = 0u64;
-        for (blk, ev) in self.blocks.iter().zip(self.eval.iter_mut()) {
-            let bb = &blk.bbox;
-            ev.active = !(x[0] < bb[0] || x[1] < bb[1] || x[2] < bb[2] || x[0] > bb[3] || x[1] > bb[4] || x[2] > bb[5]);
-            if !ev.active {
-                continue;
-            }
-            active += 1;
-            let (k, y) = block_kernels(blk, x);
-            for l in 0..LANES {
-                let wk = blk.w[l] * k[l];
-                rho[l] += wk;
-                num[l] += wk * blk.s[l];
-            }
+        for &b in &self.inside[..n_in] {
+            let (blk, ev) = (&self.blocks[b as usize], &mut self.eval[b as usize]);
+            let (k, y) = block_kernels(blk, x, &mut rho, &mut num);
             ev.k = k;
             ev.y = y;
         }
-        *evals += active * LANES as u64;
+        *evals += (n_in * LANES) as u64;
         let (mut r, mut n) = (0.0f32, 0.0f32);
         for l in 0..LANES {
             r += rho[l];
@@ -204,11 +216,10 @@ impl BrickSoa {
     /// Adds the current point's pair terms to the brick's sums.
     #[inline(always)]
     fn backward(&mut self, g_rho: f32, g_n: f32) {
-        for ((blk, ev), acc) in self.blocks.iter().zip(self.eval.iter()).zip(self.acc.iter_mut()) {
-            if !ev.active {
-                continue;
-            }
-            let terms = block_pair_terms(blk, ev, g_rho, g_n);
+        for &b in &self.inside[..self.n_inside] {
+            let b = b as usize;
+            let terms = block_pair_terms(&self.blocks[b], &self.eval[b], g_rho, g_n);
+            let acc = &mut self.acc[b];
             for t in 0..12 {
                 for l in 0..LANES {
                     acc[t][l] += terms[t][l];
@@ -442,19 +453,40 @@ struct GradJob<'a> {
     weights: &'a LossWeights,
 }
 
-/// True when the AVX2 builds of the chunk loops may run. The AVX2 and the
-/// baseline builds execute the same IEEE operations in the same order (Rust
-/// never fuses multiply-adds on its own), so they return identical bits.
-#[inline]
-fn has_avx2() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::arch::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+/// Which build of the chunk loops runs. The AVX-512 (32 vector registers,
+/// still 8 lanes), AVX2 and baseline builds execute the same IEEE operations
+/// in the same order (Rust never fuses multiply-adds on its own), so they
+/// return identical bits; `GSENC_SIMD=avx2|baseline` caps the level (for
+/// benchmarks and for testing that claim).
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(dead_code)] // the x86 levels exist only there
+enum Simd {
+    Baseline,
+    Avx2,
+    Avx512,
+}
+
+fn simd_level() -> Simd {
+    static LEVEL: std::sync::OnceLock<Simd> = std::sync::OnceLock::new();
+    *LEVEL.get_or_init(|| {
+        let cap = match std::env::var("GSENC_SIMD").as_deref() {
+            Ok("baseline") => Simd::Baseline,
+            Ok("avx2") => Simd::Avx2,
+            _ => Simd::Avx512,
+        };
+        #[cfg(target_arch = "x86_64")]
+        let found = if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512vl") {
+            Simd::Avx512
+        } else if std::arch::is_x86_feature_detected!("avx2") {
+            Simd::Avx2
+        } else {
+            Simd::Baseline
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let found = Simd::Baseline;
+        let rank = |s: Simd| s as u8;
+        if rank(cap) < rank(found) { cap } else { found }
+    })
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -469,22 +501,38 @@ unsafe fn eval_chunk_avx2(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], r
     eval_chunk(prep, bins, pos, range)
 }
 
-fn grad_chunk_dispatch(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
-    #[cfg(target_arch = "x86_64")]
-    if has_avx2() {
-        // SAFETY: the CPU supports AVX2 (checked above).
-        return unsafe { grad_chunk_avx2(job, sc, range) };
-    }
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx2")]
+unsafe fn grad_chunk_avx512(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
     grad_chunk(job, sc, range)
 }
 
-fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
-    #[cfg(target_arch = "x86_64")]
-    if has_avx2() {
-        // SAFETY: the CPU supports AVX2 (checked above).
-        return unsafe { eval_chunk_avx2(prep, bins, pos, range) };
-    }
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx2")]
+unsafe fn eval_chunk_avx512(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
     eval_chunk(prep, bins, pos, range)
+}
+
+fn grad_chunk_dispatch(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
+    match simd_level() {
+        // SAFETY: the CPU supports the instructions (`simd_level` checked).
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx512 => unsafe { grad_chunk_avx512(job, sc, range) },
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx2 => unsafe { grad_chunk_avx2(job, sc, range) },
+        _ => grad_chunk(job, sc, range),
+    }
+}
+
+fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
+    match simd_level() {
+        // SAFETY: the CPU supports the instructions (`simd_level` checked).
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx512 => unsafe { eval_chunk_avx512(prep, bins, pos, range) },
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx2 => unsafe { eval_chunk_avx2(prep, bins, pos, range) },
+        _ => eval_chunk(prep, bins, pos, range),
+    }
 }
 
 /// Forward, loss and backward for the points of bricks `b0..b1`; returns the
