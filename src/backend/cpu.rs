@@ -145,6 +145,11 @@ struct BrickSoa {
     /// `inside[..n_inside]`.
     inside: Vec<u32>,
     n_inside: usize,
+    /// The blocks' boxes by coordinate (lo x, y, z, hi x, y, z), so that
+    /// one loop tests a point against many blocks at once; `holds[b]` is
+    /// that test's answer.
+    bounds: [Vec<f32>; 6],
+    holds: Vec<u8>,
 }
 
 impl BrickSoa {
@@ -175,6 +180,11 @@ impl BrickSoa {
             blk.w[l] = h.w;
             blk.s[l] = h.s;
         }
+        for (c, v) in self.bounds.iter_mut().enumerate() {
+            v.clear();
+            v.extend(self.blocks.iter().map(|b| b.bbox[c]));
+        }
+        self.holds.resize(nb, 0);
     }
 
     /// Kernels of every candidate at `x`; returns `(rho, n)` and adds the
@@ -187,13 +197,15 @@ impl BrickSoa {
         // branch; then their kernels, in block order. A branch per block
         // would be mispredicted about a third of the time, and each miss
         // would throw away the overlap of consecutive blocks' exp chains.
+        let [lx, ly, lz, hx, hy, hz] = &self.bounds;
+        for (b, h) in self.holds.iter_mut().enumerate() {
+            // `&`, not `&&`: six comparisons and no branch, vectorised.
+            *h = ((x[0] >= lx[b]) & (x[1] >= ly[b]) & (x[2] >= lz[b]) & (x[0] <= hx[b]) & (x[1] <= hy[b]) & (x[2] <= hz[b])) as u8;
+        }
         let mut n_in = 0;
-        for (b, blk) in self.blocks.iter().enumerate() {
-            let bb = &blk.bbox;
-            // `&`, not `&&`: six comparisons and no branch.
-            let inside = (x[0] >= bb[0]) & (x[1] >= bb[1]) & (x[2] >= bb[2]) & (x[0] <= bb[3]) & (x[1] <= bb[4]) & (x[2] <= bb[5]);
+        for (b, &h) in self.holds.iter().enumerate() {
             self.inside[n_in] = b as u32;
-            n_in += inside as usize;
+            n_in += h as usize;
         }
         self.n_inside = n_in;
         let mut rho = [0.0f32; LANES];

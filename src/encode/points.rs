@@ -11,6 +11,7 @@ use crate::field::Grid;
 use crate::math::rng::Rng;
 use crate::input::samples::SampleSet;
 use crate::backend::PointBatch;
+use rayon::prelude::*;
 
 pub const HIGH_THRESHOLD: f32 = 0.4;
 pub const MID_THRESHOLD: f32 = 0.02;
@@ -103,7 +104,9 @@ impl PointSampler {
             ];
             pos.push(jitter_clamp(rng, q));
         }
-        let vref = pos.iter().map(|&x| reference.trilinear(x)).collect();
+        // The positions come from one sequential stream; their reference
+        // values are independent lookups, done in parallel.
+        let vref = pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect();
         PointBatch { pos, vref }
     }
 }

@@ -298,7 +298,16 @@ fn refine(
                 last = terms(pl, reg);
             }
         } else {
-            let pl = backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad)?;
+            // The next batch is drawn (one sequential stream, in the same
+            // order as without this) while the pool works on this one, so
+            // that drawing does not leave the other cores idle.
+            let draw_next = t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1));
+            let (pl, next) = rayon::join(
+                || backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad),
+                || draw_next.then(|| sampler.draw(points, target.reference, target.samples)),
+            );
+            ahead = next;
+            let pl = pl?;
             let reg = regularizers(&params, &cfg.weights, &mut grad);
             last = terms(pl, reg);
             adam.step(&mut params, &grad, lr);
