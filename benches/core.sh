@@ -2,7 +2,9 @@
 # Benchmarks of the encoder core. Rerun with:
 #   bash benches/core.sh [REPEATS] [ROWS...]
 # REPEATS (default 3) runs of each row; the 256^3 row runs once unless
-# REPEATS_LARGE is set. ROWS selects rows by name (default: all).
+# REPEATS_LARGE is set. ROWS selects rows by name (default: all). THREADS
+# sets the encoder's thread count (default: every core), for scaling runs:
+#   THREADS=1 bash benches/core.sh 3 rm128_32k_matched hydrogen_4k_matched
 # Prints one JSON line per run to bench-out/core.jsonl and a Markdown table
 # of medians at the end. Every row's model stays in bench-out/ (ROW.gsm; the
 # fidelity rows ROW_sSEED.gsm), so two builds can be compared byte for byte.
@@ -29,7 +31,7 @@ run() { # name repeats args...  (the model file is ROW${tag}.gsm)
     want "$name" || return 0
     for i in $(seq 1 "$n"); do
         echo "[$name] run $i/$n" >&2
-        "$bin" encode grid "$@" -o "$out/$name${tag:-}.gsm" --json --quiet \
+        "$bin" encode grid "$@" ${THREADS:+--threads "$THREADS"} -o "$out/$name${tag:-}.gsm" --json --quiet \
             | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; print(json.dumps(d))" >> "$out/core.jsonl"
     done
 }

@@ -370,6 +370,40 @@ impl CpuBackend {
         Self::default()
     }
 
+    /// The ceiling of this backend's lane code on one core: `blocks`
+    /// blocks of 8 candidates that all cover `points` points, evaluated
+    /// over and over from cache (no binning, no culling, no memory
+    /// traffic), forward only and forward with backward; returns kernel
+    /// evaluations a second for each (`benches/roofline.sh`).
+    #[doc(hidden)]
+    pub fn kernel_ceiling(blocks: usize, points: usize, seconds: f64) -> (f64, f64) {
+        let n = blocks * LANES;
+        let params: Vec<Primitive> = (0..n)
+            .map(|i| {
+                let t = i as f32 / n as f32;
+                crate::math::kernel::isotropic([4.0 + t, 4.0 - t, 4.0 + 0.5 * t], 4.0, 0.5, 0.3 + 0.4 * t)
+            })
+            .collect();
+        let mut prep = Prepared::default();
+        prep.update(&params);
+        let cands: Vec<u32> = (0..n as u32).collect();
+        let xs: Vec<[f32; 3]> = (0..points).map(|i| { let t = i as f32 / points as f32; [3.0 + 2.0 * t, 5.0 - 2.0 * t, 4.0 + t] }).collect();
+        let mut soa = BrickSoa::default();
+        soa.load(&prep.hot, &prep.boxes, &cands, true);
+        let rate = |soa: &mut BrickSoa, with_grad: bool| {
+            let (mut evals, mut sink) = (0u64, 0.0f32);
+            let t = std::time::Instant::now();
+            while t.elapsed().as_secs_f64() < seconds {
+                let (e, s) = ceiling_dispatch(soa, &xs, with_grad);
+                evals += e;
+                sink += s;
+            }
+            std::hint::black_box(sink);
+            evals as f64 / t.elapsed().as_secs_f64()
+        };
+        (rate(&mut soa, false), rate(&mut soa, true))
+    }
+
     #[doc(hidden)]
     pub fn profile_bin(&mut self, params: &[Primitive], pos: &[[f32; 3]]) -> (usize, usize) {
         self.prep.update(params);
@@ -523,6 +557,44 @@ unsafe fn grad_chunk_avx512(job: &GradJob, sc: &mut ChunkScratch, range: (usize,
 #[target_feature(enable = "avx512f,avx512vl,avx2")]
 unsafe fn eval_chunk_avx512(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
     eval_chunk(prep, bins, pos, range)
+}
+
+/// One pass of [`CpuBackend::kernel_ceiling`]: every point forward (and
+/// backward), as the chunk loops run them.
+#[inline(always)]
+fn ceiling_pass(soa: &mut BrickSoa, xs: &[[f32; 3]], with_grad: bool) -> (u64, f32) {
+    let (mut evals, mut sink) = (0u64, 0.0f32);
+    for &x in xs {
+        let (r, n) = soa.forward(x, &mut evals);
+        sink += r + n;
+        if with_grad {
+            soa.backward(1e-3 * r, -1e-3 * n);
+        }
+    }
+    (evals, sink)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx512vl,avx2")]
+unsafe fn ceiling_pass_avx512(soa: &mut BrickSoa, xs: &[[f32; 3]], with_grad: bool) -> (u64, f32) {
+    ceiling_pass(soa, xs, with_grad)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn ceiling_pass_avx2(soa: &mut BrickSoa, xs: &[[f32; 3]], with_grad: bool) -> (u64, f32) {
+    ceiling_pass(soa, xs, with_grad)
+}
+
+fn ceiling_dispatch(soa: &mut BrickSoa, xs: &[[f32; 3]], with_grad: bool) -> (u64, f32) {
+    match simd_level() {
+        // SAFETY: the CPU supports the instructions (`simd_level` checked).
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx512 => unsafe { ceiling_pass_avx512(soa, xs, with_grad) },
+        #[cfg(target_arch = "x86_64")]
+        Simd::Avx2 => unsafe { ceiling_pass_avx2(soa, xs, with_grad) },
+        _ => ceiling_pass(soa, xs, with_grad),
+    }
 }
 
 fn grad_chunk_dispatch(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) {
