@@ -31,7 +31,7 @@ fn support_name(stored: bool) -> &'static str {
 }
 
 /// A parser through a library `from_name` (names with aliases).
-fn named<T: 'static>(from_name: fn(&str) -> Result<T>) -> impl Fn(&str) -> std::result::Result<T, String> + Clone + Send + Sync + 'static {
+pub fn named<T: 'static>(from_name: fn(&str) -> Result<T>) -> impl Fn(&str) -> std::result::Result<T, String> + Clone + Send + Sync + 'static {
     move |s| from_name(s).map_err(|e| e.to_string())
 }
 

@@ -12,6 +12,7 @@ mod encode;
 mod eval;
 mod info;
 mod output;
+mod render;
 mod series;
 mod store;
 
@@ -34,6 +35,8 @@ enum Command {
     Decode(decode::DecodeArgs),
     /// Score a model against a grid: voxel and sampled PSNR.
     Eval(eval::EvalArgs),
+    /// Draw a model as an axis slice or a volume rendering (PNG), beside its reference.
+    Render(render::RenderArgs),
     /// List the GPU adapters the GPU backend sees (--backend gpu, --gpu-index).
     Devices(devices::DevicesArgs),
     /// Show the metadata of a model file or of every model of a store.
@@ -77,6 +80,7 @@ fn main() {
         Command::Deposit(input) => deposit::deposit(input),
         Command::Decode(a) => decode::decode(a),
         Command::Eval(a) => eval::eval(a),
+        Command::Render(a) => render::render_cmd(a),
         Command::Info(a) => info::info(a),
         Command::Devices(a) => devices::devices(a),
         Command::Convert(a) => convert::convert(a),

@@ -22,17 +22,27 @@ pub fn progress_bar(quiet: bool, len: u64) -> indicatif::ProgressBar {
     pb
 }
 
-/// Prints one JSON object, or its keys as aligned text.
+/// Prints one JSON object, or its keys as aligned text. A closed pipe
+/// (`gsenc info m.gsm | head`) ends the output quietly instead of
+/// panicking; other write errors are reported once.
 pub fn print_result(json_out: bool, value: Value) {
+    use std::io::Write;
+    let mut text = String::new();
     if json_out {
-        println!("{value}");
+        text = format!("{value}\n");
     } else if let Value::Object(map) = value {
         for (k, v) in map {
-            match v {
-                Value::Number(n) if n.is_f64() => println!("{k:>24}: {:.4}", n.as_f64().unwrap_or(f64::NAN)),
-                Value::String(s) => println!("{k:>24}: {s}"),
-                other => println!("{k:>24}: {other}"),
-            }
+            text += &match v {
+                Value::Number(n) if n.is_f64() => format!("{k:>24}: {:.4}\n", n.as_f64().unwrap_or(f64::NAN)),
+                Value::String(s) => format!("{k:>24}: {s}\n"),
+                other => format!("{k:>24}: {other}\n"),
+            };
+        }
+    }
+    let mut out = std::io::stdout().lock();
+    if let Err(e) = out.write_all(text.as_bytes()).and_then(|_| out.flush()) {
+        if e.kind() != std::io::ErrorKind::BrokenPipe {
+            eprintln!("gsenc: writing the result: {e}");
         }
     }
 }

@@ -14,6 +14,8 @@
 //! - [`input`]: grids, SPH particles and hexahedral cells turned into samples
 //!   and a reference grid (the deposit of particles and cells);
 //! - [`model`]: a model, its decoding, and PSNR;
+//! - [`render`]: pictures of a decoded grid (axis slices, volume
+//!   renderings, colour maps) and the image PSNR and SSIM between two;
 //! - [`format`]: the model file, its payloads, the step index, file names;
 //! - [`encode`]: seeding, training points, relocation, the refinement loop,
 //!   and the one encode [`encode::pipeline`] every caller goes through;
@@ -52,6 +54,7 @@ pub mod input;
 pub mod io;
 pub mod math;
 pub mod model;
+pub mod render;
 pub mod series;
 
 pub use error::{Error, Result};

@@ -115,6 +115,56 @@ fn every_simd_build_of_the_cpu_backend_gives_the_same_model() {
     assert!(model("baseline") == best, "the baseline build's model differs from the AVX-512 build's");
 }
 
+/// `gsenc render`: a slice and a volume of a model beside its reference,
+/// the PNG written and the image scores printed; bad views fail before
+/// any decoding, with exit code 2 and the reason.
+#[test]
+fn render_draws_the_model_beside_its_reference_and_rejects_bad_views() {
+    let dir = tmpdir("render");
+    let (input, _) = write_input(&dir);
+    let model = dir.join("m.gsm");
+    let (inp, m) = (input.to_str().unwrap(), model.to_str().unwrap());
+    let (code, _, err) = gsenc(&["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "300", "--schedule", "short", "--iters", "150", "-o", m, "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    let png = dir.join("view.png");
+    let p = png.to_str().unwrap();
+    let reference = ["--reference", inp, "--reference-dims", "20,16,12", "--dtype", "f32"];
+    for view in [&["--slice", "y=0.4"][..], &["--volume", "--azimuth", "-60", "--elevation", "10"][..]] {
+        let mut args = vec!["render", m, "-o", p, "--size", "64,48", "--json"];
+        args.extend_from_slice(view);
+        args.extend_from_slice(&reference);
+        let (code, out, err) = gsenc(&args);
+        assert_eq!(code, 0, "{view:?}: {err}");
+        let r = json(&out);
+        let (psnr, ssim) = (r["image_psnr"].as_f64().unwrap(), r["ssim"].as_f64().unwrap());
+        assert!(psnr > 15.0 && ssim > 0.5 && ssim <= 1.0, "{view:?}: {out}");
+        let img = gsenc::io::image::read_png(&png).unwrap();
+        assert_eq!((img.width as u64, img.height as u64), (r["width"].as_u64().unwrap(), r["height"].as_u64().unwrap()));
+        assert!(img.width > 2 * 64 && img.height > 48);
+    }
+    // Without a reference: one panel, no scores.
+    let (code, out, err) = gsenc(&["render", m, "-o", p, "--json"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(json(&out)["ssim"].is_null());
+    let before = std::fs::read(&png).unwrap();
+    for (bad, says) in [
+        (&["--slice", "q=0.5"][..], "AXIS=FRACTION"),
+        (&["--slice", "z=2"][..], "AXIS=FRACTION"),
+        (&["--size", "4"][..], "image width 4"),
+        (&["--volume", "--elevation", "120"][..], "elevation"),
+        (&["--volume", "--opacity", "0"][..], "opacity"),
+        (&["--colormap", "rainbow"][..], "viridis"),
+    ] {
+        let mut args = vec!["render", m, "-o", p];
+        args.extend_from_slice(bad);
+        let (code, _, err) = gsenc(&args);
+        assert_eq!(code, 2, "{bad:?}: {err}");
+        assert!(err.contains(says), "{bad:?}: {err}");
+    }
+    // A failed render leaves the picture already written as it was.
+    assert_eq!(std::fs::read(&png).unwrap(), before);
+}
+
 #[test]
 fn bad_inputs_fail_with_codes_and_messages() {
     let dir = tmpdir("errors");

@@ -6,6 +6,7 @@
 //! tool, the C API and the MPI layer; never by the encoder.
 
 pub mod atomic;
+pub mod image;
 pub mod models;
 pub mod plot;
 pub mod raw;
