@@ -261,7 +261,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             let start_points = starts.map(|r| (r["step"].as_f64().unwrap(), r["start_validation_psnr"].as_f64().unwrap_or(f64::NAN)));
             lines.push(("start of warm step".into(), start_points.collect()));
         }
-        write_atomic(p, &series_chart(lines).to_png())?;
+        write_atomic(p, &series_chart(lines).to_png()?)?;
     }
     let range = series.range(&a.field).expect("at least one step was encoded");
     print_result(
@@ -336,7 +336,7 @@ fn series_chart(lines: Vec<(String, Vec<(f64, f64)>)>) -> gsenc::io::plot::Chart
 
 pub fn plot_series(a: PlotSeriesArgs) -> Result<()> {
     let lines = a.csv.iter().map(|p| read_series_csv(p)).collect::<Result<Vec<_>>>()?;
-    write_atomic(&a.output, &series_chart(lines).to_png())?;
+    write_atomic(&a.output, &series_chart(lines).to_png()?)?;
     println!("{}", a.output.display());
     Ok(())
 }

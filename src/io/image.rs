@@ -11,7 +11,8 @@ use plotters::style::{register_font, FontStyle};
 use std::path::Path;
 
 static FONT: &[u8] = include_bytes!("../../assets/fonts/DejaVuSansMono.ttf");
-const FAMILY: &str = "gsenc-mono";
+/// The family name the bundled font is registered under.
+pub const FAMILY: &str = "gsenc-mono";
 const MARGIN: usize = 8;
 const TITLE: usize = 24;
 const BAR: usize = 18;
@@ -19,7 +20,8 @@ const LABELS: usize = 96;
 /// Ticks on the colour bar.
 const TICKS: usize = 5;
 
-fn font() -> Result<()> {
+/// Registers the bundled font with `plotters` (once).
+pub fn font() -> Result<()> {
     static REGISTERED: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     if *REGISTERED.get_or_init(|| register_font(FAMILY, FontStyle::Normal, FONT).is_ok()) {
         Ok(())
@@ -105,6 +107,9 @@ pub fn png_bytes(img: &Image) -> Result<Vec<u8>> {
     let mut enc = png::Encoder::new(&mut bytes, img.width as u32, img.height as u32);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Best);
+    enc.set_filter(png::FilterType::Paeth);
+    enc.set_adaptive_filter(png::AdaptiveFilterType::Adaptive);
     let err = |e: png::EncodingError| Error::format(format!("encoding PNG: {e}"));
     let mut writer = enc.write_header().map_err(err)?;
     writer.write_image_data(&img.rgb).map_err(err)?;

@@ -1,10 +1,11 @@
-//! A line chart drawn into an RGB raster and written as PNG, with no font or
-//! graphics library: a built-in 5x7 bitmap font, straight lines and squares.
-//! Enough for `gsenc plot-series` (validation PSNR against step), and it
-//! draws the same bytes on every machine.
+//! Line charts (`gsenc plot-series`, `encode-series --plot`: validation PSNR
+//! against step) drawn by `plotters` with the bundled font of
+//! [`super::image`], and written as PNG by the `png` crate.
 
-use flate2::write::ZlibEncoder;
-use std::io::Write;
+use super::image::{font, png_bytes, FAMILY};
+use crate::error::{Error, Result};
+use crate::render::Image;
+use plotters::prelude::*;
 
 /// One named polyline.
 #[derive(Clone, Debug)]
@@ -26,27 +27,36 @@ pub struct Chart {
     pub lines: Vec<Line>,
 }
 
-const LEFT: usize = 90;
-const RIGHT: usize = 30;
-const TOP: usize = 50;
-const BOTTOM: usize = 70;
-const SCALE: usize = 2;
-
-/// The data box of a chart and its map to pixels.
+/// The data box of a chart.
 #[derive(Clone, Copy, Debug)]
 pub struct Axes {
     pub x: (f64, f64),
     pub y: (f64, f64),
-    width: usize,
-    height: usize,
 }
 
-impl Axes {
-    /// Pixel (column, row) of a data point.
-    pub fn pixel(&self, x: f64, y: f64) -> (f64, f64) {
-        let pw = (self.width - LEFT - RIGHT) as f64;
-        let ph = (self.height - TOP - BOTTOM) as f64;
-        (LEFT as f64 + (x - self.x.0) / (self.x.1 - self.x.0) * pw, TOP as f64 + (self.y.1 - y) / (self.y.1 - self.y.0) * ph)
+/// A drawn chart and where its data land: `pixel(x, y)` is the (column,
+/// row) of a data point.
+pub struct Drawn {
+    pub image: Image,
+    pixels: Vec<((f64, f64), (i32, i32))>,
+    axes: Axes,
+    plot: ((i32, i32), (i32, i32)),
+}
+
+impl Drawn {
+    /// The pixel of data point `(x, y)` inside the plotting area (linear
+    /// in each axis, as plotters maps it).
+    pub fn pixel(&self, x: f64, y: f64) -> (i32, i32) {
+        let ((l, t), (r, b)) = self.plot;
+        let (ax, ay) = (self.axes.x, self.axes.y);
+        let fx = (x - ax.0) / (ax.1 - ax.0);
+        let fy = (ay.1 - y) / (ay.1 - ay.0);
+        ((l as f64 + fx * (r - l) as f64).round() as i32, (t as f64 + fy * (b - t) as f64).round() as i32)
+    }
+
+    /// The pixels plotters gave the data points themselves.
+    pub fn data_pixels(&self) -> &[((f64, f64), (i32, i32))] {
+        &self.pixels
     }
 }
 
@@ -75,200 +85,72 @@ impl Chart {
             (y0, y1) = (y0 - 0.5, y1 + 0.5);
         }
         let s = tick_step(y1 - y0);
-        Axes { x: (x0, x1), y: ((y0 / s).floor() * s, (y1 / s).ceil() * s), width: self.width, height: self.height }
+        Axes { x: (x0, x1), y: ((y0 / s).floor() * s, (y1 / s).ceil() * s) }
+    }
+
+    /// The chart drawn: title, axes with ticks and labels, a grid, each
+    /// line with square markers, a legend.
+    pub fn draw(&self) -> Result<Drawn> {
+        font()?;
+        let (w, h) = (self.width.max(200), self.height.max(160));
+        let axes = self.axes();
+        let y_step = tick_step(axes.y.1 - axes.y.0);
+        let mut img = Image::filled(w, h, [255, 255, 255]);
+        let err = |e: String| Error::format(format!("drawing the chart: {e}"));
+        let (pixels, plot) = {
+            let root = BitMapBackend::with_buffer(&mut img.rgb, (w as u32, h as u32)).into_drawing_area();
+            let mut chart = ChartBuilder::on(&root)
+                .caption(&self.title, (FAMILY, 20))
+                .margin(12)
+                .x_label_area_size(48)
+                .y_label_area_size(64)
+                .build_cartesian_2d(axes.x.0..axes.x.1, axes.y.0..axes.y.1)
+                .map_err(|e| err(e.to_string()))?;
+            chart
+                .configure_mesh()
+                .x_desc(&self.x_label)
+                .y_desc(&self.y_label)
+                .label_style((FAMILY, 13))
+                .axis_desc_style((FAMILY, 14))
+                .light_line_style(WHITE)
+                .bold_line_style(RGBColor(215, 215, 215))
+                .x_label_formatter(&|x| format!("{x:.0}"))
+                .y_label_formatter(&|y| if y_step >= 1.0 { format!("{y:.0}") } else { format!("{y:.1}") })
+                .draw()
+                .map_err(|e| err(e.to_string()))?;
+            let mut pixels = Vec::new();
+            for line in &self.lines {
+                let c = RGBColor(line.color[0], line.color[1], line.color[2]);
+                let pts: Vec<(f64, f64)> = line.points.iter().copied().filter(|p| p.0.is_finite() && p.1.is_finite()).collect();
+                chart
+                    .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
+                    .map_err(|e| err(e.to_string()))?
+                    .label(line.label.clone())
+                    .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 24, y)], c.stroke_width(3)));
+                chart
+                    .draw_series(pts.iter().map(|&p| EmptyElement::at(p) + Rectangle::new([(-3, -3), (3, 3)], c.filled())))
+                    .map_err(|e| err(e.to_string()))?;
+                pixels.extend(pts.iter().map(|&p| (p, chart.backend_coord(&p))));
+            }
+            if !self.lines.is_empty() {
+                chart
+                    .configure_series_labels()
+                    .position(SeriesLabelPosition::UpperRight)
+                    .label_font((FAMILY, 13))
+                    .background_style(WHITE.mix(0.85))
+                    .border_style(BLACK)
+                    .draw()
+                    .map_err(|e| err(e.to_string()))?;
+            }
+            let plot = (chart.backend_coord(&(axes.x.0, axes.y.1)), chart.backend_coord(&(axes.x.1, axes.y.0)));
+            root.present().map_err(|e| err(e.to_string()))?;
+            (pixels, plot)
+        };
+        Ok(Drawn { image: img, pixels, axes, plot })
     }
 
     /// The chart as PNG bytes.
-    pub fn to_png(&self) -> Vec<u8> {
-        let mut img = Raster::new(self.width.max(LEFT + RIGHT + 50), self.height.max(TOP + BOTTOM + 50));
-        let axes = Axes { width: img.w, height: img.h, ..self.axes() };
-        let (px0, py1) = axes.pixel(axes.x.0, axes.y.0);
-        let (px1, py0) = axes.pixel(axes.x.1, axes.y.1);
-        let grey = [210, 210, 210];
-        let black = [0, 0, 0];
-        // Grid and tick labels.
-        let ys = tick_step(axes.y.1 - axes.y.0);
-        let mut y = axes.y.0;
-        while y <= axes.y.1 + ys * 1e-6 {
-            let (_, py) = axes.pixel(axes.x.0, y);
-            img.line(px0, py, px1, py, grey, 1);
-            let label = if ys < 1.0 { format!("{y:.1}") } else { format!("{y:.0}") };
-            img.text(px0 as usize - 8 - text_width(&label), py as usize - 7, &label, black);
-            y += ys;
-        }
-        let xs = tick_step(axes.x.1 - axes.x.0).max(1.0);
-        let mut x = (axes.x.0 / xs).ceil() * xs;
-        while x <= axes.x.1 + xs * 1e-6 {
-            let (px, _) = axes.pixel(x, axes.y.0);
-            img.line(px, py0, px, py1, grey, 1);
-            let label = format!("{x:.0}");
-            img.text(px as usize - text_width(&label) / 2, py1 as usize + 8, &label, black);
-            x += xs;
-        }
-        img.line(px0, py1, px1, py1, black, 1);
-        img.line(px0, py0, px0, py1, black, 1);
-        img.text(img.w / 2 - text_width(&self.title) / 2, 12, &self.title, black);
-        img.text(img.w / 2 - text_width(&self.x_label) / 2, img.h - 28, &self.x_label, black);
-        img.text(8, TOP - 30, &self.y_label, black);
-        // Lines, markers and the legend.
-        for (k, line) in self.lines.iter().enumerate() {
-            let pts: Vec<(f64, f64)> = line.points.iter().filter(|p| p.1.is_finite()).map(|&(x, y)| axes.pixel(x, y)).collect();
-            for w in pts.windows(2) {
-                img.line(w[0].0, w[0].1, w[1].0, w[1].1, line.color, 2);
-            }
-            for &(x, y) in &pts {
-                img.square(x, y, 3, line.color);
-            }
-            let ly = TOP + 10 + 20 * k;
-            img.line(px0 + 12.0, ly as f64 + 7.0, px0 + 40.0, ly as f64 + 7.0, line.color, 3);
-            img.text(px0 as usize + 48, ly, &line.label, black);
-        }
-        img.png()
-    }
-}
-
-/// An RGB image, white to start with.
-struct Raster {
-    w: usize,
-    h: usize,
-    px: Vec<u8>,
-}
-
-impl Raster {
-    fn new(w: usize, h: usize) -> Raster {
-        Raster { w, h, px: vec![255; w * h * 3] }
-    }
-
-    fn set(&mut self, x: i64, y: i64, c: [u8; 3]) {
-        if x >= 0 && y >= 0 && (x as usize) < self.w && (y as usize) < self.h {
-            let i = 3 * (y as usize * self.w + x as usize);
-            self.px[i..i + 3].copy_from_slice(&c);
-        }
-    }
-
-    fn square(&mut self, x: f64, y: f64, half: i64, c: [u8; 3]) {
-        let (x, y) = (x.round() as i64, y.round() as i64);
-        for dy in -half..=half {
-            for dx in -half..=half {
-                self.set(x + dx, y + dy, c);
-            }
-        }
-    }
-
-    /// A line `thick` pixels wide, by stepping along its longer axis.
-    fn line(&mut self, x0: f64, y0: f64, x1: f64, y1: f64, c: [u8; 3], thick: i64) {
-        let n = (x1 - x0).abs().max((y1 - y0).abs()).ceil().max(1.0) as usize;
-        for i in 0..=n {
-            let t = i as f64 / n as f64;
-            let (x, y) = ((x0 + t * (x1 - x0)).round() as i64, (y0 + t * (y1 - y0)).round() as i64);
-            for d in 0..thick {
-                let o = d - thick / 2;
-                self.set(x + o, y, c);
-                self.set(x, y + o, c);
-            }
-        }
-    }
-
-    fn text(&mut self, x: usize, y: usize, s: &str, c: [u8; 3]) {
-        for (k, ch) in s.chars().enumerate() {
-            let rows = glyph(ch);
-            for (r, bits) in rows.iter().enumerate() {
-                for col in 0..5 {
-                    if bits & (0x10 >> col) != 0 {
-                        for sy in 0..SCALE {
-                            for sx in 0..SCALE {
-                                let px = x + k * 6 * SCALE + col * SCALE + sx;
-                                self.set(px as i64, (y + r * SCALE + sy) as i64, c);
-                            }
-                        }
-                    }
-                }
-            }
-        }
-    }
-
-    fn png(&self) -> Vec<u8> {
-        let mut raw = Vec::with_capacity((self.w * 3 + 1) * self.h);
-        for row in self.px.chunks_exact(self.w * 3) {
-            raw.push(0); // filter: none
-            raw.extend_from_slice(row);
-        }
-        let mut z = ZlibEncoder::new(Vec::new(), flate2::Compression::default());
-        z.write_all(&raw).expect("writing to memory");
-        let idat = z.finish().expect("writing to memory");
-        let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
-        let mut ihdr = Vec::new();
-        ihdr.extend_from_slice(&(self.w as u32).to_be_bytes());
-        ihdr.extend_from_slice(&(self.h as u32).to_be_bytes());
-        ihdr.extend_from_slice(&[8, 2, 0, 0, 0]); // 8-bit RGB
-        for (kind, data) in [(b"IHDR", &ihdr), (b"IDAT", &idat), (b"IEND", &Vec::new())] {
-            out.extend_from_slice(&(data.len() as u32).to_be_bytes());
-            let start = out.len();
-            out.extend_from_slice(kind);
-            out.extend_from_slice(data);
-            let crc = crc32fast::hash(&out[start..]);
-            out.extend_from_slice(&crc.to_be_bytes());
-        }
-        out
-    }
-}
-
-fn text_width(s: &str) -> usize {
-    s.chars().count() * 6 * SCALE
-}
-
-/// Rows of a 5x7 glyph, top first, bit 4 the leftmost column. Characters
-/// without a glyph draw as a blank.
-fn glyph(c: char) -> [u8; 7] {
-    match c {
-        '0' => [0x0E, 0x11, 0x13, 0x15, 0x19, 0x11, 0x0E],
-        '1' => [0x04, 0x0C, 0x04, 0x04, 0x04, 0x04, 0x0E],
-        '2' => [0x0E, 0x11, 0x01, 0x02, 0x04, 0x08, 0x1F],
-        '3' => [0x1F, 0x02, 0x04, 0x02, 0x01, 0x11, 0x0E],
-        '4' => [0x02, 0x06, 0x0A, 0x12, 0x1F, 0x02, 0x02],
-        '5' => [0x1F, 0x10, 0x1E, 0x01, 0x01, 0x11, 0x0E],
-        '6' => [0x06, 0x08, 0x10, 0x1E, 0x11, 0x11, 0x0E],
-        '7' => [0x1F, 0x01, 0x02, 0x04, 0x08, 0x08, 0x08],
-        '8' => [0x0E, 0x11, 0x11, 0x0E, 0x11, 0x11, 0x0E],
-        '9' => [0x0E, 0x11, 0x11, 0x0F, 0x01, 0x02, 0x0C],
-        '.' => [0, 0, 0, 0, 0, 0x0C, 0x0C],
-        '-' => [0, 0, 0, 0x1F, 0, 0, 0],
-        ',' => [0, 0, 0, 0, 0x0C, 0x04, 0x08],
-        '(' => [0x02, 0x04, 0x08, 0x08, 0x08, 0x04, 0x02],
-        ')' => [0x08, 0x04, 0x02, 0x02, 0x02, 0x04, 0x08],
-        '%' => [0x18, 0x19, 0x02, 0x04, 0x08, 0x13, 0x03],
-        'B' => [0x1E, 0x11, 0x11, 0x1E, 0x11, 0x11, 0x1E],
-        'N' => [0x11, 0x11, 0x19, 0x15, 0x13, 0x11, 0x11],
-        'P' => [0x1E, 0x11, 0x11, 0x1E, 0x10, 0x10, 0x10],
-        'R' => [0x1E, 0x11, 0x11, 0x1E, 0x14, 0x12, 0x11],
-        'S' => [0x0F, 0x10, 0x10, 0x0E, 0x01, 0x01, 0x1E],
-        'a' => [0, 0, 0x0E, 0x01, 0x0F, 0x11, 0x0F],
-        'b' => [0x10, 0x10, 0x16, 0x19, 0x11, 0x11, 0x1E],
-        'c' => [0, 0, 0x0E, 0x10, 0x10, 0x11, 0x0E],
-        'd' => [0x01, 0x01, 0x0D, 0x13, 0x11, 0x11, 0x0F],
-        'e' => [0, 0, 0x0E, 0x11, 0x1F, 0x10, 0x0E],
-        'f' => [0x06, 0x09, 0x08, 0x1C, 0x08, 0x08, 0x08],
-        'g' => [0, 0x0F, 0x11, 0x11, 0x0F, 0x01, 0x0E],
-        'h' => [0x10, 0x10, 0x16, 0x19, 0x11, 0x11, 0x11],
-        'i' => [0x04, 0, 0x0C, 0x04, 0x04, 0x04, 0x0E],
-        'j' => [0x02, 0, 0x06, 0x02, 0x02, 0x12, 0x0C],
-        'k' => [0x10, 0x10, 0x12, 0x14, 0x18, 0x14, 0x12],
-        'l' => [0x0C, 0x04, 0x04, 0x04, 0x04, 0x04, 0x0E],
-        'm' => [0, 0, 0x1A, 0x15, 0x15, 0x11, 0x11],
-        'n' => [0, 0, 0x16, 0x19, 0x11, 0x11, 0x11],
-        'o' => [0, 0, 0x0E, 0x11, 0x11, 0x11, 0x0E],
-        'p' => [0, 0, 0x1E, 0x11, 0x1E, 0x10, 0x10],
-        'q' => [0, 0, 0x0D, 0x13, 0x0F, 0x01, 0x01],
-        'r' => [0, 0, 0x16, 0x19, 0x10, 0x10, 0x10],
-        's' => [0, 0, 0x0E, 0x10, 0x0E, 0x01, 0x1E],
-        't' => [0x08, 0x08, 0x1C, 0x08, 0x08, 0x09, 0x06],
-        'u' => [0, 0, 0x11, 0x11, 0x11, 0x13, 0x0D],
-        'v' => [0, 0, 0x11, 0x11, 0x11, 0x0A, 0x04],
-        'w' => [0, 0, 0x11, 0x11, 0x15, 0x15, 0x0A],
-        'x' => [0, 0, 0x11, 0x0A, 0x04, 0x0A, 0x11],
-        'y' => [0, 0, 0x11, 0x11, 0x0F, 0x01, 0x0E],
-        'z' => [0, 0, 0x1F, 0x02, 0x04, 0x08, 0x1F],
-        c if c.is_ascii_uppercase() => glyph(c.to_ascii_lowercase()),
-        _ => [0; 7],
+    pub fn to_png(&self) -> Result<Vec<u8>> {
+        png_bytes(&self.draw()?.image)
     }
 }
