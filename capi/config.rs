@@ -8,6 +8,7 @@ use gsenc::encode::{EncodeConfig, Schedule, WarmStart};
 use gsenc::field::{Bounds, Transform, ValueRange};
 use gsenc::format::quantize::CentreCoding;
 use gsenc::format::Payload;
+use gsenc::render::{ColorMap, View, ViewKind, DEFAULT_OPACITY};
 use gsenc::series::queue::WhenFull;
 use gsenc::series::{SeriesConfig, SeriesRange};
 use std::os::raw::c_char;
@@ -57,6 +58,12 @@ pub const GSENC_BACKEND_GPU: i32 = 2;
 /// Where models go (`gsenc_config.output_format`).
 pub const GSENC_OUTPUT_FOLDER: i32 = 0;
 pub const GSENC_OUTPUT_HDF5: i32 = 1;
+/// A picture of every step (`gsenc_config.preview`): none, an axis slice,
+/// or a volume rendering, written as `FIELD_STEP.png` beside the models
+/// (in `output_dir`, or beside the HDF5 store) on the encoder's thread.
+pub const GSENC_PREVIEW_NONE: i32 = 0;
+pub const GSENC_PREVIEW_SLICE: i32 = 1;
+pub const GSENC_PREVIEW_VOLUME: i32 = 2;
 
 /// `gsenc_config.output_format`, checked.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -140,6 +147,20 @@ pub struct gsenc_config {
     /// Which hardware GPU (`gsenc devices` lists them); -1 (default): GPU 0,
     /// or under MPI the rank's node-local rank modulo the node's GPUs.
     pub gpu_index: i32,
+    /// `GSENC_PREVIEW_*` (default none); needs `output_dir`. A bad slice,
+    /// camera or size is `GSENC_STATUS_INVALID_ARGUMENT` at create.
+    pub preview: i32,
+    /// Slice: the axis (0 x, 1 y, 2 z; default 2) and where along it, a
+    /// fraction of the lattice in [0, 1] (default 0.5).
+    pub preview_axis: i32,
+    pub preview_at: f64,
+    /// Volume camera: degrees around z from the +x side (default 30) and
+    /// above the x-y plane, in [-90, 90] (default 25).
+    pub preview_azimuth: f64,
+    pub preview_elevation: f64,
+    /// Image size in pixels, 16 to 8192 each (default 512 x 512).
+    pub preview_width: u32,
+    pub preview_height: u32,
 }
 
 /// The bytes of `gsenc_config` this version reads.
@@ -176,6 +197,13 @@ impl gsenc_config {
             halo: 8,
             backend: GSENC_BACKEND_AUTO,
             gpu_index: -1,
+            preview: GSENC_PREVIEW_NONE,
+            preview_axis: 2,
+            preview_at: 0.5,
+            preview_azimuth: 30.0,
+            preview_elevation: 25.0,
+            preview_width: 512,
+            preview_height: 512,
         }
     }
 }
@@ -218,6 +246,8 @@ pub(crate) struct Settings {
     pub backend: BackendChoice,
     /// The folder or store models go to.
     pub output: Option<std::path::PathBuf>,
+    /// The picture drawn of every step, if any (`output` is then set).
+    pub preview: Option<View>,
 }
 
 impl Settings {
@@ -316,6 +346,25 @@ impl Settings {
             // SAFETY: a non-null `output_dir` is a NUL-terminated string.
             false => Some(std::path::PathBuf::from(unsafe { c_str(c.output_dir, "output_dir")? })),
         };
+        let preview = match c.preview {
+            GSENC_PREVIEW_NONE => None,
+            kind @ (GSENC_PREVIEW_SLICE | GSENC_PREVIEW_VOLUME) => {
+                let view_kind = if kind == GSENC_PREVIEW_SLICE {
+                    if !(0..=2).contains(&c.preview_axis) {
+                        return Err(bad(format!("preview_axis {} must be 0 (x), 1 (y) or 2 (z)", c.preview_axis)));
+                    }
+                    ViewKind::Slice { axis: c.preview_axis as usize, at: c.preview_at }
+                } else {
+                    ViewKind::Volume { azimuth: c.preview_azimuth, elevation: c.preview_elevation, opacity: DEFAULT_OPACITY }
+                };
+                let view = View::new(view_kind, c.preview_width as usize, c.preview_height as usize, ColorMap::default()).map_err(|e| bad(format!("preview: {e}")))?;
+                if output.is_none() {
+                    return Err(bad("preview needs output_dir: the pictures are written beside the models".into()));
+                }
+                Some(view)
+            }
+            p => return Err(bad(format!("unknown preview {p} (GSENC_PREVIEW_NONE, _SLICE, _VOLUME)"))),
+        };
         let mut series = SeriesConfig::new(encode, warm, range);
         series.validation_points = 0; // no per-iteration log in situ: gsenc_poll reports progress
         series.warm_iterations = (c.warm_iterations > 0).then_some(c.warm_iterations as usize);
@@ -333,6 +382,7 @@ impl Settings {
             halo: c.halo as usize,
             backend: BackendChoice { kind, gpu_index, brick: None },
             output,
+            preview,
         })
     }
 }

@@ -13,6 +13,7 @@ use crate::ffi::time_of;
 use crate::handles::Kind;
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::input::{Placement, StepData};
+use gsenc::io::preview::Previewed;
 use gsenc::io::ModelFolder;
 use gsenc::model::Model;
 use gsenc::series::queue::{BackgroundEncoder, CallerStores, Job, ModelSink, Pushed, QueueConfig};
@@ -160,6 +161,17 @@ impl gsenc_encoder {
             (None, _) => Box::new(KeepInMemory),
             (Some(dir), OutputFormat::Folder) => Box::new(ModelFolder { dir: dir.clone(), payload: settings.series.payload }),
             (Some(_), OutputFormat::Hdf5) => Box::new(CallerStores),
+        };
+        // Previews go into the models' folder, or beside the HDF5 store.
+        let sink: Box<dyn ModelSink> = match (settings.preview, &settings.output) {
+            (Some(view), Some(out)) => {
+                let dir = match settings.output_format {
+                    OutputFormat::Folder => out.clone(),
+                    OutputFormat::Hdf5 => out.parent().map(|p| p.to_path_buf()).unwrap_or_default(),
+                };
+                Box::new(Previewed::new(sink, view, dir))
+            }
+            _ => sink,
         };
         #[cfg(feature = "hdf5")]
         let store = match (&settings.output, settings.output_format) {

@@ -48,6 +48,7 @@ module gsenc
     integer(c_int32_t), parameter, public :: GSENC_OUTPUT_FOLDER = 0, GSENC_OUTPUT_HDF5 = 1
     integer(c_int32_t), parameter, public :: GSENC_SUPPORT_STORED = 0, GSENC_SUPPORT_NONE = 1
     integer(c_int32_t), parameter, public :: GSENC_BACKEND_AUTO = 0, GSENC_BACKEND_CPU = 1, GSENC_BACKEND_GPU = 2
+    integer(c_int32_t), parameter, public :: GSENC_PREVIEW_NONE = 0, GSENC_PREVIEW_SLICE = 1, GSENC_PREVIEW_VOLUME = 2
     integer(c_int32_t), parameter, public :: GSENC_JOB_QUEUED = 0, GSENC_JOB_RUNNING = 1, GSENC_JOB_DONE = 2, &
         GSENC_JOB_FAILED = 3, GSENC_JOB_SKIPPED = 4, GSENC_JOB_CANCELLED = 5
 
@@ -76,6 +77,9 @@ module gsenc
         integer(c_int32_t) :: halo = 0
         integer(c_int32_t) :: backend = 0
         integer(c_int32_t) :: gpu_index = 0
+        integer(c_int32_t) :: preview = 0, preview_axis = 0
+        real(c_double) :: preview_at = 0, preview_azimuth = 0, preview_elevation = 0
+        integer(c_int32_t) :: preview_width = 0, preview_height = 0
     end type
 
     ! gsenc_job: where one pushed step is (gsenc_poll).

@@ -68,7 +68,7 @@ mod tests {
     /// (x86_64 and aarch64 Linux, LP64).
     #[test]
     fn abi_is_pinned() {
-        assert_eq!(size_of::<gsenc_config>(), 192);
+        assert_eq!(size_of::<gsenc_config>(), 232);
         let c = [
             (offset_of!(gsenc_config, struct_size), 0),
             (offset_of!(gsenc_config, budget), 8),
@@ -98,6 +98,13 @@ mod tests {
             (offset_of!(gsenc_config, halo), 180),
             (offset_of!(gsenc_config, backend), 184),
             (offset_of!(gsenc_config, gpu_index), 188),
+            (offset_of!(gsenc_config, preview), 192),
+            (offset_of!(gsenc_config, preview_axis), 196),
+            (offset_of!(gsenc_config, preview_at), 200),
+            (offset_of!(gsenc_config, preview_azimuth), 208),
+            (offset_of!(gsenc_config, preview_elevation), 216),
+            (offset_of!(gsenc_config, preview_width), 224),
+            (offset_of!(gsenc_config, preview_height), 228),
         ];
         for (i, (got, want)) in c.iter().enumerate() {
             assert_eq!(got, want, "gsenc_config field {i}");

@@ -10,7 +10,7 @@ use gsenc::encode::with_threads;
 use gsenc::field::Grid;
 use gsenc::io::image::{write_png, Figure};
 use gsenc::io::{raw, read_field};
-use gsenc::render::{image_psnr, render, ssim, ColorMap, View, ViewKind};
+use gsenc::render::{image_psnr, render, ssim, ColorMap, View, ViewKind, DEFAULT_OPACITY};
 use gsenc::Result;
 use serde_json::json;
 use std::path::PathBuf;
@@ -38,7 +38,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 25.0, allow_hyphen_values = true)]
     elevation: f64,
     /// Volume: absorption per voxel length of the largest value.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = DEFAULT_OPACITY)]
     opacity: f64,
     /// Image size of each panel, W or W,H pixels.
     #[arg(long, default_value = "512", value_parser = parse_size)]
@@ -75,7 +75,7 @@ pub struct RenderArgs {
     json: bool,
 }
 
-fn parse_size(s: &str) -> std::result::Result<[usize; 2], String> {
+pub fn parse_size(s: &str) -> std::result::Result<[usize; 2], String> {
     let v: Vec<usize> = s.split(',').map(|x| x.trim().parse::<usize>().map_err(|_| format!("size '{s}': give W or W,H pixels"))).collect::<std::result::Result<_, _>>()?;
     match v[..] {
         [w] => Ok([w, w]),

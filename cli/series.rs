@@ -8,7 +8,9 @@ use clap::Args;
 use gsenc::encode::{with_threads, WarmStart};
 use gsenc::format::{self, model_file_name, Payload};
 use gsenc::input::{Input, RangeSpec};
+use gsenc::io::preview::write_preview;
 use gsenc::io::{raw, read_model_file, write_atomic, AtomicFile};
+use gsenc::render::{ColorMap, View, ViewKind, DEFAULT_OPACITY};
 use gsenc::model::metrics::occupied_psnr;
 use gsenc::model::Model;
 use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange};
@@ -68,6 +70,14 @@ pub struct EncodeSeriesArgs {
     /// warm-started steps, the PSNR it started from (the previous model's).
     #[arg(long)]
     plot: Option<PathBuf>,
+    /// A picture of every step beside its model (FIELD_STEP.png; beside the
+    /// store for .h5): a slice AXIS=FRACTION (as z=0.5), `volume`, or
+    /// `volume:AZIMUTH,ELEVATION` in degrees.
+    #[arg(long)]
+    preview: Option<String>,
+    /// Preview size, W or W,H pixels.
+    #[arg(long, default_value = "512", value_parser = crate::render::parse_size)]
+    preview_size: [usize; 2],
     #[command(flatten)]
     out: OutputFlags,
 }
@@ -105,9 +115,14 @@ enum Sink {
     Store(gsenc::io::store::Store),
 }
 
+/// Whether an output path names an HDF5 store (else a folder of models).
+fn is_store_path(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("h5"))
+}
+
 impl Sink {
     fn open(path: &Path) -> Result<Sink> {
-        if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("h5")) {
+        if is_store_path(path) {
             #[cfg(feature = "hdf5")]
             return Ok(Sink::Store(gsenc::io::store::Store::open_append(path)?));
             #[cfg(not(feature = "hdf5"))]
@@ -174,6 +189,15 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
         }
         series.resume(model)?;
     }
+    // A bad preview is an error before any step is encoded.
+    let preview = match &a.preview {
+        Some(spec) => {
+            let kind = ViewKind::parse_preview(spec, DEFAULT_OPACITY)?;
+            Some(View::new(kind, a.preview_size[0], a.preview_size[1], ColorMap::default())?)
+        }
+        None => None,
+    };
+    let preview_dir = if is_store_path(&a.output) { a.output.parent().map(Path::to_path_buf).unwrap_or_default() } else { a.output.clone() };
     let mut sink = None; // opened once the first step is encoded
     let mut csv = match &a.csv {
         Some(p) => {
@@ -211,6 +235,10 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             sink = Some(Sink::open(&a.output)?);
         }
         let stored_at = sink.as_mut().expect("opened above").put(&e.model, payload)?;
+        let preview_at = match &preview {
+            Some(view) => Some(with_threads(a.train.threads, || write_preview(&preview_dir, &e.model, backend.as_mut(), view))??),
+            None => None,
+        };
         let start = if e.warm_started { warm.name() } else { "independent" };
         let label = match e.model.meta.warm {
             Some(w) => format!("{start}/{}", w.taken.name()),
@@ -237,6 +265,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             "validation_seconds": e.output.validation_seconds,
             "step_seconds": t.elapsed().as_secs_f64(),
             "stored": stored_at,
+            "preview": preview_at,
         });
         if a.out.json {
             println!("{line}");

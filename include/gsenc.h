@@ -126,6 +126,17 @@
 #define GSENC_OUTPUT_HDF5 1
 
 /*
+ A picture of every step (`gsenc_config.preview`): none, an axis slice,
+ or a volume rendering, written as `FIELD_STEP.png` beside the models
+ (in `output_dir`, or beside the HDF5 store) on the encoder's thread.
+ */
+#define GSENC_PREVIEW_NONE 0
+
+#define GSENC_PREVIEW_SLICE 1
+
+#define GSENC_PREVIEW_VOLUME 2
+
+/*
  Element types of pushed arrays.
  */
 #define GSENC_DTYPE_FLOAT32 0
@@ -388,6 +399,28 @@ typedef struct {
    or under MPI the rank's node-local rank modulo the node's GPUs.
    */
   int32_t gpu_index;
+  /*
+   `GSENC_PREVIEW_*` (default none); needs `output_dir`. A bad slice,
+   camera or size is `GSENC_STATUS_INVALID_ARGUMENT` at create.
+   */
+  int32_t preview;
+  /*
+   Slice: the axis (0 x, 1 y, 2 z; default 2) and where along it, a
+   fraction of the lattice in [0, 1] (default 0.5).
+   */
+  int32_t preview_axis;
+  double preview_at;
+  /*
+   Volume camera: degrees around z from the +x side (default 30) and
+   above the x-y plane, in [-90, 90] (default 25).
+   */
+  double preview_azimuth;
+  double preview_elevation;
+  /*
+   Image size in pixels, 16 to 8192 each (default 512 x 512).
+   */
+  uint32_t preview_width;
+  uint32_t preview_height;
 } gsenc_config;
 
 /*

@@ -634,11 +634,28 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
         "--validation-points", "2000", "--field", "rho", "--quiet",
     ];
     let mut args = common.to_vec();
+    // A bad preview fails before any step is encoded.
+    for (bad, says) in [("w=0.5", "AXIS=FRACTION"), ("volume:30,100", "elevation"), ("volume:x", "volume:AZIMUTH,ELEVATION")] {
+        let mut args = common.to_vec();
+        args.extend(["-o", out.to_str().unwrap(), "--preview", bad]);
+        let (code, _, err) = gsenc(&args);
+        assert_eq!(code, 2, "{bad}: {err}");
+        assert!(err.contains(says), "{bad}: {err}");
+        assert!(!out.exists(), "nothing written for a bad preview");
+    }
     args.extend(["--warm", "coarse", "-o", out.to_str().unwrap(), "--csv", csv.to_str().unwrap(), "--plot", png.to_str().unwrap(), "--json"]);
+    args.extend(["--preview", "x=0.5", "--preview-size", "48,32"]);
     let (code, stdout, err) = gsenc(&args);
     assert_eq!(code, 0, "{err}");
     let lines: Vec<serde_json::Value> = stdout.lines().map(json).collect();
     assert_eq!(lines.len(), 4, "three steps and a summary: {stdout}");
+    // Each step's picture lies beside its model, and its line says where.
+    for s in 0..3 {
+        let p = out.join(format!("rho_{s:06}.png"));
+        assert_eq!(lines[s]["preview"], p.to_str().unwrap());
+        let img = gsenc::io::image::read_png(&p).unwrap();
+        assert!(img.width > 48 && img.height > 32, "{}x{}", img.width, img.height);
+    }
     assert_eq!(lines[0]["start"], "independent");
     assert_eq!(lines[1]["start"], "coarse");
     assert_eq!(lines[2]["iterations"], 1000);

@@ -5,7 +5,9 @@
 
 use crate::error::{Error, Result};
 use crate::field::ValueRange;
-use crate::render::{ColorMap, Image};
+use crate::backend::Backend;
+use crate::model::Model;
+use crate::render::{render, ColorMap, Image, View};
 use plotters::prelude::*;
 use plotters::style::{register_font, FontStyle};
 use std::path::Path;
@@ -99,6 +101,15 @@ impl Figure<'_> {
         }
         Ok(out)
     }
+}
+
+/// A model decoded on its own lattice and drawn as `view` says, with its
+/// colour bar (the picture of `gsenc render` without a reference).
+pub fn model_figure(model: &Model, backend: &mut dyn Backend, view: &View) -> Result<Image> {
+    let decoded = model.decode(backend, None)?;
+    let picture = render(&crate::field::Grid::new(decoded.dims, decoded.values)?, view)?;
+    let title = format!("{} step {}", model.meta.field, model.meta.step);
+    Figure { panels: vec![(&title, &picture)], colormap: view.colormap, range: model.meta.range, label: &model.meta.field }.draw()
 }
 
 /// `img` as PNG bytes (8-bit RGB).

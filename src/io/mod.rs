@@ -9,6 +9,7 @@ pub mod atomic;
 pub mod image;
 pub mod models;
 pub mod plot;
+pub mod preview;
 pub mod raw;
 #[cfg(feature = "hdf5")]
 pub mod series;

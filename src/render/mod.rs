@@ -12,4 +12,4 @@ pub mod volume;
 
 pub use colormap::ColorMap;
 pub use compare::{image_psnr, ssim};
-pub use view::{render, Image, View, ViewKind};
+pub use view::{render, Image, View, ViewKind, DEFAULT_OPACITY};

@@ -6,6 +6,10 @@ use super::colormap::ColorMap;
 use crate::error::{Error, Result};
 use crate::field::Grid;
 
+/// A volume's absorption per voxel length of the largest value, unless
+/// the caller gives one.
+pub const DEFAULT_OPACITY: f64 = 0.05;
+
 /// Smallest and largest image edge in pixels.
 pub const MIN_EDGE: usize = 16;
 pub const MAX_EDGE: usize = 8192;
@@ -67,6 +71,24 @@ impl ViewKind {
         let kind = ViewKind::Slice { axis, at };
         kind.check().map_err(|_| bad())?;
         Ok(kind)
+    }
+
+    /// A preview's view: `volume`, `volume:AZIMUTH,ELEVATION` (degrees),
+    /// or a slice `AXIS=FRACTION`; a volume absorbs `opacity` per voxel.
+    pub fn parse_preview(s: &str, opacity: f64) -> Result<ViewKind> {
+        let volume = |azimuth, elevation| {
+            let kind = ViewKind::Volume { azimuth, elevation, opacity };
+            kind.check().map(|_| kind)
+        };
+        match s.split_once(':') {
+            None if s == "volume" => volume(30.0, 25.0),
+            Some(("volume", cam)) => {
+                let bad = || Error::arg(format!("preview '{s}': give volume:AZIMUTH,ELEVATION in degrees, as in volume:30,25"));
+                let (az, el) = cam.split_once(',').ok_or_else(bad)?;
+                volume(az.trim().parse().map_err(|_| bad())?, el.trim().parse().map_err(|_| bad())?)
+            }
+            _ => ViewKind::parse_slice(s),
+        }
     }
 
     fn check(&self) -> Result<()> {

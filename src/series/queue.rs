@@ -455,7 +455,10 @@ impl Worker {
             })?;
             Ok((r.encoded.model, r.encoded.psnr))
         })?;
-        let state = match self.sink.store(&model)? {
+        // On the pool too: a sink may compute (a preview's decode and
+        // rendering), and it must use the encoder's threads, not the solver's.
+        let (pool, sink) = (&self.pool, &mut self.sink);
+        let state = match pool.install(|| sink.store(&model))? {
             Some(location) => JobState::Written { psnr, location },
             None => {
                 self.shared.state.lock().finished.push(model.clone());

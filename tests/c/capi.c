@@ -39,7 +39,8 @@ int main(void) {
     char path[512];
 
     /* The ABI as this C compiler lays it out: the values capi/lib.rs pins. */
-    CHECK(sizeof(gsenc_config) == 192 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, backend) == 184 && offsetof(gsenc_config, gpu_index) == 188 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
+    CHECK(sizeof(gsenc_config) == 232 && offsetof(gsenc_config, preview) == 192 && offsetof(gsenc_config, preview_at) == 200
+              && offsetof(gsenc_config, preview_elevation) == 216 && offsetof(gsenc_config, preview_height) == 228 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, backend) == 184 && offsetof(gsenc_config, gpu_index) == 188 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
               && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144
               && offsetof(gsenc_config, support) == 148, "gsenc_config layout");
@@ -61,7 +62,8 @@ int main(void) {
     cfg.struct_size = sizeof cfg;
     EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_OK);
     CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_AUTO && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED
-              && cfg.backend == GSENC_BACKEND_AUTO && cfg.gpu_index == -1, "defaults");
+              && cfg.backend == GSENC_BACKEND_AUTO && cfg.gpu_index == -1 && cfg.preview == GSENC_PREVIEW_NONE && cfg.preview_axis == 2
+              && cfg.preview_at == 0.5 && cfg.preview_width == 512 && cfg.preview_height == 512, "defaults");
     EXPECT(gsenc_config_init(NULL), GSENC_STATUS_NULL_POINTER);
 
     cfg.budget = 120;
@@ -114,7 +116,37 @@ int main(void) {
     enc = (gsenc_encoder *)1;
     EXPECT(gsenc_encoder_create_mpi(&cfg, 0, &enc), GSENC_STATUS_MPI);
     CHECK(enc == NULL && strstr(last_error(), "without MPI") != NULL, "MPI create of a serial build: %s", last_error());
+    /* Previews: a bad slice, camera or size, or no output_dir, fails at create. */
+    const struct { int kind, axis; double at, elevation; unsigned w; const char *names; } bad_previews[] = {
+        {GSENC_PREVIEW_SLICE, 3, 0.5, 25.0, 512, "preview_axis"},
+        {GSENC_PREVIEW_SLICE, 2, 1.5, 25.0, 512, "slice"},
+        {GSENC_PREVIEW_VOLUME, 2, 0.5, 95.0, 512, "elevation"},
+        {GSENC_PREVIEW_VOLUME, 2, 0.5, 25.0, 4, "width"},
+        {7, 2, 0.5, 25.0, 512, "preview"},
+    };
+    for (size_t i = 0; i < sizeof bad_previews / sizeof bad_previews[0]; i++) {
+        bad = cfg;
+        bad.preview = bad_previews[i].kind;
+        bad.preview_axis = bad_previews[i].axis;
+        bad.preview_at = bad_previews[i].at;
+        bad.preview_elevation = bad_previews[i].elevation;
+        bad.preview_width = bad_previews[i].w;
+        enc = (gsenc_encoder *)1;
+        EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(enc == NULL && strstr(last_error(), bad_previews[i].names) != NULL, "bad preview %zu: %s", i, last_error());
+    }
+    bad = cfg;
+    bad.preview = GSENC_PREVIEW_SLICE;
+    bad.output_dir = NULL;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "output_dir") != NULL, "preview without output_dir: %s", last_error());
+    /* This encoder draws a slice of every step beside its model. */
+    cfg.preview = GSENC_PREVIEW_SLICE;
+    cfg.preview_axis = 1;
+    cfg.preview_width = 96;
+    cfg.preview_height = 64;
     EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
+    cfg.preview = GSENC_PREVIEW_NONE; /* (the later encoders of this test draw none) */
 
     /* A grid with ghost layers, passed with strides. */
     static double a[(NX + 2 * G) * (NY + 2 * G) * (NZ + 2 * G)];
@@ -149,6 +181,17 @@ int main(void) {
           "poll: state %d, psnr %g", job.state, job.psnr);
     EXPECT(gsenc_poll(enc, "rho", 7, &job), GSENC_STATUS_CALL_ORDER);
     EXPECT(gsenc_poll(enc, "rho", 1, NULL), GSENC_STATUS_NULL_POINTER);
+
+    /* Each step's preview lies beside its model: a PNG of the figure's size. */
+    for (int step = 0; step < 2; step++) {
+        snprintf(path, sizeof path, "%s/rho_%06d.png", dir, step);
+        FILE *png = fopen(path, "rb");
+        unsigned char sig[24];
+        CHECK(png && fread(sig, 1, sizeof sig, png) == sizeof sig, "read %s", path);
+        if (png) fclose(png);
+        unsigned width = (unsigned)sig[16] << 24 | (unsigned)sig[17] << 16 | (unsigned)sig[18] << 8 | sig[19];
+        CHECK(memcmp(sig, "\x89PNG\r\n\x1a\n", 8) == 0 && width > 96, "preview %s: a PNG %u wide", path, width);
+    }
 
     /* The written model of step 1, read back: its decode matches evaluation at cell centres. */
     snprintf(path, sizeof path, "%s/rho_000001.gsm", dir);
