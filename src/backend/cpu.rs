@@ -61,9 +61,6 @@ struct Block {
     a: [Lane; 9],
     w: Lane,
     s: Lane,
-    /// Union of the candidates' 5-sigma boxes (lo[3], hi[3]): points outside
-    /// it skip the block, whose kernels are all zero there.
-    bbox: [f32; 6],
 }
 
 const EMPTY_BLOCK: Block = Block {
@@ -71,7 +68,6 @@ const EMPTY_BLOCK: Block = Block {
     a: [[0.0; LANES]; 9],
     w: [0.0; LANES],
     s: [0.0; LANES],
-    bbox: [f32::INFINITY, f32::INFINITY, f32::INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY, f32::NEG_INFINITY],
 };
 
 /// Kernels and scaled local coordinates of a block's lanes at `x`, computed
@@ -145,9 +141,10 @@ struct BrickSoa {
     /// `inside[..n_inside]`.
     inside: Vec<u32>,
     n_inside: usize,
-    /// The blocks' boxes by coordinate (lo x, y, z, hi x, y, z), so that
-    /// one loop tests a point against many blocks at once; `holds[b]` is
-    /// that test's answer.
+    /// Each block's box, the union of its candidates' 5-sigma boxes (points
+    /// outside it skip the block, whose kernels are all zero there), by
+    /// coordinate (lo x, y, z, hi x, y, z), so that one loop tests a point
+    /// against many blocks at once; `holds[b]` is that test's answer.
     bounds: [Vec<f32>; 6],
     holds: Vec<u8>,
 }
@@ -164,6 +161,10 @@ impl BrickSoa {
             self.acc.clear();
             self.acc.resize(nb, [[0.0; LANES]; 12]);
         }
+        for (c, v) in self.bounds.iter_mut().enumerate() {
+            v.clear();
+            v.resize(nb, if c < 3 { f32::INFINITY } else { f32::NEG_INFINITY });
+        }
         for (j, &g) in cands.iter().enumerate() {
             let (b, l) = (j / LANES, j % LANES);
             let h = &hot[g as usize];
@@ -171,18 +172,14 @@ impl BrickSoa {
             let blk = &mut self.blocks[b];
             for c in 0..3 {
                 blk.mu[c][l] = h.mu[c];
-                blk.bbox[c] = blk.bbox[c].min(bx[c]);
-                blk.bbox[c + 3] = blk.bbox[c + 3].max(bx[c + 3]);
+                self.bounds[c][b] = self.bounds[c][b].min(bx[c]);
+                self.bounds[c + 3][b] = self.bounds[c + 3][b].max(bx[c + 3]);
             }
             for r in 0..9 {
                 blk.a[r][l] = h.a[r];
             }
             blk.w[l] = h.w;
             blk.s[l] = h.s;
-        }
-        for (c, v) in self.bounds.iter_mut().enumerate() {
-            v.clear();
-            v.extend(self.blocks.iter().map(|b| b.bbox[c]));
         }
         self.holds.resize(nb, 0);
     }
