@@ -4,7 +4,7 @@
 use crate::ffi::{c_str, read_sized};
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::backend::select::{BackendChoice, BackendKind};
-use gsenc::encode::{EncodeConfig, Schedule, WarmStart};
+use gsenc::encode::{EncodeConfig, Schedule, TargetPsnr, WarmStart};
 use gsenc::field::{Bounds, Transform, ValueRange};
 use gsenc::format::quantize::CentreCoding;
 use gsenc::format::Payload;
@@ -161,6 +161,13 @@ pub struct gsenc_config {
     /// Image size in pixels, 16 to 8192 each (default 512 x 512).
     pub preview_width: u32,
     pub preview_height: u32,
+    /// A quality instead of a budget: non-zero, the voxel PSNR (dB, as
+    /// stored) each field's first step is encoded to, `budget` being then
+    /// the most primitives it may choose (0: one per 32 voxels that hold
+    /// data); later steps keep the budget they inherit and change it only
+    /// when they miss the target. 0 (default): `budget` exactly. Read the
+    /// budget chosen and the PSNR reached with `gsenc_model_info`.
+    pub target_psnr: f64,
 }
 
 /// The bytes of `gsenc_config` this version reads.
@@ -204,6 +211,7 @@ impl gsenc_config {
             preview_elevation: 25.0,
             preview_width: 512,
             preview_height: 512,
+            target_psnr: 0.0,
         }
     }
 }
@@ -284,8 +292,12 @@ impl Settings {
             p => return Err(bad(format!("unknown payload {p}"))),
         };
         let budget = usize::try_from(c.budget).map_err(|_| bad(format!("budget {} is too large", c.budget)))?;
-        if budget == 0 {
-            return Err(bad("budget must be at least 1".into()));
+        let target = match c.target_psnr {
+            0.0 => None,
+            t => Some(TargetPsnr::new(t).map_err(|e| bad(format!("target_psnr: {e}")))?),
+        };
+        if budget == 0 && target.is_none() {
+            return Err(bad("budget must be at least 1 (or set target_psnr)".into()));
         }
         let range = if c.fixed_range != 0 {
             SeriesRange::Fixed(ValueRange::new(c.value_min, c.value_max, transform)?)
@@ -293,6 +305,7 @@ impl Settings {
             SeriesRange::FirstStep(transform)
         };
         let mut encode = EncodeConfig::new(budget, schedule);
+        encode.target = target;
         encode.iterations = (c.iterations > 0).then_some(c.iterations as usize);
         encode.points = (c.points > 0).then_some(c.points as usize);
         encode.seed_init = c.seed_init;

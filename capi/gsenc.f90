@@ -80,6 +80,7 @@ module gsenc
         integer(c_int32_t) :: preview = 0, preview_axis = 0
         real(c_double) :: preview_at = 0, preview_azimuth = 0, preview_elevation = 0
         integer(c_int32_t) :: preview_width = 0, preview_height = 0
+        real(c_double) :: target_psnr = 0
     end type
 
     ! gsenc_job: where one pushed step is (gsenc_poll).

@@ -4,7 +4,7 @@
 use clap::builder::{PossibleValuesParser, TypedValueParser};
 use clap::Args;
 use gsenc::backend::select::{BackendChoice, BackendKind};
-use gsenc::encode::{EncodeConfig, Schedule};
+use gsenc::encode::{EncodeConfig, Schedule, TargetPsnr};
 use gsenc::field::{Bounds, Grid, IndexFrame};
 use gsenc::input::cells::{CellSize, Cells};
 use gsenc::input::particles::Particles;
@@ -123,9 +123,16 @@ impl BackendArgs {
 /// The budget and the optimisation: what every encoding command shares.
 #[derive(Args)]
 pub struct TrainingArgs {
-    /// Number of Gaussians.
-    #[arg(long)]
-    pub budget: usize,
+    /// Number of Gaussians; with --target-psnr, the most it may choose
+    /// (default: one per 32 voxels that hold data).
+    #[arg(long, required_unless_present = "target_psnr")]
+    pub budget: Option<usize>,
+    /// Choose the number of Gaussians that reaches this voxel PSNR (dB) as
+    /// stored: probed, predicted, then corrected (METHOD.md "A quality
+    /// instead of a budget"). In a series the budget changes only at a step
+    /// that misses the target.
+    #[arg(long, allow_hyphen_values = true)]
+    pub target_psnr: Option<f64>,
     /// full (3000 x 16384; 4000 iterations for particles), matched (1500 x 3072),
     /// short (500 x 8192), or tuned (matched at 5x its learning rate: most of
     /// full's quality at matched's cost; gsenc's, not the paper's).
@@ -161,14 +168,15 @@ pub struct TrainingArgs {
 impl TrainingArgs {
     /// The base configuration; the pipeline derives the schedule's length
     /// from the input's form (and a warm start's from its regime).
-    pub fn config(&self) -> EncodeConfig {
-        let mut cfg = EncodeConfig::new(self.budget, self.schedule);
+    pub fn config(&self) -> Result<EncodeConfig> {
+        let mut cfg = EncodeConfig::new(self.budget.unwrap_or(0), self.schedule);
+        cfg.target = self.target_psnr.map(TargetPsnr::new).transpose()?;
         cfg.iterations = self.iters;
         cfg.points = self.points;
         cfg.seed_init = self.seed;
         cfg.seed_sample = self.sample_seed;
         cfg.relocation = !self.no_relocation;
-        cfg
+        Ok(cfg)
     }
 }
 

@@ -2,7 +2,7 @@
 //! through the library's encode pipeline.
 
 use crate::args::{one_of, CellInput, GridInput, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
-use crate::output::{deposit_keys, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar};
+use crate::output::{deposit_keys, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar, target_json};
 use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
@@ -117,7 +117,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
     let range = values.spec()?;
     let prepared = with_threads(threads, || prepare(&input, &range))??;
     let request = Request {
-        config: o.train.config(),
+        config: o.train.config()?,
         start: Start::Seeded,
         payload: o.payload,
         store_support: o.train.support,
@@ -129,6 +129,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
     let mut backend = BackendChoice { brick: o.brick, ..o.train.device.choice() }.open()?;
     let encoded = with_threads(threads, || {
         encode_prepared(&prepared, &request, backend.as_mut(), &mut |p| {
+            pb.set_length(p.iterations as u64); // a target's search runs several encodes
             pb.set_position(p.iteration as u64);
             if p.iteration % 20 == 0 {
                 pb.set_message(format!("{:.3e}", p.loss));
@@ -152,6 +153,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "payload_bytes": payload_bytes,
         "sampled_psnr": sampled_psnr(&encoded.decoded, &reference.values),
         "occupied_psnr": occupied_psnr(&encoded.decoded, &reference.values),
+        // The chosen model's loop; with a target, `target.seconds` is the search's.
         "seconds": out.loop_seconds,
         "total_seconds": t_total.elapsed().as_secs_f64(),
         "seed_seconds": out.seed_seconds,
@@ -163,6 +165,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "fell_back": out.fell_back,
         "kernel_seconds": kernel_seconds(backend.as_ref()),
         "dims": reference.dims,
+        "target": target_json(encoded.target.as_ref()),
         "output": o.output.display().to_string(),
     }));
     match prepared.deposit {

@@ -3,7 +3,7 @@
 //! with a CSV of validation PSNR against iterations for every step.
 
 use crate::args::{one_of, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
-use crate::output::{peak_rss_bytes, print_result, progress_bar};
+use crate::output::{peak_rss_bytes, print_result, progress_bar, target_json};
 use clap::Args;
 use gsenc::encode::{with_threads, WarmStart};
 use gsenc::format::{self, model_file_name, Payload};
@@ -163,7 +163,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
         RangeSpec::Fixed(r) => SeriesRange::Fixed(r),
         RangeSpec::FromData(t) => SeriesRange::FirstStep(t),
     };
-    let mut cfg = SeriesConfig::new(a.train.config(), warm, range);
+    let mut cfg = SeriesConfig::new(a.train.config()?, warm, range);
     cfg.validation_points = a.validation_points;
     cfg.validation_every = a.validation_every;
     cfg.payload = payload;
@@ -256,6 +256,8 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             "taken": e.model.meta.warm.map(|w| w.taken.name()),
             "moved": e.model.meta.warm.map(|w| w.moved),
             "voxel_psnr": psnr,
+            "primitives": e.model.len(),
+            "target": target_json(e.target.as_ref()),
             "occupied_psnr": occupied,
             "validation_psnr": e.output.validation.last().map(|v| v.1),
             "start_validation_psnr": e.output.validation.first().map(|v| v.1),

@@ -421,6 +421,15 @@ typedef struct {
    */
   uint32_t preview_width;
   uint32_t preview_height;
+  /*
+   A quality instead of a budget: non-zero, the voxel PSNR (dB, as
+   stored) each field's first step is encoded to, `budget` being then
+   the most primitives it may choose (0: one per 32 voxels that hold
+   data); later steps keep the budget they inherit and change it only
+   when they miss the target. 0 (default): `budget` exactly. Read the
+   budget chosen and the PSNR reached with `gsenc_model_info`.
+   */
+  double target_psnr;
 } gsenc_config;
 
 /*

@@ -214,6 +214,47 @@ fn bad_inputs_fail_with_codes_and_messages() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+#[test]
+fn target_psnr_chooses_the_budget_and_bad_targets_are_refused() {
+    let dir = tmpdir("target");
+    let (input, _) = write_input(&dir);
+    let m = dir.join("m.gsm");
+    let enc = |extra: &[&str]| {
+        let mut a = vec!["encode", "grid", "--input", input.to_str().unwrap(), "--dims", "20,16,12", "--dtype", "f32", "--schedule", "short", "--iters", "300", "--points", "2048", "-o", m.to_str().unwrap(), "--json", "--quiet"];
+        a.extend_from_slice(extra);
+        gsenc(&a)
+    };
+    for (bad, says) in [("-3", "target PSNR"), ("0", "target PSNR"), ("nan", "target PSNR"), ("500", "at most 120"), ("x", "invalid value")] {
+        let (code, _, err) = enc(&["--target-psnr", bad]);
+        assert_eq!(code, 2, "--target-psnr {bad}: {err}");
+        assert!(err.contains(says), "--target-psnr {bad}: {err}");
+        assert!(!m.exists(), "nothing written for --target-psnr {bad}");
+    }
+    let (code, _, err) = enc(&[]);
+    assert_eq!(code, 2);
+    assert!(err.contains("--budget"), "neither a budget nor a target: {err}");
+
+    let (code, out, err) = enc(&["--target-psnr", "30"]);
+    assert_eq!(code, 0, "{err}");
+    let e = json(&out);
+    let t = &e["target"];
+    let psnr = e["voxel_psnr"].as_f64().unwrap();
+    let chosen = &t["tries"][t["chosen"].as_u64().unwrap() as usize];
+    assert_eq!((chosen["budget"].clone(), chosen["psnr"].as_f64().unwrap()), (e["primitives"].clone(), psnr), "{out}");
+    assert!(t["landed"].as_bool().unwrap() && (psnr - 30.0).abs() <= 1.0, "{out}");
+    assert_eq!(t["probes"].as_array().unwrap().len(), 4, "{out}");
+    // The cap: --budget with a target is the most it may choose.
+    let (code, out, err) = enc(&["--target-psnr", "90", "--budget", "50"]);
+    assert_eq!(code, 0, "{err}");
+    let e = json(&out);
+    assert!(e["primitives"].as_u64().unwrap() <= 50 && !e["target"]["landed"].as_bool().unwrap(), "{out}");
+    // Without a target, no report.
+    let (code, out, err) = enc(&["--budget", "40"]);
+    assert_eq!(code, 0, "{err}");
+    assert!(json(&out)["target"].is_null(), "{out}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 fn write_f32(path: &Path, v: &[f32]) {
     std::fs::write(path, gsenc::io::raw::to_f32_bytes(v)).unwrap();
 }

@@ -69,7 +69,8 @@ impl Schedule {
 /// Everything that decides what model an encode produces.
 #[derive(Clone, Debug)]
 pub struct EncodeConfig {
-    /// Number of primitives N.
+    /// Number of primitives N; with a `target`, the most it may choose (0:
+    /// [`crate::encode::target::default_cap`]).
     pub budget: usize,
     pub schedule: Schedule,
     /// Overrides of the schedule's iterations and points per iteration.
@@ -90,9 +91,44 @@ pub struct EncodeConfig {
     /// the validation PSNR stops rising (`plateau.rs`), `iterations` being
     /// the cap. Needs a validation set.
     pub adaptive: bool,
+    /// A quality instead of a budget (`target.rs`): the number of
+    /// primitives is chosen to reach this PSNR.
+    pub target: Option<TargetPsnr>,
     /// Not part of the model: lets another thread stop the encode between
     /// iterations (it then fails with `Error::Cancelled`).
     pub cancel: Option<Cancel>,
+}
+
+/// The voxel PSNR an encode is to reach, as stored (METHOD.md "A quality
+/// instead of a budget").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TargetPsnr {
+    /// dB.
+    pub db: f64,
+    /// How the PSNR rises with the budget and the iterations, when an
+    /// earlier step of the series measured it: a warm step that misses its
+    /// target corrects its budget with it (else with `DEFAULT_CURVE`).
+    pub curve: Option<Curve>,
+}
+
+impl TargetPsnr {
+    pub fn new(db: f64) -> Result<TargetPsnr> {
+        if !(db.is_finite() && db > 0.0 && db <= MAX_TARGET_DB) {
+            return Err(crate::error::Error::arg(format!("target PSNR must be more than 0 and at most {MAX_TARGET_DB} dB, got {db}")));
+        }
+        Ok(TargetPsnr { db, curve: None })
+    }
+}
+
+/// Targets are in (0, MAX_TARGET_DB].
+pub const MAX_TARGET_DB: f64 = 120.0;
+
+/// What a search learned of a dataset: dB of PSNR per doubling of the
+/// budget (full-length encodes) and per doubling of the iterations.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Curve {
+    pub per_budget_doubling: f64,
+    pub per_iteration_doubling: f64,
 }
 
 /// A flag another thread sets to stop an encode.
@@ -122,6 +158,7 @@ impl EncodeConfig {
             weights: LossWeights::default(),
             particles: false,
             adaptive: false,
+            target: None,
             cancel: None,
         }
     }

@@ -77,25 +77,63 @@ impl SampleSet for Subset<'_> {
     }
 }
 
-/// Repairs `prev` for `target` (see the module's account); `seed` is the
-/// encode's seeding seed.
-pub fn repair(target: &Target, prev: &[Primitive], seed: u64, backend: &mut dyn Backend) -> Result<Repair> {
-    let n = prev.len();
+/// Where a model misses its target: the indices of the high-residual
+/// samples among those scored.
+pub struct Residual {
+    /// Indices into the target's samples of the high-residual ones.
+    pub high: Vec<usize>,
+    /// Samples scored (evenly strided over all of them).
+    pub scored: usize,
+}
+
+impl Residual {
+    /// Share of the scored samples that were high-residual.
+    pub fn share(&self) -> f64 {
+        self.high.len() as f64 / self.scored.max(1) as f64
+    }
+}
+
+/// Scores `params` on up to `max(RESIDUAL_SAMPLES, 2 N)` evenly strided
+/// samples of `target` (step 1 of the module's account).
+pub fn residual(target: &Target, params: &[Primitive], backend: &mut dyn Backend) -> Result<Residual> {
     let samples = target.samples;
     let ns = samples.len();
-    let scored = RESIDUAL_SAMPLES.max(2 * n).min(ns);
+    let scored = RESIDUAL_SAMPLES.max(2 * params.len()).min(ns);
     let idx: Vec<usize> = (0..scored).map(|j| (j as u128 * ns as u128 / scored as u128) as usize).collect();
     let pos: Vec<[f32; 3]> = idx.iter().map(|&i| samples.get(i).q).collect();
     let (mut rho, mut num) = (vec![0f32; scored], vec![0f32; scored]);
-    backend.evaluate_points(prev, &pos, &mut rho, &mut num)?;
-    let high: Vec<usize> = (0..scored)
+    backend.evaluate_points(params, &pos, &mut rho, &mut num)?;
+    let high = (0..scored)
         .filter(|&j| {
             let vref = target.reference.trilinear(pos[j]);
             vref > MASK_REF && (v_eval(rho[j], num[j]) - vref).abs() > RESIDUAL_THRESHOLD
         })
         .map(|j| idx[j])
         .collect();
-    let high_share = high.len() as f64 / scored.max(1) as f64;
+    Ok(Residual { high, scored })
+}
+
+/// `k` primitives seeded on the high-residual samples of `r` (step 4 of
+/// the module's account), or on all samples when none is high-residual.
+pub fn seed_on_residual(target: &Target, r: Residual, k: usize, seed: u64) -> Result<Vec<Primitive>> {
+    let ns = target.samples.len();
+    // `represented`: the samples of the whole step the pool stands for.
+    let (pool, represented) = if r.high.is_empty() {
+        ((0..ns).collect(), ns)
+    } else {
+        let represented = (r.high.len() as f64 * ns as f64 / r.scored as f64).round() as usize;
+        (r.high, represented)
+    };
+    let subset = Subset { inner: target.samples, idx: pool };
+    Ok(seed_with_spread(&subset, target.reference.dims, k, seed, spread(represented, k))?.params)
+}
+
+/// Repairs `prev` for `target` (see the module's account); `seed` is the
+/// encode's seeding seed.
+pub fn repair(target: &Target, prev: &[Primitive], seed: u64, backend: &mut dyn Backend) -> Result<Repair> {
+    let n = prev.len();
+    let r = residual(target, prev, backend)?;
+    let high_share = r.share();
 
     let mut moved: Vec<usize> = (0..n).filter(|&i| vanished(target.reference, &prev[i])).collect();
     let vanished_count = moved.len();
@@ -108,17 +146,8 @@ pub fn repair(target: &Target, prev: &[Primitive], seed: u64, backend: &mut dyn 
     let mut params = prev.to_vec();
     if k > 0 {
         // Vanished primitives with no high-residual sample to go to are
-        // seeded over all samples instead. `represented`: the samples of
-        // the whole step the pool stands for.
-        let (pool, represented) = if high.is_empty() {
-            ((0..ns).collect(), ns)
-        } else {
-            let represented = (high.len() as f64 * ns as f64 / scored as f64).round() as usize;
-            (high, represented)
-        };
-        let subset = Subset { inner: samples, idx: pool };
-        let seeds = seed_with_spread(&subset, target.reference.dims, k, seed ^ REPAIR_SEED, spread(represented, k))?;
-        for (&i, p) in moved.iter().zip(seeds.params) {
+        // seeded over all samples instead.
+        for (&i, p) in moved.iter().zip(seed_on_residual(target, r, k, seed ^ REPAIR_SEED)?) {
             params[i] = p;
         }
     }

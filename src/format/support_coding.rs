@@ -161,7 +161,6 @@ pub fn decode(stored: &[u8], dims: [usize; 3], unpack: &dyn Fn(&[u8], usize) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::field::Grid;
     use crate::format::test_support::unpack;
     use crate::math::rng::Rng;
 

@@ -7,6 +7,7 @@
 
 use crate::backend::Backend;
 use crate::encode::pipeline::{encode_prepared, Encoded, Labels, Request, Start};
+use crate::encode::config::Curve;
 use crate::encode::{EncodeConfig, Progress, Validation, WarmStart};
 use crate::error::{Error, Result};
 use crate::field::{Bounds, IndexFrame, Transform, ValueRange};
@@ -78,6 +79,9 @@ struct FieldState {
     /// points: they depend only on the lattice and the seed).
     validation: Option<Validation>,
     last: Model,
+    /// How the PSNR rises with the budget, measured by the target-PSNR
+    /// search of an earlier step.
+    curve: Option<Curve>,
 }
 
 /// Encodes steps of any number of fields, each warm-started from its own
@@ -133,7 +137,7 @@ impl SeriesEncoder {
             return Err(Error::data(format!("the model of field '{field}' holds no primitives")));
         }
         let (range, frame) = (model.meta.range, model.meta.frame);
-        self.fields.insert(field, FieldState { range, frame, bounds: None, validation: None, last: model });
+        self.fields.insert(field, FieldState { range, frame, bounds: None, validation: None, last: model, curve: None });
         Ok(())
     }
 
@@ -200,8 +204,13 @@ impl SeriesEncoder {
             Some(s) => Start::Warm { params: &s.last.params, regime: self.cfg.warm, iterations: self.cfg.warm_iterations },
             None => Start::Seeded,
         };
+        // A target's warm step corrects its budget with the slope measured before.
+        let mut config = self.cfg.encode.clone();
+        if let (Some(t), Some(s)) = (config.target.as_mut(), state) {
+            t.curve = s.curve;
+        }
         let request = Request {
-            config: self.cfg.encode.clone(),
+            config,
             start,
             payload: self.cfg.payload,
             store_support: self.cfg.store_support,
@@ -211,7 +220,8 @@ impl SeriesEncoder {
         let encoded = encode_prepared(&prepared, &request, backend, progress)?;
         let bounds = state.map_or(prepared.bounds, |s| s.bounds);
         let (range, frame, last) = (prepared.range, prepared.frame, encoded.model.clone());
-        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation, last });
+        let curve = encoded.target.as_ref().map(|r| r.curve).or(state.and_then(|s| s.curve));
+        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation, last, curve });
         Ok(StepResult { prepared, encoded })
     }
 }

@@ -39,7 +39,7 @@ int main(void) {
     char path[512];
 
     /* The ABI as this C compiler lays it out: the values capi/lib.rs pins. */
-    CHECK(sizeof(gsenc_config) == 232 && offsetof(gsenc_config, preview) == 192 && offsetof(gsenc_config, preview_at) == 200
+    CHECK(sizeof(gsenc_config) == 240 && offsetof(gsenc_config, target_psnr) == 232 && offsetof(gsenc_config, preview) == 192 && offsetof(gsenc_config, preview_at) == 200
               && offsetof(gsenc_config, preview_elevation) == 216 && offsetof(gsenc_config, preview_height) == 228 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, backend) == 184 && offsetof(gsenc_config, gpu_index) == 188 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
               && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144
@@ -63,7 +63,7 @@ int main(void) {
     EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_OK);
     CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_AUTO && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED
               && cfg.backend == GSENC_BACKEND_AUTO && cfg.gpu_index == -1 && cfg.preview == GSENC_PREVIEW_NONE && cfg.preview_axis == 2
-              && cfg.preview_at == 0.5 && cfg.preview_width == 512 && cfg.preview_height == 512, "defaults");
+              && cfg.preview_at == 0.5 && cfg.preview_width == 512 && cfg.preview_height == 512 && cfg.target_psnr == 0.0, "defaults");
     EXPECT(gsenc_config_init(NULL), GSENC_STATUS_NULL_POINTER);
 
     cfg.budget = 120;
@@ -140,6 +140,20 @@ int main(void) {
     bad.output_dir = NULL;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
     CHECK(strstr(last_error(), "output_dir") != NULL, "preview without output_dir: %s", last_error());
+    /* A quality instead of a budget: a bad target is refused at create, and
+     * budget 0 needs one. */
+    const double bad_targets[] = {-1.0, 500.0, NAN, INFINITY};
+    for (size_t i = 0; i < sizeof bad_targets / sizeof bad_targets[0]; i++) {
+        bad = cfg;
+        bad.target_psnr = bad_targets[i];
+        enc = (gsenc_encoder *)1;
+        EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(enc == NULL && strstr(last_error(), "target_psnr") != NULL, "bad target %g: %s", bad_targets[i], last_error());
+    }
+    bad = cfg;
+    bad.budget = 0;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "target_psnr") != NULL, "budget 0 without a target: %s", last_error());
     /* This encoder draws a slice of every step beside its model. */
     cfg.preview = GSENC_PREVIEW_SLICE;
     cfg.preview_axis = 1;
@@ -397,6 +411,25 @@ int main(void) {
     CHECK(v2[0] > 4.0f && v2[0] < 7.0f && fabsf(v2[1] - 1.0f) < 0.5f, "the pushed blob, not the overwrite: %g, %g", v2[0], v2[1]);
     gsenc_model_destroy(model);
     gsenc_encoder_destroy(enc);
+
+    /* A target PSNR instead of a budget (budget 0: the default cap): the
+     * model's count is the budget chosen, its PSNR within 1 dB of the target. */
+    cfg.target_psnr = 36.0;
+    cfg.budget = 0;
+    EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
+    fill_grid(a, 0);
+    EXPECT(gsenc_push_grid(enc, "aimed", 0, 0.0, &grid), GSENC_STATUS_OK);
+    EXPECT(gsenc_wait(enc, "aimed"), GSENC_STATUS_OK);
+    snprintf(path, sizeof path, "%s/aimed.gsm", dir);
+    EXPECT(gsenc_encoder_write_model(enc, "aimed", path), GSENC_STATUS_OK);
+    EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_OK);
+    EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_OK);
+    CHECK(fabs(info.encode_psnr - 36.0) <= 1.0 && info.count >= 16 && info.count != 120, "target 36 dB: %.2f dB with %llu primitives",
+          info.encode_psnr, (unsigned long long)info.count);
+    gsenc_model_destroy(model);
+    gsenc_encoder_destroy(enc);
+    cfg.target_psnr = 0.0;
+    cfg.budget = 120;
 
     /* A full queue (a long encode holds it) under each policy, then cancel. */
     gsenc_config q = cfg;

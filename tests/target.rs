@@ -1,0 +1,133 @@
+//! A quality instead of a budget (METHOD.md "A quality instead of a
+//! budget"): target-PSNR encodes of the repository's real data land within
+//! 1 dB of their targets, measured by decoding the model they return; a
+//! target out of reach ends at the cap and says so; bad targets are
+//! refused; a series changes its budget only at a step that misses.
+
+mod common;
+
+use common::{blobs, repo_data};
+use gsenc::backend::cpu::CpuBackend;
+use gsenc::encode::pipeline::{encode, Encoded, Request};
+use gsenc::encode::target::{TargetReport, LANDS_ABOVE_DB, LANDS_BELOW_DB};
+use gsenc::encode::{EncodeConfig, Schedule, TargetPsnr, WarmStart};
+use gsenc::field::{Grid, IndexFrame, Transform};
+use gsenc::input::cells::{CellSize, Cells};
+use gsenc::input::{Input, Placement, Prepared, RangeSpec};
+use gsenc::io::raw::{read_items, read_raw, DType, Order, Rows};
+use gsenc::model::metrics::voxel_psnr;
+use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange};
+
+/// `matched` cut to 600 iterations (probes of 150 and 300), targeting `db`,
+/// with at most `cap` primitives (0: the default cap).
+fn config(db: f64, cap: usize) -> EncodeConfig {
+    let mut cfg = EncodeConfig::new(cap, Schedule::Matched);
+    cfg.iterations = Some(600);
+    cfg.target = Some(TargetPsnr::new(db).unwrap());
+    cfg
+}
+
+fn encode_to(input: &Input, range: RangeSpec, cfg: EncodeConfig) -> (Prepared, Encoded) {
+    encode(input, &range, &Request::new(cfg), &mut CpuBackend::new(), &mut |_| {}).unwrap()
+}
+
+/// The model's PSNR computed again: decoded on the reference lattice
+/// (with its support), against the reference.
+fn decoded_psnr(prepared: &Prepared, e: &Encoded) -> f64 {
+    let decoded = e.model.decode(&mut CpuBackend::new(), None).unwrap();
+    voxel_psnr(&decoded.values, &prepared.reference.values)
+}
+
+/// What every target-PSNR encode must show: the model is the chosen try,
+/// its stored PSNR what a decode measures, within 1 dB of the target.
+fn check(name: &str, prepared: &Prepared, e: &Encoded, db: f64) -> TargetReport {
+    let r = e.target.clone().expect("a target's encode reports its search");
+    let psnr = decoded_psnr(prepared, e);
+    assert!((psnr - e.psnr).abs() < 1e-6, "{name}: stored {} dB, decoded {psnr} dB", e.psnr);
+    assert_eq!(e.model.meta.encode_psnr, Some(e.psnr));
+    assert_eq!((r.tries[r.chosen].budget, r.tries[r.chosen].psnr), (e.model.len(), e.psnr), "{name}: the model is the chosen try");
+    assert!((psnr - db).abs() <= 1.0, "{name}: target {db} dB, reached {psnr:.2} dB with {} primitives ({r:?})", e.model.len());
+    assert!(r.landed, "{name}: {r:?}");
+    assert!(r.probes.len() == 4, "{name}: a seeded search probes two budgets twice");
+    r
+}
+
+#[test]
+fn a_target_psnr_encode_of_the_hydrogen_atom_lands_within_a_db() {
+    let grid = read_raw(repo_data("hydrogen_atom.float32.zst"), [64; 3], DType::F32, Order::XFastest).unwrap();
+    let frame = IndexFrame::for_grid(grid.dims, [0.0; 3], 1.0).unwrap();
+    let input = Input::Grid { values: &grid, frame };
+    let mut budgets = vec![];
+    for db in [40.0, 45.0] {
+        let (prepared, e) = encode_to(&input, RangeSpec::FromData(Transform::Linear), config(db, 0));
+        check(&format!("hydrogen 64^3 at {db} dB"), &prepared, &e, db);
+        budgets.push(e.model.len());
+    }
+    assert!(budgets[1] > budgets[0], "a higher target takes more primitives: {budgets:?}");
+}
+
+#[test]
+fn a_target_psnr_encode_of_the_enzo_cells_lands_within_a_db() {
+    let items = |name: &str, comps| read_items(repo_data(name), DType::F32, comps, Rows { count: None, row: 0 }).unwrap();
+    let triples = |v: Vec<f64>| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+    let (centres, edges) = (triples(items("enzo_amr_cells.centers.float32.zst", 3)), triples(items("enzo_amr_cells.sizes.float32.zst", 3)));
+    let rho: Vec<f32> = items("enzo_amr_cells.density.float32.zst", 1).into_iter().map(|v| v as f32).collect();
+    let cells = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &rho };
+    let input = Input::Cells { cells: &cells, placement: Placement { dims: [32; 3], bounds: None } };
+    let db = 42.0;
+    let (prepared, e) = encode_to(&input, RangeSpec::FromData(Transform::Log10), config(db, 0));
+    check("enzo cells 32^3 at 42 dB", &prepared, &e, db);
+}
+
+#[test]
+fn a_target_beyond_reach_ends_at_the_cap_and_says_so() {
+    let grid = blobs([20; 3], 3, 6);
+    let frame = IndexFrame::for_grid(grid.dims, [0.0; 3], 1.0).unwrap();
+    let (prepared, e) = encode_to(&Input::Grid { values: &grid, frame }, RangeSpec::FromData(Transform::Linear), config(110.0, 40));
+    let r = e.target.clone().unwrap();
+    assert!(!r.landed && r.cap == 40, "{r:?}");
+    assert!(r.tries.iter().all(|t| t.budget <= 40) && r.probes.iter().all(|t| t.budget <= 40), "{r:?}");
+    // The best of what it tried.
+    assert!(r.tries.iter().all(|t| t.psnr <= e.psnr), "{r:?}");
+    assert!(decoded_psnr(&prepared, &e) < 110.0 - LANDS_BELOW_DB);
+}
+
+#[test]
+fn bad_targets_are_refused() {
+    for db in [0.0, -3.0, f64::NAN, f64::INFINITY, 121.0] {
+        let e = TargetPsnr::new(db).unwrap_err().to_string();
+        assert!(e.contains("target PSNR"), "{db}: {e}");
+    }
+    assert!(TargetPsnr::new(120.0).is_ok());
+}
+
+#[test]
+fn in_a_series_the_budget_changes_only_at_a_step_that_misses() {
+    let dims = [24; 3];
+    let frame = IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap();
+    // Steps 1 and 2: the same three blobs (step 2 lands where step 1 did);
+    // step 3: twelve, which the budget of three does not reach.
+    let steps: [Grid; 3] = [blobs(dims, 5, 3), blobs(dims, 5, 3), blobs(dims, 9, 12)];
+    let db = 40.0;
+    let mut cfg = SeriesConfig::new(config(db, 2000), WarmStart::Dense, SeriesRange::FirstStep(Transform::Linear));
+    cfg.validation_points = 0;
+    cfg.warm_iterations = Some(300);
+    let mut series = SeriesEncoder::new(cfg).unwrap();
+    let mut out = vec![];
+    for (step, g) in steps.iter().enumerate() {
+        let r = series.encode_step("f", step as u64, None, Input::Grid { values: g, frame }, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+        out.push((r.encoded.model.len(), r.encoded.psnr, r.encoded.target.clone().unwrap()));
+    }
+    let [(n1, p1, r1), (n2, p2, r2), (n3, p3, r3)] = &out[..] else { unreachable!() };
+    assert!(!r1.probes.is_empty() && r2.probes.is_empty() && r3.probes.is_empty(), "only the first step probes");
+    assert!(r1.landed && (p1 - db).abs() <= 1.0, "step 1: {p1:.2} dB ({r1:?})");
+    // Step 2 starts from step 1's budget and does not fall short: it keeps it.
+    assert_eq!((r2.tries[0].budget, r2.tries.len(), *n2), (*n1, 1, *n1), "step 2: {r2:?}");
+    assert!(*p2 >= db - LANDS_BELOW_DB, "step 2: {p2:.2} dB ({r2:?})");
+    // Step 3 starts from it too, misses below, and grows.
+    assert_eq!(r3.tries[0].budget, *n2, "step 3: {r3:?}");
+    assert!(r3.tries[0].psnr < db - LANDS_BELOW_DB, "step 3 is meant to miss: {r3:?}");
+    assert!(*n3 > *n2 && r3.landed && *p3 <= db + LANDS_ABOVE_DB, "step 3: {n3} primitives, {p3:.2} dB ({r3:?})");
+    // With the series' own slopes, not the defaults.
+    assert_eq!(r3.curve, r1.curve);
+}
