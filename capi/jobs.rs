@@ -148,6 +148,47 @@ pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, 
     })
 }
 
+/// The bytes `gsenc_encoder_write_model` would write for the last encoded
+/// model of `field`, into `buffer` (`capacity` bytes), for callers that
+/// store models themselves (an ADIOS2 operator, a staging service).
+/// `*size` is set to the bytes the model takes in any case: call with a
+/// NULL `buffer` to learn it; a `capacity` below it is
+/// `GSENC_STATUS_INVALID_ARGUMENT` with nothing written. Does not wait for
+/// queued steps. Not thread-safe on one encoder.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_encoder_model_bytes(
+    encoder: *mut gsenc_encoder,
+    field: *const c_char,
+    buffer: *mut u8,
+    capacity: usize,
+    size: *mut usize,
+) -> gsenc_status {
+    guard(|| {
+        let enc = encoder_mut(encoder, "gsenc_encoder_model_bytes")?;
+        // SAFETY: NUL-terminated string or NULL (refused).
+        let field = unsafe { c_str(field, "field") }?;
+        if size.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_encoder_model_bytes: size is NULL");
+        }
+        let Some((model, _)) = enc.queue.last(&field) else {
+            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
+        };
+        let bytes = write_model_as(&model, enc.settings.series.payload)?;
+        // SAFETY: non-null out pointer.
+        unsafe { *size = bytes.len() };
+        if buffer.is_null() {
+            return Ok(());
+        }
+        if capacity < bytes.len() {
+            return fail(gsenc_status::InvalidArgument, format!("gsenc_encoder_model_bytes: a buffer of {capacity} bytes, the model takes {}", bytes.len()));
+        }
+        // SAFETY: the caller's `capacity` writable bytes at `buffer`, at
+        // least `bytes.len()`; a fresh Vec does not overlap them.
+        unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), buffer, bytes.len()) };
+        Ok(())
+    })
+}
+
 /// The last encoded step of `field` and the voxel PSNR (dB) of its model as
 /// stored, against the reference it was fitted to. Does not wait for queued
 /// steps. Not thread-safe on one encoder.

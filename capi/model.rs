@@ -83,11 +83,37 @@ pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gs
             other => other,
         })?;
         // SAFETY: as above.
-        let raw = Box::into_raw(Box::new(gsenc_model { model }));
-        crate::handles::register(raw, Kind::Model);
-        unsafe { *out = raw };
+        unsafe { *out = new_handle(model) };
         Ok(())
     })
+}
+
+/// Reads a model from the `size` bytes at `data` (what a model file holds,
+/// as `gsenc_encoder_model_bytes` gives them) into `*out` (NULL on
+/// failure). The bytes are read during the call only. The caller owns the
+/// new handle and frees it with `gsenc_model_destroy`. Thread-safe.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_model_read_buffer(data: *const u8, size: usize, out: *mut *mut gsenc_model) -> gsenc_status {
+    guard(|| {
+        if out.is_null() || data.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_model_read_buffer: data or out is NULL");
+        }
+        // SAFETY: non-null pointer to the caller's handle slot.
+        unsafe { *out = std::ptr::null_mut() };
+        // SAFETY: the caller's `size` readable bytes at `data`.
+        let bytes = unsafe { std::slice::from_raw_parts(data, size) };
+        let model = gsenc::format::read_model(bytes)?;
+        // SAFETY: as above.
+        unsafe { *out = new_handle(model) };
+        Ok(())
+    })
+}
+
+/// A registered handle owning `model`.
+fn new_handle(model: Model) -> *mut gsenc_model {
+    let raw = Box::into_raw(Box::new(gsenc_model { model }));
+    crate::handles::register(raw, Kind::Model);
+    raw
 }
 
 /// Frees a model. NULL, and a handle destroyed already, are ignored;
@@ -102,6 +128,23 @@ pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
             drop(unsafe { Box::from_raw(model) });
         }));
     }
+}
+
+/// The model's field name: copied into `buf` (at most `len` bytes, always
+/// NUL-terminated when `len > 0`), its full length without the NUL in
+/// `*length`, so that a call with a NULL `buf` sizes the buffer.
+/// Thread-safe, also on one model.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_model_field(model: *const gsenc_model, buf: *mut c_char, len: usize, length: *mut usize) -> gsenc_status {
+    guard(|| {
+        let m = model_ref(model, "gsenc_model_field")?;
+        if length.is_null() {
+            return fail(gsenc_status::NullPointer, "gsenc_model_field: length is NULL");
+        }
+        // SAFETY: `buf` is NULL or the caller's `len` bytes; `length` non-null.
+        unsafe { *length = crate::ffi::copy_c_string(&m.meta.field, buf, len) };
+        Ok(())
+    })
 }
 
 /// Fills `*info` (whose `struct_size` must be set). Thread-safe, also on

@@ -115,16 +115,8 @@ pub(crate) fn set_last_error(msg: String) {
 pub unsafe extern "C" fn gsenc_last_error(buf: *mut c_char, len: usize) -> usize {
     catch_unwind(|| {
         LAST_ERROR.with(|e| {
-            let msg = e.borrow();
-            if !buf.is_null() && len > 0 {
-                let n = msg.len().min(len - 1);
-                // SAFETY: the caller gives `len` writable bytes at `buf`.
-                unsafe {
-                    std::ptr::copy_nonoverlapping(msg.as_ptr().cast::<c_char>(), buf, n);
-                    *buf.add(n) = 0;
-                }
-            }
-            msg.len()
+            // SAFETY: the caller gives `len` writable bytes at `buf`, or NULL.
+            unsafe { crate::ffi::copy_c_string(&e.borrow(), buf, len) }
         })
     })
     .unwrap_or(0)

@@ -764,6 +764,21 @@ gsenc_status gsenc_encoder_cancel(gsenc_encoder *encoder);
 gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field, const char *path);
 
 /*
+ The bytes `gsenc_encoder_write_model` would write for the last encoded
+ model of `field`, into `buffer` (`capacity` bytes), for callers that
+ store models themselves (an ADIOS2 operator, a staging service).
+ `*size` is set to the bytes the model takes in any case: call with a
+ NULL `buffer` to learn it; a `capacity` below it is
+ `GSENC_STATUS_INVALID_ARGUMENT` with nothing written. Does not wait for
+ queued steps. Not thread-safe on one encoder.
+ */
+gsenc_status gsenc_encoder_model_bytes(gsenc_encoder *encoder,
+                                       const char *field,
+                                       uint8_t *buffer,
+                                       size_t capacity,
+                                       size_t *size);
+
+/*
  The last encoded step of `field` and the voxel PSNR (dB) of its model as
  stored, against the reference it was fitted to. Does not wait for queued
  steps. Not thread-safe on one encoder.
@@ -781,11 +796,27 @@ gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
 gsenc_status gsenc_model_read(const char *path, gsenc_model **out);
 
 /*
+ Reads a model from the `size` bytes at `data` (what a model file holds,
+ as `gsenc_encoder_model_bytes` gives them) into `*out` (NULL on
+ failure). The bytes are read during the call only. The caller owns the
+ new handle and frees it with `gsenc_model_destroy`. Thread-safe.
+ */
+gsenc_status gsenc_model_read_buffer(const uint8_t *data, size_t size, gsenc_model **out);
+
+/*
  Frees a model. NULL, and a handle destroyed already, are ignored;
  other calls with it afterwards fail with `GSENC_STATUS_INVALID_ARGUMENT`.
  Not concurrently with other calls on it.
  */
 void gsenc_model_destroy(gsenc_model *model);
+
+/*
+ The model's field name: copied into `buf` (at most `len` bytes, always
+ NUL-terminated when `len > 0`), its full length without the NUL in
+ `*length`, so that a call with a NULL `buf` sizes the buffer.
+ Thread-safe, also on one model.
+ */
+gsenc_status gsenc_model_field(const gsenc_model *model, char *buf, size_t len, size_t *length);
 
 /*
  Fills `*info` (whose `struct_size` must be set). Thread-safe, also on

@@ -4,7 +4,8 @@
 # system libraries, the generated C header's freshness, the C API from C
 # (under valgrind too), the C API and the tool giving the same models, the
 # installed CMake package with C and Fortran, MPI under mpirun, the store
-# read by h5py, the Python package (pytest), and a bounded fuzzing run of
+# read by h5py, the Python package (pytest), the ADIOS2 operator and the
+# ParaView reader (pytest, headless), and a bounded fuzzing run of
 # the model reader. The GPU
 # backend's tests run on Mesa's lavapipe when there is no GPU, and fail
 # (GSENC_REQUIRE_GPU=1) rather than skip when wgpu sees no adapter at all.
@@ -62,6 +63,10 @@ python3 tests/store_h5py.py target/release/gsenc
 # The Python package: its wheel built by maturin, then pytest (decodes bit
 # for bit against the tool, a store written through the C API).
 bash tests/python.sh
+
+# The plugins: the ADIOS2 operator (set in adios2.xml alone) and the ParaView
+# reader, with the adios2 and vtk wheels.
+bash tests/plugins.sh
 
 # The model reader under libFuzzer for a bounded time.
 bash tests/fuzz.sh

@@ -410,6 +410,47 @@ int main(void) {
     EXPECT(gsenc_model_evaluate(model, centre_and_corner, 2, v2), GSENC_STATUS_OK);
     CHECK(v2[0] > 4.0f && v2[0] < 7.0f && fabsf(v2[1] - 1.0f) < 0.5f, "the pushed blob, not the overwrite: %g, %g", v2[0], v2[1]);
     gsenc_model_destroy(model);
+
+    /* The same model as bytes in memory, and read back from them. */
+    size_t nbytes = 0, nfile = 0;
+    EXPECT(gsenc_encoder_model_bytes(enc, "copy", NULL, 0, &nbytes), GSENC_STATUS_OK);
+    FILE *mf = fopen(path, "rb");
+    CHECK(mf && fseek(mf, 0, SEEK_END) == 0, "open %s", path);
+    nfile = (size_t)ftell(mf);
+    unsigned char *fbytes = malloc(nfile), *mbytes = malloc(nbytes + 8);
+    rewind(mf);
+    CHECK(fread(fbytes, 1, nfile, mf) == nfile, "read %s", path);
+    fclose(mf);
+    memset(mbytes, 0xA5, nbytes + 8); /* garbage, so that nothing relies on zeroed memory */
+    EXPECT(gsenc_encoder_model_bytes(enc, "copy", mbytes, nbytes - 1, &nbytes), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "buffer") != NULL && mbytes[0] == 0xA5, "a short buffer is refused untouched: %s", last_error());
+    EXPECT(gsenc_encoder_model_bytes(enc, "copy", mbytes, nbytes + 8, &nbytes), GSENC_STATUS_OK);
+    CHECK(nbytes == nfile && memcmp(mbytes, fbytes, nfile) == 0 && mbytes[nbytes] == 0xA5, "the bytes are the file's (%zu, %zu)", nbytes, nfile);
+    EXPECT(gsenc_encoder_model_bytes(enc, "nothing", mbytes, nbytes, &nbytes), GSENC_STATUS_CALL_ORDER);
+    EXPECT(gsenc_encoder_model_bytes(enc, "copy", mbytes, nbytes, NULL), GSENC_STATUS_NULL_POINTER);
+    gsenc_model *inmem = NULL;
+    EXPECT(gsenc_model_read_buffer(mbytes, nbytes, &inmem), GSENC_STATUS_OK);
+    float v3[2];
+    EXPECT(gsenc_model_evaluate(inmem, centre_and_corner, 2, v3), GSENC_STATUS_OK);
+    CHECK(v3[0] == v2[0] && v3[1] == v2[1], "read from memory, the file's model: %g %g", v3[0], v3[1]);
+    size_t flen = 99;
+    char fname[8];
+    memset(fname, 0x7f, sizeof fname);
+    EXPECT(gsenc_model_field(inmem, NULL, 0, &flen), GSENC_STATUS_OK);
+    CHECK(flen == 4, "the field's name is 4 bytes: %zu", flen);
+    EXPECT(gsenc_model_field(inmem, fname, 3, &flen), GSENC_STATUS_OK);
+    CHECK(flen == 4 && strcmp(fname, "co") == 0 && fname[3] == 0x7f, "truncated to fit: '%s'", fname);
+    EXPECT(gsenc_model_field(inmem, fname, sizeof fname, &flen), GSENC_STATUS_OK);
+    CHECK(strcmp(fname, "copy") == 0, "the field's name: '%s'", fname);
+    EXPECT(gsenc_model_field(inmem, fname, sizeof fname, NULL), GSENC_STATUS_NULL_POINTER);
+    EXPECT(gsenc_model_field(NULL, fname, sizeof fname, &flen), GSENC_STATUS_NULL_POINTER);
+    gsenc_model_destroy(inmem);
+    inmem = (gsenc_model *)1;
+    EXPECT(gsenc_model_read_buffer(mbytes, nbytes / 2, &inmem), GSENC_STATUS_FORMAT);
+    CHECK(inmem == NULL && strstr(last_error(), "bad format") != NULL, "half a model: %s", last_error());
+    EXPECT(gsenc_model_read_buffer(NULL, nbytes, &inmem), GSENC_STATUS_NULL_POINTER);
+    free(fbytes);
+    free(mbytes);
     gsenc_encoder_destroy(enc);
 
     /* A target PSNR instead of a budget (budget 0: the default cap): the
