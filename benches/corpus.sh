@@ -15,3 +15,20 @@ corpus() {
         fi
     done
 }
+
+# The encode arguments of the corpus's datasets, as the benchmarks run them:
+# RM at 128^3 (downsampled) and 256^3, hydrogen, the dam break's step 21
+# (particles), the halo and the Enzo cells (log10, deposited at 128^3).
+rm128=(grid --input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --downsample 2)
+rm256=(grid --input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8)
+hyd=(grid --input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
+dam=(particles --positions "$data/dambreak3d_particles.positions.float32"
+     --smoothing-length "$data/dambreak3d_particles.smoothing_length.float32"
+     --mass "$data/dambreak3d_particles.mass.float32"
+     --values "$data/dambreak3d_particles.speed.float32" --count 42042 --row 21 --fit-dims 128)
+halo=(particles --positions "$data/dm_halo_particles.positions.float32"
+      --smoothing-length "$data/dm_halo_particles.smoothing_length.float32"
+      --mass "$data/dm_halo_particles.mass.float32"
+      --values "$data/dm_halo_particles.density.float32" --log10 --dims 128)
+enzo=(cells --centers "$data/enzo_amr_cells.centers.float32" --sizes "$data/enzo_amr_cells.sizes.float32"
+      --values "$data/enzo_amr_cells.density.float32" --log10 --dims 128)

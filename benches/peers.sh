@@ -83,20 +83,6 @@ open('$log', 'w').writelines(rows)"
 }
 
 rm_raw=$data/richtmyer_meshkov_t20.uint8
-rm128=(grid --input "$rm_raw" --dims 256,256,256 --dtype u8 --downsample 2)
-rm256=(grid --input "$rm_raw" --dims 256,256,256 --dtype u8)
-hyd=(grid --input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
-halo=(particles --positions "$data/dm_halo_particles.positions.float32"
-      --smoothing-length "$data/dm_halo_particles.smoothing_length.float32"
-      --mass "$data/dm_halo_particles.mass.float32"
-      --values "$data/dm_halo_particles.density.float32" --log10 --dims 128)
-enzo=(cells --centers "$data/enzo_amr_cells.centers.float32" --sizes "$data/enzo_amr_cells.sizes.float32"
-      --values "$data/enzo_amr_cells.density.float32" --log10 --dims 128)
-dam=(particles --positions "$data/dambreak3d_particles.positions.float32"
-     --smoothing-length "$data/dambreak3d_particles.smoothing_length.float32"
-     --mass "$data/dambreak3d_particles.mass.float32"
-     --values "$data/dambreak3d_particles.speed.float32" --count 42042 --row 21 --fit-dims 128)
-
 # payload MODEL-NAME BUDGET ENCODE-ARGS...: one float32 encode, stored as
 # float32, 8-bit and 8bit-u16 (converted) and packed (the same encode with
 # its precision measured: the same parameters, so the same float32 PSNR).

@@ -28,21 +28,12 @@ if [ -z "$bin" ]; then
 fi
 log=$out/target.jsonl
 
-rm128=(grid --input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --downsample 2)
-hydrogen=(grid --input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
-halo=(particles --positions "$data/dm_halo_particles.positions.float32"
-      --smoothing-length "$data/dm_halo_particles.smoothing_length.float32"
-      --mass "$data/dm_halo_particles.mass.float32"
-      --values "$data/dm_halo_particles.density.float32" --log10 --dims 128)
-enzo=(cells --centers "$data/enzo_amr_cells.centers.float32" --sizes "$data/enzo_amr_cells.sizes.float32"
-      --values "$data/enzo_amr_cells.density.float32" --log10 --dims 128)
-
 tag() { python3 -c "import json,sys; d=json.load(sys.stdin); d.update(json.loads(sys.argv[1])); print(json.dumps(d))" "$1"; }
 
 for ds in "${datasets[@]}"; do
     case "$ds" in
         rm128) args=("${rm128[@]}") ;;
-        hydrogen) args=("${hydrogen[@]}") ;;
+        hydrogen) args=("${hyd[@]}") ;;
         halo) args=("${halo[@]}") ;;
         enzo) args=("${enzo[@]}") ;;
         *) echo "unknown dataset $ds (rm128 hydrogen halo enzo)" >&2; exit 2 ;;

@@ -7,44 +7,28 @@ GSENC_PARAVIEW_DIR the installed reader's folder. All but the last are
 required: a test never skips.
 """
 
+import importlib.util
 import os
-import subprocess
 import sys
 
 import numpy as np
 import pytest
 
+# The Python package's test fixtures (gsenc_bin: GSENC_BIN; cli: runs the
+# tool), shared rather than written again.
+_root = os.path.join(os.path.dirname(__file__), "..", "..")
+_spec = importlib.util.spec_from_file_location("gsenc_python_tests", os.path.join(_root, "python", "tests", "conftest.py"))
+_shared = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_shared)
+gsenc_bin, cli, write_step_index = _shared.gsenc_bin, _shared.cli, _shared.write_step_index
+
 # The reader as installed (tests/plugins.sh), else the checkout's.
 sys.path.insert(0, os.environ.get("GSENC_PARAVIEW_DIR") or os.path.join(os.path.dirname(__file__), "..", "paraview"))
 
 
-def _required(name):
-    path = os.environ.get(name)
-    if not path or not os.path.exists(path):
-        raise RuntimeError(f"{name} must name an existing path (tests/plugins.sh sets it)")
-    return path
-
-
-@pytest.fixture(scope="session")
-def gsenc_bin():
-    return _required("GSENC_BIN")
-
-
 @pytest.fixture(scope="session")
 def plugin_dir():
-    return _required("GSENC_PLUGIN_DIR")
-
-
-@pytest.fixture(scope="session")
-def cli(gsenc_bin):
-    """Runs the tool; fails the test with its stderr when it fails."""
-
-    def run(*args):
-        done = subprocess.run([gsenc_bin, *map(str, args)], capture_output=True, text=True)
-        assert done.returncode == 0, f"gsenc {' '.join(map(str, args))}: {done.stderr}"
-        return done.stdout
-
-    return run
+    return _shared._required("GSENC_PLUGIN_DIR")
 
 
 def blobs(dims, shift=0.0):

@@ -2,12 +2,10 @@
 with the vtk wheel: a .gsm, a .gsi and a store, checked against `gsenc
 decode` of the same models read back by VTK's own .vti reader."""
 
-import json
-
 import gsenc
 import numpy as np
 import pytest
-from conftest import blobs
+from conftest import blobs, write_step_index
 from vtkmodules.util import numpy_support
 from vtkmodules.vtkIOXML import vtkXMLImageDataReader
 
@@ -73,20 +71,8 @@ def test_a_model_file_at_its_own_lattice_and_at_any_dims(gsm, cli, tmp_path, mon
 
 
 def test_a_step_index_is_the_blended_global_field(tmp_path, cli):
-    field = blobs((32, 16, 16))
-    lo, hi = [(0, 0, 0), (12, 0, 0)], [(20, 16, 16), (32, 16, 16)]
-    pieces = []
-    for rank in (0, 1):
-        part = field[:, :, lo[rank][0]:hi[rank][0]]
-        model = gsenc.encode_grid(part, 80, origin=(lo[rank][0], 0, 0), range=(0.0, 8.0), field="rho", step=4, rank=rank, **QUICK)
-        name = "rho_000004.gsm" if rank == 0 else "rho_000004_r1.gsm"
-        model.write(tmp_path / name)
-        pieces.append(dict(rank=rank, model=name, lo=list(lo[rank]), hi=list(hi[rank]),
-                           world_min=[lo[rank][a] - 0.5 for a in range(3)], world_max=[hi[rank][a] - 0.5 for a in range(3)]))
-    index = dict(format="gsenc-step-index", version=1, field="rho", step=4, time=None, ranks=2, halo=4,
-                 range=dict(vmin=0.0, vmax=8.0, transform="linear"), dims=[32, 16, 16], bmin=[-0.5, -0.5, -0.5],
-                 gamma=1.0, pieces=pieces)
-    (tmp_path / "rho_000004.gsi").write_text(json.dumps(index))
+    encode = lambda part, origin, rank: gsenc.encode_grid(part, 80, origin=origin, range=(0.0, 8.0), field="rho", step=4, rank=rank, **QUICK)
+    write_step_index(tmp_path, blobs((32, 16, 16)), encode, vrange=(0.0, 8.0))
     _, ours = reader_output(tmp_path / "rho_000004.gsi")
     same_image(ours, tool_decode(cli, tmp_path, tmp_path / "rho_000004.gsi"), "rho")
 

@@ -5,6 +5,7 @@ GSENC_MOCK_SOLVER the C mock solver (built against libgsenc with HDF5) that
 writes a store through the C API. Both are required: a test never skips.
 """
 
+import json
 import os
 import subprocess
 
@@ -57,3 +58,25 @@ QUICK = dict(schedule="short", iterations=40, points=512, threads=1, backend="cp
 def read_raw(path, dims):
     """A raw float32 file the tool wrote, as [z][y][x]."""
     return np.fromfile(path, dtype="<f4").reshape(dims[2], dims[1], dims[0])
+
+
+def write_step_index(folder, field, encode, halo=4, vrange=(0.0, 220.0)):
+    """Two pieces of ``field`` ([z][y][x], 32 wide in x), overlapping by
+    ``2 * halo`` voxels in x, each encoded on its own box by ``encode(part,
+    origin, rank)`` and written as rho_000004.gsm and rho_000004_r1.gsm,
+    named by a step index rho_000004.gsi in ``folder``; returns its path."""
+    nz, ny, nx = field.shape
+    lo, hi = [(0, 0, 0), (nx // 2 - halo, 0, 0)], [(nx // 2 + halo, ny, nz), (nx, ny, nz)]
+    pieces = []
+    for rank in (0, 1):
+        part = field[:, :, lo[rank][0]:hi[rank][0]]
+        name = "rho_000004.gsm" if rank == 0 else "rho_000004_r1.gsm"
+        encode(part, (lo[rank][0], 0, 0), rank).write(folder / name)
+        pieces.append(dict(rank=rank, model=name, lo=list(lo[rank]), hi=list(hi[rank]),
+                           world_min=[lo[rank][a] - 0.5 for a in range(3)], world_max=[hi[rank][a] - 0.5 for a in range(3)]))
+    index = dict(format="gsenc-step-index", version=1, field="rho", step=4, time=None, ranks=2, halo=halo,
+                 range=dict(vmin=vrange[0], vmax=vrange[1], transform="linear"), dims=[nx, ny, nz], bmin=[-0.5, -0.5, -0.5],
+                 gamma=1.0, pieces=pieces)
+    path = folder / "rho_000004.gsi"
+    path.write_text(json.dumps(index))
+    return path

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import gsenc
-from conftest import QUICK, blobs, read_raw
+from conftest import QUICK, blobs, read_raw, write_step_index
 
 
 @pytest.fixture(scope="module")
@@ -73,19 +73,8 @@ def test_a_step_index_decodes_as_the_tools_blend(tmp_path, cli):
     """Two pieces of a 32 x 16 x 16 field, overlapping by 8 voxels (a halo of
     4), each encoded on its own box and named by a step index."""
     field = blobs((32, 16, 16))
-    lo, hi = [(0, 0, 0), (12, 0, 0)], [(20, 16, 16), (32, 16, 16)]
-    pieces = []
-    for rank in (0, 1):
-        part = field[:, :, lo[rank][0]:hi[rank][0]]
-        model = gsenc.encode_grid(part, 80, origin=(lo[rank][0], 0, 0), range=(0.0, 220.0), field="rho", step=4, rank=rank, **QUICK)
-        name = "rho_000004.gsm" if rank == 0 else "rho_000004_r1.gsm"
-        model.write(tmp_path / name)
-        pieces.append(dict(rank=rank, model=name, lo=list(lo[rank]), hi=list(hi[rank]),
-                           world_min=[lo[rank][a] - 0.5 for a in range(3)], world_max=[hi[rank][a] - 0.5 for a in range(3)]))
-    index = dict(format="gsenc-step-index", version=1, field="rho", step=4, time=None, ranks=2, halo=4,
-                 range=dict(vmin=0.0, vmax=220.0, transform="linear"), dims=[32, 16, 16], bmin=[-0.5, -0.5, -0.5],
-                 gamma=1.0, pieces=pieces)
-    (tmp_path / "rho_000004.gsi").write_text(json.dumps(index))
+    encode = lambda part, origin, rank: gsenc.encode_grid(part, 80, origin=origin, range=(0.0, 220.0), field="rho", step=4, rank=rank, **QUICK)
+    write_step_index(tmp_path, field, encode)
     step = gsenc.read(tmp_path / "rho_000004.gsi")
     assert step.info["pieces"] == 2 and step.dims == (32, 16, 16) and len(step) == 160
     for kwargs, args in [({}, []), (dict(additive=True), ["--additive"]), (dict(dims=(40, 20, 20)), ["--dims", "40,20,20"])]:
