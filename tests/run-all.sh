@@ -13,15 +13,22 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-bash tests/deps.sh
+# Each stage says how long it took (the CI machine allows 30 minutes in all).
+stage() {
+    local t=$SECONDS
+    "$@"
+    echo "run-all: '$*' took $((SECONDS - t)) s (at $SECONDS s)" >&2
+}
+
+stage bash tests/deps.sh
 export GSENC_REQUIRE_GPU=1
 # Mesa's Wayland code complains on stderr without a runtime folder (harmless).
 if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
     export XDG_RUNTIME_DIR="$(mktemp -d)"
 fi
-cargo test --release --locked --features hdf5
+stage cargo test --release --locked --features hdf5
 # A plain build needs no system library: it must still compile and pass.
-cargo test --release --locked -p gsenc-cli --test cli
+stage cargo test --release --locked -p gsenc-cli --test cli
 
 # build.rs regenerates include/gsenc.h; the checked-in copy must match.
 if ! git diff --quiet -- include/gsenc.h; then
@@ -31,7 +38,7 @@ if ! git diff --quiet -- include/gsenc.h; then
 fi
 
 # The library, libgsenc (.so and .a) and the tool, without features.
-cargo build --release --locked
+stage cargo build --release --locked
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
@@ -41,32 +48,32 @@ echo "c: 1 passed, 0 failed"
 cc -std=c99 -Wall -Werror -Iinclude examples_c/minimal.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/minimal"
 # The C API from C: a warm-started series, models read back, every error path.
 cc -std=c99 -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi"
-GSENC_CAPI_TMP="$out" "$out/capi"
+stage env GSENC_CAPI_TMP="$out" "$out/capi"
 # ...and under valgrind memcheck: no invalid reads or writes, no leaks. With
 # no Vulkan driver (VK_ICD_FILENAMES names none): memcheck is for gsenc, and
 # glibc's loader and Mesa's driver report their own (suppressible) findings.
 cc -std=c99 -g -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi-g"
-VK_ICD_FILENAMES=/nonexistent.json GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --show-leak-kinds=definite,indirect --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
+stage env VK_ICD_FILENAMES=/nonexistent.json GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --show-leak-kinds=definite,indirect --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
 # The C API and the tool: the same particles and cells, the same models.
-bash tests/parity.sh
+stage bash tests/parity.sh
 
 # The installed CMake package: C and Fortran mock solvers as a separate project.
-bash tests/package.sh
+stage bash tests/package.sh
 
 # The MPI layer under mpirun -n 1, 2, 4: C, Fortran, CLI and the mock solver.
-bash tests/mpi.sh
+stage bash tests/mpi.sh
 
 # The store read with h5py alone, against the models gsenc extracts from it.
-cargo build --release --locked --features hdf5 --bin gsenc
-python3 tests/store_h5py.py target/release/gsenc
+stage cargo build --release --locked --features hdf5 --bin gsenc
+stage python3 tests/store_h5py.py target/release/gsenc
 
 # The Python package: its wheel built by maturin, then pytest (decodes bit
 # for bit against the tool, a store written through the C API).
-bash tests/python.sh
+stage bash tests/python.sh
 
 # The plugins: the ADIOS2 operator (set in adios2.xml alone) and the ParaView
 # reader, with the adios2 and vtk wheels.
-bash tests/plugins.sh
+stage bash tests/plugins.sh
 
 # The model reader under libFuzzer for a bounded time.
-bash tests/fuzz.sh
+stage bash tests/fuzz.sh

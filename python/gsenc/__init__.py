@@ -123,17 +123,20 @@ def _run(call, progress):
             report.close()
 
 
-def _options(budget, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed, sample_seed,
-             relocation, support, threads, backend):
-    return dict(budget=budget, schedule=schedule, range=range, log10=log10, payload=payload, field=field, step=step,
+def _options(budget, target_psnr, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed,
+             sample_seed, relocation, support, threads, backend):
+    return dict(budget=budget, target_psnr=target_psnr, schedule=schedule, range=range, log10=log10, payload=payload, field=field, step=step,
                 time=time, rank=rank, iterations=iterations, points=points, seed=seed, sample_seed=sample_seed,
                 relocation=relocation, support=support, threads=threads, backend=backend)
 
 
-def encode_grid(array, budget, *, schedule="matched", range=None, log10=False, origin=(0.0, 0.0, 0.0), spacing=1.0,
+def encode_grid(array, budget=None, *, target_psnr=None, schedule="matched", range=None, log10=False, origin=(0.0, 0.0, 0.0), spacing=1.0,
                 payload="f32", field="scalar", step=0, time=None, rank=0, iterations=None, points=None, seed=0, sample_seed=1,
                 relocation=True, support=True, threads=None, backend="auto", progress=None) -> Model:
-    """Encodes a 3D array ``[z][y][x]`` into ``budget`` Gaussians.
+    """Encodes a 3D array ``[z][y][x]`` into ``budget`` Gaussians, or into
+    as many as reach ``target_psnr`` (dB, the voxel PSNR as stored; then
+    ``budget`` is the most it may choose, default one per 32 voxels that
+    hold data; docs/METHOD.md "A quality instead of a budget").
 
     ``array``: any of uint8/int8/uint16/int16/uint32/int32/uint64/int64/
     float32/float64, any strides (read in place). ``schedule``: "short",
@@ -148,8 +151,8 @@ def encode_grid(array, budget, *, schedule="matched", range=None, log10=False, o
     ``progress``: True for a bar, or ``f(iteration, iterations, loss)``.
     Returns the model; ``model.psnr`` is its voxel PSNR against the array.
     The GIL is released while it runs; Ctrl-C stops it."""
-    o = _options(budget, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed, sample_seed,
-                 relocation, support, threads, backend)
+    o = _options(budget, target_psnr, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed,
+                 sample_seed, relocation, support, threads, backend)
     origin = tuple(float(v) for v in origin)
     return _run(lambda report: _gsenc.encode_grid(array, origin, float(spacing), o, report), progress)
 
@@ -161,7 +164,7 @@ def _place(dims, fit_dims, bounds):
     return dict(dims=None if dims is None else tuple(int(v) for v in dims), fit_dims=fit_dims, bounds=bounds)
 
 
-def encode_particles(positions, smoothing_length, values, mass=None, *, budget, dims=None, fit_dims=None, bounds=None,
+def encode_particles(positions, smoothing_length, values, mass=None, *, budget=None, target_psnr=None, dims=None, fit_dims=None, bounds=None,
                      schedule="matched", range=None, log10=False, payload="f32", field="scalar", step=0, time=None,
                      rank=0, iterations=None, points=None, seed=0, sample_seed=1, relocation=True, support=True, threads=None,
                      backend="auto", progress=None) -> Model:
@@ -170,14 +173,14 @@ def encode_particles(positions, smoothing_length, values, mass=None, *, budget, 
     lattice of ``dims`` (x, y, z), or of ``fit_dims`` voxels along the longest
     axis of ``bounds`` ((min x, y, z), (max x, y, z); default the particles').
     Other options as :func:`encode_grid`."""
-    o = _options(budget, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed, sample_seed,
-                 relocation, support, threads, backend)
+    o = _options(budget, target_psnr, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed,
+                 sample_seed, relocation, support, threads, backend)
     place = _place(dims, fit_dims, bounds)
     return _run(lambda report: _gsenc.encode_particles(positions, smoothing_length, values, mass, place, o, report),
                 progress)
 
 
-def encode_cells(centers, values, sizes=None, volumes=None, *, budget, dims=None, fit_dims=None, bounds=None,
+def encode_cells(centers, values, sizes=None, volumes=None, *, budget=None, target_psnr=None, dims=None, fit_dims=None, bounds=None,
                  schedule="matched", range=None, log10=False, payload="f32", field="scalar", step=0, time=None,
                  rank=0, iterations=None, points=None, seed=0, sample_seed=1, relocation=True, support=True, threads=None,
                  backend="auto", progress=None) -> Model:
@@ -185,7 +188,7 @@ def encode_cells(centers, values, sizes=None, volumes=None, *, budget, dims=None
     and either ``sizes`` (n, 3) edge lengths or ``volumes`` (n,)) against
     their volume-weighted deposit; placement as :func:`encode_particles`,
     other options as :func:`encode_grid`."""
-    o = _options(budget, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed, sample_seed,
-                 relocation, support, threads, backend)
+    o = _options(budget, target_psnr, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed,
+                 sample_seed, relocation, support, threads, backend)
     place = _place(dims, fit_dims, bounds)
     return _run(lambda report: _gsenc.encode_cells(centers, values, sizes, volumes, place, o, report), progress)

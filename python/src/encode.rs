@@ -8,7 +8,7 @@ use crate::arrays::{grid_values, triples, values, values_f64};
 use crate::errors::IntoPy;
 use crate::model::{backend_choice, in_memory, Model};
 use gsenc::encode::pipeline::{self, Labels, Request, Start};
-use gsenc::encode::{with_threads, Cancel, EncodeConfig, Schedule};
+use gsenc::encode::{with_threads, Cancel, EncodeConfig, Schedule, TargetPsnr};
 use gsenc::field::{Bounds, Grid, IndexFrame};
 use gsenc::format::Payload;
 use gsenc::input::cells::{CellSize, Cells};
@@ -26,8 +26,8 @@ struct Options {
     backend: String,
 }
 
-const OPTIONS: [&str; 17] = [
-    "budget", "schedule", "range", "log10", "payload", "field", "step", "time", "rank", "iterations", "points", "seed", "sample_seed", "relocation", "support", "threads", "backend",
+const OPTIONS: [&str; 18] = [
+    "budget", "target_psnr", "schedule", "range", "log10", "payload", "field", "step", "time", "rank", "iterations", "points", "seed", "sample_seed", "relocation", "support", "threads", "backend",
 ];
 
 fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
@@ -46,9 +46,14 @@ fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
             _ => Ok(None),
         }
     }
-    let budget: usize = get(o, "budget")?.ok_or_else(|| PyTypeError::new_err("budget is required"))?;
+    let budget: Option<usize> = get(o, "budget")?;
+    let target = get::<f64>(o, "target_psnr")?.map(TargetPsnr::new).transpose().py_err()?;
+    if budget.is_none() && target.is_none() {
+        return Err(PyTypeError::new_err("give a budget, or a target_psnr"));
+    }
     let schedule = Schedule::from_name(&get::<String>(o, "schedule")?.unwrap_or_else(|| "matched".into())).py_err()?;
-    let mut config = EncodeConfig::new(budget, schedule);
+    let mut config = EncodeConfig::new(budget.unwrap_or(0), schedule);
+    config.target = target;
     config.iterations = get(o, "iterations")?;
     config.points = get(o, "points")?;
     config.seed_init = get(o, "seed")?.unwrap_or(0);

@@ -29,6 +29,24 @@ def test_a_grid_encodes_to_the_tools_model(tmp_path, cli):
     assert (tmp_path / "py.gsm").read_bytes() == (tmp_path / "cli.gsm").read_bytes()
 
 
+def test_a_target_psnr_chooses_the_tools_budget(tmp_path, cli):
+    field = blobs().astype(np.float32)
+    field.tofile(tmp_path / "f.raw")
+    quick = dict(QUICK, iterations=300)
+    cli("encode", "grid", "--input", tmp_path / "f.raw", "--dims", "24,20,16", "--dtype", "f32", "--target-psnr", 38,
+        *CLI_QUICK[:2], "--iters", 300, *CLI_QUICK[4:], "-o", tmp_path / "cli.gsm")
+    ours = gsenc.encode_grid(field, target_psnr=38, **quick)
+    theirs = gsenc.read(tmp_path / "cli.gsm")
+    assert len(ours) == len(theirs) and ours.psnr == pytest.approx(theirs.psnr, abs=1e-9)
+    assert abs(ours.psnr - 38) <= 1.0, f"{len(ours)} Gaussians, {ours.psnr:.2f} dB"
+    # With a cap below what it needs, it stops there.
+    assert len(gsenc.encode_grid(field, 20, target_psnr=60, **quick)) <= 20
+    with pytest.raises(ValueError, match="target PSNR"):
+        gsenc.encode_grid(field, target_psnr=-1, **quick)
+    with pytest.raises(TypeError, match="budget"):
+        gsenc.encode_grid(field, **quick)
+
+
 def test_particles_and_cells_encode_to_the_tools_models(tmp_path, cli):
     rng = np.random.default_rng(3)
     n = 3000
