@@ -92,6 +92,7 @@ struct Settings
     int32_t schedule = GSENC_SCHEDULE_MATCHED;
     int32_t payload = GSENC_PAYLOAD_PACKED;
     uint32_t threads = 0;
+    int32_t backend = GSENC_BACKEND_AUTO;
     size_t min_elements = 4096;
 };
 
@@ -139,10 +140,12 @@ Settings Parse(const Params &params)
         else if (k == "payload")
             s.payload = OneOf(k, v, {{"f32", GSENC_PAYLOAD_F32}, {"8bit", GSENC_PAYLOAD_8BIT}, {"8bit-u16", GSENC_PAYLOAD_8BIT_U16}, {"packed", GSENC_PAYLOAD_PACKED}});
         else if (k == "threads") s.threads = static_cast<uint32_t>(Number(k, v));
+        else if (k == "backend")
+            s.backend = OneOf(k, v, {{"auto", GSENC_BACKEND_AUTO}, {"cpu", GSENC_BACKEND_CPU}, {"gpu", GSENC_BACKEND_GPU}});
         else if (k == "min_elements") s.min_elements = Number(k, v);
         else
             throw std::invalid_argument("gsenc ADIOS2 operator: unknown parameter '" + k +
-                                        "' (budget, target_psnr, schedule, payload, threads, min_elements)");
+                                        "' (budget, target_psnr, schedule, payload, threads, backend, min_elements)");
     }
     return s;
 }
@@ -269,6 +272,7 @@ private:
         cfg.schedule = s.schedule;
         cfg.payload = s.payload;
         cfg.threads = s.threads;
+        cfg.backend = s.backend;
         cfg.warm_start = GSENC_WARM_OFF;
         gsenc_grid grid;
         std::memset(&grid, 0, sizeof grid);

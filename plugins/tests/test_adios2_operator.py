@@ -80,7 +80,7 @@ def steps():
 def written(tmp_path_factory, steps, plugin_dir):
     d = tmp_path_factory.mktemp("adios2")
     os.environ["ADIOS2_PLUGIN_PATH"] = plugin_dir
-    config = xml(d / "adios2.xml", dict(budget=BUDGET, schedule="short", threads=1))
+    config = xml(d / "adios2.xml", dict(budget=BUDGET, schedule="short", threads=1, backend="cpu"))
     write(d / "gsenc.bp", config, steps)
     write(d / "raw.bp", None, steps)
     return d
@@ -137,6 +137,7 @@ def test_reading_without_the_plugin_fails_with_adios2s_error(written):
 def test_a_bad_parameter_is_an_error_at_the_first_put(tmp_path, steps, plugin_dir):
     os.environ["ADIOS2_PLUGIN_PATH"] = plugin_dir
     for params, says in [(dict(budget="many"), "budget 'many'"), (dict(schedule="slow"), "schedule 'slow'"), (dict(colour="red"), "unknown parameter 'colour'"),
+                         (dict(backend="tpu"), "backend 'tpu'"),
                          (dict(target_psnr="200"), "target_psnr '200'")]:
         with pytest.raises(Exception, match=says):
             write(tmp_path / "bad.bp", xml(tmp_path / "bad.xml", params), steps[:1])
