@@ -53,24 +53,6 @@ pub(crate) unsafe fn c_str(s: *const c_char, what: &str) -> Result<String, Failu
 }
 
 /// Grid extents as dims, each positive and their product bounded.
-/// Copies `text` into the caller's `buf` (at most `len` bytes, always
-/// NUL-terminated when `len > 0`, truncated to fit); returns its full
-/// length without the NUL.
-///
-/// # Safety
-/// `buf` is NULL or holds `len` writable bytes.
-pub(crate) unsafe fn copy_c_string(text: &str, buf: *mut c_char, len: usize) -> usize {
-    if !buf.is_null() && len > 0 {
-        let n = text.len().min(len - 1);
-        // SAFETY: the caller gives `len` writable bytes at `buf`.
-        unsafe {
-            std::ptr::copy_nonoverlapping(text.as_ptr().cast::<c_char>(), buf, n);
-            *buf.add(n) = 0;
-        }
-    }
-    text.len()
-}
-
 pub(crate) fn extents(e: [u64; 3]) -> Result<[usize; 3], Failure> {
     let dims = e.map(|d| usize::try_from(d).unwrap_or(usize::MAX));
     let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n > 0 && n <= 1 << 34);

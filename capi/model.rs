@@ -142,7 +142,7 @@ pub unsafe extern "C" fn gsenc_model_field(model: *const gsenc_model, buf: *mut 
             return fail(gsenc_status::NullPointer, "gsenc_model_field: length is NULL");
         }
         // SAFETY: `buf` is NULL or the caller's `len` bytes; `length` non-null.
-        unsafe { *length = crate::ffi::copy_c_string(&m.meta.field, buf, len) };
+        unsafe { *length = crate::status::copy_c_string(&m.meta.field, buf, len) };
         Ok(())
     })
 }

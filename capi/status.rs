@@ -106,6 +106,24 @@ pub(crate) fn set_last_error(msg: String) {
     LAST_ERROR.with(|e| *e.borrow_mut() = msg);
 }
 
+/// Copies `text` into the caller's `buf` (at most `len` bytes, always
+/// NUL-terminated when `len > 0`, truncated to fit); returns its full
+/// length without the NUL.
+///
+/// # Safety
+/// `buf` is NULL or holds `len` writable bytes.
+pub(crate) unsafe fn copy_c_string(text: &str, buf: *mut c_char, len: usize) -> usize {
+    if !buf.is_null() && len > 0 {
+        let n = text.len().min(len - 1);
+        // SAFETY: the caller gives `len` writable bytes at `buf`.
+        unsafe {
+            std::ptr::copy_nonoverlapping(text.as_ptr().cast::<c_char>(), buf, n);
+            *buf.add(n) = 0;
+        }
+    }
+    text.len()
+}
+
 /// Copies the calling thread's last error message into `buf` (at most
 /// `len` bytes, always NUL-terminated when `len > 0`) and returns the
 /// message's full length without the NUL, so that `gsenc_last_error(NULL, 0)`
@@ -116,7 +134,7 @@ pub unsafe extern "C" fn gsenc_last_error(buf: *mut c_char, len: usize) -> usize
     catch_unwind(|| {
         LAST_ERROR.with(|e| {
             // SAFETY: the caller gives `len` writable bytes at `buf`, or NULL.
-            unsafe { crate::ffi::copy_c_string(&e.borrow(), buf, len) }
+            unsafe { copy_c_string(&e.borrow(), buf, len) }
         })
     })
     .unwrap_or(0)
