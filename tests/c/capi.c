@@ -454,25 +454,31 @@ int main(void) {
     gsenc_encoder_destroy(enc);
 
     /* A target PSNR instead of a budget (budget 0: the default cap): the
-     * model's count is the budget chosen, its PSNR within 1 dB of the target. */
-    cfg.target_psnr = 32.0;
-    cfg.budget = 0;
-    cfg.points = 256; /* a search runs several encodes: small ones (this test also runs under valgrind) */
-    EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
-    fill_grid(a, 0);
-    EXPECT(gsenc_push_grid(enc, "aimed", 0, 0.0, &grid), GSENC_STATUS_OK);
-    EXPECT(gsenc_wait(enc, "aimed"), GSENC_STATUS_OK);
-    snprintf(path, sizeof path, "%s/aimed.gsm", dir);
-    EXPECT(gsenc_encoder_write_model(enc, "aimed", path), GSENC_STATUS_OK);
-    EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_OK);
-    EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_OK);
-    CHECK(fabs(info.encode_psnr - 32.0) <= 1.0 && info.count >= 16 && info.count != 120, "target 32 dB: %.2f dB with %llu primitives",
-          info.encode_psnr, (unsigned long long)info.count);
-    gsenc_model_destroy(model);
-    gsenc_encoder_destroy(enc);
-    cfg.target_psnr = 0.0;
-    cfg.budget = 120;
-    cfg.points = 1024;
+     * model's count is the budget chosen, its PSNR within 1 dB of the target.
+     * Its search runs eight encodes through the same calls as one: the
+     * valgrind run (GSENC_CAPI_MEMCHECK) leaves it to the native run. */
+    if (getenv("GSENC_CAPI_MEMCHECK")) {
+        printf("capi: the target-PSNR search is checked by the native run, not under valgrind\n");
+    } else {
+        cfg.target_psnr = 32.0;
+        cfg.budget = 0;
+        cfg.points = 256;
+        EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
+        fill_grid(a, 0);
+        EXPECT(gsenc_push_grid(enc, "aimed", 0, 0.0, &grid), GSENC_STATUS_OK);
+        EXPECT(gsenc_wait(enc, "aimed"), GSENC_STATUS_OK);
+        snprintf(path, sizeof path, "%s/aimed.gsm", dir);
+        EXPECT(gsenc_encoder_write_model(enc, "aimed", path), GSENC_STATUS_OK);
+        EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_OK);
+        EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_OK);
+        CHECK(fabs(info.encode_psnr - 32.0) <= 1.0 && info.count >= 16 && info.count != 120, "target 32 dB: %.2f dB with %llu primitives",
+              info.encode_psnr, (unsigned long long)info.count);
+        gsenc_model_destroy(model);
+        gsenc_encoder_destroy(enc);
+        cfg.target_psnr = 0.0;
+        cfg.budget = 120;
+        cfg.points = 1024;
+    }
 
     /* A full queue (a long encode holds it) under each policy, then cancel. */
     gsenc_config q = cfg;
