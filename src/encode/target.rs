@@ -79,11 +79,11 @@ pub const CAP_VOXELS_PER_PRIMITIVE: usize = 32;
 /// least slope per budget doubling trusted.
 pub const DEFAULT_CURVE: Curve = Curve { per_budget_doubling: 1.5, per_iteration_doubling: 1.0 };
 pub const MIN_SLOPE_DB: f64 = 0.3;
-/// Corrections after the first full-length model, and the most one grows
-/// the budget by.
+/// Corrections after the first full-length model, and the most a series'
+/// step grows its budget by at once.
 pub const MAX_CORRECTIONS: usize = 3;
 pub const MAX_FACTOR: f64 = 4.0;
-/// The least a growing correction adds: the training it gets alone gains
+/// The least a series' growing step adds: the training it gets alone gains
 /// little (hydrogen, 620 primitives: 48.98 dB, 750 more iterations 49.45).
 pub const MIN_GROWTH: f64 = 1.15;
 /// Mixed into the seeding seed per correction.
