@@ -138,7 +138,7 @@ pub fn encode_to_target(
             break;
         }
         // Between two tries that bracket the aim, their own slope; else the curve's.
-        let slope = bracket(&models, search.aim()).unwrap_or(curve.per_budget_doubling);
+        let slope = bracket_slope(&points(&search.tries), search.aim()).unwrap_or(curve.per_budget_doubling);
         let next = match request.start {
             // A series' step grows by insertion, or keeps its budget.
             Start::Warm { .. } if p < t.db => {
@@ -155,7 +155,7 @@ pub fn encode_to_target(
             // A seeded encode is encoded again, to the budget the slope says.
             Start::Seeded => {
                 let want = search.budget_for(n, p, slope);
-                if models.iter().any(|e| e.model.len() == want) {
+                if search.tries.iter().any(|t| t.budget == want) {
                     break; // at the cap or the floor, or tried already
                 }
                 search.fresh(want)?
@@ -163,10 +163,10 @@ pub fn encode_to_target(
         };
         models.push(next);
     }
-    let psnrs: Vec<(usize, f64)> = models.iter().map(|e| (e.model.len(), e.psnr)).collect();
-    let chosen = choose(&psnrs, t.db);
-    let landed = lands(psnrs[chosen].1, t.db);
+    // `search.tries` records `models`, one for one.
+    let chosen = choose(&points(&search.tries), t.db);
     let mut encoded = models.swap_remove(chosen);
+    let landed = lands(encoded.psnr, t.db);
     tracing::info!(target = t.db, psnr = encoded.psnr, budget = encoded.model.len(), landed, "target PSNR");
     encoded.target = Some(TargetReport { target: t.db, landed, cap, probes: search.probes, tries: search.tries, chosen, curve, seconds: started.elapsed().as_secs_f64() });
     Ok(encoded)
@@ -180,14 +180,14 @@ fn budget_for(n: usize, p: f64, aim: f64, slope: f64, cap: usize) -> usize {
     (want.min(usize::MAX as f64).round() as usize).clamp(MIN_BUDGET.min(cap), cap)
 }
 
+/// `(budget, PSNR)` of each try.
+fn points(tries: &[Try]) -> Vec<(usize, f64)> {
+    tries.iter().map(|t| (t.budget, t.psnr)).collect()
+}
+
 /// The slope (dB per budget doubling) between the two tries nearest the
 /// aim on either side of it, when there are such and it is at least
 /// `MIN_SLOPE_DB`.
-fn bracket(models: &[Encoded], aim: f64) -> Option<f64> {
-    let tries: Vec<(usize, f64)> = models.iter().map(|e| (e.model.len(), e.psnr)).collect();
-    bracket_slope(&tries, aim)
-}
-
 fn bracket_slope(tries: &[(usize, f64)], aim: f64) -> Option<f64> {
     let below = tries.iter().filter(|t| t.1 < aim).max_by(|a, b| a.1.total_cmp(&b.1))?;
     let above = tries.iter().filter(|t| t.1 >= aim).min_by(|a, b| a.1.total_cmp(&b.1))?;
@@ -286,9 +286,8 @@ impl Search<'_, '_> {
     fn run_probe(&mut self, n: usize, iterations: usize) -> Result<f64> {
         let config = EncodeConfig { iterations: Some(iterations), ..Search::with_budget(&self.request.config, n) };
         let r = Request { config, start: Start::Seeded, payload: Payload::Float32, validation: None, ..self.request.clone() };
-        let t = Instant::now();
-        let e = encode_budget(self.prepared, &r, self.backend, self.progress)?;
-        self.probes.push(Try { budget: n, psnr: e.psnr, iterations: e.output.iterations, seconds: t.elapsed().as_secs_f64() });
+        let (e, t) = self.timed(&r)?;
+        self.probes.push(t);
         tracing::info!(budget = n, iterations, psnr = e.psnr, "target PSNR: probe");
         Ok(e.psnr)
     }
@@ -310,12 +309,18 @@ impl Search<'_, '_> {
 
     /// Runs `r` and records the try.
     fn encode(&mut self, r: Request) -> Result<Encoded> {
-        let t = Instant::now();
-        let e = encode_budget(self.prepared, &r, self.backend, self.progress)?;
-        let n = e.model.len();
-        self.tries.push(Try { budget: n, psnr: e.psnr, iterations: e.output.iterations, seconds: t.elapsed().as_secs_f64() });
-        tracing::info!(budget = n, psnr = e.psnr, "target PSNR: try");
+        let (e, t) = self.timed(&r)?;
+        self.tries.push(t);
+        tracing::info!(budget = e.model.len(), psnr = e.psnr, "target PSNR: try");
         Ok(e)
+    }
+
+    /// Runs `r`; the model, and what it was as a try.
+    fn timed(&mut self, r: &Request) -> Result<(Encoded, Try)> {
+        let started = Instant::now();
+        let e = encode_budget(self.prepared, r, self.backend, self.progress)?;
+        let t = Try { budget: e.model.len(), psnr: e.psnr, iterations: e.output.iterations, seconds: started.elapsed().as_secs_f64() };
+        Ok((e, t))
     }
 }
 
