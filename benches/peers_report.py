@@ -47,7 +47,7 @@ def payloads():
     if not got:
         return
     print("### Payloads (one encode stored four ways)\n")
-    print("| model | schedule | payload | bytes a primitive (payload) | file bytes | voxel PSNR dB | change vs f32 dB | precision (bits: centre, scale, rotation, value, weight) |")
+    print("| model | schedule | payload | bytes a primitive (payload) | file bytes | voxel PSNR dB | change vs f32 dB | precision (bits: centre per class, scale, rotation, value, weight) |")
     print("|---|---|---|---|---|---|---|---|")
     by_model = defaultdict(dict)
     for r in got:
@@ -60,7 +60,9 @@ def payloads():
                 continue
             per = r.get("payload_bytes_per_primitive") or r["payload_bytes"] / r["primitives"]
             p = r.get("precision")
-            bits = ", ".join(str(p[k]) for k in ["centre", "scale", "rotation", "value", "weight"]) if p else ""
+            # The centre lattices, one per centre class, read as 4/4/2/0.
+            group = lambda v: "/".join(map(str, v)) if isinstance(v, list) else str(v)
+            bits = ", ".join(group(p[k]) for k in ["centre", "scale", "rotation", "value", "weight"]) if p else ""
             change = r["voxel_psnr"] - f32 if f32 is not None and name != "f32" else None
             print(f"| {model} | {schedule} | {name} | {per:.2f} | {r['bytes']} | {r['voxel_psnr']:.2f} | {fmt(change, 3)} | {bits} |")
     print()

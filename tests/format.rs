@@ -177,8 +177,13 @@ fn assert_within_packed_steps(params: &[[f32; 12]], stored: &[[f32; 12]], precis
     let half = |bits: u8, span: f64| span / ((1u32 << bits) - 1) as f64 * 0.5 + 1e-5;
     for (i, p) in params.iter().enumerate() {
         let s = stored_twin(p, stored);
+        // The centre's lattice is its class's: the octaves its smallest
+        // stored scale lies above 0.4 voxel (both neighbours' on a border).
+        let octaves = ((s[3].min(s[4]).min(s[5]) as f64).clamp(lo, hi) - lo) / std::f64::consts::LN_2;
+        let class = |o: f64| (o.max(0.0).floor() as usize).min(3);
+        let bits = [class(octaves - 1e-3), class(octaves + 1e-3)].map(|c| precision.centre[c]).into_iter().min().unwrap();
         for a in 0..3 {
-            assert!((p[a] - s[a]).abs() as f64 <= 0.5f64.powi(precision.centre as i32 + 1) + 1e-4, "{precision:?} centre {i}");
+            assert!((p[a] - s[a]).abs() as f64 <= 0.5f64.powi(bits as i32 + 1) + 1e-4, "{precision:?} centre {i}");
             let l = (p[3 + a] as f64).clamp(lo, hi);
             assert!((l - s[3 + a] as f64).abs() <= half(precision.scale, hi - lo), "{precision:?} scale {i}");
         }
@@ -206,7 +211,7 @@ fn the_packed_payload_keeps_every_group_within_its_step_and_records_its_precisio
     for p in m.params.iter_mut().take(40) {
         (p[4], p[5]) = (p[3], p[3]);
     }
-    for precision in [Precision::DEFAULT, Precision { centre: 2, scale: 4, rotation: 3, value: 5, weight: 3 }, Precision::FINEST] {
+    for precision in [Precision::DEFAULT, Precision { centre: [2, 0, 5, 3], scale: 4, rotation: 3, value: 5, weight: 3 }, Precision::FINEST] {
         m.meta.precision = Some(precision);
         let bytes = write_model_as(&m, Payload::Packed).unwrap();
         let file = read_model_file(&bytes).unwrap();
@@ -261,7 +266,7 @@ fn unstorable_parameters_are_refused_on_write() {
     // The packed payload's default lattice coarsens to fit a wide domain
     // (70,000 voxels: 1/16 voxel, within 2^21 steps)...
     let packed = read_model_file(&write_model_as(&far, Payload::Packed).unwrap()).unwrap();
-    assert_eq!(packed.model.meta.precision, Some(Precision { centre: 4, ..Precision::DEFAULT }));
+    assert_eq!(packed.model.meta.precision, Some(Precision::DEFAULT.with_centres(4)));
     let twin = stored_twin(&far.params[2], &packed.model.params);
     assert!((twin[0] - 70000.0).abs() <= 1.0 / 32.0 + 0.004, "{}", twin[0]);
     let back = read_model(&write_model_as(&far, Payload::Bits8(CentreCoding::Fixed16)).unwrap()).unwrap();
@@ -516,11 +521,15 @@ fn a_corrupted_packed_payload_behind_a_valid_checksum_is_refused() {
     };
     // Resealed unchanged, it reads (the helper is sound).
     assert!(read_model(&resealed(&|_| {})).is_ok());
-    // The first stream's body follows precision, origin, weight map and its length.
-    let first_stream = start + 5 + 24 + 8 + 4;
-    let cases: [(&dyn Fn(&mut Vec<u8>), &str); 5] = [
-        (&|b| b[start + 1] = 0, "scale group"),             // scale bits out of range
-        (&|b| b[start] = 9, "centre group"),                // centre bits out of range
+    // The first stream's body follows the layout byte, the precision (four
+    // centre lattices, four groups), origin, weight map and its length.
+    assert_eq!(bytes[start], 0x82, "the layout of per-class centre lattices");
+    let first_stream = start + 1 + 8 + 24 + 8 + 4;
+    let cases: [(&dyn Fn(&mut Vec<u8>), &str); 7] = [
+        (&|b| b[start + 5] = 0, "scale group"),             // scale bits out of range
+        (&|b| b[start + 2] = 9, "centre (class 1) group"),  // centre bits out of range
+        (&|b| b[start] = 9, "unknown layout"),              // neither layout's first byte
+        (&|b| b.truncate(start + 4), "truncated"),          // cut inside the precision
         (&|b| b[first_stream] = 9, "neither a zstd frame"), // a stream of no known coding
         (&|b| b.push(0xff), "left after the centres"),      // stray bytes after the gap bits
         (&|b| b.truncate(b.len() - 3), "ends early"),       // the gap bits cut short
@@ -531,21 +540,31 @@ fn a_corrupted_packed_payload_behind_a_valid_checksum_is_refused() {
     }
 }
 
-/// A packed model written before the range coding (every stream a zstd
-/// frame: `fuzz/seeds/packed.gsm`, committed then) still reads, to the
-/// primitives the range-coded rewrite of it holds, in fewer bytes.
+/// Packed models of the payload's first layout (one centre lattice) still
+/// read: one written before the range coding (every stream a zstd frame:
+/// `fuzz/seeds/packed.gsm`, committed then) and one after
+/// (`packed-range.gsm`), each to the primitives its rewrite in the current
+/// layout holds (all centre classes on its lattice); the zstd one in
+/// fewer bytes.
 #[test]
-fn a_packed_model_of_zstd_streams_still_reads() {
-    let old = include_bytes!("../fuzz/seeds/packed.gsm");
-    let file = read_model_file(old).unwrap();
-    assert_eq!(file.payload, Payload::Packed);
-    let header_len = u32::from_le_bytes(old[12..16].try_into().unwrap()) as usize;
-    let first_stream = 16 + header_len + 5 + 24 + 8 + 4;
-    assert_eq!(old[first_stream..first_stream + 4], [0x28, 0xB5, 0x2F, 0xFD], "the seed's streams are zstd frames");
-    let new = write_model_as(&file.model, Payload::Packed).unwrap();
-    assert_eq!(new[first_stream], 1, "rewritten, the streams are range-coded");
-    assert!(new.len() < old.len(), "{} bytes rewritten, {} before", new.len(), old.len());
-    let again = read_model_file(&new).unwrap();
-    assert_eq!(again.model.params, file.model.params);
-    assert_eq!(again.model.meta.precision, file.model.meta.precision);
+fn packed_models_of_the_first_layout_still_read() {
+    for (old, zstd_streams) in [(&include_bytes!("../fuzz/seeds/packed.gsm")[..], true), (&include_bytes!("../fuzz/seeds/packed-range.gsm")[..], false)] {
+        let file = read_model_file(old).unwrap();
+        assert_eq!(file.payload, Payload::Packed);
+        let start = 16 + u32::from_le_bytes(old[12..16].try_into().unwrap()) as usize;
+        assert!(old[start] <= 8, "the first layout opens with its centre bits");
+        let precision = file.model.meta.precision.unwrap();
+        assert_eq!(precision, precision.with_centres(old[start]), "every class on the one lattice");
+        let first_stream = start + 5 + 24 + 8 + 4;
+        assert_eq!(old[first_stream..first_stream + 4] == [0x28, 0xB5, 0x2F, 0xFD], zstd_streams, "the seed's first stream");
+        let new = write_model_as(&file.model, Payload::Packed).unwrap();
+        assert_eq!(new[start], 0x82, "rewritten in the current layout");
+        // The range-coded seed grows by the four more precision bytes and
+        // the gap classes' contexts warming up on its few primitives.
+        let allowed = if zstd_streams { old.len() - 1 } else { old.len() + 8 };
+        assert!(new.len() <= allowed, "{} bytes rewritten, {} before", new.len(), old.len());
+        let again = read_model_file(&new).unwrap();
+        assert_eq!(again.model.params, file.model.params);
+        assert_eq!(again.model.meta.precision, file.model.meta.precision);
+    }
 }

@@ -32,7 +32,7 @@ fn every_payload_round_trips_with_its_metadata() {
                 let mut m = model("density", 10 + i as u64, rank, 1000 + 7 * i, 0.5);
                 // A packed entry keeps the precision its encode measured.
                 if payload == Payload::Packed {
-                    m.meta.precision = Some(Precision { centre: 3 + rank as u8, scale: 6, rotation: 7, value: 9, weight: 5 });
+                    m.meta.precision = Some(Precision { centre: [3 + rank as u8, 2, 4, 1], scale: 6, rotation: 7, value: 9, weight: 5 });
                 }
                 s.append(&m, payload).unwrap();
                 stored.push((m, payload));

@@ -11,11 +11,14 @@
 //!
 //! 1. each group in turn is searched alone (bisection), the others held at
 //!    their finest ([`Precision::FINEST`], with centres as coarse as a wide
-//!    domain needs), for the fewest bits that cost at most a fifth of the
-//!    allowance;
+//!    domain needs), for the fewest bits that cost at most an equal share
+//!    of the allowance; a group is a centre class's lattice (searched only
+//!    when the class holds primitives: an empty one keeps its finest), the
+//!    scales, the rotations, the values or the weights;
 //! 2. then, while the allowance lasts, the group whose next bit costs the
-//!    least PSNR per stored bit (three numbers a primitive for centres,
-//!    scales and rotations, one for values and weights) gives it up;
+//!    least PSNR per stored bit (three numbers a primitive for scales and
+//!    rotations, three per primitive of the class for a centre class, one
+//!    for values and weights) gives it up;
 //! 3. should the groups together exceed the allowance, every group gains a
 //!    bit until they do not.
 //!
@@ -29,7 +32,7 @@ use crate::encode::stored::decode_as_stored;
 use crate::encode::validation::Validation;
 use crate::error::Result;
 use crate::field::Grid;
-use crate::format::packed::{Packed, Precision, GROUPS};
+use crate::format::packed::{class_counts, Packed, Precision, GROUPS};
 use crate::format::Payload;
 use crate::math::kernel::Primitive;
 use crate::math::loss::MASK_REF;
@@ -43,8 +46,9 @@ pub const MAX_PSNR_LOSS_DB: f64 = 0.1;
 /// The losses (dB) the search allows on the sample, tried in turn until the
 /// whole lattice's loss is within [`MAX_PSNR_LOSS_DB`].
 pub const SEARCH_ALLOWANCES: [f64; 3] = [0.1, 0.06, 0.03];
-/// Numbers a primitive stores per bit of each group.
-const NUMBERS: [f64; 5] = [3.0, 3.0, 3.0, 1.0, 1.0];
+/// Numbers a primitive stores per bit of each group but the centre
+/// classes' (scale, rotation, value, weight).
+const NUMBERS: [f64; 4] = [3.0, 3.0, 1.0, 1.0];
 /// Voxel centres the search scores.
 pub const POINTS: usize = 1 << 16;
 const SEED: u64 = 0x9ac4_ed00;
@@ -112,12 +116,19 @@ pub fn choose_precision(params: &[Primitive], reference: &Grid, support: bool, a
         seen.insert(p, l);
         Ok(l)
     };
+    // Numbers stored per bit of each group, a primitive on average; the
+    // groups searched: all but the centre classes without primitives.
+    let counts = class_counts(params, finest.scale);
+    let numbers: Vec<f64> = (0..GROUPS.len())
+        .map(|g| if Precision::is_centre(g) { 3.0 * counts[g] as f64 / params.len() as f64 } else { NUMBERS[g - counts.len()] })
+        .collect();
+    let groups: Vec<usize> = (0..GROUPS.len()).filter(|&g| numbers[g] > 0.0).collect();
     // The loss of one group alone is about its share of the added error:
-    // a fifth of the allowed error, in dB.
+    // an equal share of the allowed error, in dB.
     let total_err = 10f64.powf(allowed / 10.0) - 1.0;
-    let group_loss = 10.0 * (1.0 + total_err / GROUPS.len() as f64).log10();
+    let group_loss = 10.0 * (1.0 + total_err / groups.len() as f64).log10();
     let mut chosen = finest;
-    for g in 0..GROUPS.len() {
+    for &g in &groups {
         // The fewest bits in [lo, finest] whose loss is within the group's share.
         let (mut lo, mut hi) = (Precision::min_bits(g), finest.get(g));
         while lo < hi {
@@ -133,13 +144,13 @@ pub fn choose_precision(params: &[Primitive], reference: &Grid, support: bool, a
     let mut now = loss(chosen)?;
     loop {
         let mut best: Option<(f64, Precision, f64)> = None;
-        for (g, numbers) in NUMBERS.iter().enumerate() {
+        for &g in &groups {
             if chosen.get(g) == Precision::min_bits(g) {
                 continue;
             }
             let candidate = chosen.with(g, chosen.get(g) - 1);
             let l = loss(candidate)?;
-            let per_number = (l - now).max(0.0) / numbers;
+            let per_number = (l - now).max(0.0) / numbers[g];
             if l <= allowed && best.is_none_or(|b| per_number < b.0) {
                 best = Some((per_number, candidate, l));
             }
@@ -193,6 +204,48 @@ fn sample(reference: &Grid, support: bool) -> Option<Validation> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::backend::cpu::CpuBackend;
+    use crate::math::kernel::layout;
+    use crate::math::loss::v_eval;
+
+    /// Sharp primitives (class 0) carry the field; broad ones of almost no
+    /// weight (class 3) carry nothing, so their centres may go anywhere on
+    /// a whole voxel: the search gives their class the coarsest lattice and
+    /// keeps the sharp ones' fine.
+    #[test]
+    fn a_centre_class_that_shapes_nothing_gets_a_coarser_lattice() {
+        let mut rng = Rng::new(5);
+        let dims = [24, 24, 24];
+        let mut prim = |sigma: f32, beta: f32| {
+            let mut p = [0f32; 12];
+            (0..3).for_each(|a| p[layout::MU + a] = rng.range(2.0, 21.0) as f32);
+            (0..3).for_each(|a| p[layout::LOG_SCALE + a] = sigma.ln());
+            p[layout::QUAT] = 1.0;
+            p[layout::ALPHA] = 0.5 * rng.normal() as f32;
+            p[layout::BETA] = beta;
+            p
+        };
+        let mut params: Vec<Primitive> = (0..300).map(|_| prim(0.7, 2.0)).collect();
+        params.extend((0..40).map(|_| prim(5.0, -14.0)));
+        // The reference: the model at every voxel centre, plus noise (so
+        // that the float32 model's PSNR is finite, about 40 dB).
+        let points: Vec<[f32; 3]> = (0..dims.iter().product()).map(|i| [(i % 24) as f32, (i / 24 % 24) as f32, (i / 576) as f32]).collect();
+        let (mut rho, mut n) = (vec![0.0; points.len()], vec![0.0; points.len()]);
+        let mut backend = CpuBackend::new();
+        backend.evaluate_points(&params, &points, &mut rho, &mut n).unwrap();
+        let values = (0..points.len()).map(|i| v_eval(rho[i], n[i]) + 0.01 * rng.normal() as f32).collect();
+        let reference = Grid::new(dims, values).unwrap();
+        let p = choose_precision(&params, &reference, false, MAX_PSNR_LOSS_DB, &mut backend).unwrap();
+        assert_eq!(class_counts(&params, p.scale), [300, 0, 0, 40], "{p:?}");
+        assert_eq!(p.centre[3], 0, "{p:?}");
+        assert!(p.centre[0] >= 3, "{p:?}");
+        // Within the allowance on the sample, and the empty classes keep the finest.
+        let stored = Packed::of(&params, p).unwrap().params().unwrap();
+        let sample = sample(&reference, false).unwrap();
+        let loss = sample.psnr(&mut backend, &params).unwrap() - sample.psnr(&mut backend, &stored).unwrap();
+        assert!((0.0..=MAX_PSNR_LOSS_DB).contains(&loss), "{loss} dB");
+        assert_eq!([p.centre[1], p.centre[2]], [finest_for(&params).centre[1]; 2]);
+    }
 
     #[test]
     fn the_sample_is_drawn_from_the_support_only_and_covers_it() {

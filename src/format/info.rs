@@ -1,7 +1,7 @@
 //! Every header field of a model file as one JSON object: what `gsenc
 //! info --json` prints and the Python package's `Model.info` holds.
 
-use crate::format::packed::{Precision, GROUPS};
+use crate::format::packed::{Precision, CENTRE_CLASSES, GROUPS};
 use crate::format::ModelFile;
 use crate::model::Model;
 use serde_json::{json, Map, Value};
@@ -62,8 +62,9 @@ fn keys(v: Value) -> Map<String, Value> {
     }
 }
 
-/// The packed payload's bits per parameter group, by group name.
+/// The packed payload's bits per parameter group, by group name; `centre`
+/// an array, one lattice per centre class.
 pub fn precision_json(p: Precision) -> Value {
-    let groups = GROUPS.iter().enumerate().map(|(g, name)| (name.to_string(), json!(p.get(g))));
-    Value::Object(groups.collect())
+    let others = GROUPS.iter().enumerate().skip(CENTRE_CLASSES).map(|(g, name)| (name.to_string(), json!(p.get(g))));
+    Value::Object([("centre".to_string(), json!(p.centre))].into_iter().chain(others).collect())
 }

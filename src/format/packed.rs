@@ -5,15 +5,18 @@
 //!
 //! | group | stored as | with `b` bits |
 //! |---|---|---|
-//! | centre | `mu` on a lattice of `2^-b` voxel from an integer origin per axis; the Morton key of the three codes; the keys sorted, their gaps coded as a class (the gap's bit length, a symbol) and the bits below its highest | `b` = 0..=8 |
+//! | centre | `mu` on a lattice of `2^-b_j` voxel from an integer origin per axis, `j` the primitive's centre class ([`centre_class`]: octaves of its smallest scale); the Morton key of the codes on the coarsest lattice of the classes present; the keys sorted, their gaps coded as a class (the gap's bit length, a symbol) and the bits below its highest; then each code's bits below that lattice | `b_j` = 0..=8 |
 //! | scale | `l` clamped to `[ln 0.4, ln 8]` (the kernel's band: lossless), uniform | `2^b` levels over the band |
 //! | rotation | `q / |q|` with its largest component made positive: that component's index (2 bits) and the other three, uniform over `[-1/√2, 1/√2]`; none for a sphere (three equal scale codes), fewer bits the closer to one ([`rotation_bits`]) | up to `2^b` levels |
 //! | value | `s = sigmoid(alpha)`, the cell `floor(s 2^b)`, read back at its middle | `2^b` cells |
 //! | weight | `beta`, uniform over the model's own `[min, max]` | `2^b` levels |
 //!
 //! ```text
-//! precision   5 x u8: centre, scale, rotation, value, weight bits
-//! origin      3 x f64: the integer origin of the centre lattice per axis
+//! layout      u8 0x82 (the first layout, still read, began with its one
+//!             centre bit count, 0..=8, and had 5 precision bytes)
+//! precision   8 x u8: centre bits of the 4 centre classes, scale,
+//!             rotation, value, weight bits
+//! origin      3 x f64: the integer origin of the centre lattices per axis
 //! weight map  lo f32, hi f32
 //! streams     6 x (u32 byte length, body): scale (3N, axis by axis),
 //!             rotation index (T: the primitives that are no sphere),
@@ -21,8 +24,9 @@
 //!             (N), centre gap class (N); each body a zstd frame or a range
 //!             coding under contexts, whichever is smaller
 //!             ([`crate::format::packed_streams`])
-//! gap bits    to the end: for each gap of class c > 1 its c - 1 low bits,
-//!             least significant first; zero padding to a byte
+//! centre bits to the end: for each gap of class c > 1 its c - 1 low bits;
+//!             then each primitive's centre code bits below the keys'
+//!             lattice, x, y, z; least significant first; zero padding
 //! ```
 //! All numbers little-endian.
 
@@ -32,11 +36,17 @@ use crate::format::packed_streams::Stream;
 use crate::format::quantize::Affine;
 use crate::math::kernel::{layout, morton, unmorton, Primitive, SIGMA_MAX, SIGMA_MIN};
 
+/// Classes of primitives by their smallest scale (one octave each from
+/// [`SIGMA_MIN`], the last open above), each with a centre lattice of its
+/// own ([`centre_class`]).
+pub const CENTRE_CLASSES: usize = 4;
+
 /// Bits per parameter group of the packed payload.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Precision {
-    /// Centres on a lattice of `2^-centre` voxel (0..=8).
-    pub centre: u8,
+    /// Centres of each centre class on a lattice of `2^-centre[j]` voxel
+    /// (0..=8 each).
+    pub centre: [u8; CENTRE_CLASSES],
     /// Each log scale (1..=16).
     pub scale: u8,
     /// Each of the three stored rotation components (1..=16).
@@ -47,8 +57,9 @@ pub struct Precision {
     pub weight: u8,
 }
 
-/// Names of the groups, in the order of [`Precision::get`].
-pub const GROUPS: [&str; 5] = ["centre", "scale", "rotation", "value", "weight"];
+/// Names of the groups, in the order of [`Precision::get`]: a centre
+/// lattice per centre class, then the other four.
+pub const GROUPS: [&str; CENTRE_CLASSES + 4] = ["centre (class 0)", "centre (class 1)", "centre (class 2)", "centre (class 3)", "scale", "rotation", "value", "weight"];
 /// Finest centre lattice: 1/256 voxel.
 pub const MAX_CENTRE_BITS: u8 = 8;
 /// Most bits of the other groups.
@@ -57,6 +68,35 @@ pub const MAX_BITS: u8 = 16;
 pub const STREAMS: usize = 6;
 /// Most centre codes per axis: 21 bits, so that a Morton key fits 63.
 const AXIS_BITS: u32 = 21;
+/// The first byte of the payload's current layout (per-class centre
+/// lattices). The first layout began with its one centre bit count,
+/// 0..=8, and still reads.
+const LAYOUT_CLASSES: u8 = 0x82;
+/// One octave of scale as a fraction of the scale band `[ln 0.4, ln 8]`,
+/// in units of 2^-16: `round(2^16 ln 2 / ln 20)`. Integer, so that every
+/// reader puts a primitive in the same class.
+const OCTAVE_OF_BAND: u64 = 15164;
+
+/// The centre class of a primitive with scale codes `scale` (`scale_bits`
+/// bits): the octaves its smallest scale lies above [`SIGMA_MIN`], at most
+/// `CENTRE_CLASSES - 1` (class 0: sigma below 0.8 voxel, 1: below 1.6,
+/// 2: below 3.2, 3: the rest), in exact integer arithmetic on the code.
+pub fn centre_class(scale: [u16; 3], scale_bits: u8) -> usize {
+    let k = *scale.iter().min().unwrap() as u64;
+    let levels = (1u64 << scale_bits) - 1;
+    ((k << 16) / (OCTAVE_OF_BAND * levels)).min(CENTRE_CLASSES as u64 - 1) as usize
+}
+
+/// Primitives of `params` in each centre class, their scales coded at
+/// `scale_bits` bits.
+pub fn class_counts(params: &[Primitive], scale_bits: u8) -> [usize; CENTRE_CLASSES] {
+    let (llo, lhi) = scale_band();
+    let mut counts = [0; CENTRE_CLASSES];
+    for p in params {
+        counts[centre_class([0, 1, 2].map(|a| uniform_code(p[layout::LOG_SCALE + a] as f64, llo, lhi, scale_bits)), scale_bits)] += 1;
+    }
+    counts
+}
 
 impl Precision {
     /// The precision a model is packed with when its encode measured none
@@ -64,24 +104,40 @@ impl Precision {
     /// centres coarser where a domain is too wide for it, [`Precision::fitting`]):
     /// finer than every measured choice on the benchmark corpus
     /// (docs/BENCHMARKS.md "Quality per byte").
-    pub const DEFAULT: Precision = Precision { centre: 5, scale: 10, rotation: 9, value: 11, weight: 9 };
+    pub const DEFAULT: Precision = Precision { centre: [5; CENTRE_CLASSES], scale: 10, rotation: 9, value: 11, weight: 9 };
     /// Where the measured search starts, and the most it will give a group.
-    pub const FINEST: Precision = Precision { centre: 7, scale: 12, rotation: 12, value: 14, weight: 12 };
+    pub const FINEST: Precision = Precision { centre: [7; CENTRE_CLASSES], scale: 12, rotation: 12, value: 14, weight: 12 };
+
+    /// This precision with every centre class on a lattice of `2^-bits` voxel.
+    pub fn with_centres(self, bits: u8) -> Precision {
+        Precision { centre: [bits; CENTRE_CLASSES], ..self }
+    }
 
     /// Bits of group `g` (in the order of [`GROUPS`]).
     pub fn get(&self, g: usize) -> u8 {
-        [self.centre, self.scale, self.rotation, self.value, self.weight][g]
+        match g.checked_sub(CENTRE_CLASSES) {
+            None => self.centre[g],
+            Some(k) => [self.scale, self.rotation, self.value, self.weight][k],
+        }
     }
 
     /// This precision with group `g` at `bits`.
     pub fn with(mut self, g: usize, bits: u8) -> Precision {
-        *[&mut self.centre, &mut self.scale, &mut self.rotation, &mut self.value, &mut self.weight][g] = bits;
+        match g.checked_sub(CENTRE_CLASSES) {
+            None => self.centre[g] = bits,
+            Some(k) => *[&mut self.scale, &mut self.rotation, &mut self.value, &mut self.weight][k] = bits,
+        }
         self
+    }
+
+    /// Whether group `g` is a centre class's lattice.
+    pub fn is_centre(g: usize) -> bool {
+        g < CENTRE_CLASSES
     }
 
     /// Fewest bits group `g` may have.
     pub fn min_bits(g: usize) -> u8 {
-        if g == 0 {
+        if Precision::is_centre(g) {
             0
         } else {
             1
@@ -90,14 +146,14 @@ impl Precision {
 
     /// Most bits group `g` may have.
     pub fn max_bits(g: usize) -> u8 {
-        if g == 0 {
+        if Precision::is_centre(g) {
             MAX_CENTRE_BITS
         } else {
             MAX_BITS
         }
     }
 
-    /// This precision with its centre lattice made coarse enough for the
+    /// This precision with its centre lattices made coarse enough for the
     /// centres of `params` to fit 2^21 steps an axis (unchanged when they
     /// do); `None` when not even whole voxels fit (centres over 2^21
     /// voxels apart).
@@ -112,7 +168,9 @@ impl Precision {
             })
             .fold(0.0, f64::max);
         // The code of the farthest centre must round below 2^21.
-        (0..=self.centre).rev().find(|&c| (span * (1u64 << c) as f64).round() < (1u64 << AXIS_BITS) as f64).map(|c| Precision { centre: c, ..self })
+        let finest = *self.centre.iter().max().unwrap();
+        let fits = (0..=finest).rev().find(|&c| (span * (1u64 << c) as f64).round() < (1u64 << AXIS_BITS) as f64)?;
+        Some(Precision { centre: self.centre.map(|c| c.min(fits)), ..self })
     }
 
     pub fn check(&self) -> Result<Precision> {
@@ -138,8 +196,12 @@ pub struct Packed {
     pub precision: Precision,
     pub origin: [f64; 3],
     pub weight_map: Affine,
-    /// Morton keys of the centre codes, ascending.
+    /// Morton keys of the centre codes on the coarsest lattice of the
+    /// centre classes present ([`Packed::key_bits`]), ascending.
     pub keys: Vec<u64>,
+    /// Each primitive's centre code bits below that lattice, per axis: the
+    /// low `centre[class] - key_bits` bits of its code on its class's lattice.
+    pub low: Vec<[u32; 3]>,
     /// Scale codes, three arrays of N (axis by axis).
     pub scale: Vec<u16>,
     /// For each primitive whose scale codes differ (the others are
@@ -230,15 +292,21 @@ impl Packed {
     pub fn of(params: &[Primitive], precision: Precision) -> Result<Packed> {
         let precision = precision.check().map_err(|e| Error::arg(e.to_string()))?;
         let n = params.len();
-        let cells = (1u64 << precision.centre) as f64;
+        let (llo, lhi) = scale_band();
+        let scale_code = |p: &Primitive, a: usize| uniform_code(p[layout::LOG_SCALE + a] as f64, llo, lhi, precision.scale);
+        let class: Vec<u8> = params.iter().map(|p| centre_class([0, 1, 2].map(|a| scale_code(p, a)), precision.scale) as u8).collect();
+        let base = key_bits(&precision, &class);
         let mut origin = [0f64; 3];
         for (a, o) in origin.iter_mut().enumerate() {
             let lo = params.iter().map(|p| p[layout::MU + a] as f64).fold(f64::INFINITY, f64::min);
             *o = if lo.is_finite() { lo.floor() } else { 0.0 };
         }
         let mut keyed = Vec::with_capacity(n);
+        let mut low = Vec::with_capacity(n);
         for (i, p) in params.iter().enumerate() {
-            let mut c = [0u64; 3];
+            let bits = precision.centre[class[i] as usize];
+            let cells = (1u64 << bits) as f64;
+            let (mut coarse, mut below) = ([0u64; 3], [0u32; 3]);
             for a in 0..3 {
                 let code = ((p[layout::MU + a] as f64 - origin[a]) * cells).round();
                 if !(code >= 0.0 && code < (1u64 << AXIS_BITS) as f64) {
@@ -246,21 +314,23 @@ impl Packed {
                         "primitive {i}'s centre is {:.0} voxels from the others on axis {a}: beyond the packed payload's 2^{} steps of 2^-{} voxel; use the 8bit-u16 payload",
                         code / cells,
                         AXIS_BITS,
-                        precision.centre
+                        bits
                     )));
                 }
-                c[a] = code as u64;
+                let code = code as u64;
+                coarse[a] = code >> (bits - base);
+                below[a] = (code & ((1 << (bits - base)) - 1)) as u32;
             }
-            keyed.push((morton(c), i));
+            keyed.push((morton(coarse), i));
+            low.push(below);
         }
         keyed.sort_unstable(); // the index breaks ties: deterministic
         let order: Vec<usize> = keyed.iter().map(|&(_, i)| i).collect();
         let sorted = |f: &dyn Fn(&Primitive) -> u16| -> Vec<u16> { order.iter().map(|&i| f(&params[i])).collect() };
 
-        let (llo, lhi) = scale_band();
         let mut scale = Vec::with_capacity(3 * n);
         for a in 0..3 {
-            scale.extend(sorted(&|p| uniform_code(p[layout::LOG_SCALE + a] as f64, llo, lhi, precision.scale)));
+            scale.extend(sorted(&|p| scale_code(p, a)));
         }
         let mut rotation_index = Vec::new();
         let mut rotation: [Vec<u16>; 3] = Default::default();
@@ -281,7 +351,8 @@ impl Packed {
         let wl = levels(precision.weight) as f32;
         let weight = sorted(&|p| weight_map.encode(p[layout::BETA], wl) as u16);
         let keys = keyed.iter().map(|k| k.0).collect();
-        Ok(Packed { precision, origin, weight_map, keys, scale, rotation_index, rotation: rotation.concat(), value, weight })
+        let low = order.iter().map(|&i| low[i]).collect();
+        Ok(Packed { precision, origin, weight_map, keys, low, scale, rotation_index, rotation: rotation.concat(), value, weight })
     }
 
     pub fn len(&self) -> usize {
@@ -299,12 +370,17 @@ impl Packed {
         (0..n).map(|j| rotation_bits([self.scale[j], self.scale[n + j], self.scale[2 * n + j]], p.scale, p.rotation)).collect()
     }
 
+    /// The centre class of every primitive, in the stored order.
+    fn classes(&self) -> Vec<u8> {
+        classes_of(&self.scale, self.len(), self.precision.scale)
+    }
+
     /// The primitives these codes stand for, in the stored order.
     pub fn params(&self) -> Result<Vec<Primitive>> {
         let n = self.len();
         let p = self.precision.check()?;
         let bad_len = || Error::format(format!("packed payload: arrays of the wrong length for {n} primitives"));
-        if self.scale.len() != 3 * n || self.value.len() != n || self.weight.len() != n {
+        if self.scale.len() != 3 * n || self.low.len() != n || self.value.len() != n || self.weight.len() != n {
             return Err(bad_len());
         }
         let too_big = |v: &[u16], bits: u8| v.iter().any(|&k| (k as u32) >= 1 << bits);
@@ -320,14 +396,22 @@ impl Packed {
             return Err(Error::format("packed payload: non-finite centre origin"));
         }
         let wmap = self.weight_map.check().map_err(|_| Error::format("packed payload: invalid weight map"))?;
-        let step = 1.0 / (1u64 << p.centre) as f64;
+        let classes = self.classes();
+        let base = key_bits(&p, &classes);
         let (llo, lhi) = scale_band();
         let mut out = vec![[0f32; 12]; n];
         let mut t = 0; // rotations read
         for (i, prim) in out.iter_mut().enumerate() {
+            let bits = p.centre[classes[i] as usize];
+            let shift = bits - base;
+            if self.low[i].iter().any(|&l| l >> shift != 0) {
+                return Err(Error::format("packed payload: centre bits beyond its class's lattice"));
+            }
             let c = unmorton(self.keys[i]);
+            let step = 1.0 / (1u64 << bits) as f64;
             for a in 0..3 {
-                prim[layout::MU + a] = (self.origin[a] + c[a] as f64 * step) as f32;
+                let code = c[a] << shift | self.low[i][a] as u64;
+                prim[layout::MU + a] = (self.origin[a] + code as f64 * step) as f32;
                 prim[layout::LOG_SCALE + a] = uniform_value(self.scale[a * n + i], llo, lhi, p.scale) as f32;
             }
             let mut q = [1.0, 0.0, 0.0, 0.0];
@@ -362,7 +446,9 @@ impl Packed {
     pub fn to_bytes(&self, zstd_level: i32) -> Result<Vec<u8>> {
         let p = self.precision;
         let mut out = Vec::new();
-        out.extend_from_slice(&[p.centre, p.scale, p.rotation, p.value, p.weight]);
+        out.push(LAYOUT_CLASSES);
+        out.extend_from_slice(&p.centre);
+        out.extend_from_slice(&[p.scale, p.rotation, p.value, p.weight]);
         self.origin.iter().for_each(|o| out.extend_from_slice(&o.to_le_bytes()));
         out.extend_from_slice(&self.weight_map.lo.to_le_bytes());
         out.extend_from_slice(&self.weight_map.hi.to_le_bytes());
@@ -379,6 +465,10 @@ impl Packed {
             if class > 1 {
                 w.put(d, class - 1); // the bits below the highest
             }
+        }
+        let base = key_bits(&p, &self.classes());
+        for (low, class) in self.low.iter().zip(self.classes()) {
+            low.iter().for_each(|&l| w.put(l as u64, (p.centre[class as usize] - base) as u32));
         }
         out.extend_from_slice(&w.finish());
         Ok(out)
@@ -397,23 +487,32 @@ impl Packed {
             (Stream::Rotation { bits: p.rotation, rbits: turned }, self.rotation.clone()),
             (Stream::Value { bits: p.value }, self.value.clone()),
             (Stream::Weight { bits: p.weight, scale_x, scale_bits: p.scale, value: &self.value }, self.weight.clone()),
-            (Stream::GapClass, self.gaps().map(|d| gap_class(d) as u16).collect()),
+            (Stream::GapClass { by_previous: true }, self.gaps().map(|d| gap_class(d) as u16).collect()),
         ]
     }
 
-    /// Parses a stored payload of `n` primitives. `unpack` inflates a zstd
-    /// frame to exactly the length it is given, or fails.
+    /// Parses a stored payload of `n` primitives, in either layout (the
+    /// first, of one centre lattice, reads as all classes on it). `unpack`
+    /// inflates a zstd frame to exactly the length it is given, or fails.
     pub fn from_bytes(stored: &[u8], n: usize, unpack: &dyn Fn(&[u8], usize) -> Result<Vec<u8>>) -> Result<Packed> {
         let short = || Error::format("packed payload is truncated");
-        let fixed = 5 + 24 + 8;
+        // The first layout: five precision bytes, its centre bits first.
+        let first_layout = stored.first().is_some_and(|&b| b <= MAX_CENTRE_BITS);
+        let (bits, at) = match stored.first() {
+            Some(_) if first_layout => ([[stored[0]; CENTRE_CLASSES].as_slice(), stored.get(1..5).ok_or_else(short)?].concat(), 5),
+            Some(&LAYOUT_CLASSES) => (stored.get(1..1 + CENTRE_CLASSES + 4).ok_or_else(short)?.to_vec(), 1 + CENTRE_CLASSES + 4),
+            Some(&b) => return Err(Error::format(format!("packed payload: unknown layout (first byte {b:#04x})"))),
+            None => return Err(short()),
+        };
+        let fixed = at + 24 + 8;
         if stored.len() < fixed {
             return Err(short());
         }
-        let precision = Precision { centre: stored[0], scale: stored[1], rotation: stored[2], value: stored[3], weight: stored[4] }.check()?;
+        let precision = (0..GROUPS.len()).fold(Precision::FINEST, |p, g| p.with(g, bits[g])).check()?;
         let f64_at = |at: usize| f64::from_le_bytes(stored[at..at + 8].try_into().unwrap());
         let f32_at = |at: usize| f32::from_le_bytes(stored[at..at + 4].try_into().unwrap());
-        let origin = [f64_at(5), f64_at(13), f64_at(21)];
-        let weight_map = Affine { lo: f32_at(29), hi: f32_at(33) };
+        let origin = [f64_at(at), f64_at(at + 8), f64_at(at + 16)];
+        let weight_map = Affine { lo: f32_at(at + 24), hi: f32_at(at + 28) };
         let mut rest = &stored[fixed..];
         let mut next = |stream: Stream, count: usize| -> Result<Vec<u16>> {
             let len = rest.get(..4).ok_or_else(short)?;
@@ -432,7 +531,7 @@ impl Packed {
         let rotation = next(Stream::Rotation { bits: p.rotation, rbits: &turned }, 3 * turned.len())?;
         let value = next(Stream::Value { bits: p.value }, n)?;
         let weight = next(Stream::Weight { bits: p.weight, scale_x: &scale[..n], scale_bits: p.scale, value: &value }, n)?;
-        let classes = next(Stream::GapClass, n)?;
+        let classes = next(Stream::GapClass { by_previous: !first_layout }, n)?;
         let mut r = BitReader::new(rest);
         let mut keys = Vec::with_capacity(n);
         let mut key = 0u64;
@@ -445,11 +544,32 @@ impl Packed {
             key = key.checked_add(gap).filter(|&k| k < 1 << (3 * AXIS_BITS)).ok_or_else(|| Error::format("packed payload: a centre key beyond its range"))?;
             keys.push(key);
         }
+        let centre_classes = classes_of(&scale, n, p.scale);
+        let base = key_bits(&p, &centre_classes);
+        let mut low = Vec::with_capacity(n);
+        for class in centre_classes {
+            let shift = (p.centre[class as usize] - base) as u32;
+            low.push([r.get(shift)? as u32, r.get(shift)? as u32, r.get(shift)? as u32]);
+        }
         if !r.only_padding_left() {
             return Err(Error::format("packed payload: bytes left after the centres"));
         }
-        Ok(Packed { precision, origin, weight_map, keys, scale, rotation_index, rotation, value, weight })
+        Ok(Packed { precision, origin, weight_map, keys, low, scale, rotation_index, rotation, value, weight })
     }
+}
+
+/// The centre class of each of `n` primitives from their scale codes
+/// (three arrays of `n`, `scale_bits` bits).
+fn classes_of(scale: &[u16], n: usize, scale_bits: u8) -> Vec<u8> {
+    (0..n).map(|j| centre_class([scale[j], scale[n + j], scale[2 * n + j]], scale_bits) as u8).collect()
+}
+
+/// The lattice the Morton keys are on: the coarsest of the centre classes
+/// present (`classes`); 0 when there is none.
+fn key_bits(p: &Precision, classes: &[u8]) -> u8 {
+    let mut present = [false; CENTRE_CLASSES];
+    classes.iter().for_each(|&c| present[c as usize] = true);
+    (0..CENTRE_CLASSES).filter(|&c| present[c]).map(|c| p.centre[c]).min().unwrap_or(0)
 }
 
 #[cfg(test)]
@@ -470,6 +590,27 @@ mod tests {
             assert!(rest.iter().all(|v| v.abs() <= ROT_RANGE + 1e-12));
         }
     }
+
+    /// The integer class rule agrees with the octaves of the decoded
+    /// smallest scale above 0.4 voxel, at every code of every width up to
+    /// 14 bits (but within 1e-4 octave of a border), and only the smallest
+    /// of the three codes counts.
+    #[test]
+    fn centre_classes_are_octaves_of_the_smallest_scale() {
+        let (lo, hi) = scale_band();
+        let mut seen = [0usize; CENTRE_CLASSES];
+        for bits in 1..=14u8 {
+            for k in 0..=(1u16 << bits) - 1 {
+                let octaves = (uniform_value(k, lo, hi, bits) - lo) / std::f64::consts::LN_2;
+                let class = centre_class([k, u16::MAX >> (16 - bits), k], bits);
+                if (octaves - octaves.round()).abs() > 1e-4 {
+                    assert_eq!(class, (octaves.floor() as usize).min(CENTRE_CLASSES - 1), "{bits} bits, code {k}");
+                }
+                seen[class] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&n| n > 0), "{seen:?}");
+    }
 }
 
 #[cfg(test)]
@@ -483,7 +624,7 @@ mod round_trip_tests {
     fn bytes_read_back_to_the_same_codes() {
         let mut rng = Rng::new(1);
         let params: Vec<Primitive> = (0..500).map(|_| std::array::from_fn(|k| if k < 3 { rng.range(-3.0, 60.0) as f32 } else { rng.normal() as f32 })).collect();
-        for p in [Precision::DEFAULT, Precision::FINEST, Precision { centre: 0, scale: 1, rotation: 1, value: 1, weight: 1 }] {
+        for p in [Precision::DEFAULT, Precision::FINEST, Precision { centre: [0; CENTRE_CLASSES], scale: 1, rotation: 1, value: 1, weight: 1 }, Precision { centre: [3, 0, 5, 8], ..Precision::DEFAULT }] {
             let packed = Packed::of(&params, p).unwrap();
             let bytes = packed.to_bytes(3).unwrap();
             let back = Packed::from_bytes(&bytes, params.len(), &unpack).unwrap();

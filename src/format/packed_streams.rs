@@ -12,7 +12,7 @@
 //! | rotation | its own bit count ([`crate::format::packed::rotation_bits`]): the symbol's width |
 //! | value | the top bits of the value before it |
 //! | weight | whether its own value is 0 (a primitive that carries no value), and the top bits of its own x scale |
-//! | centre gap class | none |
+//! | centre gap class | the class before it (none in the payload's first layout) |
 //!
 //! Contexts take at most [`CONTEXT_BUDGET`] bits together with the symbol,
 //! so a stream's probabilities fit in 2 MiB whatever its precision.
@@ -37,7 +37,9 @@ pub enum Stream<'a> {
     /// Weight codes; `scale_x` the x scale codes (`scale_bits` bits) and
     /// `value` the value codes of the same primitives.
     Weight { bits: u8, scale_x: &'a [u16], scale_bits: u8, value: &'a [u16] },
-    GapClass,
+    /// Classes of the centre keys' gaps (6 bits), each under the class
+    /// before it when `by_previous` (the payload's first layout: none).
+    GapClass { by_previous: bool },
 }
 
 /// The top `k` bits of a `bits`-bit code (the whole code when it has fewer).
@@ -51,7 +53,7 @@ impl Stream<'_> {
         match *self {
             Stream::Scale { bits } | Stream::Rotation { bits, .. } | Stream::Value { bits } | Stream::Weight { bits, .. } => bits,
             Stream::RotationIndex => 2,
-            Stream::GapClass => CLASS_BITS,
+            Stream::GapClass { .. } => CLASS_BITS,
         }
     }
 
@@ -69,7 +71,8 @@ impl Stream<'_> {
             Stream::Rotation { bits, .. } => bits as usize + 1,
             Stream::Value { .. } => 1 << self.feature_bits(8, 1),
             Stream::Weight { .. } => 2 << self.feature_bits(4, 1),
-            Stream::RotationIndex | Stream::GapClass => 1,
+            Stream::GapClass { by_previous: true } => 1 << CLASS_BITS,
+            Stream::RotationIndex | Stream::GapClass { by_previous: false } => 1,
         }
     }
 
@@ -96,7 +99,8 @@ impl Stream<'_> {
                 let k = self.feature_bits(4, 1);
                 (((value[i] == 0) as usize) << k | top(scale_x[i], scale_bits, k), bits)
             }
-            Stream::RotationIndex | Stream::GapClass => (0, self.bits()),
+            Stream::GapClass { by_previous: true } => (i.checked_sub(1).map_or(0, |j| done[j] as usize), CLASS_BITS),
+            Stream::RotationIndex | Stream::GapClass { by_previous: false } => (0, self.bits()),
         }
     }
 
@@ -207,7 +211,8 @@ mod tests {
                 (Stream::Rotation { bits, rbits: &rbits }, rotation),
                 (Stream::Value { bits }, codes(n, bits)),
                 (Stream::Weight { bits, scale_x: &scale_x, scale_bits: 7, value: &scale_x }, codes(n, bits)),
-                (Stream::GapClass, codes(n, CLASS_BITS)),
+                (Stream::GapClass { by_previous: false }, codes(n, CLASS_BITS)),
+                (Stream::GapClass { by_previous: true }, codes(n, CLASS_BITS)),
             ];
             for (stream, symbols) in &cases {
                 let ranged = stream.range_code(symbols);
