@@ -34,7 +34,7 @@ def title(key):
 
 
 def order(keys):
-    rank = {s: i for i, s in enumerate(["tuned", "full", "matched"])}
+    rank = {s: i for i, s in enumerate(["tuned", "tuned-full", "full", "matched"])}
     return sorted(keys, key=lambda k: (ORDER.index(k[0]) if k[0] in ORDER else len(ORDER), k[0], rank.get(k[1], 9), k[1]))
 
 

@@ -19,6 +19,8 @@ pub const GSENC_SCHEDULE_MATCHED: i32 = 1;
 pub const GSENC_SCHEDULE_SHORT: i32 = 2;
 /// Matched's cost at five times the paper's learning rate (METHOD.md "Schedules").
 pub const GSENC_SCHEDULE_TUNED: i32 = 3;
+/// Full's cost at tuned's learning rate (METHOD.md "Schedules").
+pub const GSENC_SCHEDULE_TUNED_FULL: i32 = 4;
 /// Warm starts of steps after a field's first (`gsenc_config.warm_start`).
 pub const GSENC_WARM_OFF: i32 = 0;
 pub const GSENC_WARM_COARSE: i32 = 1;
@@ -270,6 +272,7 @@ impl Settings {
             GSENC_SCHEDULE_MATCHED => Schedule::Matched,
             GSENC_SCHEDULE_SHORT => Schedule::Short,
             GSENC_SCHEDULE_TUNED => Schedule::Tuned,
+            GSENC_SCHEDULE_TUNED_FULL => Schedule::TunedFull,
             s => return Err(bad(format!("unknown schedule {s}"))),
         };
         let warm = match c.warm_start {
@@ -397,5 +400,27 @@ impl Settings {
             output,
             preview,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every schedule constant reads as the schedule of its name; others are refused.
+    #[test]
+    fn schedule_constants_read_as_their_schedules() {
+        let named = [(GSENC_SCHEDULE_FULL, "full"), (GSENC_SCHEDULE_MATCHED, "matched"), (GSENC_SCHEDULE_SHORT, "short"), (GSENC_SCHEDULE_TUNED, "tuned"), (GSENC_SCHEDULE_TUNED_FULL, "tuned-full")];
+        assert_eq!(named.len(), Schedule::ALL.len());
+        for (code, name) in named {
+            let c = gsenc_config { schedule: code, ..gsenc_config::defaults() };
+            // SAFETY: a whole config of this version.
+            let s = unsafe { Settings::from_c(&c) }.unwrap_or_else(|f| panic!("{code}: {}", f.1));
+            assert_eq!(s.series.encode.schedule.name(), name);
+        }
+        let c = gsenc_config { schedule: 5, ..gsenc_config::defaults() };
+        // SAFETY: as above.
+        let e = unsafe { Settings::from_c(&c) }.err().unwrap();
+        assert!(e.1.contains("unknown schedule 5"), "{}", e.1);
     }
 }

@@ -35,7 +35,7 @@ module gsenc
         GSENC_STATUS_DEVICE = 14
     integer(c_int32_t), parameter, public :: GSENC_DTYPE_FLOAT32 = 0, GSENC_DTYPE_FLOAT64 = 1
     integer(c_int32_t), parameter, public :: GSENC_SCHEDULE_FULL = 0, GSENC_SCHEDULE_MATCHED = 1, &
-        GSENC_SCHEDULE_SHORT = 2, GSENC_SCHEDULE_TUNED = 3
+        GSENC_SCHEDULE_SHORT = 2, GSENC_SCHEDULE_TUNED = 3, GSENC_SCHEDULE_TUNED_FULL = 4
     integer(c_int32_t), parameter, public :: GSENC_WARM_OFF = 0, GSENC_WARM_COARSE = 1, GSENC_WARM_DENSE = 2, &
         GSENC_WARM_AUTO = 3
     integer(c_int32_t), parameter, public :: GSENC_WARM_TAKEN_NONE = 0, GSENC_WARM_TAKEN_KEPT = 1, &

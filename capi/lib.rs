@@ -153,7 +153,7 @@ mod tests {
         for (i, s) in statuses.iter().enumerate() {
             assert_eq!(*s as i32, i as i32);
         }
-        assert_eq!([GSENC_SCHEDULE_FULL, GSENC_SCHEDULE_MATCHED, GSENC_SCHEDULE_SHORT, GSENC_SCHEDULE_TUNED], [0, 1, 2, 3]);
+        assert_eq!([GSENC_SCHEDULE_FULL, GSENC_SCHEDULE_MATCHED, GSENC_SCHEDULE_SHORT, GSENC_SCHEDULE_TUNED, GSENC_SCHEDULE_TUNED_FULL], [0, 1, 2, 3, 4]);
         assert_eq!([GSENC_WARM_OFF, GSENC_WARM_COARSE, GSENC_WARM_DENSE, GSENC_WARM_AUTO], [0, 1, 2, 3]);
         assert_eq!([GSENC_TRANSFORM_LINEAR, GSENC_TRANSFORM_LOG10], [0, 1]);
         assert_eq!([GSENC_PAYLOAD_F32, GSENC_PAYLOAD_8BIT, GSENC_PAYLOAD_8BIT_U16, GSENC_PAYLOAD_PACKED], [0, 1, 2, 3]);

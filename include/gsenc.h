@@ -49,6 +49,11 @@
 #define GSENC_SCHEDULE_TUNED 3
 
 /*
+ Full's cost at tuned's learning rate (METHOD.md "Schedules").
+ */
+#define GSENC_SCHEDULE_TUNED_FULL 4
+
+/*
  Warm starts of steps after a field's first (`gsenc_config.warm_start`).
  */
 #define GSENC_WARM_OFF 0

@@ -35,6 +35,15 @@ fn the_schedule_follows_the_form_and_the_start() {
     assert_eq!((tuned.iterations(), tuned.points()), (matched.iterations(), matched.points()));
     assert!((tuned.learning_rate - 5.0 * matched.learning_rate).abs() < 1e-7, "{}", tuned.learning_rate);
     assert_eq!(Schedule::from_name("tuned").unwrap(), Schedule::Tuned);
+    // gsenc's `tuned-full`: full's iterations and points (longer for
+    // particles) at tuned's learning rate.
+    for form in [Form::Particles, Form::Grid] {
+        let long = config_for(&EncodeConfig::new(100, Schedule::TunedFull), form, &Start::Seeded);
+        let full = config_for(&base, form, &Start::Seeded);
+        assert_eq!((long.iterations(), long.points()), (full.iterations(), full.points()));
+        assert_eq!(long.learning_rate, tuned.learning_rate);
+    }
+    assert_eq!(Schedule::from_name("tuned-full").unwrap(), Schedule::TunedFull);
     // A caller's overrides stand for a seeded encode.
     let mut short = base.clone();
     short.iterations = Some(12);

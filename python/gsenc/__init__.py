@@ -140,7 +140,7 @@ def encode_grid(array, budget=None, *, target_psnr=None, schedule="matched", ran
 
     ``array``: any of uint8/int8/uint16/int16/uint32/int32/uint64/int64/
     float32/float64, any strides (read in place). ``schedule``: "short",
-    "matched" (the paper's), "full" or "tuned". ``range``: (lo, hi) in data
+    "matched" (the paper's), "full", "tuned" or "tuned-full". ``range``: (lo, hi) in data
     units, default the data's own; ``log10`` encodes log10 of the values.
     ``origin`` is the world position of voxel (0, 0, 0)'s centre and
     ``spacing`` the voxel size. ``payload`` ("f32", "8bit", "8bit-u16",

@@ -19,15 +19,19 @@ pub enum Schedule {
     /// rate (METHOD.md "Schedules"): at matched's cost, most of what `full`
     /// adds in quality.
     Tuned,
+    /// gsenc's: full's iterations and points (4000 iterations for
+    /// particles) at `tuned`'s learning rate: `full`'s cost, for more
+    /// quality per primitive than `full` gives (METHOD.md "Schedules").
+    TunedFull,
 }
 
-/// The paper's learning rate, of every schedule but `tuned`.
+/// The paper's learning rate, of every schedule but `tuned` and `tuned-full`.
 pub const PAPER_LEARNING_RATE: f32 = 8e-3;
-/// The learning rate of the `tuned` schedule.
+/// The learning rate of the `tuned` and `tuned-full` schedules.
 pub const TUNED_LEARNING_RATE: f32 = 0.04;
 
 impl Schedule {
-    pub const ALL: [Schedule; 4] = [Schedule::Full, Schedule::Matched, Schedule::Short, Schedule::Tuned];
+    pub const ALL: [Schedule; 5] = [Schedule::Full, Schedule::Matched, Schedule::Short, Schedule::Tuned, Schedule::TunedFull];
 
     pub fn from_name(s: &str) -> Result<Schedule> {
         by_name(&Schedule::ALL, Schedule::name, s, "schedule")
@@ -39,20 +43,21 @@ impl Schedule {
             Schedule::Matched => "matched",
             Schedule::Short => "short",
             Schedule::Tuned => "tuned",
+            Schedule::TunedFull => "tuned-full",
         }
     }
     /// Iterations; `particles` selects the longer full schedule of SPH input.
     pub fn iterations(self, particles: bool) -> usize {
         match self {
-            Schedule::Full if particles => 4000,
-            Schedule::Full => 3000,
+            Schedule::Full | Schedule::TunedFull if particles => 4000,
+            Schedule::Full | Schedule::TunedFull => 3000,
             Schedule::Matched | Schedule::Tuned => 1500,
             Schedule::Short => 500,
         }
     }
     pub fn points(self) -> usize {
         match self {
-            Schedule::Full => 16384,
+            Schedule::Full | Schedule::TunedFull => 16384,
             Schedule::Matched | Schedule::Tuned => 3072,
             Schedule::Short => 8192,
         }
@@ -60,7 +65,7 @@ impl Schedule {
     /// Peak learning rate of the cosine decay.
     pub fn learning_rate(self) -> f32 {
         match self {
-            Schedule::Tuned => TUNED_LEARNING_RATE,
+            Schedule::Tuned | Schedule::TunedFull => TUNED_LEARNING_RATE,
             _ => PAPER_LEARNING_RATE,
         }
     }
