@@ -14,7 +14,8 @@
 # float32 array the codecs get; ratios are against that array's float32
 # bytes. `payloads` measures the packed payload against float32 and 8-bit
 # on RM 128^3 at 32K and hydrogen at 4,096 (issue 19's targets), with
-# SCHEDULE too.
+# SCHEDULE too. BUDGETS (e.g. "8000 32000") replaces every dataset's list
+# of budgets, for a schedule too long to run at them all (tuned-full).
 # zfpy and pysz are installed into bench-out/peers-venv (PyPI); every codec
 # call runs in a process of its own (benches/peers_codec.py). One JSON line
 # per point goes to bench-out/peers/peers.jsonl (rows of the datasets and
@@ -74,6 +75,10 @@ deposit() {
     "$bin" deposit "$@" --normalized -o "$ref" --json --quiet | python3 -c "import json,sys; print(','.join(map(str, json.load(sys.stdin)['dims'])))"
 }
 
+budgets() { # the budgets to run: BUDGETS when set, else the dataset's list ($@)
+    echo "${BUDGETS:-$*}"
+}
+
 forget() { # drops the rows of dataset $1 encoded with schedule $2 from the log
     python3 -c "
 import json,sys
@@ -116,30 +121,30 @@ for ds in "${datasets[@]}"; do
             ref=$out/rm128.ref
             dims=$(codec grid-ref "$rm_raw" u8 256,256,256 2 "$ref")
             if [ "$ds" = rm128 ]; then
-                for n in 2000 4000 8000 16000 32000 64000; do point rm128 "$ref" "$dims" $n "$schedule" "${rm128[@]}"; done
+                for n in $(budgets 2000 4000 8000 16000 32000 64000); do point rm128 "$ref" "$dims" $n "$schedule" "${rm128[@]}"; done
             else
                 for n in 8000 32000; do point rm128full "$ref" "$dims" $n full "${rm128[@]}"; done
             fi ;;
         rm256)
             ref=$out/rm256.ref
             dims=$(codec grid-ref "$rm_raw" u8 256,256,256 1 "$ref")
-            for n in 30000 60000 120000 240000; do point rm256 "$ref" "$dims" $n "$schedule" "${rm256[@]}"; done ;;
+            for n in $(budgets 30000 60000 120000 240000); do point rm256 "$ref" "$dims" $n "$schedule" "${rm256[@]}"; done ;;
         hydrogen)
             ref=$out/hydrogen.ref
             dims=$(codec grid-ref "$data/hydrogen_atom.float32" f32 64,64,64 1 "$ref")
-            for n in 512 1024 2048 4096 8192; do point hydrogen "$ref" "$dims" $n "$schedule" "${hyd[@]}"; done ;;
+            for n in $(budgets 512 1024 2048 4096 8192); do point hydrogen "$ref" "$dims" $n "$schedule" "${hyd[@]}"; done ;;
         halo)
             ref=$out/halo.ref
             dims=$(deposit "$ref" "${halo[@]}")
-            for n in 5000 10000 20000 50000; do point halo "$ref" "$dims" $n "$schedule" "${halo[@]}"; done ;;
+            for n in $(budgets 5000 10000 20000 50000); do point halo "$ref" "$dims" $n "$schedule" "${halo[@]}"; done ;;
         enzo)
             ref=$out/enzo.ref
             dims=$(deposit "$ref" "${enzo[@]}")
-            for n in 2500 5000 10000 20000 40000; do point enzo "$ref" "$dims" $n "$schedule" "${enzo[@]}"; done ;;
+            for n in $(budgets 2500 5000 10000 20000 40000); do point enzo "$ref" "$dims" $n "$schedule" "${enzo[@]}"; done ;;
         dambreak)
             ref=$out/dambreak.ref
             dims=$(deposit "$ref" "${dam[@]}")
-            for n in 250 500 1000 2000 4000; do point dambreak "$ref" "$dims" $n "$schedule" "${dam[@]}"; done ;;
+            for n in $(budgets 250 500 1000 2000 4000); do point dambreak "$ref" "$dims" $n "$schedule" "${dam[@]}"; done ;;
         *) echo "unknown dataset $ds (rm128 rm128full rm256 hydrogen halo enzo dambreak payloads)" >&2; exit 2 ;;
     esac
 done

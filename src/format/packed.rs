@@ -466,8 +466,9 @@ impl Packed {
                 w.put(d, class - 1); // the bits below the highest
             }
         }
-        let base = key_bits(&p, &self.classes());
-        for (low, class) in self.low.iter().zip(self.classes()) {
+        let classes = self.classes();
+        let base = key_bits(&p, &classes);
+        for (low, class) in self.low.iter().zip(classes) {
             low.iter().for_each(|&l| w.put(l as u64, (p.centre[class as usize] - base) as u32));
         }
         out.extend_from_slice(&w.finish());
