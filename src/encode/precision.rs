@@ -4,10 +4,10 @@
 //! [`MAX_PSNR_LOSS_DB`] of the float32 model's.
 //!
 //! The measure is the PSNR at [`POINTS`] voxel centres drawn from the
-//! reference (from its support when the model stores one: elsewhere both
-//! decode to exactly 0, so the ratio of the errors, and so the PSNR change,
-//! is the whole lattice's). The search allows the caller's loss on the
-//! sample:
+//! reference, or at every one where it has no more (from its support when
+//! the model stores one: elsewhere both decode to exactly 0, so the ratio
+//! of the errors, and so the PSNR change, is the whole lattice's). The
+//! search allows the caller's loss on the sample:
 //!
 //! 1. each group in turn is searched alone (bisection), the others held at
 //!    their finest ([`Precision::FINEST`], with centres as coarse as a wide
@@ -171,14 +171,26 @@ fn finer(p: Precision, finest: Precision) -> Precision {
 
 /// [`POINTS`] voxel centres of `reference`, drawn uniformly with
 /// replacement from its support (the voxels above the mask) when the model
-/// stores one, else from every voxel; `None` when there is none. Memory is
-/// that of the draws, whatever the lattice: ranks among the candidates are
-/// drawn, sorted, and found in one pass (the points stay in draw order).
+/// stores one, else from every voxel; every candidate once, in lattice
+/// order, where there are no more than [`POINTS`] (the sample is then the
+/// lattice, at less cost); `None` when there is none. Memory is that of the
+/// draws, whatever the lattice: ranks among the candidates are drawn,
+/// sorted, and found in one pass (the points stay in draw order).
 fn sample(reference: &Grid, support: bool) -> Option<Validation> {
     let candidate = |i: usize| !support || reference.values[i] > MASK_REF;
     let count = (0..reference.len()).filter(|&i| candidate(i)).count();
     if count == 0 {
         return None;
+    }
+    let [dx, dy, _] = reference.dims;
+    let at = |picks: Vec<usize>, support| Validation {
+        points: picks.iter().map(|&i| [(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]).collect(),
+        values: picks.iter().map(|&i| reference.values[i]).collect(),
+        every: 1,
+        support,
+    };
+    if count <= POINTS {
+        return Some(at((0..reference.len()).filter(|&i| candidate(i)).collect(), support));
     }
     let mut rng = Rng::new(SEED);
     // (rank among the candidates, draw), in rank order.
@@ -192,13 +204,7 @@ fn sample(reference: &Grid, support: bool) -> Option<Validation> {
         }
         rank += 1;
     }
-    let [dx, dy, _] = reference.dims;
-    Some(Validation {
-        points: picks.iter().map(|&i| [(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]).collect(),
-        values: picks.iter().map(|&i| reference.values[i]).collect(),
-        every: 1,
-        support,
-    })
+    Some(at(picks, support))
 }
 
 #[cfg(test)]
@@ -249,21 +255,33 @@ mod tests {
 
     #[test]
     fn the_sample_is_drawn_from_the_support_only_and_covers_it() {
-        // A 40^3 lattice with data in one octant only.
-        let dims = [40, 40, 40];
-        let values: Vec<f32> = (0..64000).map(|i| if i % 40 < 20 && i / 40 % 40 < 20 && i / 1600 < 20 { 0.5 } else { 0.0 }).collect();
+        // A 96 x 48 x 48 lattice (221,184 voxels) with data in one half
+        // along x only (110,592 voxels, more than POINTS).
+        let dims = [96, 48, 48];
+        let values: Vec<f32> = (0..96 * 48 * 48).map(|i| if i % 96 < 48 { 0.5 } else { 0.0 }).collect();
         let grid = Grid::new(dims, values).unwrap();
         let s = sample(&grid, true).unwrap();
         assert_eq!(s.points.len(), POINTS);
-        assert!(s.points.iter().all(|p| p.iter().all(|&c| c < 20.0)), "a point outside the support");
+        assert!(s.points.iter().all(|p| p[0] < 48.0), "a point outside the support");
         assert!(s.values.iter().all(|&v| v == 0.5));
-        // Every octant of the support's own 20^3 box is drawn from.
+        // Every octant of the support's own 48^3 box is drawn from.
         let mut octants = [0usize; 8];
-        s.points.iter().for_each(|p| octants[(p[0] >= 10.0) as usize + 2 * (p[1] >= 10.0) as usize + 4 * (p[2] >= 10.0) as usize] += 1);
+        s.points.iter().for_each(|p| octants[(p[0] >= 24.0) as usize + 2 * (p[1] >= 24.0) as usize + 4 * (p[2] >= 24.0) as usize] += 1);
         assert!(octants.iter().all(|&n| n > POINTS / 16), "{octants:?}");
         // Without a support, every voxel is a candidate; with no data at all, none.
         let all = sample(&grid, false).unwrap();
-        assert!(all.points.iter().any(|p| p[0] >= 20.0));
-        assert!(sample(&Grid::new(dims, vec![0.0; 64000]).unwrap(), true).is_none());
+        assert_eq!(all.points.len(), POINTS);
+        assert!(all.points.iter().any(|p| p[0] >= 48.0));
+        assert!(sample(&Grid::new(dims, vec![0.0; dims.iter().product()]).unwrap(), true).is_none());
+        // A lattice of no more candidates than POINTS is scored whole, each voxel once.
+        let small = Grid::new([40, 40, 40], (0..64000).map(|i| if i % 40 < 20 { 0.5 } else { 0.0 }).collect()).unwrap();
+        let s = sample(&small, true).unwrap();
+        assert_eq!(s.points.len(), 32000);
+        assert!(s.points.iter().all(|p| p[0] < 20.0) && s.values.iter().all(|&v| v == 0.5));
+        let mut seen: Vec<[u32; 3]> = s.points.iter().map(|p| p.map(|c| c as u32)).collect();
+        seen.sort_unstable();
+        seen.dedup();
+        assert_eq!(seen.len(), 32000, "a voxel twice");
+        assert_eq!(sample(&small, false).unwrap().points.len(), 64000);
     }
 }
