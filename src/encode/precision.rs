@@ -183,14 +183,14 @@ fn sample(reference: &Grid, support: bool) -> Option<Validation> {
         return None;
     }
     let [dx, dy, _] = reference.dims;
-    let at = |picks: Vec<usize>, support| Validation {
+    let at = |picks: Vec<usize>| Validation {
         points: picks.iter().map(|&i| [(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]).collect(),
         values: picks.iter().map(|&i| reference.values[i]).collect(),
         every: 1,
         support,
     };
     if count <= POINTS {
-        return Some(at((0..reference.len()).filter(|&i| candidate(i)).collect(), support));
+        return Some(at((0..reference.len()).filter(|&i| candidate(i)).collect()));
     }
     let mut rng = Rng::new(SEED);
     // (rank among the candidates, draw), in rank order.
@@ -204,7 +204,7 @@ fn sample(reference: &Grid, support: bool) -> Option<Validation> {
         }
         rank += 1;
     }
-    Some(at(picks, support))
+    Some(at(picks))
 }
 
 #[cfg(test)]

@@ -90,12 +90,20 @@ pub fn centre_class(scale: [u16; 3], scale_bits: u8) -> usize {
 /// Primitives of `params` in each centre class, their scales coded at
 /// `scale_bits` bits.
 pub fn class_counts(params: &[Primitive], scale_bits: u8) -> [usize; CENTRE_CLASSES] {
-    let (llo, lhi) = scale_band();
     let mut counts = [0; CENTRE_CLASSES];
-    for p in params {
-        counts[centre_class([0, 1, 2].map(|a| uniform_code(p[layout::LOG_SCALE + a] as f64, llo, lhi, scale_bits)), scale_bits)] += 1;
-    }
+    params.iter().for_each(|p| counts[class_of(p, scale_bits)] += 1);
     counts
+}
+
+/// A primitive's scale code on axis `a` at `bits` bits.
+fn scale_code(p: &Primitive, a: usize, bits: u8) -> u16 {
+    let (lo, hi) = scale_band();
+    uniform_code(p[layout::LOG_SCALE + a] as f64, lo, hi, bits)
+}
+
+/// The centre class of a primitive, its scales coded at `scale_bits` bits.
+fn class_of(p: &Primitive, scale_bits: u8) -> usize {
+    centre_class([0, 1, 2].map(|a| scale_code(p, a, scale_bits)), scale_bits)
 }
 
 impl Precision {
@@ -197,7 +205,7 @@ pub struct Packed {
     pub origin: [f64; 3],
     pub weight_map: Affine,
     /// Morton keys of the centre codes on the coarsest lattice of the
-    /// centre classes present ([`Packed::key_bits`]), ascending.
+    /// centre classes present (`key_bits`), ascending.
     pub keys: Vec<u64>,
     /// Each primitive's centre code bits below that lattice, per axis: the
     /// low `centre[class] - key_bits` bits of its code on its class's lattice.
@@ -292,9 +300,7 @@ impl Packed {
     pub fn of(params: &[Primitive], precision: Precision) -> Result<Packed> {
         let precision = precision.check().map_err(|e| Error::arg(e.to_string()))?;
         let n = params.len();
-        let (llo, lhi) = scale_band();
-        let scale_code = |p: &Primitive, a: usize| uniform_code(p[layout::LOG_SCALE + a] as f64, llo, lhi, precision.scale);
-        let class: Vec<u8> = params.iter().map(|p| centre_class([0, 1, 2].map(|a| scale_code(p, a)), precision.scale) as u8).collect();
+        let class: Vec<u8> = params.iter().map(|p| class_of(p, precision.scale) as u8).collect();
         let base = key_bits(&precision, &class);
         let mut origin = [0f64; 3];
         for (a, o) in origin.iter_mut().enumerate() {
@@ -330,7 +336,7 @@ impl Packed {
 
         let mut scale = Vec::with_capacity(3 * n);
         for a in 0..3 {
-            scale.extend(sorted(&|p| scale_code(p, a)));
+            scale.extend(sorted(&|p| scale_code(p, a, precision.scale)));
         }
         let mut rotation_index = Vec::new();
         let mut rotation: [Vec<u16>; 3] = Default::default();
