@@ -639,4 +639,21 @@ mod round_trip_tests {
             back.params().unwrap();
         }
     }
+
+    /// Codes beyond their class's lattice (a `Packed` built by hand; the
+    /// reader takes exactly the bits a class has) are refused, not read as
+    /// another centre.
+    #[test]
+    fn centre_bits_beyond_a_class_lattice_are_refused() {
+        let mut rng = Rng::new(2);
+        let params: Vec<Primitive> = (0..200).map(|_| std::array::from_fn(|k| if k < 3 { rng.range(0.0, 30.0) as f32 } else { rng.normal() as f32 })).collect();
+        let mut packed = Packed::of(&params, Precision { centre: [2, 4, 4, 4], ..Precision::DEFAULT }).unwrap();
+        let classes = packed.classes();
+        let base = key_bits(&packed.precision, &classes);
+        let fine = classes.iter().position(|&c| packed.precision.centre[c as usize] > base).expect("a class finer than the keys' lattice");
+        packed.params().unwrap();
+        packed.low[fine][1] = 1 << (packed.precision.centre[classes[fine] as usize] - base);
+        let e = packed.params().unwrap_err();
+        assert!(e.to_string().contains("beyond its class's lattice"), "{e}");
+    }
 }
