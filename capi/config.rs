@@ -17,9 +17,10 @@ use std::os::raw::c_char;
 pub const GSENC_SCHEDULE_FULL: i32 = 0;
 pub const GSENC_SCHEDULE_MATCHED: i32 = 1;
 pub const GSENC_SCHEDULE_SHORT: i32 = 2;
-/// Matched's cost at five times the paper's learning rate (METHOD.md "Schedules").
+/// Matched's cost at five times the paper's learning rate, with gsenc's
+/// training points (METHOD.md "Schedules").
 pub const GSENC_SCHEDULE_TUNED: i32 = 3;
-/// Full's cost at tuned's learning rate (METHOD.md "Schedules").
+/// Full's cost, trained as tuned (METHOD.md "Schedules").
 pub const GSENC_SCHEDULE_TUNED_FULL: i32 = 4;
 /// Warm starts of steps after a field's first (`gsenc_config.warm_start`).
 pub const GSENC_WARM_OFF: i32 = 0;

@@ -20,7 +20,7 @@ fn main() {
     // The order the encoder trains in.
     let order = gsenc::encode::spatial_order(&seeded.params);
     let params: Vec<Primitive> = order.iter().map(|&i| seeded.params[i]).collect();
-    let mut sampler = PointSampler::new(&reference, 1);
+    let mut sampler = PointSampler::new(&reference, 1, gsenc::encode::config::PointRule::PAPER);
     let mut be = CpuBackend::new();
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; budget];
     if let Ok(b) = std::env::var("BRICK") { be.brick = b.parse().unwrap(); }

@@ -44,12 +44,13 @@
 #define GSENC_SCHEDULE_SHORT 2
 
 /*
- Matched's cost at five times the paper's learning rate (METHOD.md "Schedules").
+ Matched's cost at five times the paper's learning rate, with gsenc's
+ training points (METHOD.md "Schedules").
  */
 #define GSENC_SCHEDULE_TUNED 3
 
 /*
- Full's cost at tuned's learning rate (METHOD.md "Schedules").
+ Full's cost, trained as tuned (METHOD.md "Schedules").
  */
 #define GSENC_SCHEDULE_TUNED_FULL 4
 

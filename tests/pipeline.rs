@@ -6,7 +6,7 @@ mod common;
 use common::blobs;
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::encode::pipeline::{self, config_for, Labels, Request, Start};
-use gsenc::encode::{encode, EncodeConfig, Schedule, WarmStart};
+use gsenc::encode::{encode, EncodeConfig, PointRule, Schedule, WarmStart};
 use gsenc::field::{IndexFrame, Transform, ValueRange};
 use gsenc::format::quantize::CentreCoding;
 use gsenc::format::packed::Precision;
@@ -44,6 +44,11 @@ fn the_schedule_follows_the_form_and_the_start() {
         assert_eq!(long.learning_rate, tuned.learning_rate);
     }
     assert_eq!(Schedule::from_name("tuned-full").unwrap(), Schedule::TunedFull);
+    // gsenc's two draw gsenc's training points; the paper's, the paper's.
+    for s in Schedule::ALL {
+        let gsenc = matches!(s, Schedule::Tuned | Schedule::TunedFull);
+        assert_eq!(EncodeConfig::new(100, s).point_rule, if gsenc { PointRule::GSENC } else { PointRule::PAPER }, "{s:?}");
+    }
     // A caller's overrides stand for a seeded encode.
     let mut short = base.clone();
     short.iterations = Some(12);
@@ -167,6 +172,7 @@ fn the_tuned_schedule_trains_at_its_own_rate_and_says_so() {
         cfg.iterations = Some(80);
         cfg.points = Some(1024);
         cfg.relocation = false; // Adam's steps alone, which scale with the rate
+        cfg.point_rule = PointRule::PAPER; // the same points for both
         pipeline::encode(&Input::Grid { values: &g, frame }, &range, &Request::new(cfg), &mut CpuBackend::new(), &mut |_| {}).unwrap().1
     };
     let (tuned, matched) = (run(Schedule::Tuned), run(Schedule::Matched));
@@ -179,6 +185,26 @@ fn the_tuned_schedule_trains_at_its_own_rate_and_says_so() {
     cfg.iterations = Some(0);
     let seeded = run_with(&g, frame, cfg);
     assert!(moved(&tuned, &seeded) > 1.3 * moved(&matched, &seeded), "centres moved {} (tuned) vs {} (matched)", moved(&tuned, &seeded), moved(&matched, &seeded));
+}
+
+#[test]
+fn voxel_centre_points_need_the_stored_support() {
+    let g = blobs([16, 14, 12], 5, 3);
+    let frame = IndexFrame::for_grid(g.dims, [0.0; 3], 1.0).unwrap();
+    let range = RangeSpec::FromData(Transform::Linear);
+    let run = |store_support| {
+        let mut cfg = EncodeConfig::new(60, Schedule::Tuned);
+        cfg.iterations = Some(30);
+        cfg.points = Some(512);
+        let request = Request { store_support, ..Request::new(cfg) };
+        pipeline::encode(&Input::Grid { values: &g, frame }, &range, &request, &mut CpuBackend::new(), &mut |_| {}).unwrap().1
+    };
+    let (with, without) = (run(true), run(false));
+    assert_eq!(with.config.point_rule, PointRule::GSENC);
+    // Without a support nothing would teach the empty voxels beside the
+    // data: the paper's jittered points, and still the error stratum.
+    assert_eq!(without.config.point_rule, PointRule { on_lattice: false, ..PointRule::GSENC });
+    assert_ne!(with.model.params, without.model.params);
 }
 
 fn run_with(g: &gsenc::field::Grid, frame: IndexFrame, cfg: EncodeConfig) -> Vec<[f32; 12]> {

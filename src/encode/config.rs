@@ -16,13 +16,34 @@ pub enum Schedule {
     /// 500 x 8192 (the paper also runs 300 x 8192: `--iters 300`).
     Short,
     /// gsenc's: matched's 1500 x 3072 at five times the paper's learning
-    /// rate (METHOD.md "Schedules"): at matched's cost, most of what `full`
-    /// adds in quality.
+    /// rate, with gsenc's training points ([`PointRule::GSENC`]; METHOD.md
+    /// "Schedules"): at matched's cost, more than `full` gives.
     Tuned,
     /// gsenc's: full's iterations and points (4000 iterations for
-    /// particles) at `tuned`'s learning rate: `full`'s cost, for more
-    /// quality per primitive than `full` gives (METHOD.md "Schedules").
+    /// particles) at `tuned`'s learning rate and with its points: `full`'s
+    /// cost, for the most quality per primitive (METHOD.md "Schedules").
     TunedFull,
+}
+
+/// How an encode's training points are drawn (METHOD.md "Training points").
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PointRule {
+    /// Every point at a voxel centre, with the voxel's own reference value
+    /// (gsenc's schedules); `false`: the paper's half-voxel jitter and
+    /// trilinear reference values.
+    pub on_lattice: bool,
+    /// The share of each batch drawn from the occupied voxels in proportion
+    /// to the current model's absolute error there, refreshed every tenth
+    /// of the run (0: no such stratum, the paper's).
+    pub error_share: f32,
+}
+
+impl PointRule {
+    /// The paper's: jittered points, four strata.
+    pub const PAPER: PointRule = PointRule { on_lattice: false, error_share: 0.0 };
+    /// gsenc's (`tuned`, `tuned-full`): voxel centres, and 30 % of each
+    /// batch where the model is wrong.
+    pub const GSENC: PointRule = PointRule { on_lattice: true, error_share: 0.3 };
 }
 
 /// The paper's learning rate, of every schedule but `tuned` and `tuned-full`.
@@ -69,6 +90,13 @@ impl Schedule {
             _ => PAPER_LEARNING_RATE,
         }
     }
+    /// How the schedule draws its training points.
+    pub fn point_rule(self) -> PointRule {
+        match self {
+            Schedule::Tuned | Schedule::TunedFull => PointRule::GSENC,
+            _ => PointRule::PAPER,
+        }
+    }
 }
 
 /// Everything that decides what model an encode produces.
@@ -88,6 +116,8 @@ pub struct EncodeConfig {
     /// Relocation passes at 35, 55 and 75 % of the iterations.
     pub relocation: bool,
     pub learning_rate: f32,
+    /// How training points are drawn (the schedule's by default).
+    pub point_rule: PointRule,
     pub weights: LossWeights,
     /// True for SPH particle input (longer full schedule).
     pub particles: bool,
@@ -160,6 +190,7 @@ impl EncodeConfig {
             seed_sample: 1,
             relocation: true,
             learning_rate: schedule.learning_rate(),
+            point_rule: schedule.point_rule(),
             weights: LossWeights::default(),
             particles: false,
             adaptive: false,

@@ -115,7 +115,13 @@ pub(crate) fn encode_budget(
     backend: &mut dyn Backend,
     progress: &mut dyn FnMut(&Progress),
 ) -> Result<Encoded> {
-    let cfg = config_for(&request.config, prepared.form, &request.start);
+    let mut cfg = config_for(&request.config, prepared.form, &request.start);
+    if !request.store_support {
+        // Voxel-centre points teach nothing about the empty voxels beside
+        // the data, which only a stored support zeroes; without one, the
+        // paper's jittered points (METHOD.md "Training points").
+        cfg.point_rule.on_lattice = false;
+    }
     let init = match request.start {
         Start::Seeded => None,
         Start::Warm { params, .. } => Some(params),

@@ -5,7 +5,7 @@
 //! prepare the input, encode it (seeded or warm-started), score the model as
 //! it will be stored, and build the model with its metadata ([`fixed`]). Below it:
 //! [`config`] (budget, schedules, warm regimes), [`seeding`] (the three
-//! streams), [`points`] (the stratified training points), [`relocate`],
+//! streams), [`points`] (the stratified training points, the paper's or gsenc's rule), [`relocate`],
 //! [`refine`] (the optimisation loop), [`validation`] (a fixed point set
 //! scored along the way), [`precision`] (what the packed payload needs), [`stored`] (a model decoded
 //! as its file will read),
@@ -28,6 +28,6 @@ pub mod stored;
 pub mod target;
 pub mod validation;
 
-pub use config::{Cancel, EncodeConfig, Schedule, TargetPsnr, WarmStart};
+pub use config::{Cancel, EncodeConfig, PointRule, Schedule, TargetPsnr, WarmStart};
 pub use refine::{encode, encode_validated, spatial_order, validate, with_threads, EncodeOutput, LossTerms, Progress};
 pub use validation::Validation;

@@ -6,22 +6,46 @@
 //! noise. Every point gets U(-0.5, 0.5) jitter per axis and is clamped to the
 //! domain `[0, D_a - 1]`; an empty pool's share goes to the uniform stratum.
 //! Reference values are trilinear interpolations of the reference grid.
+//!
+//! gsenc's rule ([`PointRule::GSENC`]) puts every point at a voxel centre
+//! instead (no jitter; the sample stratum's point is rounded), and draws a
+//! share of each batch last, from the occupied voxels in proportion to the
+//! current model's absolute error there (the error stratum), once the
+//! encoder has given it an error map ([`PointSampler::map_errors`]).
 
-use crate::field::Grid;
-use crate::math::rng::Rng;
-use crate::input::samples::SampleSet;
 use crate::backend::PointBatch;
+use crate::encode::config::PointRule;
+use crate::error::Result;
+use crate::field::Grid;
+use crate::input::samples::SampleSet;
+use crate::math::loss::{v_eval, MASK_REF};
+use crate::math::rng::Rng;
 use rayon::prelude::*;
 
 pub const HIGH_THRESHOLD: f32 = 0.4;
 pub const MID_THRESHOLD: f32 = 0.02;
 pub const SAMPLE_NOISE_SIGMA: f64 = 0.75;
+/// The error map covers at most this many occupied voxels: above it, a
+/// fresh uniform draw of this many (with replacement) at each refresh.
+pub const ERROR_MAP_VOXELS: usize = 1 << 20;
+/// Voxels are evaluated in chunks of this many for the error map.
+const ERROR_MAP_CHUNK: usize = 1 << 16;
 
 /// Draws batches from one sequential random stream (seed 1 by default).
 pub struct PointSampler {
     high: Vec<u32>,
     mid: Vec<u32>,
+    /// Voxels with `V_ref > MASK_REF`: those an error map covers.
+    occupied: Vec<u32>,
+    rule: PointRule,
+    /// The latest error map: voxels and the running sum of their errors.
+    errors: Option<ErrorMap>,
     rng: Rng,
+}
+
+struct ErrorMap {
+    voxels: Vec<u32>,
+    cumulative: Vec<f64>,
 }
 
 /// How many points each stratum gets for a batch of `p`.
@@ -31,28 +55,79 @@ pub struct StratumCounts {
     pub mid: usize,
     pub uniform: usize,
     pub samples: usize,
+    /// Drawn in proportion to the model's error (gsenc's rule, once mapped).
+    pub error: usize,
 }
 
 impl PointSampler {
-    pub fn new(reference: &Grid, seed: u64) -> PointSampler {
+    pub fn new(reference: &Grid, seed: u64, rule: PointRule) -> PointSampler {
         let mut high = vec![];
         let mut mid = vec![];
+        let mut occupied = vec![];
         for (i, &v) in reference.values.iter().enumerate() {
             if v > HIGH_THRESHOLD {
                 high.push(i as u32);
             } else if v > MID_THRESHOLD {
                 mid.push(i as u32);
             }
+            if rule.error_share > 0.0 && v > MASK_REF {
+                occupied.push(i as u32);
+            }
         }
-        PointSampler { high, mid, rng: Rng::new(seed) }
+        PointSampler { high, mid, occupied, rule, errors: None, rng: Rng::new(seed) }
+    }
+
+    /// Whether this sampler draws an error stratum, and so wants error maps.
+    pub fn wants_errors(&self) -> bool {
+        self.rule.error_share > 0.0 && !self.occupied.is_empty()
+    }
+
+    /// Maps the current model's error `|V_eval - V_ref|` at the occupied
+    /// voxels (at most [`ERROR_MAP_VOXELS`] of them, drawn from the stream
+    /// when there are more), for the error stratum of the batches after it.
+    /// `evaluate` gives the mixture's `rho` and `n` at voxel centres.
+    pub fn map_errors(
+        &mut self,
+        reference: &Grid,
+        mut evaluate: impl FnMut(&[[f32; 3]], &mut [f32], &mut [f32]) -> Result<()>,
+    ) -> Result<()> {
+        if !self.wants_errors() {
+            return Ok(());
+        }
+        let voxels: Vec<u32> = if self.occupied.len() <= ERROR_MAP_VOXELS {
+            self.occupied.clone()
+        } else {
+            (0..ERROR_MAP_VOXELS).map(|_| self.occupied[self.rng.below(self.occupied.len() as u64) as usize]).collect()
+        };
+        let mut map = ErrorMap { voxels: Vec::with_capacity(voxels.len()), cumulative: Vec::with_capacity(voxels.len()) };
+        let mut total = 0f64;
+        let (mut rho, mut n) = (vec![0f32; ERROR_MAP_CHUNK], vec![0f32; ERROR_MAP_CHUNK]);
+        for chunk in voxels.chunks(ERROR_MAP_CHUNK) {
+            let pos: Vec<[f32; 3]> = chunk.iter().map(|&i| centre(reference, i as usize)).collect();
+            let (rho, n) = (&mut rho[..chunk.len()], &mut n[..chunk.len()]);
+            evaluate(&pos, rho, n)?;
+            for (k, &i) in chunk.iter().enumerate() {
+                let e = (v_eval(rho[k], n[k]) - reference.values[i as usize]).abs() as f64;
+                if e > 0.0 {
+                    total += e;
+                    map.voxels.push(i);
+                    map.cumulative.push(total);
+                }
+            }
+        }
+        self.errors = (!map.voxels.is_empty()).then_some(map);
+        Ok(())
     }
 
     pub fn counts(&self, p: usize, have_samples: bool) -> StratumCounts {
+        let error = if self.errors.is_some() { (self.rule.error_share as f64 * p as f64).round() as usize } else { 0 };
+        let p = p - error;
         let mut c = StratumCounts {
             high: (0.30 * p as f64).round() as usize,
             mid: (0.30 * p as f64).round() as usize,
             uniform: (0.15 * p as f64).round() as usize,
             samples: 0,
+            error,
         };
         c.samples = p - c.high - c.mid - c.uniform;
         if self.high.is_empty() {
@@ -70,30 +145,33 @@ impl PointSampler {
     pub fn draw(&mut self, p: usize, reference: &Grid, samples: &dyn SampleSet) -> PointBatch {
         let c = self.counts(p, !samples.is_empty());
         let dims = reference.dims;
+        let on_lattice = self.rule.on_lattice;
         let mut pos = Vec::with_capacity(p);
         let rng = &mut self.rng;
-        let jitter_clamp = |rng: &mut Rng, q: [f64; 3]| -> [f32; 3] {
+        // The paper's points: jittered by half a voxel, then clamped;
+        // gsenc's: rounded to the nearest voxel centre, then clamped.
+        let place = |rng: &mut Rng, q: [f64; 3]| -> [f32; 3] {
             let mut out = [0f32; 3];
             for a in 0..3 {
-                let x = q[a] + rng.range(-0.5, 0.5);
+                let x = if on_lattice { q[a].round() } else { q[a] + rng.range(-0.5, 0.5) };
                 out[a] = x.clamp(0.0, (dims[a] - 1) as f64) as f32;
             }
             out
         };
+        let voxel = |i: u32| reference.coords(i as usize).map(|c| c as f64);
         for (pool, count) in [(&self.high, c.high), (&self.mid, c.mid)] {
             for _ in 0..count {
-                let idx = pool[rng.below(pool.len() as u64) as usize] as usize;
-                let v = reference.coords(idx);
-                pos.push(jitter_clamp(rng, [v[0] as f64, v[1] as f64, v[2] as f64]));
+                let idx = pool[rng.below(pool.len() as u64) as usize];
+                pos.push(place(rng, voxel(idx)));
             }
         }
         for _ in 0..c.uniform {
-            let q = [
-                rng.range(0.0, (dims[0] - 1) as f64),
-                rng.range(0.0, (dims[1] - 1) as f64),
-                rng.range(0.0, (dims[2] - 1) as f64),
-            ];
-            pos.push(jitter_clamp(rng, q));
+            let q = if on_lattice {
+                [0, 1, 2].map(|a| rng.below(dims[a] as u64) as f64)
+            } else {
+                [0, 1, 2].map(|a| rng.range(0.0, (dims[a] - 1) as f64))
+            };
+            pos.push(place(rng, q));
         }
         for _ in 0..c.samples {
             let s = samples.get(rng.below(samples.len() as u64) as usize);
@@ -102,11 +180,26 @@ impl PointSampler {
                 s.q[1] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
                 s.q[2] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
             ];
-            pos.push(jitter_clamp(rng, q));
+            pos.push(place(rng, q));
+        }
+        if let Some(map) = &self.errors {
+            let total = *map.cumulative.last().expect("an error map is never empty");
+            for _ in 0..c.error {
+                // The first voxel whose running sum passes the draw.
+                let u = rng.uniform() * total;
+                let k = map.cumulative.partition_point(|&s| s <= u).min(map.voxels.len() - 1);
+                pos.push(place(rng, voxel(map.voxels[k])));
+            }
         }
         // The positions come from one sequential stream; their reference
-        // values are independent lookups, done in parallel.
+        // values are independent lookups, done in parallel. (At a voxel
+        // centre the trilinear value is the voxel's own.)
         let vref = pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect();
         PointBatch { pos, vref }
     }
+}
+
+/// The centre of voxel `i` of `reference`, in the index frame.
+fn centre(reference: &Grid, i: usize) -> [f32; 3] {
+    reference.coords(i).map(|c| c as f32)
 }

@@ -18,6 +18,11 @@ use crate::math::optim::{cosine_lr, Adam};
 use crate::model::WarmRecord;
 use std::time::Instant;
 
+/// A run under gsenc's point rule maps the model's error this many times
+/// less one: at every tenth of its iterations but the first
+/// (`encode::points`).
+pub const ERROR_MAPS_PER_RUN: usize = 10;
+
 /// Reported after every iteration.
 #[derive(Clone, Copy, Debug)]
 pub struct Progress {
@@ -210,7 +215,11 @@ fn refine(
     let points = cfg.points();
     let reloc_at = cfg.relocation_iterations();
     let n = params.len();
-    let mut sampler = PointSampler::new(target.reference, cfg.seed_sample);
+    let mut sampler = PointSampler::new(target.reference, cfg.seed_sample, cfg.point_rule);
+    // gsenc's rule maps the model's error every tenth of the run, for the
+    // error stratum of the batches after it (points.rs).
+    let (maps, map_every) = (sampler.wants_errors(), (iterations / ERROR_MAPS_PER_RUN).max(1));
+    let maps_at = |t: usize| maps && t > 0 && t % map_every == 0;
     let mut adam = Adam::new(n);
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; n];
     let mut relocations = vec![];
@@ -262,6 +271,10 @@ fn refine(
                 }
             }
         }
+        if maps_at(t) {
+            to_host(&mut params, &mut adam, &mut on_host, backend)?;
+            sampler.map_errors(target.reference, |pos, rho, n| backend.evaluate_points(&params, pos, rho, n))?;
+        }
         if reloc_at.contains(&t) {
             to_host(&mut params, &mut adam, &mut on_host, backend)?;
             let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
@@ -288,10 +301,11 @@ fn refine(
             r.submit(&batch, &cfg.weights, lr, report)?;
             // The next batch is drawn while the device works. The stream's
             // order stays the host loop's: a relocation draws its own batch
-            // first, so none is drawn ahead of one.
+            // first, and an error map changes the draws, so none is drawn
+            // ahead of either.
             // (An adaptive step's end moves only at a score, never below
             // the iteration after it.)
-            if t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1)) {
+            if t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1)) && !maps_at(t + 1) {
                 ahead = Some(sampler.draw(points, target.reference, target.samples));
             }
             if let Some((pl, reg)) = r.finish()? {
@@ -301,7 +315,7 @@ fn refine(
             // The next batch is drawn (one sequential stream, in the same
             // order as without this) while the pool works on this one, so
             // that drawing does not leave the other cores idle.
-            let draw_next = t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1));
+            let draw_next = t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1)) && !maps_at(t + 1);
             let (pl, next) = rayon::join(
                 || backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad),
                 || draw_next.then(|| sampler.draw(points, target.reference, target.samples)),
