@@ -18,9 +18,9 @@ use crate::math::optim::{cosine_lr, Adam};
 use crate::model::WarmRecord;
 use std::time::Instant;
 
-/// A run under gsenc's point rule maps the model's error this many times
-/// less one: at every tenth of its iterations but the first
-/// (`encode::points`).
+/// Under gsenc's point rule a run maps the model's error at every
+/// `1 / ERROR_MAPS_PER_RUN` of its iterations, its start excepted: nine
+/// maps (`encode::points`).
 pub const ERROR_MAPS_PER_RUN: usize = 10;
 
 /// Reported after every iteration.
