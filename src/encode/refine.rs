@@ -18,9 +18,9 @@ use crate::math::optim::{cosine_lr, Adam};
 use crate::model::WarmRecord;
 use std::time::Instant;
 
-/// Under gsenc's point rule a run maps the model's error at every
-/// `1 / ERROR_MAPS_PER_RUN` of its iterations, its start excepted: nine
-/// maps (`encode::points`).
+/// Under gsenc's point rule a run of `T` iterations maps the model's error
+/// every `max(T / ERROR_MAPS_PER_RUN, 1)` iterations, its start excepted
+/// (nine maps when 10 divides `T`; `encode::points`).
 pub const ERROR_MAPS_PER_RUN: usize = 10;
 
 /// Reported after every iteration.
