@@ -166,14 +166,13 @@ fn a_packed_encode_measures_its_precision_and_loses_at_most_a_tenth_of_a_db() {
 fn the_tuned_schedule_trains_at_its_own_rate_and_says_so() {
     let g = blobs([20, 16, 12], 3, 4);
     let frame = IndexFrame::for_grid(g.dims, [0.0; 3], 1.0).unwrap();
-    let range = RangeSpec::FromData(Transform::Linear);
     let run = |schedule| {
         let mut cfg = EncodeConfig::new(120, schedule);
         cfg.iterations = Some(80);
         cfg.points = Some(1024);
         cfg.relocation = false; // Adam's steps alone, which scale with the rate
         cfg.point_rule = PointRule::PAPER; // the same points for both
-        pipeline::encode(&Input::Grid { values: &g, frame }, &range, &Request::new(cfg), &mut CpuBackend::new(), &mut |_| {}).unwrap().1
+        encode_grid(&g, frame, &Request::new(cfg))
     };
     let (tuned, matched) = (run(Schedule::Tuned), run(Schedule::Matched));
     assert_eq!(tuned.model.meta.schedule, "tuned");
@@ -183,7 +182,7 @@ fn the_tuned_schedule_trains_at_its_own_rate_and_says_so() {
     let moved = |e: &pipeline::Encoded, seeded: &[[f32; 12]]| e.model.params.iter().zip(seeded).map(|(a, b)| (a[0] - b[0]).abs() as f64).sum::<f64>();
     let mut cfg = EncodeConfig::new(120, Schedule::Matched);
     cfg.iterations = Some(0);
-    let seeded = run_with(&g, frame, cfg);
+    let seeded = encode_grid(&g, frame, &Request::new(cfg)).model.params;
     assert!(moved(&tuned, &seeded) > 1.3 * moved(&matched, &seeded), "centres moved {} (tuned) vs {} (matched)", moved(&tuned, &seeded), moved(&matched, &seeded));
 }
 
@@ -191,13 +190,11 @@ fn the_tuned_schedule_trains_at_its_own_rate_and_says_so() {
 fn voxel_centre_points_need_the_stored_support() {
     let g = blobs([16, 14, 12], 5, 3);
     let frame = IndexFrame::for_grid(g.dims, [0.0; 3], 1.0).unwrap();
-    let range = RangeSpec::FromData(Transform::Linear);
     let run = |store_support| {
         let mut cfg = EncodeConfig::new(60, Schedule::Tuned);
         cfg.iterations = Some(30);
         cfg.points = Some(512);
-        let request = Request { store_support, ..Request::new(cfg) };
-        pipeline::encode(&Input::Grid { values: &g, frame }, &range, &request, &mut CpuBackend::new(), &mut |_| {}).unwrap().1
+        encode_grid(&g, frame, &Request { store_support, ..Request::new(cfg) })
     };
     let (with, without) = (run(true), run(false));
     assert_eq!(with.config.point_rule, PointRule::GSENC);
@@ -207,7 +204,8 @@ fn voxel_centre_points_need_the_stored_support() {
     assert_ne!(with.model.params, without.model.params);
 }
 
-fn run_with(g: &gsenc::field::Grid, frame: IndexFrame, cfg: EncodeConfig) -> Vec<[f32; 12]> {
+/// `g` (its own range) encoded through the pipeline on the CPU.
+fn encode_grid(g: &gsenc::field::Grid, frame: IndexFrame, request: &Request) -> pipeline::Encoded {
     let range = RangeSpec::FromData(Transform::Linear);
-    pipeline::encode(&Input::Grid { values: g, frame }, &range, &Request::new(cfg), &mut CpuBackend::new(), &mut |_| {}).unwrap().1.model.params
+    pipeline::encode(&Input::Grid { values: g, frame }, &range, request, &mut CpuBackend::new(), &mut |_| {}).unwrap().1
 }

@@ -94,16 +94,19 @@ impl PointSampler {
         if !self.wants_errors() {
             return Ok(());
         }
-        let voxels: Vec<u32> = if self.occupied.len() <= ERROR_MAP_VOXELS {
-            self.occupied.clone()
+        let drawn: Vec<u32>;
+        let voxels: &[u32] = if self.occupied.len() <= ERROR_MAP_VOXELS {
+            &self.occupied
         } else {
-            (0..ERROR_MAP_VOXELS).map(|_| self.occupied[self.rng.below(self.occupied.len() as u64) as usize]).collect()
+            let (occupied, rng) = (&self.occupied, &mut self.rng);
+            drawn = (0..ERROR_MAP_VOXELS).map(|_| occupied[rng.below(occupied.len() as u64) as usize]).collect();
+            &drawn
         };
         let mut map = ErrorMap { voxels: Vec::with_capacity(voxels.len()), cumulative: Vec::with_capacity(voxels.len()) };
         let mut total = 0f64;
         let (mut rho, mut n) = (vec![0f32; ERROR_MAP_CHUNK], vec![0f32; ERROR_MAP_CHUNK]);
         for chunk in voxels.chunks(ERROR_MAP_CHUNK) {
-            let pos: Vec<[f32; 3]> = chunk.iter().map(|&i| centre(reference, i as usize)).collect();
+            let pos: Vec<[f32; 3]> = chunk.iter().map(|&i| reference.centre(i as usize)).collect();
             let (rho, n) = (&mut rho[..chunk.len()], &mut n[..chunk.len()]);
             evaluate(&pos, rho, n)?;
             for (k, &i) in chunk.iter().enumerate() {
@@ -158,7 +161,7 @@ impl PointSampler {
             }
             out
         };
-        let voxel = |i: u32| reference.coords(i as usize).map(|c| c as f64);
+        let voxel = |i: u32| reference.centre(i as usize).map(f64::from);
         for (pool, count) in [(&self.high, c.high), (&self.mid, c.mid)] {
             for _ in 0..count {
                 let idx = pool[rng.below(pool.len() as u64) as usize];
@@ -197,9 +200,4 @@ impl PointSampler {
         let vref = pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect();
         PointBatch { pos, vref }
     }
-}
-
-/// The centre of voxel `i` of `reference`, in the index frame.
-fn centre(reference: &Grid, i: usize) -> [f32; 3] {
-    reference.coords(i).map(|c| c as f32)
 }

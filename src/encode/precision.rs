@@ -182,9 +182,8 @@ fn sample(reference: &Grid, support: bool) -> Option<Validation> {
     if count == 0 {
         return None;
     }
-    let [dx, dy, _] = reference.dims;
     let at = |picks: Vec<usize>| Validation {
-        points: picks.iter().map(|&i| [(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]).collect(),
+        points: picks.iter().map(|&i| reference.centre(i)).collect(),
         values: picks.iter().map(|&i| reference.values[i]).collect(),
         every: 1,
         support,

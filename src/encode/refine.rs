@@ -220,6 +220,9 @@ fn refine(
     // error stratum of the batches after it (points.rs).
     let (maps, map_every) = (sampler.wants_errors(), (iterations / ERROR_MAPS_PER_RUN).max(1));
     let maps_at = |t: usize| maps && t > 0 && t % map_every == 0;
+    // An iteration that relocates or maps draws its own batch after that:
+    // none is drawn ahead of it.
+    let draws_own = |t: usize| reloc_at.contains(&t) || maps_at(t);
     let mut adam = Adam::new(n);
     let mut grad: Vec<Primitive> = vec![[0.0; 12]; n];
     let mut relocations = vec![];
@@ -305,7 +308,7 @@ fn refine(
             // ahead of either.
             // (An adaptive step's end moves only at a score, never below
             // the iteration after it.)
-            if t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1)) && !maps_at(t + 1) {
+            if t + 1 < end(&plateau) && !draws_own(t + 1) {
                 ahead = Some(sampler.draw(points, target.reference, target.samples));
             }
             if let Some((pl, reg)) = r.finish()? {
@@ -315,7 +318,7 @@ fn refine(
             // The next batch is drawn (one sequential stream, in the same
             // order as without this) while the pool works on this one, so
             // that drawing does not leave the other cores idle.
-            let draw_next = t + 1 < end(&plateau) && !reloc_at.contains(&(t + 1)) && !maps_at(t + 1);
+            let draw_next = t + 1 < end(&plateau) && !draws_own(t + 1);
             let (pl, next) = rayon::join(
                 || backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad),
                 || draw_next.then(|| sampler.draw(points, target.reference, target.samples)),

@@ -29,13 +29,12 @@ impl Validation {
         if count == 0 || every == 0 {
             return Err(Error::arg("validation needs at least one point and a positive interval"));
         }
-        let [dx, dy, _] = reference.dims;
         let mut rng = Rng::new(seed);
         let mut points = Vec::with_capacity(count);
         let mut values = Vec::with_capacity(count);
         for _ in 0..count {
             let i = rng.below(reference.len() as u64) as usize;
-            points.push([(i % dx) as f32, (i / dx % dy) as f32, (i / (dx * dy)) as f32]);
+            points.push(reference.centre(i));
             values.push(reference.values[i]);
         }
         Ok(Validation { points, values, every, support: false })

@@ -51,6 +51,12 @@ impl Grid {
         [i, j, k]
     }
 
+    /// The centre of voxel `idx` in the index frame: its coordinates.
+    #[inline]
+    pub fn centre(&self, idx: usize) -> [f32; 3] {
+        self.coords(idx).map(|c| c as f32)
+    }
+
     /// Trilinear interpolation at an index-frame position, clamped to the domain.
     #[inline]
     pub fn trilinear(&self, u: [f32; 3]) -> f32 {
