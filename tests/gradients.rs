@@ -27,6 +27,10 @@ fn random_model(rng: &mut Rng, n: usize) -> Vec<Primitive> {
             if i % 4 == 2 {
                 p[5] = 0.25f32.ln(); // below 0.3: scale penalty; ratio > 4: anisotropy penalty
             }
+            if i == 7 {
+                p[4] = 3.0f32.ln(); // ratio 12: above gsenc's anisotropy bound too
+                p[5] = 0.25f32.ln();
+            }
             for q in 0..4 {
                 p[6 + q] = rng.range(-1.0, 1.0) as f32;
             }
@@ -55,17 +59,19 @@ fn analytic(params: &[Primitive], b: &PointBatch, w: &LossWeights) -> (Vec<Primi
     (grad, [pl.val, pl.cov, reg.scale, reg.aniso])
 }
 
-fn check_term(term: usize) {
+/// Term `term` of the objective `base` (its weights all zero but that
+/// one's), against the dense transcription with the shape `shape`.
+fn check_term(term: usize, base: LossWeights, shape: Shape) {
     let mut rng = Rng::new(42 + term as u64);
     let params = random_model(&mut rng, 8);
     let b = batch(&mut rng, 400);
     let mut wv = [0.0f32; 4];
     wv[term] = 1.0;
-    let w = LossWeights { val: wv[0], cov: wv[1], scale: wv[2], aniso: wv[3] };
+    let w = LossWeights { val: wv[0], cov: wv[1], scale: wv[2], aniso: wv[3], ..base };
     let (grad, values) = analytic(&params, &b, &w);
 
     let p64 = to_f64(&params);
-    let dense = dense_loss_terms(&p64, &b.pos, &b.vref);
+    let dense = dense_loss_terms(&p64, &b.pos, &b.vref, shape);
     assert!(dense[term] > 1e-6, "term {term} is inactive in the test model ({dense:?})");
     let rel = (values[term] - dense[term]).abs() / dense[term].abs();
     assert!(rel < 1e-4, "term {term}: backend value {} vs dense {}", values[term], dense[term]);
@@ -80,7 +86,7 @@ fn check_term(term: usize) {
             let mut minus = p64.clone();
             plus[i][j] += h;
             minus[i][j] -= h;
-            let fd = (dense_loss_terms(&plus, &b.pos, &b.vref)[term] - dense_loss_terms(&minus, &b.pos, &b.vref)[term]) / (2.0 * h);
+            let fd = (dense_loss_terms(&plus, &b.pos, &b.vref, shape)[term] - dense_loss_terms(&minus, &b.pos, &b.vref, shape)[term]) / (2.0 * h);
             let an = grad[i][j] as f64;
             worst = worst.max((fd - an).abs());
             scale = scale.max(fd.abs());
@@ -97,22 +103,45 @@ fn check_term(term: usize) {
 
 #[test]
 fn value_term_gradient_matches_finite_differences() {
-    check_term(0);
+    check_term(0, LossWeights::PAPER, PAPER_SHAPE);
 }
 
 #[test]
 fn coverage_term_gradient_matches_finite_differences() {
-    check_term(1);
+    check_term(1, LossWeights::PAPER, PAPER_SHAPE);
 }
 
 #[test]
 fn scale_term_gradient_matches_finite_differences() {
-    check_term(2);
+    check_term(2, LossWeights::PAPER, PAPER_SHAPE);
 }
 
 #[test]
 fn anisotropy_term_gradient_matches_finite_differences() {
-    check_term(3);
+    check_term(3, LossWeights::PAPER, PAPER_SHAPE);
+}
+
+/// gsenc's objective changes the value term's weights and the anisotropy
+/// bound: both against the dense transcription of that shape.
+#[test]
+fn gsenc_objective_gradients_match_finite_differences() {
+    check_term(0, LossWeights::GSENC, GSENC_SHAPE);
+    check_term(3, LossWeights::GSENC, GSENC_SHAPE);
+}
+
+/// The two shapes differ where they should: the paper's weights favour high
+/// values and its anisotropy bound is lower, so on the same model and points
+/// the terms' values differ (a shape the backend ignored would not).
+#[test]
+fn the_objectives_differ_in_value_and_anisotropy_terms() {
+    let mut rng = Rng::new(43);
+    let params = random_model(&mut rng, 8);
+    let b = batch(&mut rng, 400);
+    let (_, paper) = analytic(&params, &b, &LossWeights::PAPER);
+    let (_, gsenc) = analytic(&params, &b, &LossWeights::GSENC);
+    assert!((paper[0] - gsenc[0]).abs() > 1e-3 * paper[0], "L_val {} vs {}", paper[0], gsenc[0]);
+    assert!(paper[3] > gsenc[3] && gsenc[3] > 0.0, "L_aniso {} vs {}", paper[3], gsenc[3]);
+    assert_eq!((paper[1], paper[2]), (gsenc[1], gsenc[2]));
 }
 
 #[test]

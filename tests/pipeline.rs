@@ -14,6 +14,7 @@ use gsenc::format::{read_model, read_model_file, write_model_as, Payload};
 use gsenc::input::particles::Particles;
 use gsenc::input::{prepare, Form, Input, Placement, RangeSpec};
 use gsenc::math::rng::Rng;
+use gsenc::math::loss::LossWeights;
 use gsenc::model::metrics::voxel_psnr;
 
 #[test]
@@ -44,10 +45,13 @@ fn the_schedule_follows_the_form_and_the_start() {
         assert_eq!(long.learning_rate, tuned.learning_rate);
     }
     assert_eq!(Schedule::from_name("tuned-full").unwrap(), Schedule::TunedFull);
-    // gsenc's two draw gsenc's training points; the paper's, the paper's.
+    // gsenc's two draw gsenc's training points under gsenc's objective;
+    // the paper's, the paper's.
     for s in Schedule::ALL {
         let gsenc = matches!(s, Schedule::Tuned | Schedule::TunedFull);
-        assert_eq!(EncodeConfig::new(100, s).point_rule, if gsenc { PointRule::GSENC } else { PointRule::PAPER }, "{s:?}");
+        let cfg = EncodeConfig::new(100, s);
+        assert_eq!(cfg.point_rule, if gsenc { PointRule::GSENC } else { PointRule::PAPER }, "{s:?}");
+        assert_eq!(cfg.weights, if gsenc { LossWeights::GSENC } else { LossWeights::PAPER }, "{s:?}");
     }
     // A caller's overrides stand for a seeded encode.
     let mut short = base.clone();

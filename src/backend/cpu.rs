@@ -726,7 +726,7 @@ impl Backend for CpuBackend {
         self.prep.update(params);
         let bins = self.bin_points(&batch.pos);
         let ranges = Self::work_ranges(&bins);
-        let norm = PointNorm::new(&batch.vref);
+        let norm = PointNorm::new(&batch.vref, weights);
         let np = params.len();
         if self.chunks.len() < ranges.len() {
             self.chunks.resize_with(ranges.len(), ChunkScratch::default);

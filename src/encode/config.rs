@@ -97,6 +97,13 @@ impl Schedule {
             _ => PointRule::PAPER,
         }
     }
+    /// The schedule's objective (METHOD.md "Objective").
+    pub fn loss_weights(self) -> LossWeights {
+        match self {
+            Schedule::Tuned | Schedule::TunedFull => LossWeights::GSENC,
+            _ => LossWeights::PAPER,
+        }
+    }
 }
 
 /// Everything that decides what model an encode produces.
@@ -191,7 +198,7 @@ impl EncodeConfig {
             relocation: true,
             learning_rate: schedule.learning_rate(),
             point_rule: schedule.point_rule(),
-            weights: LossWeights::default(),
+            weights: schedule.loss_weights(),
             particles: false,
             adaptive: false,
             target: None,

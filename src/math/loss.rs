@@ -19,19 +19,33 @@ pub const TRAIN_FLOOR: f32 = 1e-3;
 /// Denominator floor of the decoded value `V_eval = clamp(n / max(rho, 0.05))`.
 pub const EVAL_FLOOR: f32 = 0.05;
 
-/// Weights of the four loss terms. The defaults are the paper's; tests set all
-/// but one to zero to check each term's gradient on its own.
+/// Weights of the four loss terms, and the two shapes gsenc's schedules
+/// change (METHOD.md "Objective"). The defaults are the paper's; tests set
+/// all weights but one to zero to check each term's gradient on its own.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LossWeights {
     pub val: f32,
     pub cov: f32,
     pub scale: f32,
     pub aniso: f32,
+    /// An occupied point's fidelity weight is
+    /// `fidelity[0] + fidelity[1] V_ref` ([`fidelity_weight`]).
+    pub fidelity: [f32; 2],
+    /// The axis ratio `max_a sigma / min_a sigma` above which L_aniso acts.
+    pub aniso_ratio: f32,
+}
+
+impl LossWeights {
+    /// The paper's: fidelity weight `0.5 + V_ref`, anisotropy above 4.
+    pub const PAPER: LossWeights = LossWeights { val: 1.0, cov: 2.0, scale: 0.1, aniso: 0.05, fidelity: [0.5, 1.0], aniso_ratio: 4.0 };
+    /// gsenc's (`tuned`, `tuned-full`): every occupied point weighs alike,
+    /// as in the voxel PSNR, and anisotropy is free up to 10.
+    pub const GSENC: LossWeights = LossWeights { fidelity: [1.0, 0.0], aniso_ratio: 10.0, ..LossWeights::PAPER };
 }
 
 impl Default for LossWeights {
     fn default() -> Self {
-        LossWeights { val: 1.0, cov: 2.0, scale: 0.1, aniso: 0.05 }
+        LossWeights::PAPER
     }
 }
 
@@ -62,11 +76,12 @@ pub fn v_eval(rho: f32, n: f32) -> f32 {
     (n / rho.max(EVAL_FLOOR)).clamp(0.0, 1.0)
 }
 
-/// Fidelity weight of a point: `1[V_ref > 0.005] (0.5 + V_ref)`.
+/// Fidelity weight of a point: `1[V_ref > 0.005] (fidelity[0] + fidelity[1] V_ref)`
+/// (the paper's `0.5 + V_ref`).
 #[inline]
-pub fn fidelity_weight(vref: f32) -> f32 {
+pub fn fidelity_weight(vref: f32, w: &LossWeights) -> f32 {
     if vref > MASK_REF {
-        0.5 + vref
+        w.fidelity[0] + w.fidelity[1] * vref
     } else {
         0.0
     }
@@ -82,8 +97,8 @@ pub struct PointNorm {
 }
 
 impl PointNorm {
-    pub fn new(vref: &[f32]) -> PointNorm {
-        let wsum: f64 = vref.iter().map(|&v| fidelity_weight(v) as f64).sum();
+    pub fn new(vref: &[f32], w: &LossWeights) -> PointNorm {
+        let wsum: f64 = vref.iter().map(|&v| fidelity_weight(v, w) as f64).sum();
         PointNorm {
             inv_weight_sum: (1.0 / wsum.max(1e-6)) as f32,
             inv_count: 1.0 / vref.len().max(1) as f32,
@@ -106,7 +121,7 @@ pub fn point_terms(rho: f32, n: f32, vref: f32, norm: &PointNorm, w: &LossWeight
     if vref <= MASK_REF {
         return PointTerms::default();
     }
-    let omega = 0.5 + vref;
+    let omega = fidelity_weight(vref, w);
     let denom = rho.max(TRAIN_FLOOR);
     let r = n / denom - vref;
     let val = omega * huber(r) * norm.inv_weight_sum;
@@ -167,8 +182,8 @@ pub fn regularizers(params: &[Primitive], w: &LossWeights, grad: &mut [Primitive
                 }
                 let floor = e[amin].max(1e-3);
                 let ratio = e[amax] / floor;
-                if ratio > 4.0 && amax != amin {
-                    an += ((ratio - 4.0) * inv_n) as f64;
+                if ratio > w.aniso_ratio && amax != amin {
+                    an += ((ratio - w.aniso_ratio) * inv_n) as f64;
                     g[layout::LOG_SCALE + amax] += w.aniso * ratio * inv_n;
                     if e[amin] > 1e-3 {
                         g[layout::LOG_SCALE + amin] -= w.aniso * ratio * inv_n;

@@ -49,12 +49,26 @@ fn huber(r: f64) -> f64 {
     }
 }
 
+/// The shape of the objective: an occupied point's fidelity weight is
+/// `fidelity[0] + fidelity[1] V_ref`, and L_aniso acts above `aniso_ratio`.
+#[derive(Clone, Copy, Debug)]
+pub struct Shape {
+    pub fidelity: [f64; 2],
+    pub aniso_ratio: f64,
+}
+
+/// The paper's shape (METHOD.md "Objective").
+pub const PAPER_SHAPE: Shape = Shape { fidelity: [0.5, 1.0], aniso_ratio: 4.0 };
+/// gsenc's shape, of the `tuned` schedules.
+pub const GSENC_SHAPE: Shape = Shape { fidelity: [1.0, 0.0], aniso_ratio: 10.0 };
+
 /// The four loss terms, unweighted: (val, cov, scale, aniso).
-pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32]) -> [f64; 4] {
+pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32], shape: Shape) -> [f64; 4] {
+    let omega = |v: f64| shape.fidelity[0] + shape.fidelity[1] * v;
     let mut wsum = 0.0;
     for &v in vref {
         if v as f64 > 0.005 {
-            wsum += 0.5 + v as f64;
+            wsum += omega(v as f64);
         }
     }
     let (mut val, mut cov) = (0.0, 0.0);
@@ -64,7 +78,7 @@ pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32]) ->
             continue;
         }
         let (rho, n) = dense_rho_n(params, [x[0] as f64, x[1] as f64, x[2] as f64]);
-        val += (0.5 + v) * huber(n / rho.max(1e-3) - v);
+        val += omega(v) * huber(n / rho.max(1e-3) - v);
         cov += (0.05 - rho).max(0.0);
     }
     val /= wsum.max(1e-6);
@@ -77,7 +91,7 @@ pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32]) ->
         }
         let mx = e[0].max(e[1]).max(e[2]);
         let mn = e[0].min(e[1]).min(e[2]);
-        aniso += (mx / mn.max(1e-3) - 4.0).max(0.0);
+        aniso += (mx / mn.max(1e-3) - shape.aniso_ratio).max(0.0);
     }
     scale /= 3.0 * params.len() as f64;
     aniso /= params.len() as f64;

@@ -5,6 +5,7 @@
 use super::device::Gpu;
 use super::timer::Timer;
 use crate::error::Result;
+use crate::math::loss::LossWeights;
 
 const MATH: &str = include_str!("shaders/math.wgsl");
 
@@ -23,6 +24,13 @@ pub struct Params {
     pub reg: [f32; 4],
     pub coarse: [u32; 4],
     pub bin: [u32; 4],
+    pub objective: [f32; 4],
+}
+
+/// `Params::objective`: the fidelity weight's constant and slope, the
+/// anisotropy ratio of L_aniso.
+pub fn objective(w: &LossWeights) -> [f32; 4] {
+    [w.fidelity[0], w.fidelity[1], w.aniso_ratio, 0.0]
 }
 
 /// math.wgsl `CELLS_*`: how a primitive's box maps to grid cells.

@@ -30,7 +30,7 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         p[i] = params[12u * g + i];
         d[i] = grad[12u * g + i];
     }
-    reg_terms[g] = regularize(p, P.reg, &d);
+    reg_terms[g] = regularize(p, P.reg, P.objective.z, &d);
     for (var i = 0u; i < 12u; i++) {
         let r = adam_update(p[i], d[i], moments[24u * g + i], moments[24u * g + 12u + i], P.optim.x, P.optim.y, P.optim.z);
         params[12u * g + i] = r.x;

@@ -73,7 +73,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
             let nn = sum_n[0][lid];
             rho_n[p] = vec2<f32>(r, nn);
             if P.stage.w == 1u {
-                terms[p] = point_terms(r, nn, points[p].w, P.loss.x, P.loss.y, P.loss.z, P.loss.w);
+                terms[p] = point_terms(r, nn, points[p].w, P.loss.x, P.loss.y, P.loss.z, P.loss.w, P.objective.xy);
             }
         }
         workgroupBarrier();

@@ -228,8 +228,8 @@ fn contract(g: array<vec3<f32>, 3>, d: array<vec3<f32>, 3>) -> f32 {
 
 // loss.rs `regularizers`, for one primitive's parameters `p`: adds the
 // weighted gradients of L_scale and L_aniso to `grad` and returns their
-// (unweighted) values. `w` is `Params.reg`.
-fn regularize(p: array<f32, 12>, w: vec4<f32>, grad: ptr<function, array<f32, 12>>) -> vec2<f32> {
+// (unweighted) values. `w` is `Params.reg`, `aniso_ratio` `Params.objective.z`.
+fn regularize(p: array<f32, 12>, w: vec4<f32>, aniso_ratio: f32, grad: ptr<function, array<f32, 12>>) -> vec2<f32> {
     let e = vec3<f32>(exp(p[LOG_SCALE]), exp(p[LOG_SCALE + 1u]), exp(p[LOG_SCALE + 2u]));
     let w_scale = w.x;
     let w_aniso = w.y;
@@ -258,8 +258,8 @@ fn regularize(p: array<f32, 12>, w: vec4<f32>, grad: ptr<function, array<f32, 12
         }
     }
     let ratio = e[amax] / max(e[amin], 1e-3);
-    if ratio > 4.0 && amax != amin {
-        an += (ratio - 4.0) * inv_n;
+    if ratio > aniso_ratio && amax != amin {
+        an += (ratio - aniso_ratio) * inv_n;
         (*grad)[LOG_SCALE + amax] += w_aniso * ratio * inv_n;
         if e[amin] > 1e-3 {
             (*grad)[LOG_SCALE + amin] -= w_aniso * ratio * inv_n;
@@ -302,14 +302,20 @@ fn v_eval(rho: f32, n: f32) -> f32 {
     return clamp(n / max(rho, EVAL_FLOOR), 0.0, 1.0);
 }
 
+// loss.rs `fidelity_weight` of an occupied point; `fidelity` is
+// `Params.objective.xy`.
+fn fidelity_weight(vref: f32, fidelity: vec2<f32>) -> f32 {
+    return fidelity.x + fidelity.y * vref;
+}
+
 // loss.rs `point_terms`: (val, cov, g_rho, g_n) of one point, given the
-// batch's normalisers `inv_weight_sum`, `inv_count` and the weights of L_val
-// and L_cov.
-fn point_terms(rho: f32, n: f32, vref: f32, inv_weight_sum: f32, inv_count: f32, w_val: f32, w_cov: f32) -> vec4<f32> {
+// batch's normalisers `inv_weight_sum`, `inv_count`, the weights of L_val
+// and L_cov, and the fidelity weight's shape.
+fn point_terms(rho: f32, n: f32, vref: f32, inv_weight_sum: f32, inv_count: f32, w_val: f32, w_cov: f32, fidelity: vec2<f32>) -> vec4<f32> {
     if vref <= MASK_REF {
         return vec4<f32>(0.0);
     }
-    let omega = 0.5 + vref;
+    let omega = fidelity_weight(vref, fidelity);
     let denom = max(rho, TRAIN_FLOOR);
     let r = n / denom - vref;
     let val = omega * huber(r) * inv_weight_sum;
@@ -360,6 +366,9 @@ struct Params {
     // pass that made the source lists, so parent p's list runs from
     // src_starts[p * y] to src_starts[(p + 1) * y] (0 reads as 1).
     bin: vec4<u32>,
+    // x, y: the fidelity weight's constant and slope in V_ref; z: the axis
+    // ratio above which L_aniso acts (loss.rs `LossWeights`).
+    objective: vec4<f32>,
 }
 
 // Params.grid_dims.w
