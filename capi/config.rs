@@ -18,7 +18,7 @@ pub const GSENC_SCHEDULE_FULL: i32 = 0;
 pub const GSENC_SCHEDULE_MATCHED: i32 = 1;
 pub const GSENC_SCHEDULE_SHORT: i32 = 2;
 /// Matched's cost at five times the paper's learning rate, with gsenc's
-/// training points (METHOD.md "Schedules").
+/// training points and objective (METHOD.md "Schedules").
 pub const GSENC_SCHEDULE_TUNED: i32 = 3;
 /// Full's cost, trained as tuned (METHOD.md "Schedules").
 pub const GSENC_SCHEDULE_TUNED_FULL: i32 = 4;

@@ -135,8 +135,9 @@ pub struct TrainingArgs {
     pub target_psnr: Option<f64>,
     /// full (3000 x 16384; 4000 iterations for particles), matched (1500 x 3072),
     /// short (500 x 8192), tuned (matched at 5x its learning rate, with
-    /// points at voxel centres and where the model is wrong: more than
-    /// full's quality at matched's cost; gsenc's, not the paper's), or
+    /// points at voxel centres and where the model is wrong, every voxel
+    /// weighed alike, flatter primitives allowed: more than full's quality
+    /// at matched's cost; gsenc's, not the paper's), or
     /// tuned-full (full's iterations and points, trained as tuned: full's
     /// cost, the most quality; gsenc's).
     #[arg(long, default_value = "matched", value_parser = one_of(&Schedule::ALL, Schedule::name))]

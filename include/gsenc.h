@@ -45,7 +45,7 @@
 
 /*
  Matched's cost at five times the paper's learning rate, with gsenc's
- training points (METHOD.md "Schedules").
+ training points and objective (METHOD.md "Schedules").
  */
 #define GSENC_SCHEDULE_TUNED 3
 

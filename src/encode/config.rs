@@ -16,11 +16,12 @@ pub enum Schedule {
     /// 500 x 8192 (the paper also runs 300 x 8192: `--iters 300`).
     Short,
     /// gsenc's: matched's 1500 x 3072 at five times the paper's learning
-    /// rate, with gsenc's training points ([`PointRule::GSENC`]; METHOD.md
-    /// "Schedules"): at matched's cost, more than `full` gives.
+    /// rate, with gsenc's training points ([`PointRule::GSENC`]) and
+    /// objective ([`LossWeights::GSENC`]; METHOD.md "Schedules"): at
+    /// matched's cost, more than `full` gives.
     Tuned,
     /// gsenc's: full's iterations and points (4000 iterations for
-    /// particles) at `tuned`'s learning rate and with its points: `full`'s
+    /// particles) at `tuned`'s learning rate, points and objective: `full`'s
     /// cost, for the most quality per primitive (METHOD.md "Schedules").
     TunedFull,
 }

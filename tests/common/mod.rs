@@ -49,22 +49,11 @@ fn huber(r: f64) -> f64 {
     }
 }
 
-/// The shape of the objective: an occupied point's fidelity weight is
-/// `fidelity[0] + fidelity[1] V_ref`, and L_aniso acts above `aniso_ratio`.
-#[derive(Clone, Copy, Debug)]
-pub struct Shape {
-    pub fidelity: [f64; 2],
-    pub aniso_ratio: f64,
-}
-
-/// The paper's shape (METHOD.md "Objective").
-pub const PAPER_SHAPE: Shape = Shape { fidelity: [0.5, 1.0], aniso_ratio: 4.0 };
-/// gsenc's shape, of the `tuned` schedules.
-pub const GSENC_SHAPE: Shape = Shape { fidelity: [1.0, 0.0], aniso_ratio: 10.0 };
-
-/// The four loss terms, unweighted: (val, cov, scale, aniso).
-pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32], shape: Shape) -> [f64; 4] {
-    let omega = |v: f64| shape.fidelity[0] + shape.fidelity[1] * v;
+/// The four loss terms, unweighted: (val, cov, scale, aniso), for an
+/// objective whose occupied points weigh `fidelity[0] + fidelity[1] V_ref`
+/// and whose L_aniso acts above `aniso_ratio` (the paper's: `[0.5, 1]`, 4).
+pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32], fidelity: [f64; 2], aniso_ratio: f64) -> [f64; 4] {
+    let omega = |v: f64| fidelity[0] + fidelity[1] * v;
     let mut wsum = 0.0;
     for &v in vref {
         if v as f64 > 0.005 {
@@ -91,7 +80,7 @@ pub fn dense_loss_terms(params: &[[f64; 12]], pos: &[[f32; 3]], vref: &[f32], sh
         }
         let mx = e[0].max(e[1]).max(e[2]);
         let mn = e[0].min(e[1]).min(e[2]);
-        aniso += (mx / mn.max(1e-3) - shape.aniso_ratio).max(0.0);
+        aniso += (mx / mn.max(1e-3) - aniso_ratio).max(0.0);
     }
     scale /= 3.0 * params.len() as f64;
     aniso /= params.len() as f64;
