@@ -169,8 +169,29 @@ fn rotation(q: &[f32]) -> [[f64; 3]; 3] {
     ]
 }
 
+/// The 24 proper signed permutation matrices `(perm, signs)`: column `k`
+/// is `signs[k]` times axis `perm[k]`. Turning a frame by one and giving
+/// axis `k` the scale of axis `perm[k]` gives the same Gaussian.
+fn axis_turns() -> Vec<([usize; 3], [f64; 3])> {
+    let perms = [[0, 1, 2], [1, 2, 0], [2, 0, 1], [0, 2, 1], [2, 1, 0], [1, 0, 2]];
+    let mut out = Vec::new();
+    for (i, perm) in perms.into_iter().enumerate() {
+        let parity = if i < 3 { 1.0 } else { -1.0 };
+        for s in 0..8 {
+            let signs = [0, 1, 2].map(|k| if s >> k & 1 == 1 { -1.0 } else { 1.0 });
+            if parity * signs.iter().product::<f64>() > 0.0 {
+                out.push((perm, signs));
+            }
+        }
+    }
+    assert_eq!(out.len(), 24);
+    out
+}
+
 /// Asserts that each of `stored` (Morton order) is within the packed
-/// payload's steps at `precision` of its twin in `params`.
+/// payload's steps at `precision` of its twin in `params`, in one of the
+/// 24 frames that give the twin's Gaussian (the payload stores a pose of
+/// its choosing: scales and rotation are compared in the frame that fits).
 fn assert_within_packed_steps(params: &[[f32; 12]], stored: &[[f32; 12]], precision: Precision) {
     let (lo, hi) = (0.4f64.ln(), 8f64.ln());
     let (beta_lo, beta_hi) = params.iter().fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), p| (a.min(p[11]), b.max(p[11])));
@@ -184,23 +205,29 @@ fn assert_within_packed_steps(params: &[[f32; 12]], stored: &[[f32; 12]], precis
         let bits = [class(octaves - 1e-3), class(octaves + 1e-3)].map(|c| precision.centre[c]).into_iter().min().unwrap();
         for a in 0..3 {
             assert!((p[a] - s[a]).abs() as f64 <= 0.5f64.powi(bits as i32 + 1) + 1e-4, "{precision:?} centre {i}");
-            let l = (p[3 + a] as f64).clamp(lo, hi);
-            assert!((l - s[3 + a] as f64).abs() <= half(precision.scale, hi - lo), "{precision:?} scale {i}");
         }
         assert!((sigmoid(p[10]) - sigmoid(s[10])).abs() <= 0.5f64.powi(precision.value as i32 + 1) + 1e-6, "{precision:?} value {i}");
         assert!((p[11] - s[11]).abs() as f64 <= half(precision.weight, (beta_hi - beta_lo) as f64), "{precision:?} weight {i}");
-        // The rotation: exactly none for a sphere; else within the
-        // components' step, which may be coarser the rounder the primitive.
-        if s[3] == s[4] && s[4] == s[5] {
+        // Scales and rotation, in the frame of p that fits: the scales
+        // within half a step; the rotation exactly none for a sphere, else
+        // within the components' step, which may be coarser the rounder
+        // the primitive.
+        let sphere = s[3] == s[4] && s[4] == s[5];
+        if sphere {
             assert_eq!(&s[6..10], &[1.0, 0.0, 0.0, 0.0], "{precision:?} sphere {i}");
-        } else {
-            let (r, t) = (rotation(&p[6..10]), rotation(&s[6..10]));
-            let err = (0..9).map(|k| (r[k / 3][k % 3] - t[k / 3][k % 3]).abs()).fold(0.0, f64::max);
-            let step = std::f64::consts::SQRT_2 / ((1u32 << precision.rotation) - 1) as f64;
-            let spread = (s[3].max(s[4]).max(s[5]) - s[3].min(s[4]).min(s[5])) as f64 / (hi - lo);
-            let allowed = (8.0 * step).max(8.0 * step / (3.0 * spread)).min(2.0);
-            assert!(err <= allowed, "{precision:?} rotation {i}: {err} > {allowed}");
         }
+        let r = rotation(&p[6..10]);
+        let t = rotation(&s[6..10]);
+        let step = std::f64::consts::SQRT_2 / ((1u32 << precision.rotation) - 1) as f64;
+        let spread = (s[3].max(s[4]).max(s[5]) - s[3].min(s[4]).min(s[5])) as f64 / (hi - lo);
+        let allowed = (8.0 * step).max(8.0 * step / (3.0 * spread)).min(2.0);
+        let fits = |(perm, signs): &([usize; 3], [f64; 3])| -> bool {
+            let scales = (0..3).all(|k| ((p[3 + perm[k]] as f64).clamp(lo, hi) - s[3 + k] as f64).abs() <= half(precision.scale, hi - lo));
+            // Column k of the turned frame: signs[k] times column perm[k] of r.
+            let err = (0..9).map(|e| (signs[e % 3] * r[e / 3][perm[e % 3]] - t[e / 3][e % 3]).abs()).fold(0.0, f64::max);
+            scales && (sphere || err <= allowed)
+        };
+        assert!(axis_turns().iter().any(fits), "{precision:?} primitive {i}: no frame of it within the steps of what is stored");
     }
 }
 

@@ -7,7 +7,7 @@
 //! |---|---|---|
 //! | centre | `mu` on a lattice of `2^-b_j` voxel from an integer origin per axis, `j` the primitive's centre class ([`centre_class`]: octaves of its smallest scale); the Morton key of the codes on the coarsest lattice of the classes present; the keys sorted, their gaps coded as a class (the gap's bit length, a symbol) and the bits below its highest; then each code's bits below that lattice | `b_j` = 0..=8 |
 //! | scale | `l` clamped to `[ln 0.4, ln 8]` (the kernel's band: lossless), uniform | `2^b` levels over the band |
-//! | rotation | `q / |q|` with its largest component made positive: that component's index (2 bits) and the other three, uniform over `[-1/√2, 1/√2]`; none for a sphere (three equal scale codes), fewer bits the closer to one ([`rotation_bits`]) | up to `2^b` levels |
+//! | rotation | `q / |q|` in the primitive's canonical pose ([`canonical_pose`]: of the 24 frames that give its kernel, the one nearest the identity), with its largest component made positive: that component's index (2 bits) and the other three, uniform over `[-1/√2, 1/√2]`; none for a sphere (three equal scale codes), fewer bits the closer to one ([`rotation_bits`]) | up to `2^b` levels |
 //! | value | `s = sigmoid(alpha)`, the cell `floor(s 2^b)`, read back at its middle | `2^b` cells |
 //! | weight | `beta`, uniform over the model's own `[min, max]` | `2^b` levels |
 //!
@@ -34,7 +34,7 @@ use crate::error::{Error, Result};
 use crate::format::bits::{BitReader, BitWriter};
 use crate::format::packed_streams::Stream;
 use crate::format::quantize::Affine;
-use crate::math::kernel::{layout, morton, unmorton, Primitive, SIGMA_MAX, SIGMA_MIN};
+use crate::math::kernel::{layout, morton, rotation, unmorton, Primitive, SIGMA_MAX, SIGMA_MIN};
 
 /// Classes of primitives by their smallest scale (one octave each from
 /// [`SIGMA_MIN`], the last open above), each with a centre lattice of its
@@ -276,6 +276,77 @@ fn smallest_three(unit: [f64; 4]) -> (u8, [f64; 3]) {
     (m as u8, rest)
 }
 
+/// One of the 24 rotations that take the coordinate axes onto one another
+/// (the cube's rotations): turning a primitive's frame by `q` and giving
+/// its axis `k` the scale of axis `perm[k]` leaves the kernel as it was.
+#[derive(Clone, Copy)]
+struct AxisTurn {
+    /// Unit quaternion (w, x, y, z).
+    q: [f64; 4],
+    perm: [usize; 3],
+}
+
+/// The 24 axis turns, the identity first: the identity and the half turns
+/// about an axis, the third turns about a cube diagonal, the quarter turns
+/// about an axis and the half turns about a face diagonal.
+fn axis_turns() -> Vec<AxisTurn> {
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    let mut qs: Vec<[f64; 4]> = (0..4).map(|i| std::array::from_fn(|k| (k == i) as u8 as f64)).collect();
+    qs.extend((0..8).map(|s: usize| [0.5, 0.5 - (s & 1) as f64, 0.5 - (s >> 1 & 1) as f64, 0.5 - (s >> 2 & 1) as f64]));
+    for i in 0..4 {
+        for j in i + 1..4 {
+            for sign in [h, -h] {
+                let mut q = [0.0; 4];
+                (q[i], q[j]) = (h, sign);
+                qs.push(q);
+            }
+        }
+    }
+    qs.into_iter()
+        .map(|q| {
+            // Column k of the turn's matrix is ±(axis perm[k]).
+            let r = rotation(q.map(|v| v as f32));
+            let perm = [0, 1, 2].map(|k| (0..3).max_by(|&a, &b| r[a][k].abs().total_cmp(&r[b][k].abs())).unwrap());
+            AxisTurn { q, perm }
+        })
+        .collect()
+}
+
+/// The Hamilton product `a b` of quaternions (w, x, y, z): the rotation
+/// `b`, then `a`.
+fn quaternion_product(a: [f64; 4], b: [f64; 4]) -> [f64; 4] {
+    [
+        a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3],
+        a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2],
+        a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1],
+        a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0],
+    ]
+}
+
+/// The pose the payload stores a primitive in: of the 24 frames that give
+/// its kernel (its frame turned by an [`AxisTurn`], the scales following
+/// the axes), the one whose rotation is nearest the identity (the largest
+/// `|w|`; the first turn on a tie), with `w >= 0`. Its `w` is then the
+/// largest component (the rotation index is always 0) and the other three
+/// lie within `(√2 - 1) w`, where the range coder learns to find them
+/// (METHOD.md "Payloads"). Readers take any pose.
+fn canonical_pose(p: &Primitive, turns: &[AxisTurn]) -> Primitive {
+    let q = unit_quaternion(p);
+    let mut best = (q, turns[0]);
+    for &t in turns {
+        let turned = quaternion_product(q, t.q);
+        if turned[0].abs() > best.0[0].abs() {
+            best = (turned, t);
+        }
+    }
+    let (q, turn) = best;
+    let sign = if q[0] < 0.0 { -1.0 } else { 1.0 };
+    let mut out = *p;
+    (0..4).for_each(|k| out[layout::QUAT + k] = (sign * q[k]) as f32);
+    (0..3).for_each(|k| out[layout::LOG_SCALE + k] = p[layout::LOG_SCALE + turn.perm[k]]);
+    out
+}
+
 /// `q / |q|` of a primitive; the identity where the kernel reads one (a
 /// norm of 1e-12 or less, `math::kernel::Frame::new`).
 fn unit_quaternion(p: &Primitive) -> [f64; 4] {
@@ -295,10 +366,14 @@ fn gap_class(d: u64) -> u8 {
 }
 
 impl Packed {
-    /// Quantises primitives (all finite) at `precision`. Fails when the
-    /// centres span more than 2^21 lattice steps on an axis.
+    /// Quantises primitives (all finite) at `precision`, each in its
+    /// [`canonical_pose`]. Fails when the centres span more than 2^21
+    /// lattice steps on an axis.
     pub fn of(params: &[Primitive], precision: Precision) -> Result<Packed> {
         let precision = precision.check().map_err(|e| Error::arg(e.to_string()))?;
+        let turns = axis_turns();
+        let posed: Vec<Primitive> = params.iter().map(|p| canonical_pose(p, &turns)).collect();
+        let params = &posed[..];
         let n = params.len();
         let class: Vec<u8> = params.iter().map(|p| class_of(p, precision.scale) as u8).collect();
         let base = key_bits(&precision, &class);
@@ -598,6 +673,64 @@ mod tests {
         }
     }
 
+    /// The 24 axis turns are 24 different rotations, each taking the axes
+    /// onto one another as its permutation says.
+    #[test]
+    fn the_axis_turns_are_the_cubes_24_rotations() {
+        let turns = axis_turns();
+        assert_eq!(turns.len(), 24);
+        for (i, t) in turns.iter().enumerate() {
+            let r = rotation(t.q.map(|v| v as f32));
+            for k in 0..3 {
+                for a in 0..3 {
+                    let want = if a == t.perm[k] { 1.0 } else { 0.0 };
+                    assert!((r[a][k].abs() - want).abs() < 1e-6, "turn {i}: column {k} is not ±axis {}", t.perm[k]);
+                }
+            }
+            for u in &turns[..i] {
+                let dot: f64 = (0..4).map(|k| t.q[k] * u.q[k]).sum();
+                assert!(dot.abs() < 1.0 - 1e-9, "two turns are one rotation: {:?} {:?}", t.q, u.q);
+            }
+        }
+    }
+
+    /// A primitive in its canonical pose has the same kernel everywhere,
+    /// and its rotation lies in the region nearest the identity:
+    /// `|x|, |y|, |z| <= (√2 - 1) w` and `|x| + |y| + |z| <= w`.
+    #[test]
+    fn the_canonical_pose_keeps_the_kernel_and_lies_nearest_the_identity() {
+        use crate::math::kernel::Frame;
+        let mut rng = Rng::new(31);
+        let turns = axis_turns();
+        let mut moved = 0;
+        for _ in 0..400 {
+            let mut p: Primitive = [0.0; 12];
+            for a in 0..3 {
+                p[layout::MU + a] = rng.range(-2.0, 2.0) as f32;
+                p[layout::LOG_SCALE + a] = rng.range(0.5f64.ln(), 4f64.ln()) as f32;
+            }
+            for k in 0..4 {
+                p[layout::QUAT + k] = (2.0 * rng.normal()) as f32;
+            }
+            let c = canonical_pose(&p, &turns);
+            moved += (c[layout::LOG_SCALE..layout::LOG_SCALE + 3] != p[layout::LOG_SCALE..layout::LOG_SCALE + 3]) as usize;
+            let q: [f64; 4] = std::array::from_fn(|k| c[layout::QUAT + k] as f64);
+            let tan = std::f64::consts::SQRT_2 - 1.0;
+            assert!((q.iter().map(|v| v * v).sum::<f64>() - 1.0).abs() < 1e-6);
+            assert!(q[1..].iter().all(|v| v.abs() <= tan * q[0] + 1e-6), "{q:?}");
+            assert!(q[1..].iter().map(|v| v.abs()).sum::<f64>() <= q[0] + 1e-6, "{q:?}");
+            let (f, g) = (Frame::new(&p), Frame::new(&c));
+            for _ in 0..20 {
+                let x = [0, 1, 2].map(|a| p[layout::MU + a] + rng.range(-6.0, 6.0) as f32);
+                let (kf, kg) = (f.kernel(x).map_or(0.0, |k| k.0), g.kernel(x).map_or(0.0, |k| k.0));
+                assert!((kf - kg).abs() <= 1e-5, "kernel {kf} posed {kg}");
+            }
+        }
+        // The scales follow the axes: most random rotations need a turn
+        // that permutes them.
+        assert!(moved > 200, "{moved} of 400 permuted");
+    }
+
     /// The integer class rule agrees with the octaves of the decoded
     /// smallest scale above 0.4 voxel, at every code of every width up to
     /// 14 bits (but within 1e-4 octave of a border), and only the smallest
@@ -626,6 +759,17 @@ mod round_trip_tests {
     use crate::format::test_support::unpack;
     use crate::math::rng::Rng;
 
+
+    /// Every stored rotation is in its canonical pose: the dropped
+    /// component is always w.
+    #[test]
+    fn stored_rotations_drop_w() {
+        let mut rng = Rng::new(3);
+        let params: Vec<Primitive> = (0..300).map(|_| std::array::from_fn(|k| if k < 3 { rng.range(0.0, 20.0) as f32 } else { rng.normal() as f32 })).collect();
+        let packed = Packed::of(&params, Precision::DEFAULT).unwrap();
+        assert!(packed.rotation_index.len() > 250);
+        assert!(packed.rotation_index.iter().all(|&m| m == 0));
+    }
 
     #[test]
     fn bytes_read_back_to_the_same_codes() {
