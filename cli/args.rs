@@ -138,8 +138,8 @@ pub struct TrainingArgs {
     /// points at voxel centres and where the model is wrong, every voxel
     /// weighed alike, flatter primitives allowed: more than full's quality
     /// at matched's cost; gsenc's, not the paper's), or
-    /// tuned-full (full's iterations and points, trained as tuned: full's
-    /// cost, the most quality; gsenc's).
+    /// tuned-full (full's iterations and points, trained as tuned: 1.2x
+    /// full's cost, the most quality; gsenc's).
     #[arg(long, default_value = "matched", value_parser = one_of(&Schedule::ALL, Schedule::name))]
     pub schedule: Schedule,
     /// Override the schedule's iterations.

@@ -50,7 +50,8 @@
 #define GSENC_SCHEDULE_TUNED 3
 
 /*
- Full's cost, trained as tuned (METHOD.md "Schedules").
+ Full's iterations and points, trained as tuned: about 1.2x full's cost
+ (METHOD.md "Schedules").
  */
 #define GSENC_SCHEDULE_TUNED_FULL 4
 

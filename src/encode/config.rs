@@ -21,8 +21,9 @@ pub enum Schedule {
     /// matched's cost, more than `full` gives.
     Tuned,
     /// gsenc's: full's iterations and points (4000 iterations for
-    /// particles) at `tuned`'s learning rate, points and objective: `full`'s
-    /// cost, for the most quality per primitive (METHOD.md "Schedules").
+    /// particles) at `tuned`'s learning rate, points and objective: 1.2x
+    /// `full`'s cost, for the most quality per primitive (METHOD.md
+    /// "Schedules").
     TunedFull,
 }
 
