@@ -453,10 +453,16 @@ int main(void) {
     free(mbytes);
     gsenc_encoder_destroy(enc);
 
-    /* A target PSNR instead of a budget (budget 0: the default cap): the
-     * model's count is the budget chosen, its PSNR within 1 dB of the target.
-     * Its search runs eight encodes through the same calls as one: the
-     * valgrind run (GSENC_CAPI_MEMCHECK) leaves it to the native run. */
+    /* A target PSNR instead of a budget (budget 0: the default cap, 57
+     * primitives here): the model's count is the budget the search chose,
+     * and the model reaches the target (at most 0.5 dB below it: the
+     * search's contract, src/encode/target.rs) without taking the cap's
+     * quality (at most 3 dB above). How close it lands is tests/target.rs's
+     * to check: on this 16^3 blob the PSNR of 16 to 37 primitives jumps by
+     * up to 5 dB from one budget to the next, so the search may end between
+     * two budgets neither of which lands within 1 dB. It runs eight encodes
+     * through the same calls as one: the valgrind run (GSENC_CAPI_MEMCHECK)
+     * leaves it to the native run. */
     if (getenv("GSENC_CAPI_MEMCHECK")) {
         printf("capi: the target-PSNR search is checked by the native run, not under valgrind\n");
     } else {
@@ -471,7 +477,7 @@ int main(void) {
         EXPECT(gsenc_encoder_write_model(enc, "aimed", path), GSENC_STATUS_OK);
         EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_OK);
         EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_OK);
-        CHECK(fabs(info.encode_psnr - 32.0) <= 1.0 && info.count >= 16 && info.count != 120, "target 32 dB: %.2f dB with %llu primitives",
+        CHECK(info.encode_psnr >= 32.0 - 0.5 && info.encode_psnr <= 32.0 + 3.0 && info.count >= 16 && info.count < 57, "target 32 dB: %.2f dB with %llu primitives",
               info.encode_psnr, (unsigned long long)info.count);
         gsenc_model_destroy(model);
         gsenc_encoder_destroy(enc);
