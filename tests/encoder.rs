@@ -226,13 +226,9 @@ fn small_model_bytes(threads: usize, schedule: Schedule) -> Vec<u8> {
     let dims = [24, 20, 16];
     let g = blobs(dims, 3, 4);
     let t = Target { reference: &g, samples: &g };
-    let cfg = EncodeConfig {
-        schedule,
-        point_rule: schedule.point_rule(),
-        learning_rate: schedule.learning_rate(),
-        weights: schedule.loss_weights(),
-        ..quick(400, 60, 3000)
-    };
+    // The schedule's own configuration (rate, points rule, objective),
+    // shortened.
+    let cfg = EncodeConfig { iterations: Some(60), points: Some(3000), ..EncodeConfig::new(400, schedule) };
     assert_eq!(cfg.relocation_iterations(), vec![21, 33, 45]);
     let out = with_threads(Some(threads), || encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {})).unwrap().unwrap();
     let model = Model {
