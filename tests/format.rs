@@ -7,7 +7,7 @@ use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Pa
 use gsenc::format::packed::Precision;
 use gsenc::format::support_coding;
 use gsenc::format::quantize::CentreCoding;
-use gsenc::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
+use gsenc::model::{Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
 use gsenc::math::rng::Rng;
 use gsenc::Error;
 
@@ -20,7 +20,8 @@ fn model(n: usize) -> Model {
     m
 }
 
-/// [`model`] with a support: a ball of data in the reference box.
+/// [`model`] with a support: a ball of data in the reference box, and a
+/// background outside it (a fitted outside, stored behind its prefix).
 fn model_with_support(n: usize) -> Model {
     let mut m = model(n);
     let dims = m.meta.frame.dims;
@@ -30,7 +31,8 @@ fn model_with_support(n: usize) -> Model {
             if x * x + y * y + z * z < 400.0 { 0.5 } else { 0.0 }
         })
         .collect();
-    m.support = Support::from_reference(&Grid::new(dims, values).unwrap());
+    let support = Support::from_reference(&Grid::new(dims, values).unwrap()).unwrap();
+    m.support = Some(support.with_outside(Outside { offset: 0.0042, gain: -0.125 }).unwrap());
     m
 }
 
@@ -517,13 +519,19 @@ fn a_corrupted_support_behind_a_valid_checksum_is_refused() {
     }
     // An empty frame is no support.
     assert_eq!(read_model(&with_support_frame(&[])).unwrap().support, None);
-    // Both codings read back to the same support, whichever the writer took.
-    let support = model_with_support(2).support.unwrap();
+    // Both codings read back to the same support, whichever the writer took
+    // (the bits alone: a zero outside).
+    let with_outside = model_with_support(2).support.unwrap();
+    let support = with_outside.clone().with_outside(Outside::ZERO).unwrap();
     let stored = support_coding::encode(&support, 19).unwrap();
     let zstd_frame = zstd::bulk::compress(&bits, 19).unwrap();
     for frame in [&stored, &zstd_frame] {
         assert_eq!(read_model(&with_support_frame(frame)).unwrap().support.as_ref(), Some(&support));
     }
+    // Behind its outside, the same bits.
+    let outside_frame = support_coding::encode(&with_outside, 19).unwrap();
+    assert_eq!((outside_frame[0], &outside_frame[9..]), (support_coding::OUTSIDE_TAG, &stored[..]));
+    assert_eq!(read_model(&with_support_frame(&outside_frame)).unwrap().support, Some(with_outside));
     // A range coding (the smaller here) cut short, or with a stray byte, is refused.
     assert_eq!(stored[0], 1, "the support is range-coded");
     for frame in [&stored[..stored.len() - 1], &[stored.as_slice(), &[0]].concat()[..]] {

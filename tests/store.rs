@@ -12,7 +12,8 @@ use gsenc::backend::cpu::CpuBackend;
 use gsenc::format::{write_model_as, Payload};
 use gsenc::io::series::{write_decoded_series, xdmf_path, SeriesOptions};
 use gsenc::io::store::{EntryKey, Store};
-use gsenc::model::{WarmRecord, WarmTaken};
+use gsenc::field::Grid;
+use gsenc::model::{Outside, Support, WarmRecord, WarmTaken};
 use gsenc::format::packed::Precision;
 use gsenc::format::quantize::CentreCoding;
 use gsenc::Error;
@@ -57,6 +58,45 @@ fn every_payload_round_trips_with_its_metadata() {
         let info = entries.iter().find(|e| e.key == key).unwrap().content.as_ref().unwrap();
         assert_eq!(info.count, m.params.len() as u64);
     }
+}
+
+/// A support and its outside (layout 1.2) come back as stored; a zero
+/// outside writes no attribute, and a damaged one is refused.
+#[test]
+fn supports_round_trip_with_their_outsides() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("support");
+    let path = dir.join("s.h5");
+    let mut m = model("density", 3, 0, 50, 0.5);
+    let dims = m.meta.frame.dims;
+    let half = Grid::new(dims, (0..dims.iter().product::<usize>()).map(|i| if i % dims[0] < 10 { 0.6 } else { 0.0 }).collect()).unwrap();
+    let bare = Support::from_reference(&half).unwrap();
+    m.support = Some(bare.clone().with_outside(Outside { offset: 0.0041, gain: 0.25 }).unwrap());
+    let mut zero = model("density", 4, 0, 50, 0.5);
+    zero.support = Some(bare);
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        s.append(&m, Payload::Float32).unwrap();
+        s.append(&zero, Payload::Float32).unwrap();
+    }
+    {
+        let s = Store::open_read(&path).unwrap();
+        for want in [&m, &zero] {
+            assert_eq!(s.read(&EntryKey::of(&want.meta)).unwrap().0.support, want.support);
+        }
+    }
+    {
+        let f = hdf5::File::open(&path).unwrap();
+        assert!(f.dataset("density/4/rank_0/support").unwrap().attr("outside").is_err(), "a zero outside wrote an attribute");
+    }
+    {
+        let f = hdf5::File::open_rw(&path).unwrap();
+        let ds = f.dataset("density/3/rank_0/support").unwrap();
+        ds.delete_attr("outside").unwrap();
+        ds.new_attr::<f32>().shape(3).create("outside").unwrap().write_raw(&[0.1f32, 0.2, 0.3]).unwrap();
+    }
+    let e = Store::open_read(&path).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
+    assert!(matches!(&e, Error::Format(w) if w.contains("outside")), "{e}");
 }
 
 #[test]

@@ -167,9 +167,10 @@ pub(crate) fn encode_budget(
         let m = measure_precision(&mut model, &prepared.reference, backend)?;
         (m.decoded, m.psnr, Some(m.float32_psnr))
     } else {
-        let decoded = decode_as_stored(request.payload, &model, backend)?;
-        let psnr = voxel_psnr(&decoded, &prepared.reference.values);
-        (decoded, psnr, None)
+        let stored = decode_as_stored(request.payload, &model, &prepared.reference, backend)?;
+        model.support = stored.support;
+        let psnr = voxel_psnr(&stored.decoded, &prepared.reference.values);
+        (stored.decoded, psnr, None)
     };
     let decode_seconds = started.elapsed().as_secs_f64();
     model.meta.encode_psnr = Some(psnr);

@@ -26,7 +26,7 @@ use crate::backend::Backend;
 use crate::encode::fixed::encode_budget;
 pub use crate::encode::fixed::{config_for, Encoded, Labels, Request, Start, AUTO_VALIDATION_POINTS};
 use crate::encode::refine::Progress;
-pub use crate::encode::stored::decode_as_stored;
+pub use crate::encode::stored::{decode_as_stored, Stored};
 use crate::encode::target::encode_to_target;
 use crate::error::Result;
 use crate::input::{prepare, Input, Prepared, RangeSpec};

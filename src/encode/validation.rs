@@ -8,6 +8,7 @@ use crate::math::kernel::Primitive;
 use crate::math::loss::{v_eval, MASK_REF};
 use crate::math::rng::Rng;
 use crate::model::metrics::psnr_from_mse;
+use crate::model::Outside;
 
 /// A fixed set of voxel centres with their reference values, scored during
 /// an encode so that quality can be read against iterations (time to quality).
@@ -18,8 +19,10 @@ pub struct Validation {
     pub values: Vec<f32>,
     /// Score every this many iterations (at least 1).
     pub every: usize,
-    /// Score the model as it decodes with its support stored: exactly 0 at
-    /// the points whose reference is empty (METHOD.md "Support").
+    /// Score the model as it decodes with its support stored: at the
+    /// points whose reference is empty, the outside's prediction, fitted
+    /// on those points as the encoder fits it on the lattice's (METHOD.md
+    /// "Support").
     pub support: bool,
 }
 
@@ -49,12 +52,18 @@ impl Validation {
     }
 
     /// PSNR of `V_eval` of `params` against the reference values at the
-    /// points (with the support: 0 where the reference is empty).
+    /// points (with the support: the outside's prediction where the
+    /// reference is empty).
     pub fn psnr(&self, backend: &mut dyn Backend, params: &[Primitive]) -> Result<f64> {
         let mut rho = vec![0.0; self.points.len()];
         let mut n = vec![0.0; self.points.len()];
         backend.evaluate_points(params, &self.points, &mut rho, &mut n)?;
-        let decoded = |i: usize| if self.support && self.values[i] <= MASK_REF { 0.0 } else { v_eval(rho[i], n[i]) };
+        let v: Vec<f32> = rho.iter().zip(&n).map(|(&r, &n)| v_eval(r, n)).collect();
+        let empty = |i: &usize| self.support && self.values[*i] <= MASK_REF;
+        let se = |i: usize| ((v[i] - self.values[i]) as f64).powi(2);
+        let inside: f64 = (0..v.len()).filter(|i| !empty(i)).map(se).sum();
+        let outside = Outside::choose(|| (0..v.len()).filter(empty).map(|i| (v[i], self.values[i])), inside);
+        let decoded = |i: usize| if empty(&i) { outside.value(v[i]) } else { v[i] };
         let se: f64 = (0..self.points.len()).map(|i| ((decoded(i) - self.values[i]) as f64).powi(2)).sum();
         Ok(psnr_from_mse(se / self.points.len() as f64))
     }

@@ -52,6 +52,9 @@ pub fn meta_info(m: &Model) -> Map<String, Value> {
         "warm_moved": meta.warm.map(|w| w.moved),
         // Reference voxels where the model holds data (null: every voxel).
         "support_voxels": m.support.as_ref().map(|s| s.count()),
+        // What the decode gives outside the support: `[offset, gain]` of
+        // `clamp(offset + gain min(V, 0.005), 0, 0.005)` (null: no support).
+        "support_outside": m.support.as_ref().map(|s| [s.outside().offset, s.outside().gain]),
     }))
 }
 

@@ -4,12 +4,19 @@
 //! twelve neighbours already coded (FORMAT.md "Header"). The context sees a
 //! support's surface, which is all that costs: on the Richtmyer-Meshkov
 //! lattices it takes 60-65 % off zstd's frame; zstd stays where it measures
-//! better (round shapes that repeat row after row).
+//! better (round shapes that repeat row after row). A support whose outside
+//! is not zero ([`crate::model::Outside`]) is stored behind
+//! [`OUTSIDE_TAG`] and its two coefficients (float32 each); a zero outside
+//! stores nothing, so such a file is byte for byte what an older gsenc
+//! wrote.
 
 use crate::error::{Error, Result};
 use crate::format::range::{BitTrees, Decoder, Encoder, RANGE_TAG, ZSTD_MAGIC};
-use crate::model::Support;
+use crate::model::{Outside, Support};
 
+/// Opens a stored support whose outside is not zero: then offset and gain
+/// (f32 each, little-endian) and the bits as a zstd frame or range-coded.
+pub const OUTSIDE_TAG: u8 = 2;
 /// Lattices of more voxels are stored as zstd frames only (range coding
 /// takes about 10 ns a voxel, each way).
 pub const MAX_RANGE_VOXELS: usize = 1 << 27;
@@ -123,21 +130,43 @@ fn range_decode(coded: &[u8], dims: [usize; 3], voxels: usize) -> Result<Support
     Support::from_bits(dims, bits)
 }
 
-/// The stored support: the smaller of a zstd frame (at `zstd_level`) of its
-/// bits and their range coding (lattices of up to [`MAX_RANGE_VOXELS`]).
+/// The stored support: its outside when not zero ([`OUTSIDE_TAG`]), then
+/// the smaller of a zstd frame (at `zstd_level`) of its bits and their
+/// range coding (lattices of up to [`MAX_RANGE_VOXELS`]).
 pub fn encode(support: &Support, zstd_level: i32) -> Result<Vec<u8>> {
+    let mut out = Vec::new();
+    let o = support.outside();
+    if !o.is_zero() {
+        out.push(OUTSIDE_TAG);
+        out.extend_from_slice(&o.offset.to_le_bytes());
+        out.extend_from_slice(&o.gain.to_le_bytes());
+    }
     let frame = zstd::bulk::compress(support.bits(), zstd_level).map_err(|e| Error::format(format!("zstd: {e}")))?;
     let voxels: usize = support.dims().iter().product();
-    if voxels > MAX_RANGE_VOXELS {
-        return Ok(frame);
-    }
-    let ranged = range_code(support);
-    Ok(if ranged.len() < frame.len() { ranged } else { frame })
+    let ranged = (voxels <= MAX_RANGE_VOXELS).then(|| range_code(support)).filter(|r| r.len() < frame.len());
+    out.extend(ranged.unwrap_or(frame));
+    Ok(out)
 }
 
 /// Reads a stored support of the lattice `dims`. `unpack` inflates a zstd
 /// frame to exactly the length it is given, or fails.
 pub fn decode(stored: &[u8], dims: [usize; 3], unpack: &dyn Fn(&[u8], usize) -> Result<Vec<u8>>) -> Result<Support> {
+    match stored.split_first() {
+        Some((&OUTSIDE_TAG, rest)) if rest.len() >= 8 => {
+            let f = |b: &[u8]| f32::from_le_bytes(b.try_into().unwrap());
+            let outside = Outside { offset: f(&rest[..4]), gain: f(&rest[4..8]) };
+            if outside.is_zero() {
+                return Err(Error::format("support is corrupted: a zero outside is never stored"));
+            }
+            decode_bits(&rest[8..], dims, unpack)?.with_outside(outside).map_err(|e| Error::format(format!("support is corrupted: {e}")))
+        }
+        Some((&OUTSIDE_TAG, _)) => Err(Error::format("support is corrupted: its outside is cut short")),
+        _ => decode_bits(stored, dims, unpack),
+    }
+}
+
+/// The bits of a stored support: a zstd frame or range-coded.
+fn decode_bits(stored: &[u8], dims: [usize; 3], unpack: &dyn Fn(&[u8], usize) -> Result<Vec<u8>>) -> Result<Support> {
     let voxels = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).filter(|&n| n > 0 && n <= 1 << 36);
     let voxels = voxels.ok_or_else(|| Error::format(format!("model header holds a support of dims {dims:?}")))?;
     let corrupt = |e: Error| Error::format(format!("support is corrupted: {e}"));
@@ -215,6 +244,32 @@ mod tests {
         let s = rough_layer([96, 80, 64]);
         let (ranged, frame) = (range_code(&s).len(), zstd::bulk::compress(s.bits(), 19).unwrap().len());
         assert!(ranged * 3 < frame * 2, "range {ranged} bytes, zstd {frame}");
+    }
+
+    #[test]
+    fn an_outside_is_stored_ahead_of_the_bits_and_a_zero_one_not_at_all() {
+        let dims = [33, 20, 17];
+        let s = support(dims, 7);
+        let bare = encode(&s, 3).unwrap();
+        assert_ne!(bare[0], OUTSIDE_TAG);
+        let o = Outside { offset: 0.0043, gain: -0.25 };
+        let with = s.clone().with_outside(o).unwrap();
+        let stored = encode(&with, 3).unwrap();
+        assert_eq!(stored[0], OUTSIDE_TAG);
+        assert_eq!(&stored[9..], &bare[..], "the bits as a zero outside stores them");
+        let back = decode(&stored, dims, &unpack).unwrap();
+        assert_eq!((back.outside(), back.bits()), (o, s.bits()));
+        // Behind a zstd frame too.
+        let framed = [&stored[..9], &zstd::bulk::compress(s.bits(), 3).unwrap()[..]].concat();
+        assert_eq!(decode(&framed, dims, &unpack).unwrap(), with);
+        let bad = |stored: &[u8], why: &str| {
+            let e = decode(stored, dims, &unpack).unwrap_err();
+            assert!(matches!(&e, Error::Format(m) if m.contains(why)), "{why}: {e}");
+        };
+        bad(&stored[..5], "cut short");
+        bad(&[&stored[..1], &[0; 8], &bare[..]].concat(), "zero outside");
+        bad(&[&stored[..1], &f32::NAN.to_le_bytes(), &[0; 4], &bare[..]].concat(), "not finite");
+        bad(&[&stored[..9], &stored[..]].concat(), "neither");
     }
 
     #[test]

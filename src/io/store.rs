@@ -26,7 +26,7 @@ use crate::format::Payload;
 use crate::io::atomic::temporary_path;
 use crate::format::check_field_name;
 use crate::math::kernel::Primitive;
-use crate::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
+use crate::model::{Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
 use hdf5::plist::file_access::{CacheDecreaseMode, CacheIncreaseMode, FlashIncreaseMode, MetadataCacheConfig};
 use hdf5::plist::file_create::FileSpaceStrategy;
@@ -35,8 +35,9 @@ use hdf5::{Dataset, File, Group, H5Type, Location};
 use std::path::{Path, PathBuf};
 
 /// Layout version of the store, in the root attribute `gsenc_store`.
-/// 1.1 adds the optional `support` dataset of an entry.
-pub const STORE_VERSION: &str = "1.1";
+/// 1.1 adds the optional `support` dataset of an entry, 1.2 its optional
+/// `outside` attribute.
+pub const STORE_VERSION: &str = "1.2";
 /// Names of the twelve parameters, in the order of the `params` rows.
 pub const PARAMETER_NAMES: [&str; 12] =
     ["mu_x", "mu_y", "mu_z", "l_x", "l_y", "l_z", "q_w", "q_x", "q_y", "q_z", "alpha", "beta"];
@@ -385,7 +386,12 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
         // The packed bits, one per reference voxel (x fastest, least
         // significant bit first), deflated like the 8-bit codes.
         let bits = support.bits();
-        g.new_dataset::<u8>().shape(bits.len()).chunk(bits.len().clamp(1, CHUNK)).deflate(DEFLATE_LEVEL).create("support")?.write_raw(bits)?;
+        let ds = g.new_dataset::<u8>().shape(bits.len()).chunk(bits.len().clamp(1, CHUNK)).deflate(DEFLATE_LEVEL).create("support")?;
+        ds.write_raw(bits)?;
+        let o = support.outside();
+        if !o.is_zero() {
+            array_attr(&ds, "outside", &[o.offset, o.gain])?;
+        }
     }
     scalar_str_attr(g, "parameters", &PARAMETER_NAMES.join(" "))
 }
@@ -395,7 +401,12 @@ fn read_support(g: &Group, info: &EntryInfo, path: &Path) -> Result<Option<Suppo
     let Ok(ds) = g.dataset("support") else { return Ok(None) };
     let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), EntryKey::of(&info.meta).path()));
     let bits: Vec<u8> = ds.read_raw().map_err(|e| bad(format!("support: {e}")))?;
-    Support::from_bits(info.meta.frame.dims, bits).map(Some).map_err(|e| bad(e.to_string()))
+    let support = Support::from_bits(info.meta.frame.dims, bits).map_err(|e| bad(e.to_string()))?;
+    // 1.2: the decode outside it, when not zero.
+    let Ok(a) = ds.attr("outside") else { return Ok(Some(support)) };
+    let v: Vec<f32> = a.read_raw().map_err(|e| bad(format!("support attribute outside: {e}")))?;
+    let [offset, gain] = v[..] else { return Err(bad(format!("support attribute outside holds {} values, not 2", v.len()))) };
+    support.with_outside(Outside { offset, gain }).map(Some).map_err(|e| bad(e.to_string()))
 }
 
 fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {

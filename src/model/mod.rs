@@ -1,10 +1,13 @@
 //! A model: its primitives and everything needed to decode them, decoding
 //! on any lattice (whole, a sub-box, or streamed in slabs), its stored
-//! support ([`support`]), and the PSNR scores of a decode ([`metrics`]).
+//! support ([`support`]) with what it decodes outside ([`outside`]), and the
+//! PSNR scores of a decode ([`metrics`]).
 
 pub mod metrics;
+pub mod outside;
 pub mod support;
 
+pub use outside::Outside;
 pub use support::Support;
 
 use crate::backend::{Backend, Lattice};
@@ -193,8 +196,11 @@ impl Model {
     }
 
     /// The decoded value at every point of `lattice` (in the index frame of
-    /// the reference): `V_eval` of the primitives, times the support's
-    /// factor when the model has one. Every decode goes through here.
+    /// the reference): `V_eval` of the primitives, blended with the
+    /// support's outside by its factor when the model has one
+    /// ([`Support::blend`]). Every decode goes through here (the encoder's
+    /// scoring, [`crate::encode::stored::decode_as_stored`], does the same in two
+    /// steps, fitting the outside between them).
     pub fn decode_lattice(&self, backend: &mut dyn Backend, lattice: &Lattice, out: &mut [f32]) -> Result<()> {
         backend.decode_lattice(&self.params, lattice, out)?;
         if let Some(s) = &self.support {
@@ -221,7 +227,7 @@ impl Model {
     pub fn value_at(&self, u: [f32; 3], rho: f32, n: f32) -> f32 {
         let v = crate::math::loss::v_eval(rho, n);
         match &self.support {
-            Some(s) => v * s.factor(u),
+            Some(s) => s.blend(v, s.factor(u)),
             None => v,
         }
     }

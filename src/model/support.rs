@@ -1,23 +1,29 @@
 //! The stored support of a model (METHOD.md "Support"): one bit per voxel of
 //! the reference lattice, set where the reference exceeds the objective's
 //! mask (0.005). The objective never looks at the other voxels, so the
-//! Gaussians' tails that reach them are unsupervised; the decoder multiplies
-//! `V_eval` by the trilinear interpolation of the bits, which is exactly the
-//! bit at every voxel centre (0 outside the support, 1 inside, leaving the
-//! value untouched) and falls off over one voxel between centres.
+//! Gaussians' tails that reach them are unsupervised; the decoder blends
+//! `V_eval` with the support's [`Outside`] prediction `E(V_eval)` by the
+//! trilinear interpolation `S` of the bits, `S V + (1 - S) E(V)`: exactly
+//! `V` inside at every voxel centre (left untouched), exactly `E(V)`
+//! outside (0 when the outside is zero, the paper's decode times the
+//! bits), and a fall over one voxel between centres.
 
 use crate::backend::Lattice;
 use crate::error::{Error, Result};
 use crate::field::{Grid, IndexBox};
 use crate::math::loss::MASK_REF;
+use crate::model::outside::Outside;
 use rayon::prelude::*;
 
-/// Which voxels of a reference lattice hold data.
-#[derive(Clone, Debug, PartialEq, Eq)]
+/// Which voxels of a reference lattice hold data, and what the decode
+/// gives at the others.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Support {
     dims: [usize; 3],
     /// Bit `i` (x fastest) of byte `i / 8`, least significant bit first.
     bits: Vec<u8>,
+    /// The decoded value outside, fitted by the encoder (zero unless set).
+    outside: Outside,
 }
 
 impl Support {
@@ -31,7 +37,7 @@ impl Support {
         for (byte, chunk) in bits.iter_mut().zip(reference.values.chunks(8)) {
             *byte = chunk.iter().enumerate().fold(0u8, |b, (k, &v)| b | (((v > MASK_REF) as u8) << k));
         }
-        Some(Support { dims: reference.dims, bits })
+        Some(Support { dims: reference.dims, bits, outside: Outside::ZERO })
     }
 
     /// A support of `dims` from its packed bits (as `bits()` gives them);
@@ -45,7 +51,32 @@ impl Support {
         if n % 8 != 0 && bits[bits.len() - 1] >> (n % 8) != 0 {
             return Err(Error::format("support has bits set past its lattice"));
         }
-        Ok(Support { dims, bits })
+        Ok(Support { dims, bits, outside: Outside::ZERO })
+    }
+
+    /// This support with `outside` decoded at its empty voxels; refuses
+    /// non-finite coefficients.
+    pub fn with_outside(self, outside: Outside) -> Result<Support> {
+        if !outside.is_finite() {
+            return Err(Error::format(format!("support's outside fit {outside:?} is not finite")));
+        }
+        Ok(Support { outside, ..self })
+    }
+
+    pub fn outside(&self) -> Outside {
+        self.outside
+    }
+
+    /// The [`Outside`] to store for `decoded` (the Gaussians' own `V_eval`
+    /// on the reference lattice, x fastest) against `reference`: the least
+    /// squares fit over the voxels outside this support, in lattice order,
+    /// where it pays ([`Outside::choose`]).
+    pub fn fit_outside(&self, decoded: &[f32], reference: &Grid) -> Outside {
+        debug_assert_eq!((decoded.len(), reference.dims), (reference.len(), self.dims));
+        let inside_bit = |v: usize| (self.bits[v / 8] >> (v % 8)) & 1 == 1;
+        let se = |v: usize| (decoded[v] as f64 - reference.values[v] as f64).powi(2);
+        let inside: f64 = (0..decoded.len()).filter(|&v| inside_bit(v)).map(se).sum();
+        Outside::choose(|| (0..decoded.len()).filter(|&v| !inside_bit(v)).map(|v| (decoded[v], reference.values[v])), inside)
     }
 
     pub fn dims(&self) -> [usize; 3] {
@@ -93,9 +124,21 @@ impl Support {
         lerp(plane(i0[2]), plane(i1[2]), t[2])
     }
 
-    /// Multiplies the values decoded at `lattice`'s points (x fastest) by
-    /// the support's factor there ([`Support::factor`]; the per-axis
-    /// interpolation is worked out once per axis, not per point).
+    /// The decoded value where the Gaussians give `v` and the support's
+    /// factor ([`Support::factor`]) is `f`: `f v + (1 - f) E(v)`; with a
+    /// zero outside exactly `v f`, as before outsides were fitted.
+    #[inline]
+    pub fn blend(&self, v: f32, f: f32) -> f32 {
+        if self.outside.is_zero() {
+            v * f
+        } else {
+            f * v + (1.0 - f) * self.outside.value(v)
+        }
+    }
+
+    /// Blends the values decoded at `lattice`'s points (x fastest) with the
+    /// outside by the support's factor there ([`Support::blend`]; the
+    /// per-axis interpolation is worked out once per axis, not per point).
     pub fn apply(&self, lattice: &Lattice, out: &mut [f32]) {
         let [nx, ny, _] = lattice.dims;
         // Per axis and lattice index: (lower voxel, upper voxel, weight).
@@ -122,7 +165,8 @@ impl Support {
                     };
                     let f = lerp(plane(z0), plane(z1), tz);
                     if f != 1.0 {
-                        layer[i + nx * j] *= f;
+                        let v = &mut layer[i + nx * j];
+                        *v = self.blend(*v, f);
                     }
                 }
             }
@@ -132,10 +176,18 @@ impl Support {
     /// One support of a lattice of `dims` from those of its pieces, each at
     /// its box (a piece without a support is support everywhere on its box);
     /// voxels of no piece are outside (the pieces of a domain merged into
-    /// one model).
+    /// one model). Its outside is the pieces' own, averaged over their
+    /// empty voxels (each piece's decode blends with its own: this one
+    /// serves the merged model only).
     pub fn place(supports: &[(Option<&Support>, IndexBox)], dims: [usize; 3]) -> Support {
         let n: usize = dims.iter().product();
         let mut bits = vec![0u8; n.div_ceil(8)];
+        let (mut empty, mut offset, mut gain) = (0f64, 0f64, 0f64);
+        for s in supports.iter().filter_map(|(s, _)| *s) {
+            let e = (s.dims.iter().product::<usize>() - s.count()) as f64;
+            (empty, offset, gain) = (empty + e, offset + e * s.outside.offset as f64, gain + e * s.outside.gain as f64);
+        }
+        let outside = if empty > 0.0 { Outside { offset: (offset / empty) as f32, gain: (gain / empty) as f32 } } else { Outside::ZERO };
         for (s, b) in supports {
             let bd = b.dims();
             for k in 0..bd[2] {
@@ -149,7 +201,7 @@ impl Support {
                 }
             }
         }
-        Support { dims, bits }
+        Support { dims, bits, outside }
     }
 }
 
@@ -223,6 +275,47 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn apply_blends_with_a_fitted_outside() {
+        let o = Outside { offset: 0.002, gain: 0.5 };
+        let s = support().with_outside(o).unwrap();
+        // At the reference centres: untouched inside, the outside's value of
+        // the Gaussians' own value outside.
+        let lattice = Lattice::reference([5, 4, 3]);
+        let before: Vec<f32> = (0..60).map(|i| i as f32 * 1e-4).collect();
+        let mut out = before.clone();
+        s.apply(&lattice, &mut out);
+        for (i, (a, b)) in out.iter().zip(&before).enumerate() {
+            let inside = s.bit(i % 5, i / 5 % 4, i / 20) == 1.0;
+            assert_eq!(*a, if inside { *b } else { (0.002 + 0.5 * b.min(MASK_REF)).clamp(0.0, MASK_REF) }, "voxel {i}");
+        }
+        // Between centres, the factor's blend of the two.
+        let lattice = Lattice::resampled([5, 4, 3], [11, 7, 5]);
+        let mut out = vec![0.3f32; lattice.len()];
+        s.apply(&lattice, &mut out);
+        let [nx, ny, _] = lattice.dims;
+        let mut blended = 0;
+        for (i, v) in out.iter().enumerate() {
+            let f = s.factor(lattice.point(i % nx, i / nx % ny, i / (nx * ny)));
+            assert!((v - (f * 0.3 + (1.0 - f) * o.value(0.3))).abs() < 1e-7, "point {i}: {v} at factor {f}");
+            blended += (f > 0.0 && f < 1.0) as usize;
+        }
+        assert!(blended > 0);
+        assert!(support().with_outside(Outside { offset: f32::NAN, gain: 0.0 }).is_err());
+    }
+
+    #[test]
+    fn placed_supports_average_their_outsides_over_their_empty_voxels() {
+        let s = support(); // 52 empty voxels of 60
+        let a = s.clone().with_outside(Outside { offset: 0.004, gain: 0.0 }).unwrap();
+        let b = s.with_outside(Outside { offset: 0.001, gain: 1.0 }).unwrap();
+        let boxes = [IndexBox { lo: [0; 3], hi: [5, 4, 3] }, IndexBox { lo: [5, 0, 0], hi: [10, 4, 3] }];
+        let g = Support::place(&[(Some(&a), boxes[0]), (Some(&b), boxes[1])], [10, 4, 3]);
+        assert!((g.outside().offset - 0.0025).abs() < 1e-9 && g.outside().gain == 0.5, "{:?}", g.outside());
+        let g = Support::place(&[(Some(&a), boxes[0]), (None, boxes[1])], [10, 4, 3]);
+        assert_eq!(g.outside(), a.outside(), "a piece without a support has no empty voxel");
     }
 
     #[test]
