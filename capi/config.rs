@@ -48,8 +48,9 @@ pub const GSENC_QUEUE_BLOCK: i32 = 0;
 pub const GSENC_QUEUE_SKIP: i32 = 1;
 pub const GSENC_QUEUE_BUSY: i32 = 2;
 /// Whether models store their support (`gsenc_config.support`): where the
-/// data are non-zero, so that the model decodes to 0 elsewhere (the
-/// default), or not, for the paper's models exactly.
+/// data lie above the objective's mask, so that the model decodes its fitted
+/// outside elsewhere (0 where the data are truly empty; the default), or
+/// not, for the paper's models exactly.
 pub const GSENC_SUPPORT_STORED: i32 = 0;
 pub const GSENC_SUPPORT_NONE: i32 = 1;
 /// Which backend encodes (`gsenc_config.backend`): a hardware GPU when

@@ -185,10 +185,10 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 
 /// Decodes the model onto `dims` cells covering its box (NULL `dims`: its
 /// reference dims) into `out`, which holds `out_len` floats, x fastest,
-/// in data units; with its support, where it stores one (0 where the data
-/// were empty). The caller owns `out`. Runs on a hardware GPU when there is
-/// one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses). Thread-safe,
-/// also on one model.
+/// in data units; with its support, where it stores one (its outside where
+/// the data were empty). The caller owns `out`. Runs on a hardware GPU when
+/// there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses).
+/// Thread-safe, also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *const u64, out: *mut f32, out_len: u64) -> gsenc_status {
     guard(|| {

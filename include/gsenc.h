@@ -106,8 +106,9 @@
 
 /*
  Whether models store their support (`gsenc_config.support`): where the
- data are non-zero, so that the model decodes to 0 elsewhere (the
- default), or not, for the paper's models exactly.
+ data lie above the objective's mask, so that the model decodes its fitted
+ outside elsewhere (0 where the data are truly empty; the default), or
+ not, for the paper's models exactly.
  */
 #define GSENC_SUPPORT_STORED 0
 
@@ -834,10 +835,10 @@ gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *in
 /*
  Decodes the model onto `dims` cells covering its box (NULL `dims`: its
  reference dims) into `out`, which holds `out_len` floats, x fastest,
- in data units; with its support, where it stores one (0 where the data
- were empty). The caller owns `out`. Runs on a hardware GPU when there is
- one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses). Thread-safe,
- also on one model.
+ in data units; with its support, where it stores one (its outside where
+ the data were empty). The caller owns `out`. Runs on a hardware GPU when
+ there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses).
+ Thread-safe, also on one model.
  */
 gsenc_status gsenc_model_decode(const gsenc_model *model,
                                 const uint64_t *dims,

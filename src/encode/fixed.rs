@@ -55,7 +55,7 @@ pub struct Request<'a> {
     /// The payload the model will be stored with: its PSNR is measured as stored.
     pub payload: Payload,
     /// Store the support of the reference with the model (gsenc's default),
-    /// so that it decodes to zero where the data are empty; `false`: the
+    /// so that it decodes its outside where the data are empty; `false`: the
     /// paper's model exactly.
     pub store_support: bool,
     pub labels: Labels,
