@@ -199,8 +199,8 @@ impl Model {
     /// the reference): `V_eval` of the primitives, blended with the
     /// support's outside by its factor when the model has one
     /// ([`Support::blend`]). Every decode goes through here (the encoder's
-    /// scoring, [`crate::encode::stored::decode_as_stored`], does the same in two
-    /// steps, fitting the outside between them).
+    /// scoring, [`crate::encode::stored::decode_as_stored`], does the same
+    /// in two steps, fitting the outside between them).
     pub fn decode_lattice(&self, backend: &mut dyn Backend, lattice: &Lattice, out: &mut [f32]) -> Result<()> {
         backend.decode_lattice(&self.params, lattice, out)?;
         if let Some(s) = &self.support {
