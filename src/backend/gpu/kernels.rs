@@ -5,7 +5,7 @@
 use super::device::Gpu;
 use super::timer::Timer;
 use crate::error::Result;
-use crate::math::loss::LossWeights;
+use crate::math::loss::{LossWeights, PointNorm};
 
 const MATH: &str = include_str!("shaders/math.wgsl");
 
@@ -27,10 +27,17 @@ pub struct Params {
     pub objective: [f32; 4],
 }
 
-/// `Params::objective`: the fidelity weight's constant and slope, the
-/// anisotropy ratio of L_aniso.
-pub fn objective(w: &LossWeights) -> [f32; 4] {
-    [w.fidelity[0], w.fidelity[1], w.aniso_ratio, 0.0]
+impl Params {
+    /// Sets what the loss kernels read of the objective for a batch of
+    /// reference values `vref`: `loss` (the batch's normalisers, as loss.rs
+    /// `PointNorm` computes them, and the weights of L_val and L_cov) and
+    /// `objective` (the fidelity weight's constant and slope, the
+    /// anisotropy ratio of L_aniso).
+    pub fn set_objective(&mut self, vref: &[f32], w: &LossWeights) {
+        let norm = PointNorm::new(vref, w);
+        self.loss = [norm.inv_weight_sum, norm.inv_count, w.val, w.cov];
+        self.objective = [w.fidelity[0], w.fidelity[1], w.aniso_ratio, 0.0];
+    }
 }
 
 /// math.wgsl `CELLS_*`: how a primitive's box maps to grid cells.

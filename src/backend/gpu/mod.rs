@@ -38,13 +38,13 @@ mod timer;
 
 use self::buffers::Buffers;
 use self::device::{DeviceRequest, Gpu};
-use self::kernels::{objective, Kernels};
+use self::kernels::Kernels;
 use self::points::Pass;
 use self::timer::Timer;
 use super::{check_len, Backend, Lattice, PointBatch, PointLoss};
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
-use crate::math::loss::{LossWeights, PointNorm};
+use crate::math::loss::LossWeights;
 
 pub struct GpuBackend {
     gpu: Gpu,
@@ -225,9 +225,7 @@ impl Backend for GpuBackend {
         }
         self.upload_params(params)?;
         let (mut p, bricks, ncoarse) = self.upload_points(params.len(), &batch.pos, Some(&batch.vref))?;
-        let norm = PointNorm::new(&batch.vref, weights);
-        p.loss = [norm.inv_weight_sum, norm.inv_count, weights.val, weights.cov];
-        p.objective = objective(weights);
+        p.set_objective(&batch.vref, weights);
         p.stage[3] = 1;
         let (g, loss, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Gradient)?;
         self.count_evaluations(&bricks, &starts);

@@ -6,14 +6,13 @@
 //! Mirrors the iteration of encode/refine.rs: `point_loss_grad`, then
 //! `regularizers` and `Adam::step` (adam.wgsl).
 
-use super::kernels::objective;
 use super::points::InFlight;
 use super::{bytes, floats, GpuBackend, Pass};
 use crate::backend::bricks::PointBricks;
 use crate::backend::{check_len, PointBatch, PointLoss, Resident};
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
-use crate::math::loss::{LossWeights, PointNorm, RegTerms};
+use crate::math::loss::{LossWeights, RegTerms};
 use crate::math::optim::{Adam, BETA1, BETA2};
 
 /// What the device holds between steps.
@@ -54,14 +53,12 @@ impl Resident for GpuBackend {
             return Err(Error::arg("GPU backend: a resident step needs points and primitives"));
         }
         let (mut p, bricks, ncoarse) = self.upload_points(n, &batch.pos, Some(&batch.vref))?;
-        let norm = PointNorm::new(&batch.vref, weights);
         let t = t + 1;
         // As loss.rs `regularizers` and optim.rs `Adam::step` compute them on the host.
         let nf = n.max(1) as f32;
-        p.loss = [norm.inv_weight_sum, norm.inv_count, weights.val, weights.cov];
+        p.set_objective(&batch.vref, weights);
         p.optim = [lr, 1.0 - BETA1.powi(t as i32), 1.0 - BETA2.powi(t as i32), 0.0];
         p.reg = [weights.scale, weights.aniso, 1.0 / (3.0 * nf), 1.0 / nf];
-        p.objective = objective(weights);
         p.stage[3] = 1;
         p.coarse[2] = report as u32;
         let nbricks = bricks.ranges.len();
