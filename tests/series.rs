@@ -52,9 +52,9 @@ fn psnr_at_validation_points(model: &gsenc::model::Model, reference: &Grid, refi
     if let Some(support) = model.support.take_if(|_| refit) {
         let bare = model.decode(&mut CpuBackend::new(), None).unwrap();
         let at = |p: &[f32; 3]| p[0] as usize + DIMS[0] * (p[1] as usize + DIMS[1] * p[2] as usize);
-        let empty = || v.points.iter().zip(&v.values).filter(|(_, &r)| r <= MASK_REF).map(|(p, &r)| (bare.values[at(p)], r));
-        let inside: f64 = v.points.iter().zip(&v.values).filter(|(_, &r)| r > MASK_REF).map(|(p, &r)| ((bare.values[at(p)] - r) as f64).powi(2)).sum();
-        model.support = Some(support.with_outside(Outside::choose(empty, inside)).unwrap());
+        let at_points: Vec<f32> = v.points.iter().map(|p| bare.values[at(p)]).collect();
+        let outside = Outside::choose(&at_points, &v.values, |i| v.values[i] <= MASK_REF);
+        model.support = Some(support.with_outside(outside).unwrap());
     }
     let decoded = model.decode(&mut CpuBackend::new(), None).unwrap();
     let se: f64 = v

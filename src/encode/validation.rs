@@ -59,10 +59,9 @@ impl Validation {
         let mut n = vec![0.0; self.points.len()];
         backend.evaluate_points(params, &self.points, &mut rho, &mut n)?;
         let v: Vec<f32> = rho.iter().zip(&n).map(|(&r, &n)| v_eval(r, n)).collect();
-        let empty = |i: &usize| self.support && self.values[*i] <= MASK_REF;
-        let inside: f64 = (0..v.len()).filter(|i| !empty(i)).map(|i| ((v[i] - self.values[i]) as f64).powi(2)).sum();
-        let outside = Outside::choose(|| (0..v.len()).filter(empty).map(|i| (v[i], self.values[i])), inside);
-        let decoded = |i: usize| if empty(&i) { outside.value(v[i]) } else { v[i] };
+        let empty = |i: usize| self.support && self.values[i] <= MASK_REF;
+        let outside = Outside::choose(&v, &self.values, empty);
+        let decoded = |i: usize| if empty(i) { outside.value(v[i]) } else { v[i] };
         let se: f64 = (0..self.points.len()).map(|i| ((decoded(i) - self.values[i]) as f64).powi(2)).sum();
         Ok(psnr_from_mse(se / self.points.len() as f64))
     }

@@ -48,20 +48,27 @@ impl Outside {
         (self.offset + self.gain * v.min(MASK_REF)).clamp(0.0, MASK_REF)
     }
 
-    /// The outside a decode stores: the [`Outside::fit`] of the pairs
-    /// `(v, r)` that `empty` yields (the same each call), when it lowers
-    /// the squared error of the whole decode (`inside`: that of the other
-    /// voxels; zero outside: `r^2` at the empty ones) by at least
-    /// [`MIN_GAIN`]; else zero.
-    pub fn choose<I: Iterator<Item = (f32, f32)>>(empty: impl Fn() -> I, inside: f64) -> Outside {
-        let fit = Outside::fit(empty());
+    /// The outside a decode stores: the [`Outside::fit`] of `decoded` (the
+    /// Gaussians' own `V`) against `reference` over the indices `empty`
+    /// picks, in index order, when it lowers the squared error of the whole
+    /// decode (the other indices as decoded; zero outside: `r^2` at the
+    /// empty ones) by at least [`MIN_GAIN`]; else zero. The encoder calls it
+    /// on the reference lattice, a validation set on its points.
+    pub fn choose(decoded: &[f32], reference: &[f32], empty: impl Fn(usize) -> bool) -> Outside {
+        debug_assert_eq!(decoded.len(), reference.len());
+        let fit = Outside::fit((0..decoded.len()).filter(|&i| empty(i)).map(|i| (decoded[i], reference[i])));
         if fit.is_zero() {
             return fit;
         }
-        let (mut zero, mut fitted) = (0f64, 0f64);
-        for (v, r) in empty() {
-            zero += (r as f64).powi(2);
-            fitted += (fit.value(v) as f64 - r as f64).powi(2);
+        let (mut inside, mut zero, mut fitted) = (0f64, 0f64, 0f64);
+        for (i, (&v, &r)) in decoded.iter().zip(reference).enumerate() {
+            let r = r as f64;
+            if empty(i) {
+                zero += r * r;
+                fitted += (fit.value(v) as f64 - r).powi(2);
+            } else {
+                inside += (v as f64 - r).powi(2);
+            }
         }
         if zero - fitted >= MIN_GAIN * (inside + zero) {
             fit
@@ -152,18 +159,26 @@ mod tests {
         assert!((o.offset - 0.002).abs() < 1e-9);
     }
 
+    /// `choose` on the empty pairs, plus one voxel inside the support whose
+    /// squared error is `inside`.
+    fn choose(pairs: &[(f32, f32)], inside: f64) -> Outside {
+        let decoded: Vec<f32> = pairs.iter().map(|p| p.0).chain([inside.sqrt() as f32]).collect();
+        let reference: Vec<f32> = pairs.iter().map(|p| p.1).chain([0.0]).collect();
+        Outside::choose(&decoded, &reference, |i| i < pairs.len())
+    }
+
     #[test]
     fn an_outside_is_chosen_only_where_it_pays() {
         let pairs = noisy(4);
         let zero: f64 = pairs.iter().map(|&(_, r)| (r as f64).powi(2)).sum();
         let fit = Outside::fit(pairs.iter().copied());
-        assert_eq!(Outside::choose(|| pairs.iter().copied(), 0.0), fit);
+        assert_eq!(choose(&pairs, 0.0), fit);
         // The same gain, ten thousand times more error elsewhere: not worth it.
-        assert_eq!(Outside::choose(|| pairs.iter().copied(), 1e4 * zero), Outside::ZERO);
+        assert_eq!(choose(&pairs, 1e4 * zero), Outside::ZERO);
         // A faint rim in empty space: zero, so that space decodes to 0.
         let rim: Vec<(f32, f32)> = (0..1000).map(|i| (0.0, if i < 3 { 0.004 } else { 0.0 })).collect();
         assert!(!Outside::fit(rim.iter().copied()).is_zero());
-        assert_eq!(Outside::choose(|| rim.iter().copied(), 1e-3), Outside::ZERO);
+        assert_eq!(choose(&rim, 1e-3), Outside::ZERO);
     }
 
     #[test]

@@ -73,10 +73,7 @@ impl Support {
     /// where it pays ([`Outside::choose`]).
     pub fn fit_outside(&self, decoded: &[f32], reference: &Grid) -> Outside {
         debug_assert_eq!((decoded.len(), reference.dims), (reference.len(), self.dims));
-        let inside_bit = |v: usize| (self.bits[v / 8] >> (v % 8)) & 1 == 1;
-        let se = |v: usize| (decoded[v] as f64 - reference.values[v] as f64).powi(2);
-        let inside: f64 = (0..decoded.len()).filter(|&v| inside_bit(v)).map(se).sum();
-        Outside::choose(|| (0..decoded.len()).filter(|&v| !inside_bit(v)).map(|v| (decoded[v], reference.values[v])), inside)
+        Outside::choose(decoded, &reference.values, |v| (self.bits[v / 8] >> (v % 8)) & 1 == 0)
     }
 
     pub fn dims(&self) -> [usize; 3] {
