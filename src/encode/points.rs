@@ -46,6 +46,63 @@ pub struct PointSampler {
 struct ErrorMap {
     voxels: Vec<u32>,
     cumulative: Vec<f64>,
+    /// The guide table of `cumulative` (its `Guide::build`), once mapped.
+    guide: Guide,
+}
+
+/// A guide table (Chen and Asau's) over a non-decreasing running sum: the
+/// index a draw selects by binary search over the whole sum, found by a
+/// search over one bucket. Bucket `j` starts at `bound(j) = total * j / M`
+/// and `first[j]` is the first index whose sum passes `bound(j)`, so the
+/// answer for a draw in bucket `j` lies in `first[j] ..= first[j + 1]`:
+/// the same index as the whole search, from two or three cache lines
+/// instead of twenty (an error map holds up to a million voxels).
+struct Guide {
+    total: f64,
+    /// `M`.
+    buckets: usize,
+    /// `M + 1` entries; the last is the sum's length.
+    first: Vec<u32>,
+}
+
+impl Guide {
+    /// One bucket per entry of `cumulative` (non-decreasing, non-empty,
+    /// fewer than 2^32 entries).
+    fn build(cumulative: &[f64]) -> Guide {
+        let total = *cumulative.last().expect("a guide over an empty sum");
+        let m = cumulative.len();
+        let mut g = Guide { total, buckets: m, first: Vec::with_capacity(m + 1) };
+        let mut k = 0;
+        for j in 0..=m {
+            let b = g.bound(j);
+            while k < m && cumulative[k] <= b {
+                k += 1;
+            }
+            g.first.push(k as u32);
+        }
+        g
+    }
+
+    /// Where bucket `j` of `M` starts. Non-decreasing in `j`.
+    fn bound(&self, j: usize) -> f64 {
+        self.total * (j as f64 / self.buckets as f64)
+    }
+
+    /// `cumulative.partition_point(|&s| s <= u)`, for `u >= 0`.
+    fn find(&self, cumulative: &[f64], u: f64) -> usize {
+        let m = self.buckets;
+        // A first guess of the bucket, then the bucket whose bounds hold
+        // `u` exactly as `build` computed them.
+        let mut j = ((u / self.total * m as f64) as usize).min(m - 1);
+        while j > 0 && self.bound(j) > u {
+            j -= 1;
+        }
+        while j + 1 < m && self.bound(j + 1) <= u {
+            j += 1;
+        }
+        let (lo, hi) = (self.first[j] as usize, self.first[j + 1] as usize);
+        lo + cumulative[lo..hi].partition_point(|&s| s <= u)
+    }
 }
 
 /// How many points each stratum gets for a batch of `p`.
@@ -102,7 +159,7 @@ impl PointSampler {
             drawn = (0..ERROR_MAP_VOXELS).map(|_| occupied[rng.below(occupied.len() as u64) as usize]).collect();
             &drawn
         };
-        let mut map = ErrorMap { voxels: Vec::with_capacity(voxels.len()), cumulative: Vec::with_capacity(voxels.len()) };
+        let (mut mapped, mut cumulative) = (Vec::with_capacity(voxels.len()), Vec::with_capacity(voxels.len()));
         let mut total = 0f64;
         let (mut rho, mut n) = (vec![0f32; ERROR_MAP_CHUNK], vec![0f32; ERROR_MAP_CHUNK]);
         for chunk in voxels.chunks(ERROR_MAP_CHUNK) {
@@ -113,12 +170,12 @@ impl PointSampler {
                 let e = (v_eval(rho[k], n[k]) - reference.values[i as usize]).abs() as f64;
                 if e > 0.0 {
                     total += e;
-                    map.voxels.push(i);
-                    map.cumulative.push(total);
+                    mapped.push(i);
+                    cumulative.push(total);
                 }
             }
         }
-        self.errors = (!map.voxels.is_empty()).then_some(map);
+        self.errors = (!mapped.is_empty()).then(|| ErrorMap { guide: Guide::build(&cumulative), voxels: mapped, cumulative });
         Ok(())
     }
 
@@ -186,18 +243,121 @@ impl PointSampler {
             pos.push(place(rng, q));
         }
         if let Some(map) = &self.errors {
-            let total = *map.cumulative.last().expect("an error map is never empty");
+            let total = map.guide.total;
             for _ in 0..c.error {
                 // The first voxel whose running sum passes the draw.
                 let u = rng.uniform() * total;
-                let k = map.cumulative.partition_point(|&s| s <= u).min(map.voxels.len() - 1);
+                let k = map.guide.find(&map.cumulative, u).min(map.voxels.len() - 1);
                 pos.push(place(rng, voxel(map.voxels[k])));
             }
         }
         // The positions come from one sequential stream; their reference
-        // values are independent lookups, done in parallel. (At a voxel
-        // centre the trilinear value is the voxel's own.)
-        let vref = pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect();
+        // values are independent lookups, done in parallel. At a voxel
+        // centre the trilinear value is the voxel's own, bit for bit (every
+        // weight but its own is zero and the values are finite), so gsenc's
+        // points read that one value rather than eight.
+        let vref = if on_lattice {
+            pos.par_iter().with_min_len(512).map(|&x| reference.values[lattice_index(reference, x)]).collect()
+        } else {
+            pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect()
+        };
         PointBatch { pos, vref }
+    }
+}
+
+/// The voxel whose centre `x` is (a lattice point inside the grid).
+fn lattice_index(g: &Grid, x: [f32; 3]) -> usize {
+    g.index(x[0] as usize, x[1] as usize, x[2] as usize)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The plain search the guide table replaces.
+    fn whole_search(cumulative: &[f64], u: f64) -> usize {
+        cumulative.partition_point(|&s| s <= u)
+    }
+
+    #[test]
+    fn the_guide_table_finds_what_a_search_of_the_whole_sum_finds() {
+        let mut rng = Rng::new(5);
+        // Sums of very uneven errors (spans of 1e-12 .. 1), with runs of
+        // equal sums (errors too small to change the total), long and short.
+        for len in [1usize, 2, 3, 7, 100, 4097] {
+            let mut total = 0f64;
+            let cumulative: Vec<f64> = (0..len)
+                .map(|k| {
+                    let e = if k % 5 == 3 { total * 1e-18 } else { 10f64.powf(-12.0 * rng.uniform()) };
+                    total += e;
+                    total
+                })
+                .collect();
+            let guide = Guide::build(&cumulative);
+            let mut draws: Vec<f64> = (0..20_000).map(|_| rng.uniform() * total).collect();
+            // Every bucket bound and every sum, and their neighbours.
+            for j in 0..=len {
+                let b = guide.bound(j);
+                draws.extend([b, b.next_down(), b.next_up()]);
+            }
+            for &s in &cumulative {
+                draws.extend([s, s.next_down(), s.next_up()]);
+            }
+            draws.extend([0.0, total]);
+            for u in draws.into_iter().filter(|u| (0.0..=total).contains(u)) {
+                assert_eq!(guide.find(&cumulative, u), whole_search(&cumulative, u), "len {len}, u {u:e}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_guide_table_holds_when_sums_sit_on_its_bucket_bounds() {
+        // Sums placed exactly on bucket bounds and one step above them:
+        // where rounding puts a draw's first guess of its bucket one off.
+        let mut rng = Rng::new(11);
+        for _ in 0..2_000 {
+            let m = 3 + rng.below(40) as usize;
+            let total = rng.range(0.1, 1e6);
+            let bound = |j: usize| total * (j as f64 / m as f64);
+            let mut cumulative: Vec<f64> = (0..m - 1)
+                .map(|_| {
+                    let b = bound(1 + rng.below(m as u64 - 1) as usize);
+                    if rng.below(2) == 0 { b } else { b.next_up() }
+                })
+                .collect();
+            cumulative.sort_by(f64::total_cmp);
+            cumulative.push(total);
+            let guide = Guide::build(&cumulative);
+            for j in 0..=m {
+                let b = guide.bound(j);
+                assert_eq!(b, bound(j));
+                for u in [b, b.next_down(), b.next_up()].into_iter().filter(|u| (0.0..=total).contains(u)) {
+                    assert_eq!(guide.find(&cumulative, u), whole_search(&cumulative, u), "m {m}, total {total}, u {u:e}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_voxel_centres_own_value_is_its_trilinear_value_bit_for_bit() {
+        let mut rng = Rng::new(9);
+        for dims in [[5usize, 4, 3], [1, 1, 1], [1, 6, 2], [7, 1, 1]] {
+            let n = dims.iter().product();
+            // Zeros, ones, tiny and ordinary values in [0, 1].
+            let values: Vec<f32> = (0..n)
+                .map(|i| match i % 4 {
+                    0 => 0.0,
+                    1 => 1.0,
+                    2 => 1e-30 * rng.uniform() as f32,
+                    _ => rng.uniform() as f32,
+                })
+                .collect();
+            let g = Grid::new(dims, values).unwrap();
+            for i in 0..n {
+                let x = g.centre(i);
+                assert_eq!(g.values[lattice_index(&g, x)].to_bits(), g.trilinear(x).to_bits(), "{dims:?} voxel {i}");
+                assert_eq!(lattice_index(&g, x), i);
+            }
+        }
     }
 }
