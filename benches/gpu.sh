@@ -8,7 +8,8 @@
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
 # the CPU rows need not run the whole schedule; CPU_ITERS= runs the whole
 # schedule, which the PSNR gap needs); ROWS selects rows by name, WHICH
-# the backends (default "gpu cpu"); REPEAT
+# the backends (default "gpu gpu1 cpu"; gpu1 is the GPU with one training
+# step in flight rather than two, GSENC_GPU_DEPTH=1); REPEAT
 # (default 1) runs each GPU row that many times (the table takes medians)
 # while the script is younger than DEADLINE seconds (default 300);
 # ROW_LIMIT (default 150 s; 240 s for the in-situ run) stops any one run,
@@ -52,13 +53,16 @@ late() { # true (and says so) when STOP_AFTER has passed
 run() { # name backend iteration-cap args...
     local name=$1 backend=$2 cap=$3; shift 3
     want "$name" || return 0
-    [[ " ${WHICH:-gpu cpu} " == *" $backend "* ]] || return 0
+    [[ " ${WHICH:-gpu gpu1 cpu} " == *" $backend "* ]] || return 0
     late "$name" && return 0
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")
     echo "[$name] $backend ${iters[*]}" >&2
     local result
-    if result=$(timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" --backend "$backend" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
+    # `gpu1`: the GPU with one training step in flight instead of two.
+    local depth=2 as=$backend
+    [ "$backend" = gpu1 ] && depth=1 as=gpu
+    if result=$(GSENC_GPU_DEPTH=$depth timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" --backend "$as" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
         echo "$result" | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
     else
         echo "{\"row\": \"$name\", \"which\": \"$backend\", \"failed_or_timed_out\": true}" >> "$log"
@@ -72,6 +76,7 @@ row() { # name args...: the row on the GPU, then on the CPU
     for i in $(seq "${REPEAT:-1}"); do
         [ "$i" = 1 ] || [ "$SECONDS" -lt "${DEADLINE:-300}" ] || break
         run "$name" gpu "${ITERS:-}" "$@"
+        run "$name" gpu1 "${ITERS:-}" "$@"
     done
     run "$name" cpu "${CPU_ITERS-200}" "$@"
 }
@@ -128,10 +133,30 @@ for name, by in rows.items():
     per = {w: sec(runs) / runs[0]["iterations"] for w, runs in by.items()}
     for w, runs in by.items():
         d = runs[0]
-        ratio = f"{per['cpu'] / per['gpu']:.1f}x" if w == "gpu" and "cpu" in per else ""
+        gpu = w.startswith("gpu")
+        ratio = f"{per['cpu'] / per[w]:.1f}x" if gpu and "cpu" in per else ""
         gap = ""
-        if w == "gpu" and "cpu" in by and by["cpu"][0]["iterations"] == d["iterations"]:
+        if gpu and "cpu" in by and by["cpu"][0]["iterations"] == d["iterations"]:
             gap = f"{d['voxel_psnr'] - by['cpu'][0]['voxel_psnr']:+.3f}"
-        print(f"| {name} | {d['backend']} | {len(runs)} | {d['iterations']} | {d['voxel_psnr']:.2f} | {sec(runs):.2f} | {per[w]*1e3:.2f} ms | {ratio} | {gap} |")
+        print(f"| {name} | {d['backend']} ({w}) | {len(runs)} | {d['iterations']} | {d['voxel_psnr']:.2f} | {sec(runs):.2f} | {per[w]*1e3:.2f} ms | {ratio} | {gap} |")
+    if "gpu" in by and "gpu1" in by:
+        same = by["gpu"][0]["voxel_psnr"] == by["gpu1"][0]["voxel_psnr"]
+        print(f"<!-- {name}: two steps in flight {per['gpu1'] / per['gpu']:.2f}x one; same model: {same} -->")
+# Where a GPU row's loop went, per iteration (medians over the runs): the
+# host thread's phases (refine.rs `LoopPhases`; `other` is the rest of the
+# loop: relocations, validation scores, parameters to and from the device)
+# and the kernels' device time.
+print()
+print("| row | loop ms / it | draw | submit | wait | other | device (every kernel of the run) |")
+print("|---|---|---|---|---|---|---|")
+for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpu1")]:
+    if name == "decode_1024" or not runs or "loop_phases" not in runs[0]:
+        continue
+    it = runs[0]["iterations"]
+    ms = lambda f: statistics.median(f(d) for d in runs) * 1e3 / it
+    phase = lambda k: f"{ms(lambda d: d['loop_phases'][k]):.3f}"
+    device = ms(lambda d: sum(v.get("seconds", 0) for v in (d.get("kernel_seconds") or {}).values()))
+    other = ms(lambda d: d["seconds"] - sum(d["loop_phases"].values()))
+    print(f"| {name} ({w}) | {ms(lambda d: d['seconds']):.3f} | {phase('draw')} | {phase('submit')} | {phase('wait')} | {other:.3f} | {device:.3f} |")
 PY
 keep "$out/gpu-table.md"

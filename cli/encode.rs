@@ -157,6 +157,8 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "seconds": out.loop_seconds,
         "total_seconds": t_total.elapsed().as_secs_f64(),
         "seed_seconds": out.seed_seconds,
+        // Where the loop's host thread spent `seconds` (refine.rs `LoopPhases`).
+        "loop_phases": {"draw": out.phases.draw, "submit": out.phases.submit, "wait": out.phases.wait},
         "decode_seconds": encoded.decode_seconds,
         "iterations": out.iterations,
         "points": out.points,

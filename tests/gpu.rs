@@ -10,7 +10,7 @@ mod common;
 use common::*;
 use gsenc::backend::gpu::device::{adapters, DeviceRequest};
 use gsenc::backend::gpu::GpuBackend;
-use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch};
+use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch, PointLoss};
 use gsenc::encode::config::EncodeConfig;
 use gsenc::encode::relocate::relocate;
 use gsenc::encode::{encode, encode_validated, Schedule, Validation, WarmStart};
@@ -18,7 +18,7 @@ use gsenc::field::{Grid, Transform, ValueRange};
 use gsenc::input::Target;
 use gsenc::io::raw::{read_raw, DType, Order};
 use gsenc::math::kernel::{isotropic, Primitive};
-use gsenc::math::loss::{regularizers, LossWeights};
+use gsenc::math::loss::{regularizers, LossWeights, RegTerms};
 use gsenc::math::optim::Adam;
 use gsenc::math::rng::Rng;
 use gsenc::model::metrics::voxel_psnr;
@@ -367,6 +367,13 @@ fn a_short_encode_lands_within_a_third_of_a_db_of_the_cpu_backend() {
     assert!(a > 33.0, "the CPU encode itself is poor: {a:.2} dB");
     assert!((a - b).abs() <= 0.3, "cpu {a:.3} dB, gpu {b:.3} dB");
     assert!(on_gpu.backend.starts_with("wgpu:"), "{}", on_gpu.backend);
+    // Where the loop's host thread went: the CPU backend neither submits
+    // nor waits; a resident step does both; no phase is counted twice.
+    for (out, resident) in [(&cpu, false), (&on_gpu, true)] {
+        let p = out.phases;
+        assert!(p.draw > 0.0 && p.draw + p.submit + p.wait <= out.loop_seconds, "{p:?} of {} s", out.loop_seconds);
+        assert_eq!((p.submit > 0.0, p.wait > 0.0), (resident, resident), "{p:?}");
+    }
     // And the same bits when run again.
     let again = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
     assert!(on_gpu.params.iter().flatten().zip(again.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
@@ -442,44 +449,143 @@ fn resident_step_matches_the_host(w: LossWeights) {
     assert_eq!(again_a.t, 5);
 }
 
-/// A submitted resident step holds the device until `finish`: every other
-/// call in between is an error that leaves the step intact, and the step
-/// finished late is the step run at once, bit for bit.
+/// Submitted resident steps hold the device until `finish`: up to two may
+/// be in flight, every other call in between is an error that leaves them
+/// intact, and the steps finished late are the steps run one at a time,
+/// bit for bit.
 #[test]
-fn a_submitted_step_holds_the_device_until_it_finishes() {
+fn submitted_steps_hold_the_device_until_they_finish() {
     let Some(mut g) = gpu() else { return };
     let mut rng = Rng::new(23);
     let params = random_model(&mut rng, 120, 24.0);
-    let b = random_batch(&mut rng, 1500, 24.0);
+    let batches = [random_batch(&mut rng, 1500, 24.0), random_batch(&mut rng, 1200, 24.0)];
     let w = LossWeights::default();
     let adam = Adam::new(params.len());
     let lr = 5e-3;
     let r = g.resident().unwrap();
+    assert_eq!(r.depth(), 2);
     assert!(r.finish().is_err(), "finish without a submit");
     r.load(&params, &adam).unwrap();
-    let at_once = r.step(&b, &w, lr, true).unwrap().unwrap();
+    let at_once: Vec<_> = batches.iter().map(|b| r.step(b, &w, lr, true).unwrap().unwrap()).collect();
     let (mut at_once_p, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
     r.store(&mut at_once_p, &mut a).unwrap();
 
     r.load(&params, &adam).unwrap();
-    r.submit(&b, &w, lr, true).unwrap();
-    assert!(r.submit(&b, &w, lr, true).is_err(), "a second submit");
+    r.submit(&batches[0], &w, lr, true).unwrap();
+    r.submit(&batches[1], &w, lr, true).unwrap();
+    let b = &batches[0];
+    assert!(r.submit(b, &w, lr, true).is_err(), "a third submit");
     let mut scratch = (vec![[0.0; 12]; params.len()], Adam::new(0));
     assert!(r.store(&mut scratch.0, &mut scratch.1).is_err(), "a store");
     assert!(r.load(&params, &adam).is_err(), "a load");
     let (mut rho, mut n) = (vec![0.0; b.pos.len()], vec![0.0; b.pos.len()]);
     assert!(g.evaluate_points(&params, &b.pos, &mut rho, &mut n).is_err(), "an evaluation");
     let mut grad = vec![[0.0; 12]; params.len()];
-    assert!(g.point_loss_grad(&params, &b, &w, &mut grad).is_err(), "a gradient");
+    assert!(g.point_loss_grad(&params, b, &w, &mut grad).is_err(), "a gradient");
     let lattice = Lattice { dims: [4, 4, 4], origin: [0.0; 3], step: [2.0; 3] };
     assert!(g.decode_lattice(&params, &lattice, &mut vec![0.0; 64]).is_err(), "a decode");
     let r = g.resident().unwrap();
-    let late = r.finish().unwrap().unwrap();
+    for (k, once) in at_once.iter().enumerate() {
+        let late = r.finish().unwrap().unwrap();
+        assert_eq!((late.0.val.to_bits(), late.1.scale.to_bits()), (once.0.val.to_bits(), once.1.scale.to_bits()), "step {k}");
+    }
+    assert!(r.finish().is_err(), "a finish with nothing in flight");
     let (mut late_p, mut late_a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
     r.store(&mut late_p, &mut late_a).unwrap();
-    assert_eq!(late_a.t, 1);
-    assert_eq!((late.0.val.to_bits(), late.1.scale.to_bits()), (at_once.0.val.to_bits(), at_once.1.scale.to_bits()));
+    assert_eq!(late_a.t, 2);
     assert!(late_p.iter().flatten().zip(at_once_p.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+}
+
+/// A step whose lists overflow while the next is already queued: the next
+/// ran on parameters the first did not update, so it must change nothing
+/// (adam.wgsl `mark`), even where its own lists fit, and run again after
+/// the first. A large batch then a small one (a corner of the box), with
+/// room for the small one's lists only, against the same steps in turn
+/// with room for both: the same bits. Then three steps, two in flight at a
+/// time, with lists that start far too small.
+#[test]
+fn a_step_that_overflows_holds_back_the_step_queued_after_it() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(29);
+    let params = random_model(&mut rng, 200, 24.0);
+    let mut batches: Vec<_> = (0..3).map(|_| random_batch(&mut rng, 1000, 24.0)).collect();
+    batches[1] = random_batch(&mut rng, 12, 4.0);
+    let w = LossWeights::default();
+    let adam = Adam::new(params.len());
+    let lr = 5e-3;
+    let in_turn = |g: &mut GpuBackend, batches: &[PointBatch]| {
+        let r = g.resident().unwrap();
+        r.load(&params, &adam).unwrap();
+        let losses: Vec<_> = batches.iter().map(|b| r.step(b, &w, lr, true).unwrap().unwrap()).collect();
+        let (mut p, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+        r.store(&mut p, &mut a).unwrap();
+        (losses, p)
+    };
+    // Two in flight from the start; the third submitted after the first finishes.
+    let piped = |g: &mut GpuBackend, batches: &[PointBatch]| {
+        let r = g.resident().unwrap();
+        r.load(&params, &adam).unwrap();
+        let mut losses = vec![];
+        for (k, b) in batches.iter().enumerate() {
+            r.submit(b, &w, lr, true).unwrap();
+            if k >= 1 {
+                losses.push(r.finish().unwrap().unwrap());
+            }
+        }
+        losses.push(r.finish().unwrap().unwrap());
+        let (mut p, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+        r.store(&mut p, &mut a).unwrap();
+        assert_eq!(a.t, batches.len() as u32);
+        (losses, p)
+    };
+    let same = |(la, pa): &(Vec<(PointLoss, RegTerms)>, Vec<Primitive>), (lb, pb): &(Vec<(PointLoss, RegTerms)>, Vec<Primitive>)| {
+        la.iter().zip(lb).all(|(a, b)| (a.0.val.to_bits(), a.1.aniso.to_bits()) == (b.0.val.to_bits(), b.1.aniso.to_bits()))
+            && pa.iter().flatten().zip(pb.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits())
+    };
+    let want = in_turn(&mut g, &batches[..2]);
+    // Room for the small batch's lists and not the large one's: the first
+    // step alone overflows (one rerun), and the second, queued behind it
+    // with lists that fit, must wait for it.
+    let mut found = false;
+    for cap in (3..16).map(|k| 1usize << k) {
+        let mut tight = gpu().unwrap();
+        tight.set_capacity(cap);
+        let got = piped(&mut tight, &batches[..2]);
+        if tight.reruns == 1 {
+            assert!(same(&got, &want), "capacity {cap}: the queued step did not wait for the one that overflowed");
+            found = true;
+        }
+    }
+    assert!(found, "no capacity made the large batch overflow and the small one fit");
+    let want = in_turn(&mut g, &batches);
+    let mut tight = gpu().unwrap();
+    tight.set_capacity(5);
+    let got = piped(&mut tight, &batches);
+    assert!(tight.reruns >= 1, "the lists never overflowed");
+    assert!(same(&got, &want));
+}
+
+/// An encode with two resident steps in flight gives the model of the same
+/// encode one step at a time, bit for bit, also when the candidate lists
+/// start too small and overflow along the way.
+#[test]
+fn an_encode_with_two_steps_in_flight_gives_the_model_of_one_at_a_time() {
+    let Some(mut g) = gpu() else { return };
+    let field = hydrogen32();
+    let t = Target { reference: &field, samples: &field };
+    let mut cfg = EncodeConfig::new(250, Schedule::Short);
+    cfg.iterations = Some(60);
+    cfg.points = Some(2048);
+    g.depth = 1;
+    let one = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
+    let mut two = gpu().unwrap();
+    two.set_capacity(64);
+    assert_eq!(two.resident().unwrap().depth(), 2);
+    let piped = encode(&t, &cfg, None, &mut two, &mut |_| {}).unwrap();
+    assert!(two.reruns > 0, "the lists never overflowed");
+    assert_eq!(one.relocations.len(), 3);
+    assert_eq!(one.last_loss.total.to_bits(), piped.last_loss.total.to_bits());
+    assert!(one.params.iter().flatten().zip(piped.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
 }
 
 /// An `auto` warm step on the device (its start chosen and its end decided

@@ -34,7 +34,7 @@ fn encode_eval_info_decode_round_trip() {
     let (inp, m) = (input.to_str().unwrap(), model.to_str().unwrap());
     let (code, out, err) = gsenc(&[
         "encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "300", "--schedule", "short",
-        "--iters", "120", "--points", "2048", "--field", "temp", "--step", "4", "-o", m, "--json",
+        "--iters", "120", "--points", "2048", "--field", "temp", "--step", "4", "--backend", "cpu", "-o", m, "--json",
     ]);
     assert_eq!(code, 0, "{err}");
     let e = json(&out);
@@ -46,6 +46,10 @@ fn encode_eval_info_decode_round_trip() {
     let vpsnr = e["voxel_psnr"].as_f64().unwrap();
     assert!(vpsnr > 25.0, "{vpsnr}");
     assert!(e["seconds"].as_f64().unwrap() <= e["total_seconds"].as_f64().unwrap());
+    // The loop's host phases lie inside the loop; a CPU encode only draws.
+    let phase = |k: &str| e["loop_phases"][k].as_f64().unwrap_or_else(|| panic!("loop_phases.{k} in {out}"));
+    assert!(phase("draw") > 0.0 && phase("draw") <= e["seconds"].as_f64().unwrap(), "{out}");
+    assert_eq!((phase("submit"), phase("wait")), (0.0, 0.0), "{out}");
 
     let (code, out, err) = gsenc(&["eval", m, "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--json"]);
     assert_eq!(code, 0, "{err}");

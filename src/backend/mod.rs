@@ -169,13 +169,20 @@ pub trait Resident {
     /// Puts `params` and `adam`'s moments and step count on the device.
     fn load(&mut self, params: &[Primitive], adam: &Adam) -> Result<()>;
 
-    /// Starts one iteration at learning rate `lr` and returns without
-    /// waiting for it, so that the host can draw the next batch meanwhile.
-    /// `finish` must follow before any other call.
+    /// Iterations that may be submitted and not yet finished at once.
+    fn depth(&self) -> usize {
+        1
+    }
+
+    /// Starts one iteration at learning rate `lr` (after those in flight)
+    /// and returns without waiting for it, so that the host can draw the
+    /// next batch meanwhile. Every submitted iteration must be finished
+    /// before any call but `submit` (up to `depth` in flight) and `finish`.
     fn submit(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()>;
 
-    /// Waits for the submitted iteration; returns its unweighted loss terms
-    /// when it was submitted with `report`.
+    /// Waits for the oldest submitted iteration; returns its unweighted
+    /// loss terms when it was submitted with `report`. After an error no
+    /// iteration is in flight, and the device needs a `load`.
     fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>>;
 
     /// One iteration: `submit`, then `finish`.

@@ -23,6 +23,23 @@ use std::time::Instant;
 /// (nine maps when 10 divides `T`; `encode::points`).
 pub const ERROR_MAPS_PER_RUN: usize = 10;
 
+/// Where the optimisation loop's host thread spends its time (seconds,
+/// summed over the loop). On the CPU backend the next batch is drawn while
+/// the pool computes the gradient, so `draw` overlaps the gradient there;
+/// a resident (GPU) step is `submit` (sorting the batch into bricks, the
+/// upload, recording the command buffer), then the draw of the next batch
+/// while the device works, then `wait` (the device's remaining time and the
+/// read-back).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LoopPhases {
+    /// Drawing training points (relocations' batches included).
+    pub draw: f64,
+    /// Resident steps: queuing the step on the device.
+    pub submit: f64,
+    /// Resident steps: waiting for the step and reading its results.
+    pub wait: f64,
+}
+
 /// Reported after every iteration.
 #[derive(Clone, Copy, Debug)]
 pub struct Progress {
@@ -67,6 +84,8 @@ pub struct EncodeOutput {
     pub validation: Vec<(usize, f64)>,
     /// Seconds spent scoring the validation set (inside `loop_seconds`).
     pub validation_seconds: f64,
+    /// Where the loop's host thread spent its time (inside `loop_seconds`).
+    pub phases: LoopPhases,
     /// Kernel evaluations of the loop's point passes (its throughput).
     pub kernel_evaluations: u64,
     /// The backend that finished the encode ("cpu", "wgpu:<adapter>").
@@ -229,6 +248,14 @@ fn refine(
     let mut last = LossTerms::default();
     let mut scores: Vec<(usize, f64)> = Vec::new();
     let mut validation_seconds = 0.0;
+    let mut phases = LoopPhases::default();
+    // Seconds `f` takes, added to `*into`.
+    fn timed<T>(into: &mut f64, f: impl FnOnce() -> T) -> T {
+        let started = Instant::now();
+        let out = f();
+        *into += started.elapsed().as_secs_f64();
+        out
+    }
     let mut score = |t: usize, params: &[Primitive], backend: &mut dyn Backend| -> Result<Option<f64>> {
         let Some(v) = validation else { return Ok(None) };
         let started = Instant::now();
@@ -246,6 +273,9 @@ fn refine(
     // says whether the host's copies are current.
     let resident = backend.resident().is_some();
     let mut on_host = true;
+    // Resident steps submitted and not yet finished: up to the backend's
+    // depth, so that the device runs one while the host waits for another.
+    let mut pending = 0usize;
     // A batch drawn while the device ran the last step (resident only).
     let mut ahead: Option<PointBatch> = None;
     let terms = |pl: PointLoss, reg: RegTerms| {
@@ -261,10 +291,19 @@ fn refine(
     let end = |plateau: &Option<Plateau>| plateau.as_ref().map_or(iterations, Plateau::end);
     let mut t = 0;
     while t < end(&plateau) {
+        // The host needs the parameters at a score, a map and a relocation:
+        // the steps in flight finish first.
+        let scores_at = t % validation.map_or(usize::MAX, |v| v.every) == 0;
+        if pending > 0 && (scores_at || maps_at(t) || reloc_at.contains(&t)) {
+            if let Some((pl, reg)) = timed(&mut phases.wait, || finish_steps(backend, &mut pending))? {
+                last = terms(pl, reg);
+            }
+        }
         if cfg.cancel.as_ref().is_some_and(Cancel::is_set) {
+            finish_steps(backend, &mut pending)?;
             return Err(Error::Cancelled(format!("at iteration {t} of {iterations}")));
         }
-        if t % validation.map_or(usize::MAX, |v| v.every) == 0 {
+        if scores_at {
             to_host(&mut params, &mut adam, &mut on_host, backend)?;
             let psnr = score(t, &params, backend)?;
             if let (Some(p), Some(psnr)) = (plateau.as_mut(), psnr) {
@@ -280,7 +319,7 @@ fn refine(
         }
         if reloc_at.contains(&t) {
             to_host(&mut params, &mut adam, &mut on_host, backend)?;
-            let batch = sampler.draw(RELOCATE_POINTS, target.reference, target.samples);
+            let batch = timed(&mut phases.draw, || sampler.draw(RELOCATE_POINTS, target.reference, target.samples));
             let r = relocate(backend, &mut params, &mut adam, &batch)?;
             tracing::debug!(iteration = t, moved = r.moved.len(), "relocation");
             let order = spatial_order(&params);
@@ -291,7 +330,7 @@ fn refine(
         }
         let batch = match ahead.take() {
             Some(b) => b,
-            None => sampler.draw(points, target.reference, target.samples),
+            None => timed(&mut phases.draw, || sampler.draw(points, target.reference, target.samples)),
         };
         let lr = plateau.as_ref().map_or_else(|| cosine_lr(cfg.learning_rate, t, iterations), |p| p.lr(cfg.learning_rate, t));
         if resident {
@@ -301,7 +340,8 @@ fn refine(
                 r.load(&params, &adam)?;
                 on_host = false;
             }
-            r.submit(&batch, &cfg.weights, lr, report)?;
+            timed(&mut phases.submit, || r.submit(&batch, &cfg.weights, lr, report))?;
+            pending += 1;
             // The next batch is drawn while the device works. The stream's
             // order stays the host loop's: a relocation draws its own batch
             // first, and an error map changes the draws, so none is drawn
@@ -309,10 +349,15 @@ fn refine(
             // (An adaptive step's end moves only at a score, never below
             // the iteration after it.)
             if t + 1 < end(&plateau) && !draws_own(t + 1) {
-                ahead = Some(sampler.draw(points, target.reference, target.samples));
+                ahead = Some(timed(&mut phases.draw, || sampler.draw(points, target.reference, target.samples)));
             }
-            if let Some((pl, reg)) = r.finish()? {
-                last = terms(pl, reg);
+            // Then the oldest step in flight finishes, unless there is room
+            // for one more (this one's loss terms come one iteration late).
+            while pending >= r.depth() {
+                pending -= 1;
+                if let Some((pl, reg)) = timed(&mut phases.wait, || r.finish())? {
+                    last = terms(pl, reg);
+                }
             }
         } else {
             // The next batch is drawn (one sequential stream, in the same
@@ -321,7 +366,7 @@ fn refine(
             let draw_next = t + 1 < end(&plateau) && !draws_own(t + 1);
             let (pl, next) = rayon::join(
                 || backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad),
-                || draw_next.then(|| sampler.draw(points, target.reference, target.samples)),
+                || draw_next.then(|| timed(&mut phases.draw, || sampler.draw(points, target.reference, target.samples))),
             );
             ahead = next;
             let pl = pl?;
@@ -330,10 +375,16 @@ fn refine(
             adam.step(&mut params, &grad, lr);
         }
         if !last.total.is_finite() {
+            finish_steps(backend, &mut pending)?;
             return Err(Error::data(format!("loss is not finite at iteration {t}: {last:?}")));
         }
         progress(&Progress { iteration: t + 1, iterations: end(&plateau), loss: last.total });
         t += 1;
+    }
+    if pending > 0 {
+        if let Some((pl, reg)) = timed(&mut phases.wait, || finish_steps(backend, &mut pending))? {
+            last = terms(pl, reg);
+        }
     }
     to_host(&mut params, &mut adam, &mut on_host, backend)?;
     let last_psnr = score(t, &params, backend)?;
@@ -361,10 +412,23 @@ fn refine(
         loop_seconds,
         validation: scores,
         validation_seconds,
+        phases,
         kernel_evaluations: backend.kernel_evaluations() - evaluations_before,
         backend: backend.name(),
         fell_back: backend.fell_back(),
     })
+}
+
+/// Finishes every resident step in flight, oldest first; returns the loss
+/// terms the last reporting one gave.
+fn finish_steps(backend: &mut dyn Backend, pending: &mut usize) -> Result<Option<(PointLoss, RegTerms)>> {
+    let mut reported = None;
+    while *pending > 0 {
+        *pending -= 1;
+        let r = backend.resident().ok_or_else(|| Error::Device("resident steps in flight on a backend that no longer has them".into()))?;
+        reported = r.finish()?.or(reported);
+    }
+    Ok(reported)
 }
 
 /// Brings a resident backend's parameters and moments back to the host,

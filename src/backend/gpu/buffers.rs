@@ -77,15 +77,21 @@ pub fn uniform<T: bytemuck::Pod>(gpu: &Gpu, value: &T) -> wgpu::Buffer {
 }
 
 /// Regions of device buffers copied into one mappable buffer at the end of
-/// a command encoder, read after the submission finishes.
+/// a command encoder, read after that submission finishes (and only it:
+/// a later submission may still run).
 pub struct Readback {
     staging: Slot,
     parts: Vec<(u64, u64)>,
+    submission: Option<wgpu::SubmissionIndex>,
 }
 
 impl Default for Readback {
     fn default() -> Self {
-        Readback { staging: Slot::with_usage("gsenc readback", wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST), parts: vec![] }
+        Readback {
+            staging: Slot::with_usage("gsenc readback", wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST),
+            parts: vec![],
+            submission: None,
+        }
     }
 }
 
@@ -107,6 +113,11 @@ impl Readback {
         Ok(())
     }
 
+    /// Submits `enc`, whose end `record` wrote.
+    pub fn submit(&mut self, gpu: &Gpu, enc: wgpu::CommandEncoder) {
+        self.submission = Some(gpu.queue.submit([enc.finish()]));
+    }
+
     /// Waits for the submission and returns the recorded regions' bytes.
     pub fn read(&mut self, gpu: &Gpu) -> Result<Vec<Vec<u8>>> {
         let end = self.parts.iter().map(|&(at, n)| at + n).max().unwrap_or(0).max(8).next_multiple_of(8);
@@ -115,7 +126,7 @@ impl Readback {
         let done = std::sync::Arc::new(parking_lot::Mutex::new(None));
         let d = done.clone();
         slice.map_async(wgpu::MapMode::Read, move |r| *d.lock() = Some(r));
-        gpu.wait()?;
+        gpu.wait(self.submission.take())?;
         match done.lock().take() {
             Some(Ok(())) => {}
             Some(Err(e)) => return Err(Error::Device(format!("reading results back: {e}"))),
@@ -158,7 +169,12 @@ pub(super) struct Buffers {
     pub(super) coarse_starts: Slot,
     pub(super) coarse_lists: Slot,
     pub(super) slab: Slot,
-    pub(super) readback: Readback,
+    /// Resident training: set by a step whose lists overflowed, so that
+    /// the steps queued after it change nothing either (points.rs).
+    pub(super) poison: Slot,
+    /// One per call that may be in flight at once (`points::IN_FLIGHT`);
+    /// a call made while nothing is in flight uses the first.
+    pub(super) readback: [Readback; 2],
 }
 
 impl Default for Buffers {
@@ -188,7 +204,8 @@ impl Default for Buffers {
             coarse_starts: Slot::storage("coarse starts"),
             coarse_lists: Slot::storage("coarse lists"),
             slab: Slot::storage("slab values"),
-            readback: Readback::default(),
+            poison: Slot::storage("poison"),
+            readback: Default::default(),
         }
     }
 }

@@ -66,6 +66,7 @@ impl GpuBackend {
             b.lists.ensure(gpu, 4 * self.slab_capacity as u64, g)?;
             b.cells.ensure(gpu, 32, g)?;
             b.slab.ensure(gpu, 4 * (layer * layers) as u64, g)?;
+            timer.begin(0);
             let read = gpu.scoped("a decode slab", || {
                 let (u1, u2) = (uniform(gpu, &slab_p), uniform(gpu, &brick_p));
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
@@ -87,11 +88,11 @@ impl GpuBackend {
                 dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u2), (1, ranges), (2, sl), (3, ss), (4, cells), (6, starts), (7, lists)], ncells);
                 dispatch(gpu, &mut enc, timer, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
                 let times = timer.resolve(&mut enc).unwrap_or((slab, 0));
-                b.readback.record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;
-                gpu.queue.submit([enc.finish()]);
-                b.readback.read(gpu)
+                b.readback[0].record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;
+                b.readback[0].submit(gpu, enc);
+                b.readback[0].read(gpu)
             });
-            let read = self.timed(read)?;
+            let read = self.timed(0, read)?;
             frames_done = true;
             let total = words(&read[1]).last().copied().unwrap_or(0) as usize;
             if total > self.slab_capacity {

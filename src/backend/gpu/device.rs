@@ -154,10 +154,11 @@ impl Gpu {
         out
     }
 
-    /// Waits for the queue to finish its submitted work.
-    pub fn wait(&self) -> Result<()> {
+    /// Waits for the submission `index` (every submission so far when
+    /// `None`); later submissions may still run.
+    pub fn wait(&self, index: Option<wgpu::SubmissionIndex>) -> Result<()> {
         self.device
-            .poll(wgpu::PollType::wait_indefinitely())
+            .poll(wgpu::PollType::Wait { submission_index: index, timeout: None })
             .map_err(|e| Error::Device(format!("waiting for '{}': {e}", self.adapter.name)))?;
         self.check()
     }

@@ -80,6 +80,7 @@ pub struct Kernels {
     pub backward: Kernel,
     pub reduce: Kernel,
     pub adam: Kernel,
+    pub mark: Kernel,
     pub loss: Kernel,
     pub decode: Kernel,
 }
@@ -105,6 +106,7 @@ impl Kernels {
                 }),
             };
             let bin = module("bin.wgsl", include_str!("shaders/bin.wgsl"));
+            let adam = module("adam.wgsl", include_str!("shaders/adam.wgsl"));
             Ok(Kernels {
                 frames: pipeline(&module("frames.wgsl", include_str!("shaders/frames.wgsl")), "frames", "main"),
                 count: pipeline(&bin, "bin count", "count"),
@@ -113,7 +115,8 @@ impl Kernels {
                 forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "forward", "main"),
                 backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "backward", "main"),
                 reduce: pipeline(&module("reduce.wgsl", include_str!("shaders/reduce.wgsl")), "reduce", "main"),
-                adam: pipeline(&module("adam.wgsl", include_str!("shaders/adam.wgsl")), "adam", "main"),
+                adam: pipeline(&adam, "adam", "main"),
+                mark: pipeline(&adam, "adam mark", "mark"),
                 loss: pipeline(&module("loss.wgsl", include_str!("shaders/loss.wgsl")), "loss", "main"),
                 decode: pipeline(&module("decode.wgsl", include_str!("shaders/decode.wgsl")), "decode", "main"),
             })

@@ -17,7 +17,9 @@
 //! 5. `reduce`: per primitive, its slots summed in brick order, then
 //!    `Frame::finalize`; `loss`: the batch's loss terms;
 //! 6. resident training only (`resident.rs`): `adam`, the regularisers and
-//!    the Adam step on parameters and moments that stay on the device.
+//!    the Adam step on parameters and moments that stay on the device;
+//!    `mark` holds back the steps queued after one whose lists overflowed
+//!    (two steps may be in flight: `points::IN_FLIGHT`).
 //!
 //! No float atomics anywhere, so a call gives the same bits run after run
 //! on one adapter. The points are sorted into bricks on the host
@@ -45,6 +47,7 @@ use super::{check_len, Backend, Lattice, PointBatch, PointLoss};
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use crate::math::loss::LossWeights;
+use std::collections::VecDeque;
 
 pub struct GpuBackend {
     gpu: Gpu,
@@ -65,12 +68,18 @@ pub struct GpuBackend {
     /// (`kernels::BIN_CHUNK`; tests make it small).
     bin_chunk: usize,
     evaluations: u64,
-    /// What resident training holds on the device, after a `load`.
+    /// What resident training holds on the device once the steps in
+    /// flight are finished, after a `load`.
     loaded: Option<resident::Loaded>,
-    /// The point call submitted and not yet finished (points.rs).
-    in_flight: Option<points::InFlight>,
-    /// The resident step submitted and not yet finished (resident.rs).
-    step: Option<resident::Step>,
+    /// The point calls submitted and not yet finished, oldest first
+    /// (points.rs): at most one, or `depth` resident steps.
+    in_flight: VecDeque<points::InFlight>,
+    /// The resident steps submitted and not yet finished (resident.rs).
+    steps: VecDeque<resident::Step>,
+    /// Resident steps that may be in flight at once (1 or
+    /// [`points::IN_FLIGHT`], the default): with two, the device runs one
+    /// while the host waits for the other's results and records the next.
+    pub depth: usize,
     /// Calls that ran again because the candidate lists overflowed.
     pub reruns: u64,
 }
@@ -96,12 +105,22 @@ fn seq<'a>(bufs: &[&'a wgpu::Buffer]) -> Vec<(u32, &'a wgpu::Buffer)> {
     bufs.iter().enumerate().map(|(i, &b)| (i as u32, b)).collect()
 }
 
+/// `GSENC_GPU_DEPTH=1` keeps one resident step in flight instead of
+/// [`points::IN_FLIGHT`] (the same models; for measuring what the second
+/// one gains).
+fn depth_from_env() -> usize {
+    match std::env::var("GSENC_GPU_DEPTH").ok().and_then(|s| s.trim().parse::<usize>().ok()) {
+        Some(d) => d.clamp(1, points::IN_FLIGHT),
+        None => points::IN_FLIGHT,
+    }
+}
+
 impl GpuBackend {
     /// Opens the adapter `req` names and compiles the kernels.
     pub fn new(req: &DeviceRequest) -> Result<GpuBackend> {
         let gpu = Gpu::open(req)?;
         let kernels = Kernels::new(&gpu)?;
-        let timer = Timer::new(&gpu);
+        let timer = Timer::new(&gpu, points::IN_FLIGHT);
         Ok(GpuBackend {
             gpu,
             kernels,
@@ -115,8 +134,9 @@ impl GpuBackend {
             bin_chunk: kernels::BIN_CHUNK,
             evaluations: 0,
             loaded: None,
-            in_flight: None,
-            step: None,
+            in_flight: VecDeque::new(),
+            steps: VecDeque::new(),
+            depth: depth_from_env(),
             reruns: 0,
         })
     }
@@ -134,7 +154,7 @@ impl GpuBackend {
     /// but `finish` needs the device to itself. (A submitted resident step
     /// is always a call in flight until `finish` takes both.)
     fn idle(&self, what: &str) -> Result<()> {
-        if self.in_flight.is_some() {
+        if !self.in_flight.is_empty() {
             return Err(Error::arg(format!("GPU backend: {what} while a submitted step is not finished")));
         }
         Ok(())
@@ -152,16 +172,16 @@ impl GpuBackend {
         &self.gpu.adapter
     }
 
-    /// Hands a submission's timestamps (its last read-back region) to the
-    /// timer and returns the other regions.
-    fn timed(&mut self, read: Result<Vec<Vec<u8>>>) -> Result<Vec<Vec<u8>>> {
+    /// Hands a submission's timestamps (its last read-back region, read
+    /// through slot `slot`) to the timer and returns the other regions.
+    fn timed(&mut self, slot: usize, read: Result<Vec<Vec<u8>>>) -> Result<Vec<Vec<u8>>> {
         match read {
             Ok(mut regions) => {
-                self.timer.record(&regions.pop().unwrap_or_default());
+                self.timer.record(slot, &regions.pop().unwrap_or_default());
                 Ok(regions)
             }
             Err(e) => {
-                self.timer.discard();
+                self.timer.discard(slot);
                 Err(e)
             }
         }
@@ -204,8 +224,8 @@ impl Backend for GpuBackend {
             return Ok(());
         }
         self.upload_params(params)?;
-        let (p, bricks, ncoarse) = self.upload_points(params.len(), pos, None)?;
-        let (rn, _, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Evaluate)?;
+        let (p, bricks, ncoarse, upload) = self.upload_points(params.len(), pos, None)?;
+        let (rn, _, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Evaluate, upload)?;
         self.count_evaluations(&bricks, &starts);
         let rn = floats(&rn);
         for (k, &i) in bricks.order.iter().enumerate() {
@@ -224,10 +244,10 @@ impl Backend for GpuBackend {
             return Ok(PointLoss::default());
         }
         self.upload_params(params)?;
-        let (mut p, bricks, ncoarse) = self.upload_points(params.len(), &batch.pos, Some(&batch.vref))?;
+        let (mut p, bricks, ncoarse, upload) = self.upload_points(params.len(), &batch.pos, Some(&batch.vref))?;
         p.set_objective(&batch.vref, weights);
         p.stage[3] = 1;
-        let (g, loss, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Gradient)?;
+        let (g, loss, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Gradient, upload)?;
         self.count_evaluations(&bricks, &starts);
         let g = floats(&g);
         for (i, out) in grad.iter_mut().enumerate() {

@@ -23,14 +23,30 @@ pub(super) enum Pass {
     Resident { report: bool },
 }
 
+/// Point calls that may be in flight at once: two resident steps, so that
+/// the device runs one while the host finishes the other.
+pub const IN_FLIGHT: usize = 2;
+
 /// A point call submitted and not yet finished: what `finish_points`
-/// needs to submit it again when its lists overflow.
-#[derive(Clone, Copy, Debug)]
+/// needs to read it and to submit it again when its lists overflow.
 pub(super) struct InFlight {
     pub p: Params,
     pub nbricks: usize,
     pub ncoarse: usize,
     pub pass: Pass,
+    /// Its read-back (and timer) slot.
+    pub slot: usize,
+    /// What it uploaded, to upload again when a later call overwrote it.
+    pub upload: Upload,
+}
+
+/// A batch's points sorted into bricks and the bricks, as uploaded.
+pub(super) struct Upload {
+    sorted: Vec<[f32; 4]>,
+    ranges: Vec<[u32; 2]>,
+    cells: Vec<[u32; 4]>,
+    coarse: Vec<[u32; 4]>,
+    occupied: Vec<u32>,
 }
 
 /// Bricks per coarse cell along each axis: the first level of training bins.
@@ -71,10 +87,9 @@ impl GpuBackend {
     }
 
     /// Points sorted into bricks: uploads them and the bricks, and returns
-    /// the `Params` of the call (without the loss fields) and the bricks.
-    /// Also returns the number of coarse cells.
-    pub(super) fn upload_points(&mut self, n: usize, pos: &[[f32; 3]], vref: Option<&[f32]>) -> Result<(Params, PointBricks, usize)> {
-        let g = self.garbage;
+    /// the `Params` of the call (without the loss fields), the bricks, the
+    /// number of coarse cells and what was uploaded.
+    pub(super) fn upload_points(&mut self, n: usize, pos: &[[f32; 3]], vref: Option<&[f32]>) -> Result<(Params, PointBricks, usize, Upload)> {
         let bricks = PointBricks::new(pos, self.brick);
         let sorted: Vec<[f32; 4]> = bricks
             .order
@@ -86,15 +101,9 @@ impl GpuBackend {
             .collect();
         let ranges: Vec<[u32; 2]> = bricks.ranges.iter().map(|&(s, e)| [s, e]).collect();
         let (coarse, cells) = coarse_cells(&bricks);
-        self.bufs.points.upload(&self.gpu, bytes(&sorted), g)?;
-        self.bufs.brick_points.upload(&self.gpu, bytes(&ranges), g)?;
-        self.bufs.cells.upload(&self.gpu, bytes(&cells), g)?;
-        self.bufs.coarse_cells.upload(&self.gpu, bytes(&coarse), g)?;
-        self.bufs.occupied.upload(&self.gpu, bytes(&bricks.occupied), g)?;
+        let upload = Upload { sorted, ranges, cells, coarse, occupied: bricks.occupied.clone() };
+        self.write_points(&upload)?;
         let nb = bricks.ranges.len();
-        self.bufs.counts.ensure(&self.gpu, 4 * nb as u64, g)?;
-        self.bufs.rho_n.ensure(&self.gpu, 8 * pos.len() as u64, g)?;
-        self.bufs.terms.ensure(&self.gpu, 16 * pos.len() as u64, g)?;
         let p = Params {
             grid_lo: [bricks.lo[0], bricks.lo[1], bricks.lo[2], bricks.inv_edge],
             grid_dims: [count_u32("bricks", bricks.dims[0])?, count_u32("bricks", bricks.dims[1])?, count_u32("bricks", bricks.dims[2])?, CELLS_TRAINING],
@@ -102,49 +111,130 @@ impl GpuBackend {
             stage: [BIN_LISTED, 0, 0, 0],
             ..Params::default()
         };
-        Ok((p, bricks, coarse.len() / 2))
+        let ncoarse = upload.coarse.len() / 2;
+        Ok((p, bricks, ncoarse, upload))
+    }
+
+    /// Writes an upload's points and bricks to the device.
+    fn write_points(&mut self, u: &Upload) -> Result<()> {
+        let (g, gpu, b) = (self.garbage, &self.gpu, &mut self.bufs);
+        b.points.upload(gpu, bytes(&u.sorted), g)?;
+        b.brick_points.upload(gpu, bytes(&u.ranges), g)?;
+        b.cells.upload(gpu, bytes(&u.cells), g)?;
+        b.coarse_cells.upload(gpu, bytes(&u.coarse), g)?;
+        b.occupied.upload(gpu, bytes(&u.occupied), g)?;
+        b.counts.ensure(gpu, 4 * u.ranges.len() as u64, g)?;
+        b.rho_n.ensure(gpu, 8 * u.sorted.len() as u64, g)?;
+        b.terms.ensure(gpu, 16 * u.sorted.len() as u64, g)?;
+        Ok(())
+    }
+
+    /// Clears the flag a resident step whose lists overflowed sets
+    /// (adam.wgsl `mark`), so that the steps after it change the
+    /// parameters again.
+    pub(super) fn clear_poison(&mut self) -> Result<()> {
+        self.bufs.poison.upload(&self.gpu, bytes(&[0u32; 4]), false)?;
+        Ok(())
     }
 
     /// Records frames, binning and the forward pass, then what `pass` adds,
     /// reads back `(rho_n or gradient, loss terms, brick list starts)`, and
     /// runs again with more room when a level of candidate lists overflowed.
-    pub(super) fn run_points(&mut self, p: Params, nbricks: usize, ncoarse: usize, pass: Pass) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
-        self.submit_points(InFlight { p, nbricks, ncoarse, pass })?;
+    pub(super) fn run_points(&mut self, p: Params, nbricks: usize, ncoarse: usize, pass: Pass, upload: Upload) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
+        self.submit_points(InFlight { p, nbricks, ncoarse, pass, slot: 0, upload })?;
         self.finish_points()
     }
 
-    /// Waits for the call `submit_points` started and returns what
-    /// `run_points` does, submitting it again (and waiting) with more room
-    /// while a level of candidate lists overflows.
+    /// Waits for the oldest call in flight and returns what `run_points`
+    /// does. While a level of its candidate lists overflows it runs again
+    /// with more room (and waits); the calls queued after it ran on
+    /// parameters it did not update and changed nothing (adam.wgsl
+    /// `mark`), so they are waited for, and submitted again once it fits.
+    /// An error abandons every call in flight.
     pub(super) fn finish_points(&mut self) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
-        loop {
-            let call = self.in_flight.take().ok_or_else(|| Error::arg("GPU backend: nothing submitted to finish"))?;
-            let gpu = &self.gpu;
-            let b = &mut self.bufs;
-            let out = gpu.scoped("reading a point pass back", || b.readback.read(gpu));
-            let out = self.timed(out)?;
-            let mut out = out.into_iter();
-            let mut next = || out.next().unwrap_or_default();
-            let (first, loss, starts, starts1) = (next(), next(), words(&next()), words(&next()));
+        let out = self.finish_oldest();
+        if out.is_err() {
+            self.abandon();
+        }
+        out
+    }
+
+    fn finish_oldest(&mut self) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
+        let mut later: Vec<InFlight> = vec![];
+        let result = loop {
+            let call = self.in_flight.pop_front().ok_or_else(|| Error::arg("GPU backend: nothing submitted to finish"))?;
+            let (first, loss, starts, starts1) = self.read_call(call.slot)?;
             let (total, total1) = (starts.last().copied().unwrap_or(0) as usize, starts1.last().copied().unwrap_or(0) as usize);
             if total1 > self.coarse_capacity {
                 self.coarse_capacity = total1 + total1 / 4;
             } else if total > self.capacity {
                 self.capacity = total + total / 4;
             } else {
-                return Ok((first, loss, starts));
+                break (first, loss, starts);
             }
             self.reruns += 1;
+            while let Some(next) = self.in_flight.pop_front() {
+                self.read_call(next.slot)?;
+                later.push(next);
+            }
+            if let Pass::Resident { .. } = call.pass {
+                self.clear_poison()?;
+            }
+            if !later.is_empty() {
+                self.write_points(&call.upload)?;
+            }
+            self.submit_points(call)?;
+        };
+        for call in later {
+            self.write_points(&call.upload)?;
             self.submit_points(call)?;
         }
+        Ok(result)
+    }
+
+    /// Waits for the call read back through `slot`: its first two regions
+    /// and both levels' list starts.
+    fn read_call(&mut self, slot: usize) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>, Vec<u32>)> {
+        let gpu = &self.gpu;
+        let b = &mut self.bufs;
+        let out = gpu.scoped("reading a point pass back", || b.readback[slot].read(gpu));
+        let mut out = self.timed(slot, out)?.into_iter();
+        let mut next = || out.next().unwrap_or_default();
+        Ok((next(), next(), words(&next()), words(&next())))
+    }
+
+    /// Forgets every call and resident step in flight after an error
+    /// (waiting for the device as far as it answers): what the device holds
+    /// is then unknown, so resident training needs a `load` again.
+    pub(super) fn abandon(&mut self) {
+        for call in self.in_flight.drain(..) {
+            self.timer.discard(call.slot);
+        }
+        self.steps.clear();
+        self.loaded = None;
+        let _ = self.gpu.wait(None);
     }
 
     /// Records and submits a point call without waiting for it: the host
-    /// can prepare the next batch while the device works. `finish_points`
-    /// must follow before any other call.
+    /// can prepare the next batch while the device works. Its points must
+    /// be on the device (`upload_points`, or `write_points` of its upload).
+    /// `finish_points` must follow before any other call.
     pub(super) fn submit_points(&mut self, call: InFlight) -> Result<()> {
-        self.idle("a call")?;
-        let InFlight { mut p, nbricks, ncoarse, pass } = call;
+        let slot = (0..IN_FLIGHT)
+            .find(|s| self.in_flight.iter().all(|c| c.slot != *s))
+            .ok_or_else(|| Error::arg("GPU backend: a call while every read-back slot is in flight"))?;
+        let out = self.record_points(&call, slot);
+        if let Err(e) = out {
+            self.timer.discard(slot);
+            return Err(e);
+        }
+        let InFlight { p, nbricks, ncoarse, pass, upload, .. } = call;
+        self.in_flight.push_back(InFlight { p, nbricks, ncoarse, pass, slot, upload });
+        Ok(())
+    }
+
+    fn record_points(&mut self, call: &InFlight, slot: usize) -> Result<()> {
+        let InFlight { mut p, nbricks, ncoarse, pass, .. } = *call;
         let n = p.counts[0] as usize;
         let npts = p.counts[3] as usize;
         p.counts[2] = count_u32("candidate slots", self.capacity)?;
@@ -161,6 +251,7 @@ impl GpuBackend {
         let gpu = &self.gpu;
         let k = &self.kernels;
         let timer = &mut self.timer;
+        timer.begin(slot);
         let b = &mut self.bufs;
         b.coarse_counts.ensure(gpu, 4 * coarse_entries, g)?;
         b.coarse_starts.ensure(gpu, 4 * (coarse_entries + 1), g)?;
@@ -173,7 +264,7 @@ impl GpuBackend {
             b.partial.ensure(gpu, 48 * self.capacity as u64, g)?;
             b.grad.ensure(gpu, 48 * n as u64, g)?;
         }
-        let out = gpu.scoped("a point pass", || {
+        gpu.scoped("a point pass", || {
             let (u, u1) = (uniform(gpu, &p), uniform(gpu, &coarse_p));
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
@@ -205,7 +296,10 @@ impl GpuBackend {
                     read = vec![(grad, 48 * n as u64), (loss, 8)];
                 } else {
                     let moments = b.moments.ensure(gpu, 0, false)?;
-                    dispatch(gpu, &mut enc, timer, &k.adam, &seq(&[&u, grad, params, moments, reg_terms, starts, starts1]), groups_for(n));
+                    let poison = b.poison.ensure(gpu, 0, false)?;
+                    dispatch(gpu, &mut enc, timer, &k.adam, &seq(&[&u, grad, params, moments, reg_terms, starts, starts1, poison]), groups_for(n));
+                    // Poisons the steps after this one if its lists overflowed.
+                    dispatch(gpu, &mut enc, timer, &k.mark, &[(0, &u), (5, starts), (6, starts1), (7, poison)], 1);
                 }
                 if pass != (Pass::Resident { report: false }) {
                     dispatch(gpu, &mut enc, timer, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);
@@ -214,16 +308,10 @@ impl GpuBackend {
             }
             let times = timer.resolve(&mut enc).unwrap_or((loss, 0));
             read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (coarse_entries + 1)), times]);
-            b.readback.record(gpu, &mut enc, &read)?;
-            gpu.queue.submit([enc.finish()]);
+            b.readback[slot].record(gpu, &mut enc, &read)?;
+            b.readback[slot].submit(gpu, enc);
             Ok(())
-        });
-        if let Err(e) = out {
-            self.timer.discard();
-            return Err(e);
-        }
-        self.in_flight = Some(InFlight { p, nbricks, ncoarse, pass });
-        Ok(())
+        })
     }
 
     /// Kernel evaluations of a forward pass: points times candidates per brick.

@@ -2,11 +2,13 @@
 //! device buffers between iterations; a step uploads only the batch's points
 //! and reads back only the list totals (and, when asked, four loss terms).
 //! `submit` returns once the step is on the device's queue, so the host
-//! draws the next batch while the device works; `finish` waits for it.
+//! draws the next batch while the device works; `finish` waits for the
+//! oldest step. Two steps may be in flight (`GpuBackend::depth`): the
+//! device runs the second while the host reads the first's results.
 //! Mirrors the iteration of encode/refine.rs: `point_loss_grad`, then
 //! `regularizers` and `Adam::step` (adam.wgsl).
 
-use super::points::InFlight;
+use super::points::{InFlight, IN_FLIGHT};
 use super::{bytes, floats, GpuBackend, Pass};
 use crate::backend::bricks::PointBricks;
 use crate::backend::{check_len, PointBatch, PointLoss, Resident};
@@ -41,34 +43,35 @@ impl Resident for GpuBackend {
         self.upload_params(params)?;
         let moments: Vec<f32> = adam.m.iter().zip(&adam.v).flat_map(|(m, v)| m.iter().chain(v).copied()).collect();
         self.bufs.moments.upload(&self.gpu, bytes(&moments), self.garbage)?;
+        self.clear_poison()?;
         self.loaded = Some(Loaded { n: params.len(), t: adam.t });
         Ok(())
     }
 
+    fn depth(&self) -> usize {
+        self.depth.clamp(1, IN_FLIGHT)
+    }
+
     fn submit(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()> {
-        let Loaded { n, t } = self.loaded.ok_or_else(|| Error::arg("GPU backend: a resident step before any load"))?;
-        self.idle("a resident step")?;
+        // What the device will hold once the steps in flight are done.
+        let base = self.steps.back().map(|s| s.loaded).or(self.loaded);
+        let Loaded { n, t } = base.ok_or_else(|| Error::arg("GPU backend: a resident step before any load"))?;
+        if self.in_flight.len() != self.steps.len() {
+            self.idle("a resident step")?;
+        }
+        if self.steps.len() >= Resident::depth(self) {
+            return Err(Error::arg(format!("GPU backend: a resident step while {} are in flight", self.steps.len())));
+        }
         check_len("vref", batch.vref.len(), batch.pos.len())?;
         if batch.is_empty() || n == 0 {
             return Err(Error::arg("GPU backend: a resident step needs points and primitives"));
         }
-        let (mut p, bricks, ncoarse) = self.upload_points(n, &batch.pos, Some(&batch.vref))?;
-        let t = t + 1;
-        // As loss.rs `regularizers` and optim.rs `Adam::step` compute them on the host.
-        let nf = n.max(1) as f32;
-        p.set_objective(&batch.vref, weights);
-        p.optim = [lr, 1.0 - BETA1.powi(t as i32), 1.0 - BETA2.powi(t as i32), 0.0];
-        p.reg = [weights.scale, weights.aniso, 1.0 / (3.0 * nf), 1.0 / nf];
-        p.stage[3] = 1;
-        p.coarse[2] = report as u32;
-        let nbricks = bricks.ranges.len();
-        self.submit_points(InFlight { p, nbricks, ncoarse, pass: Pass::Resident { report } })?;
-        self.step = Some(Step { loaded: Loaded { n, t }, bricks, report });
-        Ok(())
+        // Past the checks, a failure leaves the device in an unknown state.
+        self.queue_step(n, t, batch, weights, lr, report).inspect_err(|_| self.abandon())
     }
 
     fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>> {
-        let Step { loaded, bricks, report } = self.step.take().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
+        let Step { loaded, bricks, report } = self.steps.pop_front().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
         let (_, loss, starts) = self.finish_points()?;
         self.loaded = Some(loaded);
         self.count_evaluations(&bricks, &starts);
@@ -86,9 +89,9 @@ impl Resident for GpuBackend {
         let read = gpu.scoped("reading the parameters back", || {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let (params, moments) = (b.params.ensure(gpu, 0, false)?, b.moments.ensure(gpu, 0, false)?);
-            b.readback.record(gpu, &mut enc, &[(params, 48 * n as u64), (moments, 96 * n as u64)])?;
-            gpu.queue.submit([enc.finish()]);
-            b.readback.read(gpu)
+            b.readback[0].record(gpu, &mut enc, &[(params, 48 * n as u64), (moments, 96 * n as u64)])?;
+            b.readback[0].submit(gpu, enc);
+            b.readback[0].read(gpu)
         })?;
         let (p, m) = (floats(&read[0]), floats(&read[1]));
         for (i, out) in params.iter_mut().enumerate() {
@@ -101,6 +104,26 @@ impl Resident for GpuBackend {
             adam.v[i].copy_from_slice(&m[24 * i + 12..24 * i + 24]);
         }
         adam.t = t;
+        Ok(())
+    }
+}
+
+impl GpuBackend {
+    /// Uploads a resident step's batch and submits the step after those in
+    /// flight: `n` primitives at Adam's step count `t` before it.
+    fn queue_step(&mut self, n: usize, t: u32, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()> {
+        let (mut p, bricks, ncoarse, upload) = self.upload_points(n, &batch.pos, Some(&batch.vref))?;
+        let t = t + 1;
+        // As loss.rs `regularizers` and optim.rs `Adam::step` compute them on the host.
+        let nf = n.max(1) as f32;
+        p.set_objective(&batch.vref, weights);
+        p.optim = [lr, 1.0 - BETA1.powi(t as i32), 1.0 - BETA2.powi(t as i32), 0.0];
+        p.reg = [weights.scale, weights.aniso, 1.0 / (3.0 * nf), 1.0 / nf];
+        p.stage[3] = 1;
+        p.coarse[2] = report as u32;
+        let nbricks = bricks.ranges.len();
+        self.submit_points(InFlight { p, nbricks, ncoarse, pass: Pass::Resident { report }, slot: 0, upload })?;
+        self.steps.push_back(Step { loaded: Loaded { n, t }, bricks, report });
         Ok(())
     }
 }
