@@ -143,12 +143,11 @@ for name, by in rows.items():
         same = by["gpu"][0]["voxel_psnr"] == by["gpu1"][0]["voxel_psnr"]
         print(f"<!-- {name}: two steps in flight {per['gpu1'] / per['gpu']:.2f}x one; same model: {same} -->")
 # Where a GPU row's loop went, per iteration (medians over the runs): the
-# host thread's phases (refine.rs `LoopPhases`; `other` is the rest of the
-# loop: relocations, validation scores, parameters to and from the device)
-# and the kernels' device time.
+# host's phases (refine.rs `LoopPhases`; drawing runs beside submit and
+# wait when the pool has a second thread) and the kernels' device time.
 print()
-print("| row | loop ms / it | draw | submit | wait | other | device (every kernel of the run) |")
-print("|---|---|---|---|---|---|---|")
+print("| row | loop ms / it | draw | submit | wait | device (every kernel of the run) |")
+print("|---|---|---|---|---|---|")
 for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpu1")]:
     if name == "decode_1024" or not runs or "loop_phases" not in runs[0]:
         continue
@@ -156,7 +155,6 @@ for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w 
     ms = lambda f: statistics.median(f(d) for d in runs) * 1e3 / it
     phase = lambda k: f"{ms(lambda d: d['loop_phases'][k]):.3f}"
     device = ms(lambda d: sum(v.get("seconds", 0) for v in (d.get("kernel_seconds") or {}).values()))
-    other = ms(lambda d: d["seconds"] - sum(d["loop_phases"].values()))
-    print(f"| {name} ({w}) | {ms(lambda d: d['seconds']):.3f} | {phase('draw')} | {phase('submit')} | {phase('wait')} | {other:.3f} | {device:.3f} |")
+    print(f"| {name} ({w}) | {ms(lambda d: d['seconds']):.3f} | {phase('draw')} | {phase('submit')} | {phase('wait')} | {device:.3f} |")
 PY
 keep "$out/gpu-table.md"

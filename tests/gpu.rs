@@ -367,11 +367,12 @@ fn a_short_encode_lands_within_a_third_of_a_db_of_the_cpu_backend() {
     assert!(a > 33.0, "the CPU encode itself is poor: {a:.2} dB");
     assert!((a - b).abs() <= 0.3, "cpu {a:.3} dB, gpu {b:.3} dB");
     assert!(on_gpu.backend.starts_with("wgpu:"), "{}", on_gpu.backend);
-    // Where the loop's host thread went: the CPU backend neither submits
-    // nor waits; a resident step does both; no phase is counted twice.
+    // Where the loop's host threads went: the CPU backend neither submits
+    // nor waits; a resident step does both, one after the other (drawing
+    // may run beside them).
     for (out, resident) in [(&cpu, false), (&on_gpu, true)] {
         let p = out.phases;
-        assert!(p.draw > 0.0 && p.draw + p.submit + p.wait <= out.loop_seconds, "{p:?} of {} s", out.loop_seconds);
+        assert!(p.draw > 0.0 && p.draw <= out.loop_seconds && p.submit + p.wait <= out.loop_seconds, "{p:?} of {} s", out.loop_seconds);
         assert_eq!((p.submit > 0.0, p.wait > 0.0), (resident, resident), "{p:?}");
     }
     // And the same bits when run again.

@@ -23,13 +23,13 @@ use std::time::Instant;
 /// (nine maps when 10 divides `T`; `encode::points`).
 pub const ERROR_MAPS_PER_RUN: usize = 10;
 
-/// Where the optimisation loop's host thread spends its time (seconds,
-/// summed over the loop). On the CPU backend the next batch is drawn while
-/// the pool computes the gradient, so `draw` overlaps the gradient there;
-/// a resident (GPU) step is `submit` (sorting the batch into bricks, the
-/// upload, recording the command buffer), then the draw of the next batch
-/// while the device works, then `wait` (the device's remaining time and the
-/// read-back).
+/// Where the optimisation loop's host threads spend their time (seconds,
+/// summed over the loop). The next batch is drawn beside the rest of the
+/// iteration when the pool has a second thread: beside the gradient on the
+/// CPU backend, beside `submit` and `wait` of resident (GPU) steps. So
+/// `draw` may overlap the others; `submit + wait` never exceeds the loop.
+/// `submit` is sorting the batch into bricks, the upload and recording the
+/// command buffer; `wait` the device's remaining time and the read-back.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LoopPhases {
     /// Drawing training points (relocations' batches included).
@@ -335,29 +335,39 @@ fn refine(
         let lr = plateau.as_ref().map_or_else(|| cosine_lr(cfg.learning_rate, t, iterations), |p| p.lr(cfg.learning_rate, t));
         if resident {
             let report = t % LOSS_EVERY == 0 || t + 1 == end(&plateau);
-            let r = backend.resident().expect("checked above");
-            if on_host {
-                r.load(&params, &adam)?;
-                on_host = false;
-            }
-            timed(&mut phases.submit, || r.submit(&batch, &cfg.weights, lr, report))?;
-            pending += 1;
-            // The next batch is drawn while the device works. The stream's
-            // order stays the host loop's: a relocation draws its own batch
-            // first, and an error map changes the draws, so none is drawn
-            // ahead of either.
-            // (An adaptive step's end moves only at a score, never below
-            // the iteration after it.)
-            if t + 1 < end(&plateau) && !draws_own(t + 1) {
-                ahead = Some(timed(&mut phases.draw, || sampler.draw(points, target.reference, target.samples)));
-            }
-            // Then the oldest step in flight finishes, unless there is room
-            // for one more (this one's loss terms come one iteration late).
-            while pending >= r.depth() {
-                pending -= 1;
-                if let Some((pl, reg)) = timed(&mut phases.wait, || r.finish())? {
-                    last = terms(pl, reg);
-                }
+            // The next batch is drawn while the device works, and beside
+            // the host's share of the steps when the pool has a second
+            // thread (else first: a step is still in flight meanwhile,
+            // unless the backend keeps only one). The stream's order stays
+            // the host loop's: a relocation draws its own batch first, and
+            // an error map changes the draws, so none is drawn ahead of
+            // either. (An adaptive step's end moves only at a score, never
+            // below the iteration after it.)
+            let draw_next = t + 1 < end(&plateau) && !draws_own(t + 1);
+            let (next, reported) = rayon::join(
+                || draw_next.then(|| timed(&mut phases.draw, || sampler.draw(points, target.reference, target.samples))),
+                || -> Result<Option<(PointLoss, RegTerms)>> {
+                    let r = backend.resident().expect("checked above");
+                    if on_host {
+                        r.load(&params, &adam)?;
+                        on_host = false;
+                    }
+                    timed(&mut phases.submit, || r.submit(&batch, &cfg.weights, lr, report))?;
+                    pending += 1;
+                    // Then the oldest step in flight finishes, unless there
+                    // is room for one more (this one's loss terms come one
+                    // iteration late).
+                    let mut reported = None;
+                    while pending >= r.depth() {
+                        pending -= 1;
+                        reported = timed(&mut phases.wait, || r.finish())?.or(reported);
+                    }
+                    Ok(reported)
+                },
+            );
+            ahead = next;
+            if let Some((pl, reg)) = reported? {
+                last = terms(pl, reg);
             }
         } else {
             // The next batch is drawn (one sequential stream, in the same
