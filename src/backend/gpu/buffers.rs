@@ -7,6 +7,7 @@
 //! unnoticed without it.
 
 use super::device::Gpu;
+use super::points::IN_FLIGHT;
 use crate::error::{Error, Result};
 use wgpu::util::DeviceExt;
 
@@ -174,7 +175,7 @@ pub(super) struct Buffers {
     pub(super) poison: Slot,
     /// One per call that may be in flight at once (`points::IN_FLIGHT`);
     /// a call made while nothing is in flight uses the first.
-    pub(super) readback: [Readback; 2],
+    pub(super) readback: [Readback; IN_FLIGHT],
 }
 
 impl Default for Buffers {

@@ -34,7 +34,7 @@ pub(super) struct InFlight {
     pub nbricks: usize,
     pub ncoarse: usize,
     pub pass: Pass,
-    /// Its read-back (and timer) slot.
+    /// Its read-back (and timer) slot, which `submit_points` assigns.
     pub slot: usize,
     /// What it uploaded, to upload again when a later call overwrote it.
     pub upload: Upload,
