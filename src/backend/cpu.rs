@@ -258,7 +258,49 @@ struct ChunkScratch {
     slot: Vec<u32>,
     touched: Vec<u32>,
     acc: Vec<GradAcc>,
+    /// Positions in `touched` grouped by block of `PRIM_CHUNK` primitives
+    /// (`ChunkScratch::group`): block `k`'s are
+    /// `by_block[block_start[k]..block_start[k + 1]]`.
+    by_block: Vec<u32>,
+    block_start: Vec<u32>,
     soa: BrickSoa,
+}
+
+impl ChunkScratch {
+    /// Groups the touched primitives by block of `PRIM_CHUNK` (a counting
+    /// sort), so that the reduction can run block by block in parallel,
+    /// and forgets their slots.
+    fn group(&mut self, blocks: usize) {
+        let ChunkScratch { slot, touched, by_block, block_start, .. } = self;
+        block_start.clear();
+        block_start.resize(blocks + 1, 0);
+        for &g in touched.iter() {
+            block_start[g as usize / PRIM_CHUNK + 1] += 1;
+        }
+        for k in 0..blocks {
+            block_start[k + 1] += block_start[k];
+        }
+        by_block.resize(touched.len(), 0);
+        for (t, &g) in touched.iter().enumerate() {
+            let at = &mut block_start[g as usize / PRIM_CHUNK];
+            by_block[*at as usize] = t as u32;
+            *at += 1;
+            slot[g as usize] = u32::MAX;
+        }
+        // Each start moved to the next block's: shift them back.
+        for k in (1..=blocks).rev() {
+            block_start[k] = block_start[k - 1];
+        }
+        block_start[0] = 0;
+    }
+
+    /// Adds this chunk's sums of the primitives of block `k` into `block`
+    /// (that block's slice of the per-primitive sums).
+    fn add_block(&self, k: usize, block: &mut [GradAcc]) {
+        for &t in &self.by_block[self.block_start[k] as usize..self.block_start[k + 1] as usize] {
+            block[self.touched[t as usize] as usize - k * PRIM_CHUNK].add(&self.acc[t as usize]);
+        }
+    }
 }
 
 pub struct CpuBackend {
@@ -623,7 +665,7 @@ fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], rang
 fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) -> (f64, f64, u64) {
     let (mut val, mut cov, mut evals) = (0.0f64, 0.0f64, 0u64);
     let bins = job.bins;
-    let ChunkScratch { slot, touched, acc, soa } = sc;
+    let ChunkScratch { slot, touched, acc, soa, .. } = sc;
     for b in b0..b1 {
         let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
         soa.load(&job.prep.hot, &job.prep.boxes, cands, true);
@@ -732,11 +774,12 @@ impl Backend for CpuBackend {
             self.chunks.resize_with(ranges.len(), ChunkScratch::default);
         }
         let mut acc = std::mem::take(&mut self.acc);
-        acc.clear();
         acc.resize(np, GradAcc::default());
+        let blocks = np.div_ceil(PRIM_CHUNK);
         let CpuBackend { prep, chunks, evaluations, .. } = self;
         let prep: &Prepared = prep;
-        let losses: Vec<(f64, f64, u64)> = chunks[..ranges.len()]
+        let chunks = &mut chunks[..ranges.len()];
+        let losses: Vec<(f64, f64, u64)> = chunks
             .par_iter_mut()
             .zip(ranges.par_iter())
             .map(|(sc, &range)| {
@@ -744,30 +787,34 @@ impl Backend for CpuBackend {
                     sc.slot.clear();
                     sc.slot.resize(np, u32::MAX);
                 }
+                sc.touched.clear();
+                sc.acc.clear();
                 let job = GradJob { prep, bins: &bins, batch, norm: &norm, weights };
-                grad_chunk_dispatch(&job, sc, range)
+                let out = grad_chunk_dispatch(&job, sc, range);
+                sc.group(blocks);
+                out
             })
             .collect();
-        // Fixed-order reduction: chunk by chunk.
         let mut out = PointLoss::default();
-        for (sc, (v, c, e)) in chunks.iter_mut().zip(losses) {
+        for (v, c, e) in losses {
             out.val += v;
             out.cov += c;
             *evaluations += e;
-            for (t, &g) in sc.touched.iter().enumerate() {
-                acc[g as usize].add(&sc.acc[t]);
-                sc.slot[g as usize] = u32::MAX;
-            }
-            sc.touched.clear();
-            sc.acc.clear();
         }
-        let frames = &self.prep.frames;
-        grad.par_chunks_mut(PRIM_CHUNK).zip(acc.par_chunks(PRIM_CHUNK)).enumerate().for_each(|(c, (gs, accs))| {
-            for (i, (g, a)) in gs.iter_mut().zip(accs).enumerate() {
+        // Fixed-order reduction: each primitive's sums added chunk by chunk
+        // (the same order, so the same bits, whatever the thread count),
+        // in parallel over blocks of primitives; then the chain rule.
+        let (chunks, frames) = (&*chunks, &prep.frames);
+        grad.par_chunks_mut(PRIM_CHUNK).zip(acc.par_chunks_mut(PRIM_CHUNK)).enumerate().for_each(|(k, (gs, accs))| {
+            accs.fill(GradAcc::default());
+            for sc in chunks {
+                sc.add_block(k, accs);
+            }
+            for (i, (g, a)) in gs.iter_mut().zip(accs.iter()).enumerate() {
                 // Most primitives meet no point of a small batch; their sums
                 // are zero and so is their gradient (up to the sign of
                 // zero, which no later step sees), without reading the frame.
-                *g = if a.0 == [0.0; 12] { [0.0; 12] } else { frames[c * PRIM_CHUNK + i].finalize(a) };
+                *g = if a.0 == [0.0; 12] { [0.0; 12] } else { frames[k * PRIM_CHUNK + i].finalize(a) };
             }
         });
         self.acc = acc;
@@ -883,6 +930,51 @@ mod tests {
     use super::*;
     use crate::math::kernel::isotropic;
     use crate::math::rng::Rng;
+
+    /// The reduction by blocks of primitives (`group`, `add_block`) adds
+    /// each primitive's sums in chunk order, as one pass over the chunks in
+    /// turn does: the same bits. Chunks touch primitives in any order, in
+    /// several blocks and the last, partial one; the scratch is reused.
+    #[test]
+    fn the_reduction_by_blocks_gives_the_bits_of_the_reduction_chunk_by_chunk() {
+        let mut rng = Rng::new(4);
+        let np = 3 * PRIM_CHUNK + 123;
+        let blocks = np.div_ceil(PRIM_CHUNK);
+        let mut chunks: Vec<ChunkScratch> = (0..5).map(|_| ChunkScratch { slot: vec![u32::MAX; np], ..Default::default() }).collect();
+        for round in 0..2 {
+            for sc in chunks.iter_mut() {
+                sc.touched.clear();
+                sc.acc.clear();
+                for _ in 0..rng.below(3000) {
+                    let g = rng.below(np as u64) as u32;
+                    if sc.slot[g as usize] == u32::MAX {
+                        sc.slot[g as usize] = sc.touched.len() as u32;
+                        sc.touched.push(g);
+                        sc.acc.push(GradAcc([0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11].map(|_| rng.range(-1.0, 1.0) as f32 * 10f32.powi(rng.below(8) as i32 - 4))));
+                    }
+                }
+            }
+            let mut want = vec![GradAcc::default(); np];
+            for sc in &chunks {
+                for (t, &g) in sc.touched.iter().enumerate() {
+                    want[g as usize].add(&sc.acc[t]);
+                }
+            }
+            for sc in chunks.iter_mut() {
+                sc.group(blocks);
+                assert!(sc.slot.iter().all(|&s| s == u32::MAX), "round {round}: slots left set");
+            }
+            let mut got = vec![GradAcc::default(); np];
+            for (k, block) in got.chunks_mut(PRIM_CHUNK).enumerate() {
+                for sc in &chunks {
+                    sc.add_block(k, block);
+                }
+            }
+            for g in 0..np {
+                assert_eq!(got[g].0.map(f32::to_bits), want[g].0.map(f32::to_bits), "round {round}, primitive {g}");
+            }
+        }
+    }
 
     fn random_prims(rng: &mut Rng, n: usize) -> Vec<Primitive> {
         (0..n)
