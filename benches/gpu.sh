@@ -21,7 +21,9 @@
 # Rust toolchain, GSENC_BIN names a prebuilt gsenc and INSITU_BIN a prebuilt
 # benches/insitu.c (both built elsewhere with --release), and nothing is built.
 # Prints one JSON line per run to bench-out/gpu.jsonl, the adapters to
-# bench-out/gpu-devices.json, and a Markdown table of the rows.
+# bench-out/gpu-devices.json, a Markdown table of the rows (and, as
+# comments, each row's ratio of two steps in flight to one), and a table of
+# where each GPU row's loop went per iteration (draw, submit, wait, device).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . benches/corpus.sh
