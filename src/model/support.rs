@@ -73,7 +73,7 @@ impl Support {
     /// where it pays ([`Outside::choose`]).
     pub fn fit_outside(&self, decoded: &[f32], reference: &Grid) -> Outside {
         debug_assert_eq!((decoded.len(), reference.dims), (reference.len(), self.dims));
-        Outside::choose(decoded, &reference.values, |v| (self.bits[v / 8] >> (v % 8)) & 1 == 0)
+        Outside::choose(decoded, &reference.values, |v| !self.holds(v))
     }
 
     pub fn dims(&self) -> [usize; 3] {
@@ -90,10 +90,15 @@ impl Support {
         self.bits.iter().map(|b| b.count_ones() as usize).sum()
     }
 
+    /// Whether voxel `v` (x fastest) is in the support.
+    #[inline]
+    fn holds(&self, v: usize) -> bool {
+        (self.bits[v / 8] >> (v % 8)) & 1 == 1
+    }
+
     #[inline]
     fn bit(&self, i: usize, j: usize, k: usize) -> f32 {
-        let v = i + self.dims[0] * (j + self.dims[1] * k);
-        ((self.bits[v / 8] >> (v % 8)) & 1) as f32
+        self.holds(i + self.dims[0] * (j + self.dims[1] * k)) as u8 as f32
     }
 
     /// The trilinear interpolation of the bits at an index-frame position,

@@ -90,7 +90,7 @@ impl GpuBackend {
     /// the `Params` of the call (without the loss fields), the bricks, the
     /// number of coarse cells and what was uploaded.
     pub(super) fn upload_points(&mut self, n: usize, pos: &[[f32; 3]], vref: Option<&[f32]>) -> Result<(Params, PointBricks, usize, Upload)> {
-        let bricks = PointBricks::new(pos, self.brick);
+        let mut bricks = PointBricks::new(pos, self.brick);
         let sorted: Vec<[f32; 4]> = bricks
             .order
             .iter()
@@ -101,7 +101,8 @@ impl GpuBackend {
             .collect();
         let ranges: Vec<[u32; 2]> = bricks.ranges.iter().map(|&(s, e)| [s, e]).collect();
         let (coarse, cells) = coarse_cells(&bricks);
-        let upload = Upload { sorted, ranges, cells, coarse, occupied: bricks.occupied.clone() };
+        // The dense brick map serves only the device: it moves to the upload.
+        let upload = Upload { sorted, ranges, cells, coarse, occupied: std::mem::take(&mut bricks.occupied) };
         self.write_points(&upload)?;
         let nb = bricks.ranges.len();
         let p = Params {
