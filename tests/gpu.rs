@@ -83,6 +83,19 @@ fn random_batch(rng: &mut Rng, count: usize, size: f64) -> PointBatch {
     b
 }
 
+/// The same parameters bit for bit.
+fn same_bits(a: &[Primitive], b: &[Primitive]) -> bool {
+    a.len() == b.len() && a.iter().flatten().zip(b.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// The `short` schedule at 250 primitives, cut to `iterations` of `points`.
+fn short(iterations: usize, points: usize) -> EncodeConfig {
+    let mut cfg = EncodeConfig::new(250, Schedule::Short);
+    cfg.iterations = Some(iterations);
+    cfg.points = Some(points);
+    cfg
+}
+
 fn rel_close(a: f32, b: f32, tol: f32) -> bool {
     (a - b).abs() <= tol * a.abs().max(b.abs()).max(1e-3)
 }
@@ -174,7 +187,7 @@ fn calls_are_bitwise_identical_run_to_run() {
         let mut again = vec![[0.0; 12]; params.len()];
         let l2 = be.point_loss_grad(&params, &b, &w, &mut again).unwrap();
         assert_eq!(l1, l2);
-        assert!(first.iter().flatten().zip(again.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+        assert!(same_bits(&first, &again));
     }
 }
 
@@ -228,7 +241,7 @@ fn overflowing_candidate_lists_run_again_with_the_same_result() {
     let mut grad = vec![[0.0; 12]; params.len()];
     tight.point_loss_grad(&params, &b, &w, &mut grad).unwrap();
     assert!(tight.reruns >= 1, "a capacity of 7 candidates must overflow");
-    assert!(roomy.iter().flatten().zip(grad.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(same_bits(&roomy, &grad));
 }
 
 #[test]
@@ -353,9 +366,7 @@ fn a_short_encode_lands_within_a_third_of_a_db_of_the_cpu_backend() {
     let Some(mut g) = gpu() else { return };
     let field = hydrogen32();
     let t = Target { reference: &field, samples: &field };
-    let mut cfg = EncodeConfig::new(250, Schedule::Short);
-    cfg.iterations = Some(300);
-    cfg.points = Some(4096);
+    let cfg = short(300, 4096);
     let score = |params: &[Primitive]| {
         let mut out = vec![0.0; field.len()];
         CpuBackend::new().decode_lattice(params, &Lattice::reference(field.dims), &mut out).unwrap();
@@ -377,7 +388,7 @@ fn a_short_encode_lands_within_a_third_of_a_db_of_the_cpu_backend() {
     }
     // And the same bits when run again.
     let again = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
-    assert!(on_gpu.params.iter().flatten().zip(again.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(same_bits(&on_gpu.params, &again.params));
 }
 
 /// Resident training: one step on the device (point terms, regularisers,
@@ -446,7 +457,7 @@ fn resident_step_matches_the_host(w: LossWeights) {
     let (mut again, mut again_a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
     r.store(&mut again, &mut again_a).unwrap();
     assert!(tight.reruns >= 1);
-    assert!(again.iter().flatten().zip(dev_p.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(same_bits(&again, &dev_p));
     assert_eq!(again_a.t, 5);
 }
 
@@ -494,7 +505,7 @@ fn submitted_steps_hold_the_device_until_they_finish() {
     let (mut late_p, mut late_a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
     r.store(&mut late_p, &mut late_a).unwrap();
     assert_eq!(late_a.t, 2);
-    assert!(late_p.iter().flatten().zip(at_once_p.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(same_bits(&late_p, &at_once_p));
 }
 
 /// A step whose lists overflow while the next is already queued: the next
@@ -541,7 +552,7 @@ fn a_step_that_overflows_holds_back_the_step_queued_after_it() {
     };
     let same = |(la, pa): &(Vec<(PointLoss, RegTerms)>, Vec<Primitive>), (lb, pb): &(Vec<(PointLoss, RegTerms)>, Vec<Primitive>)| {
         la.iter().zip(lb).all(|(a, b)| (a.0.val.to_bits(), a.1.aniso.to_bits()) == (b.0.val.to_bits(), b.1.aniso.to_bits()))
-            && pa.iter().flatten().zip(pb.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits())
+            && same_bits(&pa, &pb)
     };
     let want = in_turn(&mut g, &batches[..2]);
     // Room for the small batch's lists and not the large one's: the first
@@ -574,9 +585,7 @@ fn an_encode_with_two_steps_in_flight_gives_the_model_of_one_at_a_time() {
     let Some(mut g) = gpu() else { return };
     let field = hydrogen32();
     let t = Target { reference: &field, samples: &field };
-    let mut cfg = EncodeConfig::new(250, Schedule::Short);
-    cfg.iterations = Some(60);
-    cfg.points = Some(2048);
+    let cfg = short(60, 2048);
     g.depth = 1;
     let one = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
     let mut two = gpu().unwrap();
@@ -586,7 +595,7 @@ fn an_encode_with_two_steps_in_flight_gives_the_model_of_one_at_a_time() {
     assert!(two.reruns > 0, "the lists never overflowed");
     assert_eq!(one.relocations.len(), 3);
     assert_eq!(one.last_loss.total.to_bits(), piped.last_loss.total.to_bits());
-    assert!(one.params.iter().flatten().zip(piped.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(same_bits(&one.params, &piped.params));
 }
 
 /// An `auto` warm step on the device (its start chosen and its end decided
@@ -598,9 +607,7 @@ fn an_auto_warm_step_matches_the_cpu_backend() {
     let Some(mut g) = gpu() else { return };
     let field = hydrogen32();
     let t = Target { reference: &field, samples: &field };
-    let mut cfg = EncodeConfig::new(250, Schedule::Short);
-    cfg.iterations = Some(100);
-    cfg.points = Some(2048);
+    let cfg = short(100, 2048);
     let prev = encode(&t, &cfg, None, &mut CpuBackend::new(), &mut |_| {}).unwrap().params;
     // The next step: the field moved 5 voxels along x.
     let dx = field.dims[0];
@@ -615,5 +622,5 @@ fn an_auto_warm_step_matches_the_cpu_backend() {
     assert!((a - b).abs() <= 0.3, "cpu {a:.3} dB ({:?}), gpu {b:.3} dB ({:?})", cpu.warm, on_gpu.warm);
     let again = run(&mut g);
     assert_eq!((again.warm, again.iterations), (on_gpu.warm, on_gpu.iterations));
-    assert!(on_gpu.params.iter().flatten().zip(again.params.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert!(same_bits(&on_gpu.params, &again.params));
 }
