@@ -19,7 +19,7 @@ use crate::error::Result;
 use crate::field::Grid;
 use crate::input::samples::SampleSet;
 use crate::math::loss::{v_eval, MASK_REF};
-use crate::math::rng::Rng;
+use crate::math::rng::{normal_from, Rng};
 use rayon::prelude::*;
 
 pub const HIGH_THRESHOLD: f32 = 0.4;
@@ -202,14 +202,121 @@ impl PointSampler {
         c
     }
 
+    /// A batch of `p` points. Two passes: what each point takes from the
+    /// random stream is drawn in turn on this thread ([`Draw`]); turning
+    /// the draws into positions and reference values (the pool, sample and
+    /// error-map lookups, the normals' logarithms and cosines, the
+    /// interpolation) takes nothing more from the stream, so it runs in
+    /// parallel point by point. The batch is the same bits as drawing and
+    /// placing each point in turn, whatever the thread count.
     pub fn draw(&mut self, p: usize, reference: &Grid, samples: &dyn SampleSet) -> PointBatch {
         let c = self.counts(p, !samples.is_empty());
         let dims = reference.dims;
         let on_lattice = self.rule.on_lattice;
-        let mut pos = Vec::with_capacity(p);
         let rng = &mut self.rng;
-        // The paper's points: jittered by half a voxel, then clamped;
-        // gsenc's: rounded to the nearest voxel centre, then clamped.
+        let mut draws = Vec::with_capacity(p);
+        // The paper's points are jittered by half a voxel; gsenc's are not.
+        let jitter = |rng: &mut Rng| if on_lattice { [0.0; 3] } else { [0, 1, 2].map(|_| rng.range(-0.5, 0.5)) };
+        for (pool, count) in [(&self.high, c.high), (&self.mid, c.mid)] {
+            for _ in 0..count {
+                let pick = rng.below(pool.len() as u64);
+                draws.push(Draw { pick, u: [0.0; 6], jitter: jitter(rng) });
+            }
+        }
+        for _ in 0..c.uniform {
+            let mut u = [0.0; 6];
+            for a in 0..3 {
+                u[a] = if on_lattice { rng.below(dims[a] as u64) as f64 } else { rng.range(0.0, (dims[a] - 1) as f64) };
+            }
+            draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
+        }
+        for _ in 0..c.samples {
+            let pick = rng.below(samples.len() as u64);
+            // Each axis's normal: its two uniforms, in `Rng::normal`'s order.
+            let mut u = [0.0; 6];
+            for a in 0..3 {
+                u[2 * a] = rng.uniform_open0();
+                u[2 * a + 1] = rng.uniform();
+            }
+            draws.push(Draw { pick, u, jitter: jitter(rng) });
+        }
+        if self.errors.is_some() {
+            for _ in 0..c.error {
+                let u = [rng.uniform(), 0.0, 0.0, 0.0, 0.0, 0.0];
+                draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
+            }
+        }
+        // Where each stratum's points end in the batch.
+        let ends = [c.high, c.high + c.mid, c.high + c.mid + c.uniform, c.high + c.mid + c.uniform + c.samples];
+        let voxel = |i: u32| reference.centre(i as usize).map(f64::from);
+        // Where point `i` of the batch lies before placing, by its stratum.
+        let unplaced = |i: usize, d: &Draw| -> [f64; 3] {
+            if i < ends[0] {
+                voxel(self.high[d.pick as usize])
+            } else if i < ends[1] {
+                voxel(self.mid[d.pick as usize])
+            } else if i < ends[2] {
+                [d.u[0], d.u[1], d.u[2]]
+            } else if i < ends[3] {
+                let s = samples.get(d.pick as usize);
+                [0, 1, 2].map(|a| s.q[a] as f64 + SAMPLE_NOISE_SIGMA * normal_from(d.u[2 * a], d.u[2 * a + 1]))
+            } else {
+                // The first mapped voxel whose running sum passes the draw.
+                let map = self.errors.as_ref().expect("an error stratum only with a map");
+                let k = map.guide.find(&map.cumulative, d.u[0] * map.guide.total).min(map.voxels.len() - 1);
+                voxel(map.voxels[k])
+            }
+        };
+        // The paper's points: jittered, then clamped to the domain; gsenc's:
+        // rounded to the nearest voxel centre, then clamped.
+        let place = |q: [f64; 3], jitter: [f64; 3]| -> [f32; 3] {
+            std::array::from_fn(|a| {
+                let x = if on_lattice { q[a].round() } else { q[a] + jitter[a] };
+                x.clamp(0.0, (dims[a] - 1) as f64) as f32
+            })
+        };
+        // At a voxel centre the trilinear value is the voxel's own, bit for
+        // bit (every weight but its own is zero and the values are
+        // finite), so gsenc's points read that one value rather than eight.
+        let pos: Vec<[f32; 3]> = draws.par_iter().enumerate().with_min_len(512).map(|(i, d)| place(unplaced(i, d), d.jitter)).collect();
+        let vref = if on_lattice {
+            pos.par_iter().with_min_len(512).map(|&x| reference.values[lattice_index(reference, x)]).collect()
+        } else {
+            pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect()
+        };
+        PointBatch { pos, vref }
+    }
+}
+
+/// What one point of a batch takes from the random stream, in the stream's
+/// order: an index into its pool or the sample set (`pick`), the uniform
+/// stratum's position or the sample stratum's three pairs of uniforms for
+/// its normals or the error stratum's uniform (`u`), then its jitter.
+#[derive(Clone, Copy)]
+struct Draw {
+    pick: u64,
+    u: [f64; 6],
+    jitter: [f64; 3],
+}
+
+/// The voxel whose centre `x` is (a lattice point inside the grid).
+fn lattice_index(g: &Grid, x: [f32; 3]) -> usize {
+    g.index(x[0] as usize, x[1] as usize, x[2] as usize)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::input::samples::SampleArrays;
+
+    /// The sampler's draw as it was written before it had two passes:
+    /// each point drawn and placed in turn, then the reference values.
+    fn draw_in_turn(s: &mut PointSampler, p: usize, reference: &Grid, samples: &dyn SampleSet) -> PointBatch {
+        let c = s.counts(p, !samples.is_empty());
+        let dims = reference.dims;
+        let on_lattice = s.rule.on_lattice;
+        let mut pos = Vec::with_capacity(p);
+        let rng = &mut s.rng;
         let place = |rng: &mut Rng, q: [f64; 3]| -> [f32; 3] {
             let mut out = [0f32; 3];
             for a in 0..3 {
@@ -219,7 +326,7 @@ impl PointSampler {
             out
         };
         let voxel = |i: u32| reference.centre(i as usize).map(f64::from);
-        for (pool, count) in [(&self.high, c.high), (&self.mid, c.mid)] {
+        for (pool, count) in [(&s.high, c.high), (&s.mid, c.mid)] {
             for _ in 0..count {
                 let idx = pool[rng.below(pool.len() as u64) as usize];
                 pos.push(place(rng, voxel(idx)));
@@ -234,45 +341,86 @@ impl PointSampler {
             pos.push(place(rng, q));
         }
         for _ in 0..c.samples {
-            let s = samples.get(rng.below(samples.len() as u64) as usize);
+            let smp = samples.get(rng.below(samples.len() as u64) as usize);
             let q = [
-                s.q[0] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
-                s.q[1] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
-                s.q[2] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
+                smp.q[0] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
+                smp.q[1] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
+                smp.q[2] as f64 + SAMPLE_NOISE_SIGMA * rng.normal(),
             ];
             pos.push(place(rng, q));
         }
-        if let Some(map) = &self.errors {
-            let total = map.guide.total;
+        if let Some(map) = &s.errors {
             for _ in 0..c.error {
-                // The first voxel whose running sum passes the draw.
-                let u = rng.uniform() * total;
-                let k = map.guide.find(&map.cumulative, u).min(map.voxels.len() - 1);
+                let u = rng.uniform() * map.guide.total;
+                let k = whole_search(&map.cumulative, u).min(map.voxels.len() - 1);
                 pos.push(place(rng, voxel(map.voxels[k])));
             }
         }
-        // The positions come from one sequential stream; their reference
-        // values are independent lookups, done in parallel. At a voxel
-        // centre the trilinear value is the voxel's own, bit for bit (every
-        // weight but its own is zero and the values are finite), so gsenc's
-        // points read that one value rather than eight.
-        let vref = if on_lattice {
-            pos.par_iter().with_min_len(512).map(|&x| reference.values[lattice_index(reference, x)]).collect()
-        } else {
-            pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect()
-        };
+        let vref = pos.iter().map(|&x| reference.trilinear(x)).collect();
         PointBatch { pos, vref }
     }
-}
 
-/// The voxel whose centre `x` is (a lattice point inside the grid).
-fn lattice_index(g: &Grid, x: [f32; 3]) -> usize {
-    g.index(x[0] as usize, x[1] as usize, x[2] as usize)
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
+    /// Batches of both rules, with and without an error map, from a grid's
+    /// voxels and from scattered samples, with an empty pool and a batch
+    /// smaller than a parallel task: the two-pass draw gives the bits of
+    /// the draw in turn, batch after batch (so it also leaves the stream
+    /// where that one does), on one thread and on three.
+    #[test]
+    fn the_two_pass_draw_gives_the_points_of_the_draw_in_turn() {
+        let mut rng = Rng::new(17);
+        let dims = [23usize, 17, 11];
+        let n = dims.iter().product();
+        // Values over every pool; the second grid has none above 0.4.
+        let grids: Vec<Grid> = [1.0, 0.39]
+            .iter()
+            .map(|&top| Grid::new(dims, (0..n).map(|_| if rng.below(3) == 0 { 0.0 } else { (top * rng.uniform()) as f32 }).collect()).unwrap())
+            .collect();
+        let mut scattered = SampleArrays::default();
+        for _ in 0..300 {
+            let q = [0, 1, 2].map(|a| rng.range(-2.0, dims[a] as f64 + 2.0) as f32);
+            scattered.push(crate::input::samples::Sample { q, h: 0.7, v: rng.uniform() as f32, m: 1.0 });
+        }
+        let none = SampleArrays::default();
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                for g in &grids {
+                    for rule in [PointRule::PAPER, PointRule::GSENC] {
+                        for samples in [g as &dyn SampleSet, &scattered, &none] {
+                            let (mut two, mut one) = (PointSampler::new(g, 5, rule), PointSampler::new(g, 5, rule));
+                            for round in 0..3 {
+                                if round == 1 {
+                                    // A made-up error map (the same in both).
+                                    let mut e = Rng::new(round);
+                                    let mut errors = |pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]| {
+                                        for k in 0..pos.len() {
+                                            (rho[k], n[k]) = (1.0, e.uniform() as f32);
+                                        }
+                                        Ok(())
+                                    };
+                                    two.map_errors(g, &mut errors).unwrap();
+                                    let mut e = Rng::new(round);
+                                    one.map_errors(g, |pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]| {
+                                        for k in 0..pos.len() {
+                                            (rho[k], n[k]) = (1.0, e.uniform() as f32);
+                                        }
+                                        Ok(())
+                                    })
+                                    .unwrap();
+                                }
+                                for p in [5, 2000] {
+                                    let (a, b) = (two.draw(p, g, samples), draw_in_turn(&mut one, p, g, samples));
+                                    assert_eq!(a.len(), p);
+                                    let bits = |b: &PointBatch| -> Vec<u32> { b.pos.iter().flatten().chain(&b.vref).map(|x| x.to_bits()).collect() };
+                                    assert!(bits(&a) == bits(&b), "{threads} threads, rule {rule:?}, {} samples, round {round}, {p} points", samples.len());
+                                }
+                            }
+                        }
+                    }
+                }
+            });
+        }
+    }
 
     /// The plain search the guide table replaces.
     fn whole_search(cumulative: &[f64], u: f64) -> usize {

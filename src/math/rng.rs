@@ -70,8 +70,15 @@ impl Rng {
     pub fn normal(&mut self) -> f64 {
         let u1 = self.uniform_open0();
         let u2 = self.uniform();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        normal_from(u1, u2)
     }
+}
+
+/// The standard normal that [`Rng::normal`] makes of its two uniforms
+/// (`u1` in (0, 1], then `u2` in [0, 1)), for code that draws the uniforms
+/// in one place and transforms them in another.
+pub fn normal_from(u1: f64, u2: f64) -> f64 {
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 #[cfg(test)]
