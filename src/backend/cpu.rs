@@ -21,14 +21,13 @@ use super::{check_len, Backend, Lattice, PointLoss};
 use crate::error::Result;
 use crate::math::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
 use crate::math::loss::{point_terms, v_eval, LossWeights, PointNorm};
+use crate::math::primitives_per_task;
 use crate::backend::PointBatch;
 use rayon::prelude::*;
 
 /// Work chunks per batch: enough for load balance on many cores; fixed so that
 /// the reduction order never depends on the thread count.
 const WORK_CHUNKS: usize = 64;
-/// Primitives per parallel task when building frames and bins.
-const PRIM_CHUNK: usize = 2048;
 /// Edge of a decode brick in lattice voxels.
 const DECODE_BRICK: usize = 8;
 
@@ -258,31 +257,33 @@ struct ChunkScratch {
     slot: Vec<u32>,
     touched: Vec<u32>,
     acc: Vec<GradAcc>,
-    /// Positions in `touched` grouped by block of `PRIM_CHUNK` primitives
+    /// Positions in `touched` grouped by block of `block_len` primitives
     /// (`ChunkScratch::group`): block `k`'s are
     /// `by_block[block_start[k]..block_start[k + 1]]`.
     by_block: Vec<u32>,
     block_start: Vec<u32>,
+    block_len: usize,
     soa: BrickSoa,
 }
 
 impl ChunkScratch {
-    /// Groups the touched primitives by block of `PRIM_CHUNK` (a counting
+    /// Groups the touched primitives by block of `block_len` (a counting
     /// sort), so that the reduction can run block by block in parallel,
     /// and forgets their slots.
-    fn group(&mut self, blocks: usize) {
+    fn group(&mut self, block_len: usize, blocks: usize) {
+        self.block_len = block_len;
         let ChunkScratch { slot, touched, by_block, block_start, .. } = self;
         block_start.clear();
         block_start.resize(blocks + 1, 0);
         for &g in touched.iter() {
-            block_start[g as usize / PRIM_CHUNK + 1] += 1;
+            block_start[g as usize / block_len + 1] += 1;
         }
         for k in 0..blocks {
             block_start[k + 1] += block_start[k];
         }
         by_block.resize(touched.len(), 0);
         for (t, &g) in touched.iter().enumerate() {
-            let at = &mut block_start[g as usize / PRIM_CHUNK];
+            let at = &mut block_start[g as usize / block_len];
             by_block[*at as usize] = t as u32;
             *at += 1;
             slot[g as usize] = u32::MAX;
@@ -298,7 +299,7 @@ impl ChunkScratch {
     /// (that block's slice of the per-primitive sums).
     fn add_block(&self, k: usize, block: &mut [GradAcc]) {
         for &t in &self.by_block[self.block_start[k] as usize..self.block_start[k + 1] as usize] {
-            block[self.touched[t as usize] as usize - k * PRIM_CHUNK].add(&self.acc[t as usize]);
+            block[self.touched[t as usize] as usize - k * self.block_len].add(&self.acc[t as usize]);
         }
     }
 }
@@ -343,11 +344,12 @@ impl Prepared {
         self.frames.resize(n, Frame::default());
         self.hot.resize(n, Hot::default());
         self.boxes.resize(n, [0.0; 6]);
+        let task = primitives_per_task(n);
         self.frames
-            .par_chunks_mut(PRIM_CHUNK)
-            .zip(self.hot.par_chunks_mut(PRIM_CHUNK))
-            .zip(self.boxes.par_chunks_mut(PRIM_CHUNK))
-            .zip(params.par_chunks(PRIM_CHUNK))
+            .par_chunks_mut(task)
+            .zip(self.hot.par_chunks_mut(task))
+            .zip(self.boxes.par_chunks_mut(task))
+            .zip(params.par_chunks(task))
             .for_each(|(((fs, hs), bs), ps)| {
                 for (((f, h), b), p) in fs.iter_mut().zip(hs).zip(bs).zip(ps) {
                     *f = Frame::new(p);
@@ -465,12 +467,13 @@ impl CpuBackend {
             m
         });
         let boxes = &self.prep.boxes;
-        let parts: Vec<Vec<(u32, u32)>> = (0..boxes.len().div_ceil(PRIM_CHUNK))
+        let task = primitives_per_task(boxes.len());
+        let parts: Vec<Vec<(u32, u32)>> = (0..boxes.len().div_ceil(task))
             .into_par_iter()
             .map(|c| {
                 let mut out = vec![];
-                let end = ((c + 1) * PRIM_CHUNK).min(boxes.len());
-                for g in c * PRIM_CHUNK..end {
+                let end = ((c + 1) * task).min(boxes.len());
+                for g in c * task..end {
                     let Some((r0, r1)) = bricks.range_of(&boxes[g]) else { continue };
                     for z in r0[2]..=r1[2] {
                         for y in r0[1]..=r1[1] {
@@ -775,7 +778,8 @@ impl Backend for CpuBackend {
         }
         let mut acc = std::mem::take(&mut self.acc);
         acc.resize(np, GradAcc::default());
-        let blocks = np.div_ceil(PRIM_CHUNK);
+        let block_len = primitives_per_task(np);
+        let blocks = np.div_ceil(block_len);
         let CpuBackend { prep, chunks, evaluations, .. } = self;
         let prep: &Prepared = prep;
         let chunks = &mut chunks[..ranges.len()];
@@ -791,7 +795,7 @@ impl Backend for CpuBackend {
                 sc.acc.clear();
                 let job = GradJob { prep, bins: &bins, batch, norm: &norm, weights };
                 let out = grad_chunk_dispatch(&job, sc, range);
-                sc.group(blocks);
+                sc.group(block_len, blocks);
                 out
             })
             .collect();
@@ -805,7 +809,7 @@ impl Backend for CpuBackend {
         // (the same order, so the same bits, whatever the thread count),
         // in parallel over blocks of primitives; then the chain rule.
         let (chunks, frames) = (&*chunks, &prep.frames);
-        grad.par_chunks_mut(PRIM_CHUNK).zip(acc.par_chunks_mut(PRIM_CHUNK)).enumerate().for_each(|(k, (gs, accs))| {
+        grad.par_chunks_mut(block_len).zip(acc.par_chunks_mut(block_len)).enumerate().for_each(|(k, (gs, accs))| {
             accs.fill(GradAcc::default());
             for sc in chunks {
                 sc.add_block(k, accs);
@@ -814,7 +818,7 @@ impl Backend for CpuBackend {
                 // Most primitives meet no point of a small batch; their sums
                 // are zero and so is their gradient (up to the sign of
                 // zero, which no later step sees), without reading the frame.
-                *g = if a.0 == [0.0; 12] { [0.0; 12] } else { frames[k * PRIM_CHUNK + i].finalize(a) };
+                *g = if a.0 == [0.0; 12] { [0.0; 12] } else { frames[k * block_len + i].finalize(a) };
             }
         });
         self.acc = acc;
@@ -938,8 +942,8 @@ mod tests {
     #[test]
     fn the_reduction_by_blocks_gives_the_bits_of_the_reduction_chunk_by_chunk() {
         let mut rng = Rng::new(4);
-        let np = 3 * PRIM_CHUNK + 123;
-        let blocks = np.div_ceil(PRIM_CHUNK);
+        let (block_len, np): (usize, usize) = (700, 3 * 700 + 123);
+        let blocks = np.div_ceil(block_len);
         let mut chunks: Vec<ChunkScratch> = (0..5).map(|_| ChunkScratch { slot: vec![u32::MAX; np], ..Default::default() }).collect();
         for round in 0..2 {
             for sc in chunks.iter_mut() {
@@ -961,11 +965,11 @@ mod tests {
                 }
             }
             for sc in chunks.iter_mut() {
-                sc.group(blocks);
+                sc.group(block_len, blocks);
                 assert!(sc.slot.iter().all(|&s| s == u32::MAX), "round {round}: slots left set");
             }
             let mut got = vec![GradAcc::default(); np];
-            for (k, block) in got.chunks_mut(PRIM_CHUNK).enumerate() {
+            for (k, block) in got.chunks_mut(block_len).enumerate() {
                 for sc in &chunks {
                     sc.add_block(k, block);
                 }

@@ -146,13 +146,13 @@ pub struct RegTerms {
 /// Adds the weighted gradients of L_scale and L_aniso to `grad` and returns the
 /// terms' values. Both act on `exp(l)` itself, not on the clamped sigma.
 pub fn regularizers(params: &[Primitive], w: &LossWeights, grad: &mut [Primitive]) -> RegTerms {
-    const CHUNK: usize = 4096;
+    let chunk = super::primitives_per_task(params.len());
     let n = params.len().max(1) as f32;
     let inv_3n = 1.0 / (3.0 * n);
     let inv_n = 1.0 / n;
     let partial: Vec<(f64, f64)> = params
-        .par_chunks(CHUNK)
-        .zip(grad.par_chunks_mut(CHUNK))
+        .par_chunks(chunk)
+        .zip(grad.par_chunks_mut(chunk))
         .map(|(ps, gs)| {
             let (mut sc, mut an) = (0.0f64, 0.0f64);
             for (p, g) in ps.iter().zip(gs.iter_mut()) {

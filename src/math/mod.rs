@@ -8,3 +8,14 @@ pub mod kernel;
 pub mod loss;
 pub mod optim;
 pub mod rng;
+
+/// Primitives per parallel task in a pass over every primitive (frames,
+/// binning, the gradient's reduction, the regularisers, Adam): at least
+/// `MIN`, and at most `MAX_TASKS` tasks, so that a small model still
+/// spreads over every core and a large one pays for few tasks. The split
+/// depends only on the count, never on the thread count.
+pub fn primitives_per_task(n: usize) -> usize {
+    const MIN: usize = 256;
+    const MAX_TASKS: usize = 64;
+    n.div_ceil(MAX_TASKS).max(MIN)
+}

@@ -39,12 +39,12 @@ impl Adam {
         // Flat slices, so that the element loop vectorises (over
         // `[f32; 12]` per primitive the compiler left it scalar); every
         // element gets the same operations as before.
-        const CHUNK: usize = 2048 * 12;
+        let chunk = 12 * super::primitives_per_task(params.len());
         params
             .as_flattened_mut()
-            .par_chunks_mut(CHUNK)
-            .zip(grad.as_flattened().par_chunks(CHUNK))
-            .zip(self.m.as_flattened_mut().par_chunks_mut(CHUNK).zip(self.v.as_flattened_mut().par_chunks_mut(CHUNK)))
+            .par_chunks_mut(chunk)
+            .zip(grad.as_flattened().par_chunks(chunk))
+            .zip(self.m.as_flattened_mut().par_chunks_mut(chunk).zip(self.v.as_flattened_mut().par_chunks_mut(chunk)))
             .for_each(|((p, g), (m, v))| {
                 for (((p, &g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
                     *m = BETA1 * *m + (1.0 - BETA1) * g;
@@ -93,7 +93,7 @@ mod tests {
     #[test]
     fn adam_matches_the_update_written_out() {
         let mut rng = crate::math::rng::Rng::new(3);
-        let n = 5000; // more than two chunks of 2,048 primitives
+        let n = 5000; // 20 tasks of 256 primitives, the last one short
         let mut p: Vec<Primitive> = (0..n).map(|_| std::array::from_fn(|_| rng.range(-2.0, 2.0) as f32)).collect();
         let (mut want, mut m, mut v) = (p.clone(), vec![[0.0f32; 12]; n], vec![[0.0f32; 12]; n]);
         let mut a = Adam::new(n);
