@@ -7,6 +7,8 @@
 //! as this library implements it, with every constant and every choice the
 //! paper leaves open. Layers, from the inside out; each uses only those
 //! above it in this list:
+//! - [`profile`]: task timings for the thread-scaling model (feature
+//!   `task-profile`; without it, nothing but the calls it wraps);
 //! - [`math`]: the one definition of a primitive, its kernel, the objective,
 //!   their gradients, Adam, the random stream;
 //! - [`field`]: grids, value ranges, index frames and boxes;
@@ -53,6 +55,7 @@ pub mod format;
 pub mod input;
 pub mod io;
 pub mod math;
+pub mod profile;
 pub mod model;
 pub mod render;
 pub mod series;

@@ -2,6 +2,13 @@
 //! passes work on. One definition, so that the CPU and the GPU backends list
 //! the same bricks and the same points in each.
 
+use super::csr::csr;
+use crate::profile;
+use rayon::prelude::*;
+
+/// Points per parallel task when sorting a batch into bricks.
+const POINTS_PER_TASK: usize = 2048;
+
 /// A dense grid of cubic bricks over a batch's points, and the points sorted
 /// by brick (a stable counting sort: within a brick, in batch order).
 pub struct PointBricks {
@@ -23,16 +30,17 @@ pub struct PointBricks {
 
 impl PointBricks {
     /// Bricks of edge `edge` voxels, grown when needed so that the dense grid
-    /// holds no more than a few bricks per point.
+    /// holds no more than a few bricks per point. Parallel over runs of
+    /// points; the same bricks whatever the thread count (the bounds are
+    /// minima and maxima, and the sort is stable).
     pub fn new(pos: &[[f32; 3]], edge: f32) -> PointBricks {
-        let mut lo = [f32::INFINITY; 3];
-        let mut hi = [f32::NEG_INFINITY; 3];
-        for p in pos {
-            for a in 0..3 {
-                lo[a] = lo[a].min(p[a]);
-                hi[a] = hi[a].max(p[a]);
-            }
-        }
+        type Bounds = ([f32; 3], [f32; 3]);
+        let merge = |(lo, hi): Bounds, (l, h): Bounds| -> Bounds { (std::array::from_fn(|a| lo[a].min(l[a])), std::array::from_fn(|a| hi[a].max(h[a]))) };
+        let empty = || ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        let (lo, hi) = pos
+            .par_chunks(POINTS_PER_TASK)
+            .map(|run| profile::task("bricks: bounds", || run.iter().fold(empty(), |b, &p| merge(b, (p, p)))))
+            .reduce(empty, merge);
         let vol: f64 = (0..3).map(|a| (hi[a] - lo[a]) as f64 + 1.0).product();
         let b = edge.max((vol / (4.0 * pos.len() as f64 + 64.0)).cbrt() as f32);
         let inv_edge = 1.0 / b;
@@ -45,31 +53,25 @@ impl PointBricks {
             c(0) + dims[0] * (c(1) + dims[1] * c(2))
         };
         let nb = dims[0] * dims[1] * dims[2];
-        let mut start = vec![0u32; nb + 1];
-        let keys: Vec<u32> = pos.iter().map(|&x| brick_of(x) as u32).collect();
-        for &k in &keys {
-            start[k as usize + 1] += 1;
-        }
-        for k in 0..nb {
-            start[k + 1] += start[k];
-        }
-        let mut next = start.clone();
-        let mut order = vec![0u32; pos.len()];
-        for (i, &k) in keys.iter().enumerate() {
-            order[next[k as usize] as usize] = i as u32;
-            next[k as usize] += 1;
-        }
-        let mut occupied = vec![u32::MAX; nb];
-        let mut ranges = vec![];
-        let mut coords = vec![];
-        for id in 0..nb {
-            if start[id + 1] > start[id] {
-                occupied[id] = ranges.len() as u32;
-                ranges.push((start[id], start[id + 1]));
-                coords.push([(id % dims[0]) as u32, (id / dims[0] % dims[1]) as u32, (id / (dims[0] * dims[1])) as u32]);
+        let keyed: Vec<Vec<(u32, u32)>> = pos
+            .par_chunks(POINTS_PER_TASK)
+            .enumerate()
+            .map(|(t, run)| profile::task("bricks: keys", || run.iter().enumerate().map(|(i, &x)| (brick_of(x) as u32, (t * POINTS_PER_TASK + i) as u32)).collect()))
+            .collect();
+        let (start, order) = profile::even("bricks: sort", keyed.len(), || csr(nb, &keyed));
+        profile::serial("bricks: list", || {
+            let mut occupied = vec![u32::MAX; nb];
+            let mut ranges = vec![];
+            let mut coords = vec![];
+            for id in 0..nb {
+                if start[id + 1] > start[id] {
+                    occupied[id] = ranges.len() as u32;
+                    ranges.push((start[id], start[id + 1]));
+                    coords.push([(id % dims[0]) as u32, (id / dims[0] % dims[1]) as u32, (id / (dims[0] * dims[1])) as u32]);
+                }
             }
-        }
-        PointBricks { lo, inv_edge, dims, order, ranges, coords, occupied }
+            PointBricks { lo, inv_edge, dims, order, ranges, coords, occupied }
+        })
     }
 
     /// The inclusive brick range `[r0, r1]` that the box `lo..hi` (index
@@ -98,7 +100,8 @@ mod tests {
     #[test]
     fn every_point_once_in_its_brick_in_batch_order() {
         let mut rng = Rng::new(3);
-        let pos: Vec<[f32; 3]> = (0..500).map(|_| [0, 1, 2].map(|a| rng.range(-3.0, 20.0 + 10.0 * a as f64) as f32)).collect();
+        // More points than one task takes, the last run short.
+        let pos: Vec<[f32; 3]> = (0..2 * POINTS_PER_TASK + 500).map(|_| [0, 1, 2].map(|a| rng.range(-3.0, 20.0 + 10.0 * a as f64) as f32)).collect();
         let b = PointBricks::new(&pos, 4.0);
         let mut seen = vec![false; pos.len()];
         for (o, &(s, e)) in b.ranges.iter().enumerate() {

@@ -17,11 +17,13 @@
 //! of bricks is one parallel task that writes its own slice of the output.
 
 use super::bricks::PointBricks;
+use super::csr::csr;
 use super::{check_len, Backend, Lattice, PointLoss};
 use crate::error::Result;
 use crate::math::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
 use crate::math::loss::{point_terms, v_eval, LossWeights, PointNorm};
 use crate::math::primitives_per_task;
+use crate::profile;
 use crate::backend::PointBatch;
 use rayon::prelude::*;
 
@@ -351,60 +353,16 @@ impl Prepared {
             .zip(self.boxes.par_chunks_mut(task))
             .zip(params.par_chunks(task))
             .for_each(|(((fs, hs), bs), ps)| {
-                for (((f, h), b), p) in fs.iter_mut().zip(hs).zip(bs).zip(ps) {
-                    *f = Frame::new(p);
-                    *h = Hot::new(f);
-                    *b = [f.mu[0] - f.ext[0], f.mu[1] - f.ext[1], f.mu[2] - f.ext[2], f.mu[0] + f.ext[0], f.mu[1] + f.ext[1], f.mu[2] + f.ext[2]];
-                }
+                profile::task("frames", || {
+                    for (((f, h), b), p) in fs.iter_mut().zip(hs).zip(bs).zip(ps) {
+                        *f = Frame::new(p);
+                        *h = Hot::new(f);
+                        *b = [f.mu[0] - f.ext[0], f.mu[1] - f.ext[1], f.mu[2] - f.ext[2], f.mu[0] + f.ext[0], f.mu[1] + f.ext[1], f.mu[2] + f.ext[2]];
+                    }
+                })
             });
     }
 }
-
-/// Stable counting sort of `(key, value)` pairs, given per task in task order,
-/// into CSR form over `nkeys` keys: values of key `k` are
-/// `vals[start[k]..start[k + 1]]`, in task order. Parallel over tasks, and the
-/// same output whatever the thread count.
-fn csr(nkeys: usize, parts: &[Vec<(u32, u32)>]) -> (Vec<u32>, Vec<u32>) {
-    // Per-task histograms, then per (task, key) write offsets, then a parallel fill.
-    let mut offsets: Vec<Vec<u32>> = parts
-        .par_iter()
-        .map(|part| {
-            let mut h = vec![0u32; nkeys];
-            for &(k, _) in part {
-                h[k as usize] += 1;
-            }
-            h
-        })
-        .collect();
-    let mut start = vec![0u32; nkeys + 1];
-    let mut run = 0u32;
-    for k in 0..nkeys {
-        start[k] = run;
-        for h in offsets.iter_mut() {
-            let c = h[k];
-            h[k] = run;
-            run += c;
-        }
-    }
-    start[nkeys] = run;
-    let mut vals = vec![0u32; run as usize];
-    let out = SyncPtr(vals.as_mut_ptr());
-    parts.par_iter().zip(offsets.par_iter_mut()).for_each(|(part, off)| {
-        let out = &out;
-        for &(k, v) in part {
-            let o = &mut off[k as usize];
-            // SAFETY: the offsets give every (task, key) its own disjoint
-            // range inside `vals`, so no two tasks write one element.
-            unsafe { *out.0.add(*o as usize) = v };
-            *o += 1;
-        }
-    });
-    (start, vals)
-}
-
-/// A raw pointer that tasks writing disjoint ranges may share.
-struct SyncPtr(*mut u32);
-unsafe impl Sync for SyncPtr {}
 
 impl CpuBackend {
     pub fn new() -> Self {
@@ -457,7 +415,7 @@ impl CpuBackend {
         let (bd, occ) = (bricks.dims, &bricks.occupied);
         // List every primitive in the occupied bricks its box overlaps.
         // Occupancy of each row of bricks as a bit mask (rows of up to 64 bricks).
-        let row_mask: Option<Vec<u64>> = (bd[0] <= 64).then(|| {
+        let row_mask: Option<Vec<u64>> = profile::serial("binning: rows", || (bd[0] <= 64).then(|| {
             let mut m = vec![0u64; bd[1] * bd[2]];
             for (id, &o) in occ.iter().enumerate() {
                 if o != u32::MAX {
@@ -465,12 +423,12 @@ impl CpuBackend {
                 }
             }
             m
-        });
+        }));
         let boxes = &self.prep.boxes;
         let task = primitives_per_task(boxes.len());
         let parts: Vec<Vec<(u32, u32)>> = (0..boxes.len().div_ceil(task))
             .into_par_iter()
-            .map(|c| {
+            .map(|c| profile::task("binning", || {
                 let mut out = vec![];
                 let end = ((c + 1) * task).min(boxes.len());
                 for g in c * task..end {
@@ -499,9 +457,9 @@ impl CpuBackend {
                     }
                 }
                 out
-            })
+            }))
             .collect();
-        let (cand_start, cand) = csr(bricks.ranges.len(), &parts);
+        let (cand_start, cand) = profile::even("binning: sort", parts.len(), || csr(bricks.ranges.len(), &parts));
         PointBins { bricks, cand_start, cand }
     }
 
@@ -770,7 +728,7 @@ impl Backend for CpuBackend {
         }
         self.prep.update(params);
         let bins = self.bin_points(&batch.pos);
-        let ranges = Self::work_ranges(&bins);
+        let ranges = profile::serial("work chunks", || Self::work_ranges(&bins));
         let norm = PointNorm::new(&batch.vref, weights);
         let np = params.len();
         if self.chunks.len() < ranges.len() {
@@ -786,7 +744,7 @@ impl Backend for CpuBackend {
         let losses: Vec<(f64, f64, u64)> = chunks
             .par_iter_mut()
             .zip(ranges.par_iter())
-            .map(|(sc, &range)| {
+            .map(|(sc, &range)| profile::task("gradient chunks", || {
                 if sc.slot.len() != np {
                     sc.slot.clear();
                     sc.slot.resize(np, u32::MAX);
@@ -797,7 +755,7 @@ impl Backend for CpuBackend {
                 let out = grad_chunk_dispatch(&job, sc, range);
                 sc.group(block_len, blocks);
                 out
-            })
+            }))
             .collect();
         let mut out = PointLoss::default();
         for (v, c, e) in losses {
@@ -809,7 +767,7 @@ impl Backend for CpuBackend {
         // (the same order, so the same bits, whatever the thread count),
         // in parallel over blocks of primitives; then the chain rule.
         let (chunks, frames) = (&*chunks, &prep.frames);
-        grad.par_chunks_mut(block_len).zip(acc.par_chunks_mut(block_len)).enumerate().for_each(|(k, (gs, accs))| {
+        grad.par_chunks_mut(block_len).zip(acc.par_chunks_mut(block_len)).enumerate().for_each(|(k, (gs, accs))| profile::task("reduction", || {
             accs.fill(GradAcc::default());
             for sc in chunks {
                 sc.add_block(k, accs);
@@ -820,7 +778,7 @@ impl Backend for CpuBackend {
                 // zero, which no later step sees), without reading the frame.
                 *g = if a.0 == [0.0; 12] { [0.0; 12] } else { frames[k * block_len + i].finalize(a) };
             }
-        });
+        }));
         self.acc = acc;
         Ok(out)
     }
@@ -1026,26 +984,5 @@ mod tests {
                 assert!((got.0[t] - e.0[t]).abs() <= 1e-4 * (1.0 + e.0[t].abs()), "candidate {g} term {t}: {} vs {}", got.0[t], e.0[t]);
             }
         }
-    }
-
-    #[test]
-    fn csr_is_a_stable_sort_by_key() {
-        let mut rng = Rng::new(8);
-        let parts: Vec<Vec<(u32, u32)>> = (0..7)
-            .map(|p| (0..(50 + 13 * p)).map(|i| (rng.below(20) as u32, (p * 1000 + i) as u32)).collect())
-            .collect();
-        let (start, vals) = csr(20, &parts);
-        // Reference: a stable sort of all pairs by key, in task order.
-        let mut flat: Vec<(u32, u32)> = parts.concat();
-        flat.sort_by_key(|&(k, _)| k);
-        assert_eq!(vals, flat.iter().map(|&(_, v)| v).collect::<Vec<_>>());
-        for k in 0..20u32 {
-            let n = flat.iter().filter(|&&(kk, _)| kk == k).count() as u32;
-            assert_eq!(start[k as usize + 1] - start[k as usize], n);
-        }
-        assert_eq!(start[0], 0);
-        // One task and no task at all go through the same path.
-        assert_eq!(csr(20, std::slice::from_ref(&parts.concat())).1, vals);
-        assert_eq!(csr(3, &[]), (vec![0; 4], vec![]));
     }
 }

@@ -12,6 +12,7 @@
 
 pub mod bricks;
 pub mod cpu;
+mod csr;
 #[cfg(feature = "gpu")]
 pub mod gpu;
 pub mod select;

@@ -1,7 +1,7 @@
 //! One encode of a given budget: steps 2 to 5 of the pipeline
 //! (`pipeline.rs`), and the types every encode shares: how it starts
 //! ([`Start`]), what it is asked ([`Request`]) and what it gives
-//! ([`Encoded`]). The pipeline calls [`encode_budget`] once, or the target
+//! ([`Encoded`]). The pipeline calls `encode_budget` once, or the target
 //! search (`target.rs`) once per try.
 
 use crate::backend::Backend;

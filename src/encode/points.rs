@@ -20,6 +20,7 @@ use crate::field::Grid;
 use crate::input::samples::SampleSet;
 use crate::math::loss::{v_eval, MASK_REF};
 use crate::math::rng::{normal_from, Rng};
+use crate::profile;
 use rayon::prelude::*;
 
 pub const HIGH_THRESHOLD: f32 = 0.4;
@@ -203,7 +204,7 @@ impl PointSampler {
     }
 
     /// A batch of `p` points. Two passes: what each point takes from the
-    /// random stream is drawn in turn on this thread ([`Draw`]); turning
+    /// random stream is drawn in turn on this thread (`Draw`); turning
     /// the draws into positions and reference values (the pool, sample and
     /// error-map lookups, the normals' logarithms and cosines, the
     /// interpolation) takes nothing more from the stream, so it runs in
@@ -213,39 +214,7 @@ impl PointSampler {
         let c = self.counts(p, !samples.is_empty());
         let dims = reference.dims;
         let on_lattice = self.rule.on_lattice;
-        let rng = &mut self.rng;
-        let mut draws = Vec::with_capacity(p);
-        // The paper's points are jittered by half a voxel; gsenc's are not.
-        let jitter = |rng: &mut Rng| if on_lattice { [0.0; 3] } else { [0, 1, 2].map(|_| rng.range(-0.5, 0.5)) };
-        for (pool, count) in [(&self.high, c.high), (&self.mid, c.mid)] {
-            for _ in 0..count {
-                let pick = rng.below(pool.len() as u64);
-                draws.push(Draw { pick, u: [0.0; 6], jitter: jitter(rng) });
-            }
-        }
-        for _ in 0..c.uniform {
-            let mut u = [0.0; 6];
-            for a in 0..3 {
-                u[a] = if on_lattice { rng.below(dims[a] as u64) as f64 } else { rng.range(0.0, (dims[a] - 1) as f64) };
-            }
-            draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
-        }
-        for _ in 0..c.samples {
-            let pick = rng.below(samples.len() as u64);
-            // Each axis's normal: its two uniforms, in `Rng::normal`'s order.
-            let mut u = [0.0; 6];
-            for a in 0..3 {
-                u[2 * a] = rng.uniform_open0();
-                u[2 * a + 1] = rng.uniform();
-            }
-            draws.push(Draw { pick, u, jitter: jitter(rng) });
-        }
-        if self.errors.is_some() {
-            for _ in 0..c.error {
-                let u = [rng.uniform(), 0.0, 0.0, 0.0, 0.0, 0.0];
-                draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
-            }
-        }
+        let draws = profile::serial("draw: stream", || self.stream(&c, dims, samples.len()));
         // Where each stratum's points end in the batch.
         let ends = [c.high, c.high + c.mid, c.high + c.mid + c.uniform, c.high + c.mid + c.uniform + c.samples];
         let voxel = |i: u32| reference.centre(i as usize).map(f64::from);
@@ -278,13 +247,58 @@ impl PointSampler {
         // At a voxel centre the trilinear value is the voxel's own, bit for
         // bit (every weight but its own is zero and the values are
         // finite), so gsenc's points read that one value rather than eight.
-        let pos: Vec<[f32; 3]> = draws.par_iter().enumerate().with_min_len(512).map(|(i, d)| place(unplaced(i, d), d.jitter)).collect();
-        let vref = if on_lattice {
-            pos.par_iter().with_min_len(512).map(|&x| reference.values[lattice_index(reference, x)]).collect()
-        } else {
-            pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect()
-        };
+        let tasks = p.div_ceil(512);
+        let pos: Vec<[f32; 3]> = profile::even("draw: positions", tasks, || {
+            draws.par_iter().enumerate().with_min_len(512).map(|(i, d)| place(unplaced(i, d), d.jitter)).collect()
+        });
+        let vref = profile::even("draw: values", tasks, || {
+            if on_lattice {
+                pos.par_iter().with_min_len(512).map(|&x| reference.values[lattice_index(reference, x)]).collect()
+            } else {
+                pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect()
+            }
+        });
         PointBatch { pos, vref }
+    }
+
+    /// What each point of a batch of counts `c` takes from the random
+    /// stream, stratum by stratum, in the stream's order.
+    fn stream(&mut self, c: &StratumCounts, dims: [usize; 3], samples: usize) -> Vec<Draw> {
+        let on_lattice = self.rule.on_lattice;
+        let rng = &mut self.rng;
+        let mut draws = Vec::with_capacity(c.high + c.mid + c.uniform + c.samples + c.error);
+        // The paper's points are jittered by half a voxel; gsenc's are not.
+        let jitter = |rng: &mut Rng| if on_lattice { [0.0; 3] } else { [0, 1, 2].map(|_| rng.range(-0.5, 0.5)) };
+        for (pool, count) in [(&self.high, c.high), (&self.mid, c.mid)] {
+            for _ in 0..count {
+                let pick = rng.below(pool.len() as u64);
+                draws.push(Draw { pick, u: [0.0; 6], jitter: jitter(rng) });
+            }
+        }
+        for _ in 0..c.uniform {
+            let mut u = [0.0; 6];
+            for a in 0..3 {
+                u[a] = if on_lattice { rng.below(dims[a] as u64) as f64 } else { rng.range(0.0, (dims[a] - 1) as f64) };
+            }
+            draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
+        }
+        for _ in 0..c.samples {
+            let pick = rng.below(samples as u64);
+            // Each axis's normal: its two uniforms, in `Rng::normal`'s order.
+            let mut u = [0.0; 6];
+            for a in 0..3 {
+                u[2 * a] = rng.uniform_open0();
+                u[2 * a + 1] = rng.uniform();
+            }
+            draws.push(Draw { pick, u, jitter: jitter(rng) });
+        }
+        if self.errors.is_some() {
+            for _ in 0..c.error {
+                let u = [rng.uniform(), 0.0, 0.0, 0.0, 0.0, 0.0];
+                draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
+            }
+        }
+        draws
     }
 }
 

@@ -16,6 +16,7 @@ use crate::math::kernel::{morton_key, Primitive};
 use crate::math::loss::{regularizers, RegTerms};
 use crate::math::optim::{cosine_lr, Adam};
 use crate::model::WarmRecord;
+use crate::profile;
 use std::time::Instant;
 
 /// Under gsenc's point rule a run of `T` iterations maps the model's error
@@ -388,6 +389,7 @@ fn refine(
             finish_steps(backend, &mut pending)?;
             return Err(Error::data(format!("loss is not finite at iteration {t}: {last:?}")));
         }
+        profile::iteration_end();
         progress(&Progress { iteration: t + 1, iterations: end(&plateau), loss: last.total });
         t += 1;
     }
@@ -406,6 +408,9 @@ fn refine(
                 l.1 = psnr;
             }
         }
+    }
+    if let Err(e) = profile::write() {
+        tracing::warn!(error = %e, "cannot write the task profile");
     }
     let run = t;
     let loop_seconds = t_loop.elapsed().as_secs_f64();

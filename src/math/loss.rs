@@ -6,6 +6,7 @@
 //! regularisers ([`regularizers`]), which do not depend on points.
 
 use crate::math::kernel::{layout, Primitive};
+use crate::profile;
 use rayon::prelude::*;
 
 /// Huber transition: `0.5 r^2` for `|r| <= 0.1`, else `0.1 (|r| - 0.05)`.
@@ -153,7 +154,7 @@ pub fn regularizers(params: &[Primitive], w: &LossWeights, grad: &mut [Primitive
     let partial: Vec<(f64, f64)> = params
         .par_chunks(chunk)
         .zip(grad.par_chunks_mut(chunk))
-        .map(|(ps, gs)| {
+        .map(|(ps, gs)| profile::task("regularisers", || {
             let (mut sc, mut an) = (0.0f64, 0.0f64);
             for (p, g) in ps.iter().zip(gs.iter_mut()) {
                 let e = [
@@ -191,7 +192,7 @@ pub fn regularizers(params: &[Primitive], w: &LossWeights, grad: &mut [Primitive
                 }
             }
             (sc, an)
-        })
+        }))
         .collect();
     let mut out = RegTerms::default();
     for (s, a) in partial {

@@ -46,13 +46,15 @@ impl Adam {
             .zip(grad.as_flattened().par_chunks(chunk))
             .zip(self.m.as_flattened_mut().par_chunks_mut(chunk).zip(self.v.as_flattened_mut().par_chunks_mut(chunk)))
             .for_each(|((p, g), (m, v))| {
-                for (((p, &g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
-                    *m = BETA1 * *m + (1.0 - BETA1) * g;
-                    *v = BETA2 * *v + (1.0 - BETA2) * g * g;
-                    let mh = *m / bc1;
-                    let vh = *v / bc2;
-                    *p -= lr * mh / (vh.sqrt() + EPS);
-                }
+                crate::profile::task("adam", || {
+                    for (((p, &g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
+                        *m = BETA1 * *m + (1.0 - BETA1) * g;
+                        *v = BETA2 * *v + (1.0 - BETA2) * g * g;
+                        let mh = *m / bc1;
+                        let vh = *v / bc2;
+                        *p -= lr * mh / (vh.sqrt() + EPS);
+                    }
+                })
             });
     }
 

@@ -77,7 +77,7 @@ pub struct GpuBackend {
     /// The resident steps submitted and not yet finished (resident.rs).
     steps: VecDeque<resident::Step>,
     /// Resident steps that may be in flight at once (1 or
-    /// [`points::IN_FLIGHT`], the default): with two, the device runs one
+    /// `points::IN_FLIGHT`, the default): with two, the device runs one
     /// while the host waits for the other's results and records the next.
     pub depth: usize,
     /// Calls that ran again because the candidate lists overflowed.

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# The thread-scaling model of the CPU backend, on any machine: encodes
+# benches/core.sh's scaling rows on one thread with a build that records
+# every task's time (feature task-profile, src/profile.rs), then schedules
+# those tasks on 1, 2, 4, 8 and 16 workers (benches/scaling_model.py) and
+# prints, per row, where an iteration's time goes and the predicted speed-up.
+# Rerun with:
+#   bash benches/scaling_model.sh [ROWS...]   (default: rm128_32k_matched hydrogen_4k_matched rm128_32k_full)
+# The profiled build goes to target/task-profile (or CARGO_TARGET_DIR), so
+# the ordinary binary is left alone. `full` runs 1,000 iterations (its
+# passes are the same in every iteration). A prediction, not a measurement:
+# on a 16-core machine, set it beside `bash benches/scaling.sh`.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+rows=("$@")
+[ ${#rows[@]} -gt 0 ] || rows=(rm128_32k_matched hydrogen_4k_matched rm128_32k_full)
+. benches/corpus.sh
+corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
+target=${CARGO_TARGET_DIR:-target/task-profile}
+CARGO_TARGET_DIR=$target cargo build --release --locked --bin gsenc --features gsenc/task-profile >&2
+bin=$target/release/gsenc
+out=bench-out/scaling_model
+mkdir -p "$out"
+rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255 --downsample 2 --budget 32000)
+h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32 --budget 4096)
+profiles=()
+for r in "${rows[@]}"; do
+    case $r in
+        rm128_32k_matched) args=("${rm_args[@]}" --schedule matched) ;;
+        rm128_32k_full) args=("${rm_args[@]}" --schedule full --iters 1000) ;;
+        hydrogen_4k_matched) args=("${h_args[@]}" --schedule matched) ;;
+        *) echo "unknown row $r" >&2; exit 2 ;;
+    esac
+    echo "[$r] one thread, task profile" >&2
+    GSENC_TASK_PROFILE="$out/$r.tsv" "$bin" encode grid "${args[@]}" --threads 1 -o "$out/$r.gsm" --quiet > /dev/null
+    profiles+=("$out/$r.tsv")
+done
+python3 benches/scaling_model.py "${profiles[@]}"
