@@ -4,6 +4,7 @@ task profile (`src/profile.rs`, feature `task-profile`) on p workers and
 prints the predicted time of an iteration and the speed-up at each p.
 
     python3 benches/scaling_model.py [--fork-join-us US] PROFILE...
+    python3 benches/scaling_model.py --check     (the model's own test)
 
 Each iteration is the sequence of passes the profile recorded: a serial
 section takes its time at any p; a parallel pass takes the time of a greedy
@@ -68,12 +69,40 @@ def predict(its, p, fork_join):
     return total / len(its)
 
 
+def check():
+    """The model on a made-up profile whose schedule is known by hand."""
+    import os
+    import tempfile
+    # Two iterations, each: a serial section of 1 s; a pass of four tasks
+    # (3, 1, 1, 1 s); the draw beside it, a 0.5 s stream and two 1 s tasks.
+    one = ["s\t-1", "p\t3", "p\t1", "p\t1", "p\t1", "draw: stream\t-0.5", "draw: x\t1", "draw: x\t1", "\t0"]
+    with tempfile.NamedTemporaryFile("w", suffix=".tsv", delete=False) as f:
+        f.write("\n".join(one * 2) + "\n")
+    try:
+        its = iterations(f.name)
+    finally:
+        os.unlink(f.name)
+    assert len(its) == 2 and its[0][1] == ("p", [3.0, 1.0, 1.0, 1.0]), its
+    assert makespan([3, 1, 1, 1], 2) == 3 and makespan([1, 1, 1, 1], 2) == 2
+    assert predict(its, 1, 0.0) == 9.5
+    # Two workers: the pass and the draw's tasks (3, 1, 1, 1, 1, 1) take 4 s
+    # after the serial second; a fork-join cost adds once per pass.
+    assert predict(its, 2, 0.0) == 5.0 and abs(predict(its, 2, 0.25) - 5.25) < 1e-12
+    # Many workers: the longest task sets the pass; the draw (0.5 + 1) fits beside.
+    assert predict(its, 16, 0.0) == 4.0
+    print("scaling_model.py: the model's checks pass")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--fork-join-us", type=float, default=5.0)
     ap.add_argument("--threads", default="1,2,4,8,16")
-    ap.add_argument("profiles", nargs="+")
+    ap.add_argument("--check", action="store_true", help="check the model on a made-up profile and exit")
+    ap.add_argument("profiles", nargs="*")
     a = ap.parse_args()
+    if a.check:
+        check()
+        return
     counts = [int(x) for x in a.threads.split(",")]
     for path in a.profiles:
         its = iterations(path)[5:]  # the first iterations warm the caches

@@ -7,93 +7,126 @@
 //! schedules those tasks on p workers to predict an iteration's time at p
 //! threads: what keeps a pass from spreading over 16 cores (a serial
 //! section, too few tasks, one long task) shows up on a 2-core machine.
-//! Without the feature every function here is only the call it wraps.
+//! Without the feature every function here is only the call it wraps (the
+//! recording branch is compiled, and tested, but never taken).
 //!
 //! The file has one line per record, `pass<TAB>seconds`: a task of a
 //! parallel pass (consecutive tasks of one pass are one run of it), a serial
 //! section (negative seconds), or the end of an iteration (an empty pass).
 
-#[cfg(feature = "task-profile")]
-mod imp {
-    use parking_lot::Mutex;
-    use std::time::Instant;
+use parking_lot::Mutex;
+use std::time::Instant;
 
-    static LOG: Mutex<Vec<(&'static str, f64)>> = Mutex::new(Vec::new());
+const ON: bool = cfg!(feature = "task-profile");
 
-    fn record(pass: &'static str, seconds: f64) {
-        LOG.lock().push((pass, seconds));
-    }
-
-    pub fn task<R>(pass: &'static str, f: impl FnOnce() -> R) -> R {
-        let t = Instant::now();
-        let r = f();
-        record(pass, t.elapsed().as_secs_f64());
-        r
-    }
-
-    pub fn serial<R>(pass: &'static str, f: impl FnOnce() -> R) -> R {
-        let t = Instant::now();
-        let r = f();
-        record(pass, -t.elapsed().as_secs_f64());
-        r
-    }
-
-    pub fn even<R>(pass: &'static str, tasks: usize, f: impl FnOnce() -> R) -> R {
-        let t = Instant::now();
-        let r = f();
-        let each = t.elapsed().as_secs_f64() / tasks.max(1) as f64;
-        for _ in 0..tasks.max(1) {
-            record(pass, each);
-        }
-        r
-    }
-
-    pub fn iteration_end() {
-        record("", 0.0);
-    }
-
-    pub fn write() -> std::io::Result<()> {
-        let log = std::mem::take(&mut *LOG.lock());
-        let Some(path) = std::env::var_os("GSENC_TASK_PROFILE") else { return Ok(()) };
-        let text: String = log.iter().map(|(pass, s)| format!("{pass}\t{s:.9}\n")).collect();
-        std::fs::write(path, text)
-    }
-}
-
-#[cfg(not(feature = "task-profile"))]
-mod imp {
-    #[inline(always)]
-    pub fn task<R>(_: &'static str, f: impl FnOnce() -> R) -> R {
-        f()
-    }
-
-    #[inline(always)]
-    pub fn serial<R>(_: &'static str, f: impl FnOnce() -> R) -> R {
-        f()
-    }
-
-    #[inline(always)]
-    pub fn even<R>(_: &'static str, _: usize, f: impl FnOnce() -> R) -> R {
-        f()
-    }
-
-    #[inline(always)]
-    pub fn iteration_end() {}
-
-    #[inline(always)]
-    pub fn write() -> std::io::Result<()> {
-        Ok(())
-    }
-}
+static LOG: Recorder = Recorder::new();
 
 /// Runs one task of the parallel pass `pass` and records its time.
-pub use imp::task;
+#[inline(always)]
+pub fn task<R>(pass: &'static str, f: impl FnOnce() -> R) -> R {
+    if ON { LOG.task(pass, f) } else { f() }
+}
+
 /// Runs a serial section and records its time.
-pub use imp::serial;
+#[inline(always)]
+pub fn serial<R>(pass: &'static str, f: impl FnOnce() -> R) -> R {
+    if ON { LOG.serial(pass, f) } else { f() }
+}
+
 /// Runs a whole parallel pass of `tasks` equal tasks (where timing each
 /// would cost more than the task) and records its time split among them.
-pub use imp::even;
+#[inline(always)]
+pub fn even<R>(pass: &'static str, tasks: usize, f: impl FnOnce() -> R) -> R {
+    if ON { LOG.even(pass, tasks, f) } else { f() }
+}
+
 /// Marks the end of a refinement iteration.
-pub use imp::iteration_end;
+#[inline(always)]
+pub fn iteration_end() {
+    if ON {
+        LOG.iteration_end();
+    }
+}
+
 /// Writes the records to `GSENC_TASK_PROFILE` (when set) and forgets them.
-pub use imp::write;
+pub fn write() -> std::io::Result<()> {
+    if !ON {
+        return Ok(());
+    }
+    let text = LOG.take_text();
+    match std::env::var_os("GSENC_TASK_PROFILE") {
+        Some(path) => std::fs::write(path, text),
+        None => Ok(()),
+    }
+}
+
+/// The records, in the order they were made.
+struct Recorder(Mutex<Vec<(&'static str, f64)>>);
+
+impl Recorder {
+    const fn new() -> Recorder {
+        Recorder(Mutex::new(Vec::new()))
+    }
+
+    fn timed<R>(&self, f: impl FnOnce() -> R) -> (R, f64) {
+        let t = Instant::now();
+        let r = f();
+        (r, t.elapsed().as_secs_f64())
+    }
+
+    fn task<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
+        let (r, s) = self.timed(f);
+        self.0.lock().push((pass, s));
+        r
+    }
+
+    fn serial<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
+        let (r, s) = self.timed(f);
+        self.0.lock().push((pass, -s));
+        r
+    }
+
+    fn even<R>(&self, pass: &'static str, tasks: usize, f: impl FnOnce() -> R) -> R {
+        let (r, s) = self.timed(f);
+        let n = tasks.max(1);
+        self.0.lock().extend(std::iter::repeat_n((pass, s / n as f64), n));
+        r
+    }
+
+    fn iteration_end(&self) {
+        self.0.lock().push(("", 0.0));
+    }
+
+    fn take_text(&self) -> String {
+        std::mem::take(&mut *self.0.lock()).iter().map(|(pass, s)| format!("{pass}\t{s:.9}\n")).collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_recorder_writes_tasks_serial_sections_and_iteration_ends_in_order() {
+        let r = Recorder::new();
+        assert_eq!(r.task("a", || 2 + 2), 4);
+        r.serial("s", || std::thread::sleep(std::time::Duration::from_millis(2)));
+        r.even("e", 4, || std::thread::sleep(std::time::Duration::from_millis(4)));
+        r.iteration_end();
+        let text = r.take_text();
+        let lines: Vec<(&str, f64)> = text
+            .lines()
+            .map(|l| {
+                let (p, s) = l.split_once('\t').expect("pass<TAB>seconds");
+                (p, s.parse().expect("seconds"))
+            })
+            .collect();
+        let names: Vec<&str> = lines.iter().map(|l| l.0).collect();
+        assert_eq!(names, ["a", "s", "e", "e", "e", "e", ""]);
+        assert!(lines[0].1 >= 0.0);
+        assert!(lines[1].1 <= -0.002, "a serial section is negative: {}", lines[1].1);
+        assert!(lines[2..6].iter().all(|l| l.1 == lines[2].1 && l.1 >= 0.001), "{lines:?}");
+        assert_eq!(lines[6].1, 0.0);
+        assert_eq!(r.take_text(), "", "taking the text forgets the records");
+    }
+}

@@ -3,7 +3,8 @@
 # C ABI, command-line tool; with the HDF5 store), the default build without
 # system libraries, the generated C header's freshness, the C API from C
 # (under valgrind too), the C API and the tool giving the same models, the
-# installed CMake package with C and Fortran, MPI under mpirun, the store
+# installed CMake package with C and Fortran, MPI under mpirun, the thread-
+# scaling model's scheduler, the store
 # read by h5py, the Python package (pytest), the ADIOS2 operator and the
 # ParaView reader (pytest, headless), and a bounded fuzzing run of
 # the model reader. The GPU
@@ -64,6 +65,9 @@ stage bash tests/package.sh
 
 # The MPI layer under mpirun -n 1, 2, 4: C, Fortran, CLI and the mock solver.
 stage bash tests/mpi.sh
+
+# The thread-scaling model's scheduler, on a profile whose answer is known.
+stage python3 benches/scaling_model.py --check
 
 # The store read with h5py alone, against the models gsenc extracts from it.
 stage cargo build --release --locked --features hdf5 --bin gsenc
