@@ -2,7 +2,7 @@
 //! passes work on. One definition, so that the CPU and the GPU backends list
 //! the same bricks and the same points in each.
 
-use super::csr::csr;
+use super::csr::{csr, Keyed};
 use crate::profile;
 use rayon::prelude::*;
 
@@ -53,12 +53,24 @@ impl PointBricks {
             c(0) + dims[0] * (c(1) + dims[1] * c(2))
         };
         let nb = dims[0] * dims[1] * dims[2];
-        let keyed: Vec<Vec<(u32, u32)>> = pos
-            .par_chunks(POINTS_PER_TASK)
+        // Each task counts its points' bricks as it keys them: a histogram
+        // of every brick a task, so no fewer than an eighth of the grid's
+        // bricks in points a task (a sparse batch over a large grid).
+        let per_task = POINTS_PER_TASK.max(nb / 8);
+        let keyed: Vec<Keyed> = pos
+            .par_chunks(per_task)
             .enumerate()
-            .map(|(t, run)| profile::task("bricks: keys", || run.iter().enumerate().map(|(i, &x)| (brick_of(x) as u32, (t * POINTS_PER_TASK + i) as u32)).collect()))
+            .map(|(t, run)| {
+                profile::task("bricks: keys", || {
+                    let mut k = Keyed::new(nb, run.len());
+                    for (i, &x) in run.iter().enumerate() {
+                        k.push(brick_of(x) as u32, (t * per_task + i) as u32);
+                    }
+                    k
+                })
+            })
             .collect();
-        let (start, order) = profile::even("bricks: sort", keyed.len(), || csr(nb, &keyed));
+        let (start, order) = profile::even("bricks: sort", keyed.len(), || csr(nb, keyed));
         profile::serial("bricks: list", || {
             let mut occupied = vec![u32::MAX; nb];
             let mut ranges = vec![];
@@ -100,9 +112,19 @@ mod tests {
     #[test]
     fn every_point_once_in_its_brick_in_batch_order() {
         let mut rng = Rng::new(3);
-        // More points than one task takes, the last run short.
-        let pos: Vec<[f32; 3]> = (0..2 * POINTS_PER_TASK + 500).map(|_| [0, 1, 2].map(|a| rng.range(-3.0, 20.0 + 10.0 * a as f64) as f32)).collect();
-        let b = PointBricks::new(&pos, 4.0);
+        // More points than one task takes, the last run short; then a
+        // sparse batch over a grid of more than 8 tasks' worth of bricks
+        // (fewer, longer tasks).
+        for (count, extent, edge) in [(2 * POINTS_PER_TASK + 500, 20.0, 4.0), (3 * POINTS_PER_TASK + 7, 1000.0, 1.0)] {
+            let pos: Vec<[f32; 3]> = (0..count).map(|_| [0, 1, 2].map(|a| rng.range(-3.0, extent + 10.0 * a as f64) as f32)).collect();
+            let b = PointBricks::new(&pos, edge);
+            let nb = b.dims.iter().product::<usize>();
+            assert_eq!(nb / 8 > POINTS_PER_TASK, extent > 100.0, "{nb} bricks");
+            check(&pos, &b);
+        }
+    }
+
+    fn check(pos: &[[f32; 3]], b: &PointBricks) {
         let mut seen = vec![false; pos.len()];
         for (o, &(s, e)) in b.ranges.iter().enumerate() {
             let c = b.coords[o];

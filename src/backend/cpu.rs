@@ -17,7 +17,7 @@
 //! of bricks is one parallel task that writes its own slice of the output.
 
 use super::bricks::PointBricks;
-use super::csr::csr;
+use super::csr::{csr, Keyed};
 use super::{check_len, Backend, Lattice, PointLoss};
 use crate::error::Result;
 use crate::math::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
@@ -426,10 +426,11 @@ impl CpuBackend {
         }));
         let boxes = &self.prep.boxes;
         let task = primitives_per_task(boxes.len());
-        let parts: Vec<Vec<(u32, u32)>> = (0..boxes.len().div_ceil(task))
+        let nb = bricks.ranges.len();
+        let parts: Vec<Keyed> = (0..boxes.len().div_ceil(task))
             .into_par_iter()
             .map(|c| profile::task("binning", || {
-                let mut out = vec![];
+                let mut out = Keyed::new(nb, 0);
                 let end = ((c + 1) * task).min(boxes.len());
                 for g in c * task..end {
                     let Some((r0, r1)) = bricks.range_of(&boxes[g]) else { continue };
@@ -443,13 +444,13 @@ impl CpuBackend {
                                 while m != 0 {
                                     let x = m.trailing_zeros() as usize;
                                     m &= m - 1;
-                                    out.push((occ[bd[0] * row + x], g as u32));
+                                    out.push(occ[bd[0] * row + x], g as u32);
                                 }
                             } else {
                                 for x in r0[0]..=r1[0] {
                                     let o = occ[bd[0] * row + x];
                                     if o != u32::MAX {
-                                        out.push((o, g as u32));
+                                        out.push(o, g as u32);
                                     }
                                 }
                             }
@@ -459,7 +460,7 @@ impl CpuBackend {
                 out
             }))
             .collect();
-        let (cand_start, cand) = profile::even("binning: sort", parts.len(), || csr(bricks.ranges.len(), &parts));
+        let (cand_start, cand) = profile::even("binning: sort", parts.len(), || csr(nb, parts));
         PointBins { bricks, cand_start, cand }
     }
 
@@ -815,7 +816,7 @@ impl Backend for CpuBackend {
                 }
             }
         }
-        let (lstart, lcand) = csr(nlayers, std::slice::from_ref(&layer_pairs));
+        let (lstart, lcand) = csr(nlayers, vec![Keyed::from_pairs(nlayers, layer_pairs)]);
         let (nbx, nby) = (dims[0].div_ceil(bs), dims[1].div_ceil(bs));
         let slab_len = dims[0] * dims[1] * bs;
         out.par_chunks_mut(slab_len).enumerate().for_each(|(layer, slab)| {
@@ -831,7 +832,7 @@ impl Backend for CpuBackend {
                     }
                 }
             }
-            let (bstart, bcand) = csr(nbx * nby, std::slice::from_ref(&pairs));
+            let (bstart, bcand) = csr(nbx * nby, vec![Keyed::from_pairs(nbx * nby, pairs)]);
             let mut rho = vec![0f32; bs * bs * bs];
             let mut num = vec![0f32; bs * bs * bs];
             for by in 0..nby {

@@ -5,30 +5,51 @@
 
 use rayon::prelude::*;
 
+/// One task's `(key, value)` pairs, in the order it made them, and how many
+/// each key has, counted as they are pushed (so that the sort needs no pass
+/// of its own to count them).
+pub(crate) struct Keyed {
+    pairs: Vec<(u32, u32)>,
+    counts: Vec<u32>,
+}
+
+impl Keyed {
+    /// Room for `capacity` pairs with keys below `nkeys`.
+    pub(crate) fn new(nkeys: usize, capacity: usize) -> Keyed {
+        Keyed { pairs: Vec::with_capacity(capacity), counts: vec![0; nkeys] }
+    }
+
+    /// `pairs`, counted.
+    pub(crate) fn from_pairs(nkeys: usize, pairs: Vec<(u32, u32)>) -> Keyed {
+        let mut counts = vec![0; nkeys];
+        for &(k, _) in &pairs {
+            counts[k as usize] += 1;
+        }
+        Keyed { pairs, counts }
+    }
+
+    #[inline]
+    pub(crate) fn push(&mut self, key: u32, value: u32) {
+        self.counts[key as usize] += 1;
+        self.pairs.push((key, value));
+    }
+}
+
 /// Stable counting sort of `(key, value)` pairs, given per task in task order,
-/// into CSR form over `nkeys` keys: values of key `k` are
-/// `vals[start[k]..start[k + 1]]`, in task order. Parallel over tasks, and the
-/// same output whatever the thread count.
-pub(crate) fn csr(nkeys: usize, parts: &[Vec<(u32, u32)>]) -> (Vec<u32>, Vec<u32>) {
-    // Per-task histograms, then per (task, key) write offsets, then a parallel fill.
-    let mut offsets: Vec<Vec<u32>> = parts
-        .par_iter()
-        .map(|part| {
-            let mut h = vec![0u32; nkeys];
-            for &(k, _) in part {
-                h[k as usize] += 1;
-            }
-            h
-        })
-        .collect();
-    let (start, len) = offsets_of(nkeys, &mut offsets);
+/// into CSR form over `nkeys` keys (the keys every part counted): values of
+/// key `k` are `vals[start[k]..start[k + 1]]`, in task order. Parallel over
+/// tasks, and the same output whatever the thread count.
+pub(crate) fn csr(nkeys: usize, mut parts: Vec<Keyed>) -> (Vec<u32>, Vec<u32>) {
+    // Each part's counts become its write offset per key.
+    let (start, len) = offsets_of(nkeys, &mut parts);
     // Every element is written once below: no zeroing first (a serial
     // pass over about a megabyte a batch).
     let mut vals: Vec<u32> = Vec::with_capacity(len);
     let out = SyncPtr(vals.as_mut_ptr());
-    parts.par_iter().zip(offsets.par_iter_mut()).for_each(|(part, off)| {
+    parts.par_iter_mut().for_each(|part| {
         let out = &out;
-        for &(k, v) in part {
+        let Keyed { pairs, counts: off } = part;
+        for &(k, v) in pairs.iter() {
             let o = &mut off[k as usize];
             // SAFETY: the offsets give every (task, key) its own disjoint
             // range inside `vals`, so no two tasks write one element.
@@ -48,9 +69,10 @@ pub(crate) fn csr(nkeys: usize, parts: &[Vec<(u32, u32)>]) -> (Vec<u32>, Vec<u32
 /// key: the key's start plus what the tasks before it put there.
 /// Each loop runs along whole histograms (one loop key by key across every
 /// task's histogram strided through them, and took a few times longer).
-fn offsets_of(nkeys: usize, offsets: &mut [Vec<u32>]) -> (Vec<u32>, usize) {
+fn offsets_of(nkeys: usize, parts: &mut [Keyed]) -> (Vec<u32>, usize) {
     let mut start = vec![0u32; nkeys + 1];
-    for h in offsets.iter() {
+    for h in parts.iter().map(|p| &p.counts) {
+        assert_eq!(h.len(), nkeys, "a part counted keys below another bound");
         for (s, &c) in start[1..].iter_mut().zip(h) {
             *s += c;
         }
@@ -59,7 +81,7 @@ fn offsets_of(nkeys: usize, offsets: &mut [Vec<u32>]) -> (Vec<u32>, usize) {
         start[k + 1] += start[k];
     }
     let mut cursor = start[..nkeys].to_vec();
-    for h in offsets.iter_mut() {
+    for h in parts.iter_mut().map(|p| &mut p.counts) {
         for (at, o) in cursor.iter_mut().zip(h.iter_mut()) {
             let c = *o;
             *o = *at;
@@ -85,7 +107,19 @@ mod tests {
         let parts: Vec<Vec<(u32, u32)>> = (0..7)
             .map(|p| (0..(50 + 13 * p)).map(|i| (rng.below(20) as u32, (p * 1000 + i) as u32)).collect())
             .collect();
-        let (start, vals) = csr(20, &parts);
+        let keyed = |parts: &[Vec<(u32, u32)>]| -> Vec<Keyed> {
+            parts
+                .iter()
+                .map(|p| {
+                    let mut k = Keyed::new(20, 0);
+                    for &(key, v) in p {
+                        k.push(key, v);
+                    }
+                    k
+                })
+                .collect()
+        };
+        let (start, vals) = csr(20, keyed(&parts));
         // Reference: a stable sort of all pairs by key, in task order.
         let mut flat: Vec<(u32, u32)> = parts.concat();
         flat.sort_by_key(|&(k, _)| k);
@@ -96,7 +130,7 @@ mod tests {
         }
         assert_eq!(start[0], 0);
         // One task and no task at all go through the same path.
-        assert_eq!(csr(20, std::slice::from_ref(&parts.concat())).1, vals);
-        assert_eq!(csr(3, &[]), (vec![0; 4], vec![]));
+        assert_eq!(csr(20, vec![Keyed::from_pairs(20, parts.concat())]).1, vals);
+        assert_eq!(csr(3, vec![]), (vec![0; 4], vec![]));
     }
 }

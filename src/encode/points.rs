@@ -247,16 +247,21 @@ impl PointSampler {
         // At a voxel centre the trilinear value is the voxel's own, bit for
         // bit (every weight but its own is zero and the values are
         // finite), so gsenc's points read that one value rather than eight.
-        let tasks = p.div_ceil(512);
-        let pos: Vec<[f32; 3]> = profile::even("draw: positions", tasks, || {
-            draws.par_iter().enumerate().with_min_len(512).map(|(i, d)| place(unplaced(i, d), d.jitter)).collect()
-        });
-        let vref = profile::even("draw: values", tasks, || {
-            if on_lattice {
-                pos.par_iter().with_min_len(512).map(|&x| reference.values[lattice_index(reference, x)]).collect()
-            } else {
-                pos.par_iter().with_min_len(512).map(|&x| reference.trilinear(x)).collect()
-            }
+        // Runs of points, each placed first and then read: apart, the two
+        // loops keep many independent cache misses in flight (one loop that
+        // placed and read each point in turn was slower by a third).
+        const RUN: usize = 512;
+        let (mut pos, mut vref) = (vec![[0f32; 3]; p], vec![0f32; p]);
+        profile::even("draw: points", p.div_ceil(RUN), || {
+            pos.par_chunks_mut(RUN).zip(vref.par_chunks_mut(RUN)).enumerate().for_each(|(r, (xs, vs))| {
+                for (k, x) in xs.iter_mut().enumerate() {
+                    let d = &draws[r * RUN + k];
+                    *x = place(unplaced(r * RUN + k, d), d.jitter);
+                }
+                for (v, &x) in vs.iter_mut().zip(xs.iter()) {
+                    *v = if on_lattice { reference.values[lattice_index(reference, x)] } else { reference.trilinear(x) };
+                }
+            })
         });
         PointBatch { pos, vref }
     }

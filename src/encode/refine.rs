@@ -13,7 +13,7 @@ use crate::error::{Error, Result};
 use crate::field::check_finite;
 use crate::input::Target;
 use crate::math::kernel::{morton_key, Primitive};
-use crate::math::loss::{regularizers, RegTerms};
+use crate::math::loss::RegTerms;
 use crate::math::optim::{cosine_lr, Adam};
 use crate::model::WarmRecord;
 use crate::profile;
@@ -381,9 +381,8 @@ fn refine(
             );
             ahead = next;
             let pl = pl?;
-            let reg = regularizers(&params, &cfg.weights, &mut grad);
+            let reg = adam.step_regularized(&mut params, &mut grad, &cfg.weights, lr);
             last = terms(pl, reg);
-            adam.step(&mut params, &grad, lr);
         }
         if !last.total.is_finite() {
             finish_steps(backend, &mut pending)?;

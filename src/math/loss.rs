@@ -148,56 +148,69 @@ pub struct RegTerms {
 /// terms' values. Both act on `exp(l)` itself, not on the clamped sigma.
 pub fn regularizers(params: &[Primitive], w: &LossWeights, grad: &mut [Primitive]) -> RegTerms {
     let chunk = super::primitives_per_task(params.len());
-    let n = params.len().max(1) as f32;
-    let inv_3n = 1.0 / (3.0 * n);
-    let inv_n = 1.0 / n;
     let partial: Vec<(f64, f64)> = params
         .par_chunks(chunk)
         .zip(grad.par_chunks_mut(chunk))
-        .map(|(ps, gs)| profile::task("regularisers", || {
-            let (mut sc, mut an) = (0.0f64, 0.0f64);
-            for (p, g) in ps.iter().zip(gs.iter_mut()) {
-                let e = [
-                    p[layout::LOG_SCALE].exp(),
-                    p[layout::LOG_SCALE + 1].exp(),
-                    p[layout::LOG_SCALE + 2].exp(),
-                ];
-                for a in 0..3 {
-                    if e[a] > 8.0 {
-                        sc += ((e[a] - 8.0) * inv_3n) as f64;
-                        g[layout::LOG_SCALE + a] += w.scale * e[a] * inv_3n;
-                    }
-                    if e[a] < 0.30 {
-                        sc += (0.05 * (0.30 - e[a]) * inv_3n) as f64;
-                        g[layout::LOG_SCALE + a] -= w.scale * 0.05 * e[a] * inv_3n;
-                    }
-                }
-                let (mut amax, mut amin) = (0, 0);
-                for a in 1..3 {
-                    if e[a] > e[amax] {
-                        amax = a;
-                    }
-                    if e[a] < e[amin] {
-                        amin = a;
-                    }
-                }
-                let floor = e[amin].max(1e-3);
-                let ratio = e[amax] / floor;
-                if ratio > w.aniso_ratio && amax != amin {
-                    an += ((ratio - w.aniso_ratio) * inv_n) as f64;
-                    g[layout::LOG_SCALE + amax] += w.aniso * ratio * inv_n;
-                    if e[amin] > 1e-3 {
-                        g[layout::LOG_SCALE + amin] -= w.aniso * ratio * inv_n;
-                    }
-                }
-            }
-            (sc, an)
-        }))
+        .map(|(ps, gs)| profile::task("regularisers", || regularize_run(ps, gs, w, params.len())))
         .collect();
-    let mut out = RegTerms::default();
-    for (s, a) in partial {
-        out.scale += s;
-        out.aniso += a;
+    RegTerms::sum(&partial)
+}
+
+/// [`regularizers`] of one run of primitives out of a model of `n`: adds
+/// their weighted gradients to `gs` and returns the run's (scale,
+/// anisotropy) terms; the model's terms are the runs' in order
+/// ([`RegTerms::sum`]).
+pub fn regularize_run(ps: &[Primitive], gs: &mut [Primitive], w: &LossWeights, n: usize) -> (f64, f64) {
+    let n = n.max(1) as f32;
+    let inv_3n = 1.0 / (3.0 * n);
+    let inv_n = 1.0 / n;
+    let (mut sc, mut an) = (0.0f64, 0.0f64);
+    for (p, g) in ps.iter().zip(gs.iter_mut()) {
+        let e = [
+            p[layout::LOG_SCALE].exp(),
+            p[layout::LOG_SCALE + 1].exp(),
+            p[layout::LOG_SCALE + 2].exp(),
+        ];
+        for a in 0..3 {
+            if e[a] > 8.0 {
+                sc += ((e[a] - 8.0) * inv_3n) as f64;
+                g[layout::LOG_SCALE + a] += w.scale * e[a] * inv_3n;
+            }
+            if e[a] < 0.30 {
+                sc += (0.05 * (0.30 - e[a]) * inv_3n) as f64;
+                g[layout::LOG_SCALE + a] -= w.scale * 0.05 * e[a] * inv_3n;
+            }
+        }
+        let (mut amax, mut amin) = (0, 0);
+        for a in 1..3 {
+            if e[a] > e[amax] {
+                amax = a;
+            }
+            if e[a] < e[amin] {
+                amin = a;
+            }
+        }
+        let floor = e[amin].max(1e-3);
+        let ratio = e[amax] / floor;
+        if ratio > w.aniso_ratio && amax != amin {
+            an += ((ratio - w.aniso_ratio) * inv_n) as f64;
+            g[layout::LOG_SCALE + amax] += w.aniso * ratio * inv_n;
+            if e[amin] > 1e-3 {
+                g[layout::LOG_SCALE + amin] -= w.aniso * ratio * inv_n;
+            }
+        }
     }
-    out
+    (sc, an)
+}
+
+impl RegTerms {
+    /// The terms of a model from its runs', added in order.
+    pub fn sum(runs: &[(f64, f64)]) -> RegTerms {
+        let mut out = RegTerms::default();
+        for (s, a) in runs {
+            out.scale += s;
+            out.aniso += a;
+        }
+        out
+    }
 }

@@ -3,6 +3,10 @@
 //! decaying to 5 % of it over the run).
 
 use crate::math::kernel::Primitive;
+use crate::math::loss::{regularize_run, LossWeights, RegTerms};
+#[cfg(any(doc, test))]
+use crate::math::loss::regularizers;
+use crate::profile;
 use rayon::prelude::*;
 
 pub const BETA1: f32 = 0.9;
@@ -33,35 +37,63 @@ impl Adam {
 
     /// One Adam step on every parameter with learning rate `lr`.
     pub fn step(&mut self, params: &mut [Primitive], grad: &[Primitive], lr: f32) {
-        self.t += 1;
-        let bc1 = 1.0 - BETA1.powi(self.t as i32);
-        let bc2 = 1.0 - BETA2.powi(self.t as i32);
-        // Flat slices, so that the element loop vectorises (over
-        // `[f32; 12]` per primitive the compiler left it scalar); every
-        // element gets the same operations as before.
-        let chunk = 12 * super::primitives_per_task(params.len());
+        let (bc1, bc2) = self.advance();
+        let chunk = super::primitives_per_task(params.len());
         params
-            .as_flattened_mut()
             .par_chunks_mut(chunk)
-            .zip(grad.as_flattened().par_chunks(chunk))
-            .zip(self.m.as_flattened_mut().par_chunks_mut(chunk).zip(self.v.as_flattened_mut().par_chunks_mut(chunk)))
-            .for_each(|((p, g), (m, v))| {
-                crate::profile::task("adam", || {
-                    for (((p, &g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
-                        *m = BETA1 * *m + (1.0 - BETA1) * g;
-                        *v = BETA2 * *v + (1.0 - BETA2) * g * g;
-                        let mh = *m / bc1;
-                        let vh = *v / bc2;
-                        *p -= lr * mh / (vh.sqrt() + EPS);
-                    }
+            .zip(grad.par_chunks(chunk))
+            .zip(self.m.par_chunks_mut(chunk).zip(self.v.par_chunks_mut(chunk)))
+            .for_each(|((p, g), (m, v))| profile::task("adam", || update(p, g, m, v, lr, bc1, bc2)));
+    }
+
+    /// The regularisers' gradients added to `grad`, then one Adam step:
+    /// one pass over the primitives instead of two, in the same tasks, so
+    /// the same bits as [`regularizers`] and [`Adam::step`] in turn (each
+    /// primitive's terms read only its own parameters). Returns the
+    /// regularisers' terms.
+    pub fn step_regularized(&mut self, params: &mut [Primitive], grad: &mut [Primitive], w: &LossWeights, lr: f32) -> RegTerms {
+        let (bc1, bc2) = self.advance();
+        let n = params.len();
+        let chunk = super::primitives_per_task(n);
+        let runs: Vec<(f64, f64)> = params
+            .par_chunks_mut(chunk)
+            .zip(grad.par_chunks_mut(chunk))
+            .zip(self.m.par_chunks_mut(chunk).zip(self.v.par_chunks_mut(chunk)))
+            .map(|((p, g), (m, v))| {
+                profile::task("regularisers and adam", || {
+                    let terms = regularize_run(p, g, w, n);
+                    update(p, g, m, v, lr, bc1, bc2);
+                    terms
                 })
-            });
+            })
+            .collect();
+        RegTerms::sum(&runs)
+    }
+
+    /// Counts a step; its bias corrections.
+    fn advance(&mut self) -> (f32, f32) {
+        self.t += 1;
+        (1.0 - BETA1.powi(self.t as i32), 1.0 - BETA2.powi(self.t as i32))
     }
 
     /// Forgets the moments of one primitive (after relocation).
     pub fn reset(&mut self, i: usize) {
         self.m[i] = [0.0; 12];
         self.v[i] = [0.0; 12];
+    }
+}
+
+/// Adam's update of a run of primitives, over flat slices so that the
+/// element loop vectorises (over `[f32; 12]` per primitive the compiler
+/// left it scalar); every element gets the same operations.
+fn update(p: &mut [Primitive], g: &[Primitive], m: &mut [Primitive], v: &mut [Primitive], lr: f32, bc1: f32, bc2: f32) {
+    let (p, g, m, v) = (p.as_flattened_mut(), g.as_flattened(), m.as_flattened_mut(), v.as_flattened_mut());
+    for (((p, &g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {
+        *m = BETA1 * *m + (1.0 - BETA1) * g;
+        *v = BETA2 * *v + (1.0 - BETA2) * g * g;
+        let mh = *m / bc1;
+        let vh = *v / bc2;
+        *p -= lr * mh / (vh.sqrt() + EPS);
     }
 }
 
@@ -88,6 +120,39 @@ mod tests {
         assert!((p[0][3] - 0.99).abs() < 1e-6);
         assert!((p[0][4] - 1.01).abs() < 1e-5);
         assert_eq!(p[0][0], 1.0);
+    }
+
+    /// The fused pass (regularisers, then Adam, run by run) against the
+    /// regularisers over the whole model and then the step: the same bits,
+    /// the same terms, over several tasks and three steps, with primitives
+    /// on both sides of every regulariser's bound.
+    #[test]
+    fn the_fused_pass_gives_the_bits_of_the_regularisers_then_the_step() {
+        let mut rng = crate::math::rng::Rng::new(5);
+        let n = 3000;
+        let w = LossWeights::PAPER;
+        let ls = crate::math::kernel::layout::LOG_SCALE;
+        let mut p: Vec<Primitive> = (0..n).map(|_| std::array::from_fn(|_| rng.range(-1.0, 1.0) as f32)).collect();
+        for q in p.iter_mut() {
+            // Scales from 0.1 to 20 voxels: below 0.3, above 8, and ratios past the bound.
+            for a in 0..3 {
+                q[ls + a] = rng.range(0.1f64.ln(), 20f64.ln()) as f32;
+            }
+        }
+        let (mut fused, mut apart) = (Adam::new(n), Adam::new(n));
+        let mut q = p.clone();
+        for t in 0..3 {
+            let g: Vec<Primitive> = (0..n).map(|_| std::array::from_fn(|_| rng.range(-1.0, 1.0) as f32)).collect();
+            let (mut g1, mut g2) = (g.clone(), g);
+            let terms = fused.step_regularized(&mut p, &mut g1, &w, 0.01);
+            let want = regularizers(&q, &w, &mut g2);
+            apart.step(&mut q, &g2, 0.01);
+            assert!(terms.scale > 0.0 && terms.aniso > 0.0, "step {t}: every term active ({terms:?})");
+            assert_eq!((terms.scale.to_bits(), terms.aniso.to_bits()), (want.scale.to_bits(), want.aniso.to_bits()), "step {t}");
+            let bits = |v: &[Primitive]| -> Vec<u32> { v.as_flattened().iter().map(|x| x.to_bits()).collect() };
+            assert!(bits(&p) == bits(&q) && bits(&g1) == bits(&g2), "step {t}");
+            assert!(bits(&fused.m) == bits(&apart.m) && bits(&fused.v) == bits(&apart.v) && fused.t == apart.t, "step {t}");
+        }
     }
 
     /// The parallel, flattened step against the textbook update written
