@@ -264,7 +264,6 @@ struct ChunkScratch {
     /// `by_block[block_start[k]..block_start[k + 1]]`.
     by_block: Vec<u32>,
     block_start: Vec<u32>,
-    block_len: usize,
     soa: BrickSoa,
 }
 
@@ -273,7 +272,6 @@ impl ChunkScratch {
     /// sort), so that the reduction can run block by block in parallel,
     /// and forgets their slots.
     fn group(&mut self, block_len: usize, blocks: usize) {
-        self.block_len = block_len;
         let ChunkScratch { slot, touched, by_block, block_start, .. } = self;
         block_start.clear();
         block_start.resize(blocks + 1, 0);
@@ -297,11 +295,12 @@ impl ChunkScratch {
         block_start[0] = 0;
     }
 
-    /// Adds this chunk's sums of the primitives of block `k` into `block`
-    /// (that block's slice of the per-primitive sums).
-    fn add_block(&self, k: usize, block: &mut [GradAcc]) {
+    /// Adds this chunk's sums of the primitives of block `k` (of the
+    /// `block_len` that `group` was given) into `block`, that block's slice
+    /// of the per-primitive sums.
+    fn add_block(&self, k: usize, block_len: usize, block: &mut [GradAcc]) {
         for &t in &self.by_block[self.block_start[k] as usize..self.block_start[k + 1] as usize] {
-            block[self.touched[t as usize] as usize - k * self.block_len].add(&self.acc[t as usize]);
+            block[self.touched[t as usize] as usize - k * block_len].add(&self.acc[t as usize]);
         }
     }
 }
@@ -771,7 +770,7 @@ impl Backend for CpuBackend {
         grad.par_chunks_mut(block_len).zip(acc.par_chunks_mut(block_len)).enumerate().for_each(|(k, (gs, accs))| profile::task("reduction", || {
             accs.fill(GradAcc::default());
             for sc in chunks {
-                sc.add_block(k, accs);
+                sc.add_block(k, block_len, accs);
             }
             for (i, (g, a)) in gs.iter_mut().zip(accs.iter()).enumerate() {
                 // Most primitives meet no point of a small batch; their sums
@@ -930,7 +929,7 @@ mod tests {
             let mut got = vec![GradAcc::default(); np];
             for (k, block) in got.chunks_mut(block_len).enumerate() {
                 for sc in &chunks {
-                    sc.add_block(k, block);
+                    sc.add_block(k, block_len, block);
                 }
             }
             for g in 0..np {
