@@ -5,6 +5,10 @@
 # REPEATS_LARGE is set. ROWS selects rows by name (default: all). THREADS
 # sets the encoder's thread count (default: every core), for scaling runs:
 #   THREADS=1 bash benches/core.sh 3 rm128_32k_matched hydrogen_4k_matched
+# ITERS caps the timing rows' iterations (a scaling run on a lent machine's
+# clock: the time an iteration takes is what compares). GSENC_BIN names a
+# gsenc built elsewhere, for a machine without a Rust toolchain (nothing is
+# built then).
 # Prints one JSON line per run to bench-out/core.jsonl and a Markdown table
 # of medians at the end. Every row's model stays in bench-out/ (ROW.gsm; the
 # fidelity rows ROW_sSEED.gsm), so two builds can be compared byte for byte.
@@ -17,8 +21,12 @@ rows=("$@")
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out
 mkdir -p "$out"
-cargo build --release --locked --bin gsenc >&2
-bin=target/release/gsenc
+if [ -n "${GSENC_BIN:-}" ]; then
+    bin=$GSENC_BIN
+else
+    cargo build --release --locked --bin gsenc >&2
+    bin=${CARGO_TARGET_DIR:-target}/release/gsenc
+fi
 rm -f "$out/core.jsonl"
 
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)
@@ -29,9 +37,11 @@ want() { [ ${#rows[@]} -eq 0 ] || [[ " ${rows[*]} " == *" $1 "* ]]; }
 run() { # name repeats args...  (the model file is ROW${tag}.gsm)
     local name=$1 n=$2; shift 2
     want "$name" || return 0
+    local cap=()  # the fidelity rows (a tag) set their own iterations
+    [ -z "${ITERS:-}" ] || [ -n "${tag:-}" ] || cap=(--iters "$ITERS")
     for i in $(seq 1 "$n"); do
         echo "[$name] run $i/$n" >&2
-        "$bin" encode grid "$@" ${THREADS:+--threads "$THREADS"} -o "$out/$name${tag:-}.gsm" --json --quiet \
+        "$bin" encode grid "$@" ${THREADS:+--threads "$THREADS"} "${cap[@]}" -o "$out/$name${tag:-}.gsm" --json --quiet \
             | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; print(json.dumps(d))" >> "$out/core.jsonl"
     done
 }

@@ -6,12 +6,15 @@
 # Writes bench-out/scaling.jsonl and prints a Markdown table. About 4
 # minutes on a 16-core machine. The models of every thread count must be
 # the same bytes: the script checks that and fails if they are not.
+# ITERS (caps each row's iterations) and GSENC_BIN (a prebuilt gsenc) pass
+# through to benches/core.sh.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 rows=("$@")
 [ ${#rows[@]} -gt 0 ] || rows=(rm128_32k_matched hydrogen_4k_matched rm128_32k_full)
 counts=${THREAD_COUNTS:-"1 2 4 8 16"}
 out=bench-out
+rm -rf "$out/scaling"  # the models of this run's first thread count, compared with the others'
 mkdir -p "$out/scaling"
 : > "$out/scaling.jsonl"
 for t in $counts; do

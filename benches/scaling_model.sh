@@ -8,8 +8,9 @@
 #   bash benches/scaling_model.sh [ROWS...]   (default: rm128_32k_matched hydrogen_4k_matched rm128_32k_full)
 # The profiled binary is built in the usual target folder (only gsenc and
 # the tool recompile), kept as bench-out/scaling_model/gsenc, and the
-# ordinary binary is linked again afterwards. `full` runs 1,000 iterations
-# (its passes are the same in every iteration). A prediction, not a
+# ordinary binary is linked again afterwards; GSENC_PROFILED_BIN names one
+# built elsewhere (benches/lent/prepare.sh), and nothing is built. `full`
+# runs 1,000 iterations (its passes are the same in every iteration). A prediction, not a
 # measurement: on a 16-core machine, set it beside `bash benches/scaling.sh`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,9 +20,13 @@ rows=("$@")
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out/scaling_model
 mkdir -p "$out"
-cargo build --release --locked --bin gsenc --features gsenc/task-profile >&2
-cp "${CARGO_TARGET_DIR:-target}/release/gsenc" "$out/gsenc"
-cargo build --release --locked --bin gsenc >&2
+if [ -n "${GSENC_PROFILED_BIN:-}" ]; then
+    cp "$GSENC_PROFILED_BIN" "$out/gsenc"
+else
+    cargo build --release --locked --bin gsenc --features gsenc/task-profile >&2
+    cp "${CARGO_TARGET_DIR:-target}/release/gsenc" "$out/gsenc"
+    cargo build --release --locked --bin gsenc >&2
+fi
 bin=$out/gsenc
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255 --downsample 2 --budget 32000)
 h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32 --budget 4096)

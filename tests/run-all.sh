@@ -68,6 +68,9 @@ stage bash tests/mpi.sh
 
 # The thread-scaling model's scheduler, on a profile whose answer is known.
 stage python3 benches/scaling_model.py --check
+# The benchmark scripts need the corpus or a lent GPU machine, so CI does
+# not run them; they must at least parse.
+stage bash -c 'for f in benches/*.sh benches/lent/*.sh; do bash -n "$f" || exit 1; done'
 
 # The store read with h5py alone, against the models gsenc extracts from it.
 stage cargo build --release --locked --features hdf5 --bin gsenc

@@ -1,0 +1,96 @@
+#!/usr/bin/env bash
+# The one prepared run for a lent GPU machine (an NVIDIA H200, 16 cores, no
+# Rust toolchain, no network), from the kit that benches/lent/prepare.sh
+# builds here:
+#   device run: command "bash benches/lent/run.sh", carry [".lent"], timeout_s 600
+# Stages, in order, each only while enough of BUDGET seconds (default 560)
+# is left for it:
+#   1. the GPU rows, the same rows on all the machine's cores, the decode of
+#      1024^3 on the GPU and the in-situ run on the GPU (benches/gpu.sh);
+#   2. the CPU backend at 1, 2, 4, 8 and 16 threads (benches/scaling.sh,
+#      SCALING_ITERS iterations a row, default 1000: the time an iteration
+#      takes is what compares);
+#   3. the scaling model's prediction for the same machine
+#      (benches/scaling_model.sh), to set beside stage 2;
+#   4. the GPU tests (tests/gpu.rs, one test thread, GSENC_REQUIRE_GPU=1).
+# Results land in bench-out/ as they do here. After each stage the text
+# results are packed into $OUT/lent.tgz, beside the log $OUT/lent.log (the
+# device tool brings back at most 8 files, and whatever is under $OUT when
+# a call is cut short). Without OUT (a dry run on any machine) both go to
+# bench-out/lent/; GSENC_ADAPTER=llvmpipe then runs the GPU rows on lavapipe.
+set -uo pipefail
+cd "$(dirname "$0")/../.."
+kit=$PWD/.lent
+[ -x "$kit/bin/gsenc" ] || { echo "no kit in $kit: run bash benches/lent/prepare.sh here and carry .lent" >&2; exit 2; }
+budget=${BUDGET:-560}
+dest=${OUT:-bench-out/lent}
+mkdir -p "$dest" bench-out
+exec > >(tee -a "$dest/lent.log") 2>&1
+left() { echo $((budget - SECONDS)); }
+stage() { echo "== $1 (at ${SECONDS} s of ${budget} s)"; }
+pack() { # the text results only (no models, raw grids or task profiles)
+    find bench-out -maxdepth 2 -type f \( -name '*.jsonl' -o -name '*.md' -o -name '*.json' -o -name '*.txt' -o -name '*.csv' \) \
+        -not -path 'bench-out/lent/*' -print0 | tar czf "$dest/lent.tgz" --null -T - || echo "packing the results failed"
+}
+export GSENC_BIN=$kit/bin/gsenc INSITU_BIN=$kit/bin/insitu GSENC_DATA=$kit/data
+export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
+lscpu | grep -E "Model name|^CPU\(s\)"
+echo "vector extensions: $(grep -o -w -E 'avx2|avx512f|avx512vl' /proc/cpuinfo | sort -u | tr '\n' ' ')"
+command -v nvidia-smi > /dev/null && nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm --format=csv
+
+# The Vulkan loader, where the machine lacks one (unpacking over libraries
+# it has could break them).
+if ! ldconfig -p | grep -q 'libvulkan\.so\.1 '; then
+    for f in "$kit"/gl/*.deb; do dpkg -x "$f" /; done
+    ldconfig
+fi
+hardware() { "$GSENC_BIN" devices --json | python3 -c 'import json, sys; print(json.load(sys.stdin)["hardware_gpus"])'; }
+if [ "$(hardware)" = 0 ] && [ -f /usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json ]; then
+    export VK_DRIVER_FILES=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
+    export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+fi
+"$GSENC_BIN" devices --json
+echo "hardware GPUs: $(hardware)"
+
+# Seconds kept for the stages after the GPU rows (estimated from the 2-core
+# machine's per-iteration times: scaling about 100 s on 16 cores, the model
+# about 50 s, the tests about 30 s).
+reserve=${RESERVE:-230}
+stage "1. GPU rows (benches/gpu.sh)"
+gpu_time=$(( $(left) - reserve ))
+if [ "$gpu_time" -gt 60 ]; then
+    OUT= REPEAT=${GPU_REPEAT:-3} DEADLINE=$((gpu_time / 2)) ROW_LIMIT=120 STOP_AFTER=$((gpu_time - 30)) DECODE_WHICH=gpu \
+        timeout "$gpu_time" bash benches/gpu.sh || echo "benches/gpu.sh: exit $?"
+fi
+pack
+
+stage "2. scaling (benches/scaling.sh)"
+iters=${SCALING_ITERS:-1000}
+[ "$(left)" -gt 200 ] || iters=$((iters / 2))
+if [ "$(left)" -gt 60 ]; then
+    ITERS=$iters timeout $(( $(left) - 20 )) bash benches/scaling.sh > bench-out/scaling-table.md || echo "benches/scaling.sh: exit $?"
+    cat bench-out/scaling-table.md
+fi
+pack
+
+stage "3. the scaling model (benches/scaling_model.sh)"
+if [ "$(left)" -gt 90 ]; then
+    GSENC_PROFILED_BIN=$kit/bin/gsenc-profiled timeout $(( $(left) - 10 )) bash benches/scaling_model.sh > bench-out/scaling-model.md \
+        || echo "benches/scaling_model.sh: exit $?"
+    cat bench-out/scaling-model.md
+fi
+pack
+
+stage "4. the GPU tests (tests/gpu.rs)"
+if [ "$(left)" -gt 30 ]; then
+    # The test binary finds data/ above the path it was built in.
+    built=$(cat "$kit/built-in")
+    if [ ! -e "$built" ]; then
+        mkdir -p "$(dirname "$built")" && ln -s "$PWD" "$built"
+    fi
+    GSENC_REQUIRE_GPU=1 timeout $(( $(left) - 5 )) "$kit/bin/gpu-tests" --test-threads 1 > bench-out/gpu-tests.txt 2>&1
+    echo "tests/gpu.rs: exit $?"
+    tail -5 bench-out/gpu-tests.txt
+fi
+pack
+stage "done"
