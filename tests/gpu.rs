@@ -191,12 +191,15 @@ fn calls_are_bitwise_identical_run_to_run() {
     }
 }
 
-/// The passes that bin from every primitive split the primitives into
-/// chunks, one workgroup each; any chunk size gives the same lists, so the
-/// same bits: gradients, evaluations, a resident step and a decode, with
-/// chunks of 4096 (one chunk here), 64 and 7 (uneven, many per cell).
+/// How the work is cut into workgroups does not change the bits:
+/// gradients, evaluations, a resident step and a decode. The passes that
+/// bin from every primitive split the primitives into chunks (4096: one
+/// chunk here, 64 and 7: uneven, many per cell); the forward pass cuts a
+/// brick's points into pieces (8 by default; 1, 3, 5, and 1000: one a
+/// brick), the backward pass gives each brick slices of its candidates (8
+/// by default; 1, 2 and 13, more than any brick has chunks of 128).
 #[test]
-fn chunked_binning_gives_the_same_bits() {
+fn how_the_work_is_split_does_not_change_the_bits() {
     let Some(mut whole) = gpu() else { return };
     let mut rng = Rng::new(29);
     let params = random_model(&mut rng, 450, 40.0);
@@ -224,6 +227,13 @@ fn chunked_binning_gives_the_same_bits() {
         let mut g = gpu().unwrap();
         g.set_bin_chunk(chunk);
         assert!(run(&mut g) == reference, "chunks of {chunk}");
+    }
+    for (points, slices) in [(1000, 1), (1, 2), (3, 13), (5, 1)] {
+        let mut g = gpu().unwrap();
+        g.set_work_split(points, slices);
+        // Buffers filled with garbage: the pieces must be written whole.
+        g.garbage = points == 3;
+        assert!(run(&mut g) == reference, "forward pieces of {points} points, {slices} backward slices");
     }
 }
 

@@ -154,6 +154,8 @@ pub(super) struct Buffers {
     pub(super) starts: Slot,
     pub(super) lists: Slot,
     pub(super) brick_points: Slot,
+    /// The forward pass's pieces of bricks (points.rs `Upload::pieces`).
+    pub(super) pieces: Slot,
     pub(super) points: Slot,
     pub(super) occupied: Slot,
     pub(super) rho_n: Slot,
@@ -191,6 +193,7 @@ impl Default for Buffers {
             starts: Slot::storage("starts"),
             lists: Slot::storage("candidate lists"),
             brick_points: Slot::storage("brick points"),
+            pieces: Slot::storage("forward pieces"),
             points: Slot::storage("points"),
             occupied: Slot::storage("occupied"),
             rho_n: Slot::storage("rho n"),

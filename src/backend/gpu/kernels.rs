@@ -25,6 +25,7 @@ pub struct Params {
     pub coarse: [u32; 4],
     pub bin: [u32; 4],
     pub objective: [f32; 4],
+    pub split: [u32; 4],
 }
 
 impl Params {
@@ -57,6 +58,18 @@ pub const BIN_CHUNK: usize = 4096;
 pub fn bin_split(len: usize, chunk: usize) -> Result<u32> {
     super::count_u32("bin chunks", len.div_ceil(chunk.max(1)).max(1))
 }
+
+/// Points a workgroup of the forward pass evaluates (forward.wgsl `PTS`
+/// at a time): a brick's points are cut into pieces of this many, one
+/// workgroup each, so that a few dense bricks still fill the GPU. Each
+/// point's sums do not depend on the piece it falls in.
+pub const FORWARD_PIECE: usize = 8;
+/// Workgroups of the backward pass per brick: slice `s` of a brick takes
+/// its candidates' chunks `s`, `s + BACKWARD_SLICES`, ... (128 candidates a
+/// chunk, a thread each); each pair's sums are one thread's whatever the
+/// slice. The host does not know a brick's candidates when it records the
+/// pass (the lists are made on the device), so every brick gets as many.
+pub const BACKWARD_SLICES: u32 = 8;
 
 /// decode.wgsl `BS`: edge of a decode brick in lattice points.
 pub const DECODE_BRICK: usize = 8;

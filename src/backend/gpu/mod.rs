@@ -10,10 +10,10 @@
 //!    level, gathers, so no atomics); the lists get a capacity,
 //!    and the scans' totals, read back with the results, say whether they
 //!    fitted (if not, the call runs again with room for them);
-//! 3. `forward`: per brick, the points' density and numerator, and each
-//!    point's loss terms;
+//! 3. `forward`: per piece of a brick's points (8), the points' density and
+//!    numerator, and each point's loss terms;
 //! 4. `backward`: per (brick, candidate) the pair sums of `GradAcc`, each in
-//!    its own slot;
+//!    its own slot (8 workgroups a brick, each a slice of its candidates);
 //! 5. `reduce`: per primitive, its slots summed in brick order, then
 //!    `Frame::finalize`; `loss`: the batch's loss terms;
 //! 6. resident training only (`resident.rs`): `adam`, the regularisers and
@@ -67,6 +67,11 @@ pub struct GpuBackend {
     /// Source entries a workgroup of a bin pass from every primitive tests
     /// (`kernels::BIN_CHUNK`; tests make it small).
     bin_chunk: usize,
+    /// Points a forward workgroup evaluates, and backward workgroups per
+    /// brick (`kernels::FORWARD_PIECE`, `kernels::BACKWARD_SLICES`; tests
+    /// vary them).
+    forward_piece: usize,
+    backward_slices: u32,
     evaluations: u64,
     /// What resident training holds on the device once the steps in
     /// flight are finished, after a `load`.
@@ -132,6 +137,8 @@ impl GpuBackend {
             coarse_capacity: 1 << 16,
             slab_capacity: 1 << 16,
             bin_chunk: kernels::BIN_CHUNK,
+            forward_piece: kernels::FORWARD_PIECE,
+            backward_slices: kernels::BACKWARD_SLICES,
             evaluations: 0,
             loaded: None,
             in_flight: VecDeque::new(),
@@ -165,6 +172,15 @@ impl GpuBackend {
     /// on it, and tests use it to split small models.
     pub fn set_bin_chunk(&mut self, entries: usize) {
         self.bin_chunk = entries.max(1);
+    }
+
+    /// Splits each brick's points into pieces of `points`, one forward
+    /// workgroup each, and gives each brick `slices` backward workgroups
+    /// (defaults `kernels::FORWARD_PIECE`, `kernels::BACKWARD_SLICES`);
+    /// the results do not depend on them, and tests vary them.
+    pub fn set_work_split(&mut self, points: usize, slices: u32) {
+        self.forward_piece = points.max(1);
+        self.backward_slices = slices.max(1);
     }
 
     /// The adapter this backend runs on.

@@ -44,6 +44,9 @@ pub(super) struct InFlight {
 pub(super) struct Upload {
     sorted: Vec<[f32; 4]>,
     ranges: Vec<[u32; 2]>,
+    /// The forward pass's workgroups: (brick, first point, end, 0), each
+    /// brick's points cut into runs of `GpuBackend::forward_piece`.
+    pieces: Vec<[u32; 4]>,
     cells: Vec<[u32; 4]>,
     coarse: Vec<[u32; 4]>,
     occupied: Vec<u32>,
@@ -100,9 +103,16 @@ impl GpuBackend {
             })
             .collect();
         let ranges: Vec<[u32; 2]> = bricks.ranges.iter().map(|&(s, e)| [s, e]).collect();
+        let piece = self.forward_piece as u32;
+        let pieces: Vec<[u32; 4]> = ranges
+            .iter()
+            .enumerate()
+            .flat_map(|(b, &[s, e])| (s..e).step_by(piece as usize).map(move |p| [b as u32, p, (p + piece).min(e), 0]))
+            .collect();
         let (coarse, cells) = coarse_cells(&bricks);
         // The dense brick map serves only the device: it moves to the upload.
-        let upload = Upload { sorted, ranges, cells, coarse, occupied: std::mem::take(&mut bricks.occupied) };
+        let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, 0, 0];
+        let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied: std::mem::take(&mut bricks.occupied) };
         self.write_points(&upload)?;
         let nb = bricks.ranges.len();
         let p = Params {
@@ -110,6 +120,7 @@ impl GpuBackend {
             grid_dims: [count_u32("bricks", bricks.dims[0])?, count_u32("bricks", bricks.dims[1])?, count_u32("bricks", bricks.dims[2])?, CELLS_TRAINING],
             counts: [count_u32("primitives", n)?, count_u32("bricks", nb)?, 0, count_u32("points", pos.len())?],
             stage: [BIN_LISTED, 0, 0, 0],
+            split,
             ..Params::default()
         };
         let ncoarse = upload.coarse.len() / 2;
@@ -121,6 +132,7 @@ impl GpuBackend {
         let (g, gpu, b) = (self.garbage, &self.gpu, &mut self.bufs);
         b.points.upload(gpu, bytes(&u.sorted), g)?;
         b.brick_points.upload(gpu, bytes(&u.ranges), g)?;
+        b.pieces.upload(gpu, bytes(&u.pieces), g)?;
         b.cells.upload(gpu, bytes(&u.cells), g)?;
         b.coarse_cells.upload(gpu, bytes(&u.coarse), g)?;
         b.occupied.upload(gpu, bytes(&u.occupied), g)?;
@@ -274,6 +286,7 @@ impl GpuBackend {
                 (b.coarse_cells.ensure(gpu, 0, false)?, b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
             let (cells, counts, starts, lists) = (b.cells.ensure(gpu, 0, false)?, b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
             let (bp, pts, rho_n, terms) = (b.brick_points.ensure(gpu, 0, false)?, b.points.ensure(gpu, 0, false)?, b.rho_n.ensure(gpu, 0, false)?, b.terms.ensure(gpu, 0, false)?);
+            let pieces = b.pieces.ensure(gpu, 0, false)?;
             let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
             let nb = nbricks as u32;
             dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
@@ -285,13 +298,14 @@ impl GpuBackend {
             dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
             dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u, counts, starts]), 1);
             dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u), (1, ranges), (2, lists1), (3, starts1), (4, cells), (6, starts), (7, lists)], nb);
-            dispatch(gpu, &mut enc, timer, &k.forward, &seq(&[&u, hot, starts, lists, bp, pts, rho_n, terms]), nb);
+            dispatch(gpu, &mut enc, timer, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
             let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
             if pass == Pass::Evaluate {
                 read[0].1 = 8 * npts as u64;
             } else {
                 let (partial, occ, grad) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?);
-                dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), nb);
+                let backward_groups = count_u32("backward workgroups", nbricks * p.split[1].max(1) as usize)?;
+                dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
                 dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), groups_for(n));
                 if pass == Pass::Gradient {
                     read = vec![(grad, 48 * n as u64), (loss, 8)];

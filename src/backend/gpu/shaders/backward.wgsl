@@ -1,9 +1,12 @@
 // Backward: for each (brick, candidate) pair, the sums of kernel.rs
 // `GradAcc` over the brick's points, written to the pair's own slot (the
-// candidate's place in the brick's list). One workgroup per occupied brick;
-// one thread per candidate sums over every point of the brick in order,
-// points staged in workgroup memory a tile at a time. No two threads write
-// one location, so there are no atomics and the sums are the same each run.
+// candidate's place in the brick's list). P.split.y workgroups per occupied
+// brick, each taking every P.split.y-th chunk of WG candidates (so that a
+// few bricks with many candidates still give many workgroups); one thread
+// per candidate sums over every point of the brick in order, points staged
+// in workgroup memory a tile at a time. No two threads write one location,
+// so there are no atomics and the sums are the same each run, whatever
+// the slices.
 // Mirrors cpu.rs `BrickSoa::backward` (kernel.rs `GradAcc::add_pair`).
 
 @group(0) @binding(0) var<uniform> P: Params;
@@ -24,13 +27,15 @@ var<workgroup> tile_gn: array<f32, WG>;
 @compute @workgroup_size(128)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let b = group_index(wid, nwg);
+    let slices = max(P.split.y, 1u);
+    let g = group_index(wid, nwg);
+    let b = g / slices;
     if b >= P.counts.y {
         return;
     }
     let cand = written(starts[b], starts[b + 1u]);
     let pr = brick_points[b];
-    for (var j0 = cand.x; j0 < cand.y; j0 += WG) {
+    for (var j0 = cand.x + (g % slices) * WG; j0 < cand.y; j0 += slices * WG) {
         let j = j0 + lid;
         let live = j < cand.y;
         var h: Hot;

@@ -1,11 +1,13 @@
 // Forward: the mixture's density and numerator at each point of a brick, and
 // (training) each point's share of L_val and L_cov with the loss's
 // sensitivity to its density and numerator.
-// One workgroup per occupied brick, PTS points at a time: every thread sums
-// its share of the brick's candidates (every WG-th) at those points, then
-// the workgroup adds the threads' sums in a fixed tree order. Training
-// bricks hold a handful of points and hundreds of candidates, so the
-// candidates, not the points, are spread over the threads.
+// One workgroup per piece of a brick's points (kernels.rs `FORWARD_PIECE`
+// points, so that a few dense bricks still give many workgroups), PTS
+// points at a time: every thread sums its share of the brick's candidates
+// (every WG-th) at those points, then the workgroup adds the threads' sums
+// in a fixed tree order. Training bricks hold a handful of points and
+// hundreds of candidates, so the candidates, not the points, are spread
+// over the threads. A point's sums are the same whichever piece holds it.
 // Mirrors cpu.rs `BrickSoa::forward` and the loop of cpu.rs `grad_chunk`
 // (then loss.rs `point_terms`, in math.wgsl).
 
@@ -13,8 +15,9 @@
 @group(0) @binding(1) var<storage, read> hot: array<Hot>;
 @group(0) @binding(2) var<storage, read> starts: array<u32>;
 @group(0) @binding(3) var<storage, read> lists: array<u32>;
-// Per occupied brick: its points' range [x, y) in `points`.
-@group(0) @binding(4) var<storage, read> brick_points: array<vec2<u32>>;
+// Per piece (P.split.x of them): its brick, and its points' range [y, z)
+// in `points`.
+@group(0) @binding(4) var<storage, read> pieces: array<vec4<u32>>;
 // Points sorted by brick: xyz, and the reference value in w.
 @group(0) @binding(5) var<storage, read> points: array<vec4<f32>>;
 // Per point: (rho, n).
@@ -30,12 +33,14 @@ var<workgroup> sum_n: array<array<f32, PTS>, WG>;
 @compute @workgroup_size(128)
 fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) lid: u32) {
-    let b = group_index(wid, nwg);
-    if b >= P.counts.y {
+    let g = group_index(wid, nwg);
+    if g >= P.split.x {
         return;
     }
+    let piece = pieces[g];
+    let b = piece.x;
     let cand = written(starts[b], starts[b + 1u]);
-    let pr = brick_points[b];
+    let pr = piece.yz;
     for (var p0 = pr.x; p0 < pr.y; p0 += PTS) {
         let m = min(PTS, pr.y - p0);
         // Loops of a constant PTS trips over registers: no dynamically

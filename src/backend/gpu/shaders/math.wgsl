@@ -369,6 +369,9 @@ struct Params {
     // x, y: the fidelity weight's constant and slope in V_ref; z: the axis
     // ratio above which L_aniso acts (loss.rs `LossWeights`).
     objective: vec4<f32>,
+    // Point passes: x: pieces of the forward pass (one workgroup each);
+    // y: workgroups of the backward pass per brick (0 reads as 1).
+    split: vec4<u32>,
 }
 
 // Params.grid_dims.w
