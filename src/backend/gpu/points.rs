@@ -103,11 +103,11 @@ impl GpuBackend {
             })
             .collect();
         let ranges: Vec<[u32; 2]> = bricks.ranges.iter().map(|&(s, e)| [s, e]).collect();
-        let piece = self.forward_piece as u32;
+        let piece = self.forward_piece.clamp(1, u32::MAX as usize) as u32;
         let pieces: Vec<[u32; 4]> = ranges
             .iter()
             .enumerate()
-            .flat_map(|(b, &[s, e])| (s..e).step_by(piece as usize).map(move |p| [b as u32, p, (p + piece).min(e), 0]))
+            .flat_map(|(b, &[s, e])| (s..e).step_by(piece as usize).map(move |p| [b as u32, p, p.saturating_add(piece).min(e), 0]))
             .collect();
         let (coarse, cells) = coarse_cells(&bricks);
         // The dense brick map serves only the device: it moves to the upload.
