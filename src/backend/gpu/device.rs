@@ -97,6 +97,12 @@ pub struct Gpu {
     failure: Arc<Mutex<Option<String>>>,
 }
 
+/// `GSENC_GPU_TIMING=0` opens the device without timestamp queries: no
+/// per-kernel times (`kernel_seconds` stays empty), the same results.
+fn timing_from_env() -> bool {
+    std::env::var("GSENC_GPU_TIMING").map_or(true, |v| v.trim() != "0")
+}
+
 impl Gpu {
     pub fn open(req: &DeviceRequest) -> Result<Gpu> {
         let (adapter_summary, adapter) = choose(req)?;
@@ -105,8 +111,9 @@ impl Gpu {
         let limits = adapter.limits();
         let desc = wgpu::DeviceDescriptor {
             label: Some("gsenc"),
-            // Per-kernel times (gpu/timer.rs) where the adapter has them.
-            required_features: adapter.features() & wgpu::Features::TIMESTAMP_QUERY,
+            // Per-kernel times (gpu/timer.rs) where the adapter has them,
+            // unless GSENC_GPU_TIMING=0 (for measuring what they cost).
+            required_features: if timing_from_env() { adapter.features() & wgpu::Features::TIMESTAMP_QUERY } else { wgpu::Features::empty() },
             required_limits: limits.clone(),
             experimental_features: wgpu::ExperimentalFeatures::default(),
             memory_hints: wgpu::MemoryHints::Performance,
