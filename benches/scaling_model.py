@@ -10,7 +10,9 @@ Each iteration is the sequence of passes the profile recorded: a serial
 section takes its time at any p; a parallel pass takes the time of a greedy
 schedule of its tasks, in order, on p workers (each task to the first free
 worker, as rayon's work stealing roughly does), plus a fork-join cost per
-pass (`--fork-join-us`, printed both with it and without). The draw of the
+pass (`--fork-join-us`, printed both with it and without); a last row
+schedules each pass's longest tasks first. Rayon does neither exactly; the
+two rows show how much the order of the tasks matters. The draw of the
 next batch (passes named `draw: ...`) runs beside the gradient: its serial
 stream on one worker, its tasks in the gradient's pool. The model knows
 nothing of memory bandwidth, caches shared by more cores, or frequency
@@ -40,14 +42,15 @@ def iterations(path):
     return out
 
 
-def makespan(tasks, p):
+def makespan(tasks, p, longest_first=False):
+    """Each task to the first free worker, in order, or longest first."""
     free = [0.0] * p
-    for t in tasks:
+    for t in sorted(tasks, reverse=True) if longest_first else tasks:
         heapq.heappush(free, heapq.heappop(free) + t)
     return max(free)
 
 
-def predict(its, p, fork_join):
+def predict(its, p, fork_join, longest_first=False):
     total = 0.0
     for it in its:
         side_serial = sum(-v for n, v in it if n.startswith("draw") and not isinstance(v, list))
@@ -64,8 +67,8 @@ def predict(its, p, fork_join):
                 t_main += -v
             else:
                 tasks = v + side_tasks if i == largest else v
-                t_main += makespan(tasks, p) + fork_join
-        total += max(t_main, side_serial + makespan(side_tasks, p))
+                t_main += makespan(tasks, p, longest_first) + fork_join
+        total += max(t_main, side_serial + makespan(side_tasks, p, longest_first))
     return total / len(its)
 
 
@@ -90,6 +93,9 @@ def check():
     assert predict(its, 2, 0.0) == 5.0 and abs(predict(its, 2, 0.25) - 5.25) < 1e-12
     # Many workers: the longest task sets the pass; the draw (0.5 + 1) fits beside.
     assert predict(its, 16, 0.0) == 4.0
+    # In order, a long task last waits; longest first, it does not.
+    assert makespan([1, 1, 1, 3], 2) == 4 and makespan([1, 1, 1, 3], 2, True) == 3
+    assert predict(its, 2, 0.0, longest_first=True) == 5.0
     print("scaling_model.py: the model's checks pass")
 
 
@@ -129,12 +135,12 @@ def main():
         print()
         print("| threads | " + " | ".join(str(p) for p in counts) + " |")
         print("|---|" + "---|" * len(counts))
-        for fj in (0.0, a.fork_join_us):
+        for fj, lpt in ((0.0, False), (a.fork_join_us, False), (a.fork_join_us, True)):
             cells = []
             for p in counts:
-                t = predict(its, p, fj * 1e-6)
+                t = predict(its, p, fj * 1e-6, lpt)
                 cells.append(f"{t * 1e3:.3f} ms ({one / t:.2f}x)")
-            print(f"| fork-join {fj:g} us | " + " | ".join(cells) + " |")
+            print(f"| fork-join {fj:g} us{', longest first' if lpt else ''} | " + " | ".join(cells) + " |")
         print()
 
 

@@ -1,6 +1,6 @@
 //! Decoding on the GPU: per slab of 8 lattice planes, the slab's
 //! primitives, then each 8x8x8 brick's from the slab's list, then V_eval at
-//! every lattice point of the brick (decode.wgsl). Mirrors cpu.rs
+//! every lattice point of the brick (decode.wgsl). Mirrors cpu/mod.rs
 //! `decode_lattice`.
 
 use super::buffers::uniform;

@@ -1,7 +1,7 @@
 //! The point passes of the GPU backend: one command buffer per call that
 //! bins the primitives into the batch's bricks (two levels), evaluates the
 //! mixture at the points and, for training, the loss terms, the gradient
-//! and (resident) the Adam step. Mirrors cpu.rs `bin_points`, `grad_chunk`
+//! and (resident) the Adam step. Mirrors cpu/mod.rs `bin_points`, `grad_chunk`
 //! and `eval_chunk`.
 
 use super::buffers::uniform;

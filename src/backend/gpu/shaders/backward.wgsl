@@ -7,7 +7,7 @@
 // in workgroup memory a tile at a time. No two threads write one location,
 // so there are no atomics and the sums are the same each run, whatever
 // the slices.
-// Mirrors cpu.rs `BrickSoa::backward` (kernel.rs `GradAcc::add_pair`).
+// Mirrors cpu/lanes.rs `BrickSoa::backward` (kernel.rs `GradAcc::add_pair`).
 
 @group(0) @binding(0) var<uniform> P: Params;
 @group(0) @binding(1) var<storage, read> hot: array<Hot>;

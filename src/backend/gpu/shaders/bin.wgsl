@@ -13,8 +13,8 @@
 // primitive for the first level; a coarse cell's list for a training brick
 // (4^3 bricks a coarse cell), the slab's list for a decode brick. Two
 // levels keep the work near (cells + primitives) rather than their product.
-// Mirrors cpu.rs `bin_points` (training bricks) and the layer and brick
-// lists of cpu.rs `decode_lattice` (lattice slabs, then their bricks).
+// Mirrors cpu/mod.rs `bin_points` (training bricks) and the layer and brick
+// lists of cpu/mod.rs `decode_lattice` (lattice slabs, then their bricks).
 
 @group(0) @binding(0) var<uniform> P: Params;
 @group(0) @binding(1) var<storage, read> ranges: array<vec4<u32>>;

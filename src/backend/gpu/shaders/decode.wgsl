@@ -1,6 +1,6 @@
 // Decode: V_eval at every lattice point of a slab of bricks. One workgroup
 // per brick of BS^3 points (each thread PER of them); the brick's candidates
-// are staged in workgroup memory a tile at a time. Mirrors cpu.rs
+// are staged in workgroup memory a tile at a time. Mirrors cpu/mod.rs
 // `decode_lattice` (which splats each candidate over its box instead of
 // gathering per point; the kernel's cutoff lies inside that box, so both
 // add the same terms) and loss.rs `v_eval`.

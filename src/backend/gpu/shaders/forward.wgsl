@@ -8,7 +8,7 @@
 // in a fixed tree order. Training bricks hold a handful of points and
 // hundreds of candidates, so the candidates, not the points, are spread
 // over the threads. A point's sums are the same whichever piece holds it.
-// Mirrors cpu.rs `BrickSoa::forward` and the loop of cpu.rs `grad_chunk`
+// Mirrors cpu/lanes.rs `BrickSoa::forward` and the loop of cpu/mod.rs `grad_chunk`
 // (then loss.rs `point_terms`, in math.wgsl).
 
 @group(0) @binding(0) var<uniform> P: Params;

@@ -1,8 +1,8 @@
 // Per primitive, once per backend call: its `Hot` record and the inclusive
 // range of grid cells its 5-sigma box overlaps.
-// Mirrors cpu.rs `Prepared::update` (Frame::new, Hot::new, the tight box),
+// Mirrors cpu/mod.rs `Prepared::update` (Frame::new, Hot::new, the tight box),
 // then bricks.rs `PointBricks::range_of` (training bricks) or the box test
-// of cpu.rs `decode_lattice` (lattice bricks).
+// of cpu/mod.rs `decode_lattice` (lattice bricks).
 
 @group(0) @binding(0) var<uniform> P: Params;
 @group(0) @binding(1) var<storage, read> params: array<f32>;
@@ -36,7 +36,7 @@ fn training_range(lo: vec3<f32>, hi: vec3<f32>) -> array<vec4<u32>, 2> {
     return r;
 }
 
-// The box test of cpu.rs `decode_lattice`: the lattice points inside the box,
+// The box test of cpu/mod.rs `decode_lattice`: the lattice points inside the box,
 // then the bricks (of `P.lattice.w` points a side) that hold them.
 fn lattice_range(lo: vec3<f32>, hi: vec3<f32>) -> array<vec4<u32>, 2> {
     var r: array<vec4<u32>, 2>;

@@ -106,7 +106,7 @@ fn frame_new(p: array<f32, 12>) -> Frame {
     return f;
 }
 
-// cpu.rs `Hot`: what the point passes read of one primitive. a0..a2 are the
+// cpu/lanes.rs `Hot`: what the point passes read of one primitive. a0..a2 are the
 // rows of diag(sigma)^-1 R^T (kernel.rs `Frame::scaled_axes`).
 struct Hot {
     mu: vec3<f32>,
@@ -119,7 +119,7 @@ struct Hot {
     pad1: f32,
 }
 
-// cpu.rs `Hot::new`
+// cpu/lanes.rs `Hot::new`
 fn hot_new(f: Frame) -> Hot {
     var h: Hot;
     h.mu = f.mu;
@@ -133,7 +133,7 @@ fn hot_new(f: Frame) -> Hot {
     return h;
 }
 
-// kernel.rs `Frame::kernel` (as cpu.rs `block_kernels` computes it from
+// kernel.rs `Frame::kernel` (as cpu/lanes.rs `block_kernels` computes it from
 // `Hot`): the scaled local coordinates y' in xyz and the truncated kernel
 // K = exp(-|y'|^2 / 2) in w, 0 at and beyond the cutoff.
 fn kernel_at(h: Hot, x: vec3<f32>) -> vec4<f32> {

@@ -1,6 +1,6 @@
 // Per primitive: the sum of its (brick, candidate) slots over the bricks
 // its box overlaps, in brick order, then the chain rule to the gradient of
-// its 12 stored parameters. Mirrors the fixed-order reduction of cpu.rs
+// its 12 stored parameters. Mirrors the fixed-order reduction of cpu/mod.rs
 // `point_loss_grad` (bricks in order) and kernel.rs `Frame::finalize`.
 
 @group(0) @binding(0) var<uniform> P: Params;

@@ -3,7 +3,7 @@
 // (bin.wgsl), in one workgroup: each thread
 // sums a contiguous run, the workgroup scans the 256 run sums, each thread
 // writes its run. Integer sums, so the order does not matter; it is fixed
-// anyway. Mirrors the offsets pass of cpu.rs `csr`.
+// anyway. Mirrors the offsets pass of backend/csr.rs `csr`.
 
 @group(0) @binding(0) var<uniform> P: Params;
 @group(0) @binding(1) var<storage, read> counts: array<u32>;

@@ -1,0 +1,67 @@
+//! Which build of the lane loops runs. The AVX-512 (32 vector registers,
+//! still 8 lanes), AVX2 and baseline builds execute the same IEEE operations
+//! in the same order (Rust never fuses multiply-adds on its own), so they
+//! return identical bits; `GSENC_SIMD=avx2|baseline` caps the level (for
+//! benchmarks and for testing that claim).
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(dead_code)] // the x86 levels exist only there
+pub(super) enum Simd {
+    Baseline,
+    Avx2,
+    Avx512,
+}
+
+pub(super) fn simd_level() -> Simd {
+    static LEVEL: std::sync::OnceLock<Simd> = std::sync::OnceLock::new();
+    *LEVEL.get_or_init(|| {
+        let cap = match std::env::var("GSENC_SIMD").as_deref() {
+            Ok("baseline") => Simd::Baseline,
+            Ok("avx2") => Simd::Avx2,
+            _ => Simd::Avx512,
+        };
+        #[cfg(target_arch = "x86_64")]
+        let found = if std::arch::is_x86_feature_detected!("avx512f") && std::arch::is_x86_feature_detected!("avx512vl") {
+            Simd::Avx512
+        } else if std::arch::is_x86_feature_detected!("avx2") {
+            Simd::Avx2
+        } else {
+            Simd::Baseline
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let found = Simd::Baseline;
+        let rank = |s: Simd| s as u8;
+        if rank(cap) < rank(found) { cap } else { found }
+    })
+}
+
+/// `simd_dispatch!(fn name(args) -> T => inner);` defines `name`, which runs
+/// `inner(args)` compiled for the best level [`simd_level`] allows. `inner`
+/// must be `#[inline(always)]`, so that each level's wrapper holds its own
+/// copy of the loops built with that level's instructions.
+macro_rules! simd_dispatch {
+    ($(#[$m:meta])* fn $name:ident($($arg:ident: $ty:ty),* $(,)?) -> $ret:ty => $inner:path) => {
+        $(#[$m])*
+        fn $name($($arg: $ty),*) -> $ret {
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx512f,avx512vl,avx2")]
+            unsafe fn avx512($($arg: $ty),*) -> $ret {
+                $inner($($arg),*)
+            }
+            #[cfg(target_arch = "x86_64")]
+            #[target_feature(enable = "avx2")]
+            unsafe fn avx2($($arg: $ty),*) -> $ret {
+                $inner($($arg),*)
+            }
+            match $crate::backend::cpu::simd::simd_level() {
+                // SAFETY: the CPU supports the instructions (`simd_level` checked).
+                #[cfg(target_arch = "x86_64")]
+                $crate::backend::cpu::simd::Simd::Avx512 => unsafe { avx512($($arg),*) },
+                #[cfg(target_arch = "x86_64")]
+                $crate::backend::cpu::simd::Simd::Avx2 => unsafe { avx2($($arg),*) },
+                _ => $inner($($arg),*),
+            }
+        }
+    };
+}
+pub(super) use simd_dispatch;
