@@ -15,6 +15,7 @@
 #   gl/                  Debian 12's Vulkan loader and glvnd packages
 #   built-in             this checkout's path, which the test binary looks
 #                        for its data/ under (run.sh links it there)
+#   built-from           the commit it was built from (run.sh prints it)
 set -euo pipefail
 cd "$(dirname "$0")/../.."
 . benches/corpus.sh
@@ -44,6 +45,7 @@ for line in sys.stdin:
 cp "$tests" "$kit/bin/gpu-tests"
 strip "$kit"/bin/*
 pwd > "$kit/built-in"
+git describe --always --dirty > "$kit/built-from"
 
 cp "$data/richtmyer_meshkov_t20.uint8" "$data/hydrogen_atom.float32" "$kit/data/"
 

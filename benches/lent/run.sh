@@ -30,6 +30,8 @@ budget=${BUDGET:-560}
 dest=${OUT:-bench-out/lent}
 mkdir -p "$dest" bench-out
 exec > >(tee -a "$dest/lent.log") 2>&1
+tee_pid=$!
+echo "kit built from $(cat "$kit/built-from" 2>/dev/null || echo 'an unknown commit')"
 left() { echo $((budget - SECONDS)); }
 stage() { echo "== $1 (at ${SECONDS} s of ${budget} s)"; }
 pack() { # the text results only (no models, raw grids or task profiles)
@@ -107,3 +109,5 @@ if [ "$(left)" -gt 80 ]; then
 fi
 pack
 stage "done"
+exec >&- 2>&-
+wait "$tee_pid" 2>/dev/null || true
