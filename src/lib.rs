@@ -18,7 +18,7 @@
 //! - [`model`]: a model, its decoding, and PSNR;
 //! - [`render`]: pictures of a decoded grid (axis slices, volume
 //!   renderings, colour maps) and the image PSNR and SSIM between two;
-//! - [`format`]: the model file, its payloads, the step index, file names;
+//! - [`format`](mod@format): the model file, its payloads, the step index, file names;
 //! - [`encode`]: seeding, training points, relocation, the refinement loop,
 //!   and the one encode [`encode::pipeline`] every caller goes through;
 //! - [`series`]: time series with warm starts, and the background queue that

@@ -92,7 +92,7 @@ impl Lattice {
 /// fails; a device backend returns [`crate::error::Error::Device`] when its
 /// device is lost or a call exceeds its limits.
 pub trait Backend: Send {
-    /// A human-readable name ("cpu", "wgpu:<adapter>").
+    /// A human-readable name ("cpu", "wgpu:" and the adapter's name).
     fn name(&self) -> String;
 
     /// Whether the heavy work runs on a device, so that the host needs

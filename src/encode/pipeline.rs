@@ -2,7 +2,7 @@
 //! through [`encode`], the series encoder (and so `gsenc encode-series`, the
 //! background queue, the C API and MPI) through [`encode_prepared`].
 //!
-//! 1. **Prepare** the input ([`crate::input::prepare`]): the index frame,
+//! 1. **Prepare** the input ([`crate::input::prepare()`]): the index frame,
 //!    the value range, the samples and the reference grid.
 //! 2. **Resolve the configuration** ([`config_for`]): the schedule's length
 //!    follows the input's form (the `full` schedule runs longer for

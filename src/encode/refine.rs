@@ -89,7 +89,7 @@ pub struct EncodeOutput {
     pub phases: LoopPhases,
     /// Kernel evaluations of the loop's point passes (its throughput).
     pub kernel_evaluations: u64,
-    /// The backend that finished the encode ("cpu", "wgpu:<adapter>").
+    /// The backend that finished the encode ("cpu", "wgpu:" and the adapter's name).
     pub backend: String,
     /// Why it finished on the CPU although a GPU was asked for, if it did.
     pub fell_back: Option<String>,

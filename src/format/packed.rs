@@ -367,7 +367,7 @@ fn gap_class(d: u64) -> u8 {
 
 impl Packed {
     /// Quantises primitives (all finite) at `precision`, each in its
-    /// [`canonical_pose`]. Fails when the centres span more than 2^21
+    /// `canonical_pose`. Fails when the centres span more than 2^21
     /// lattice steps on an axis.
     pub fn of(params: &[Primitive], precision: Precision) -> Result<Packed> {
         let precision = precision.check().map_err(|e| Error::arg(e.to_string()))?;

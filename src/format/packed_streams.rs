@@ -14,7 +14,7 @@
 //! | weight | whether its own value is 0 (a primitive that carries no value), and the top bits of its own x scale |
 //! | centre gap class | the class before it (none in the payload's first layout) |
 //!
-//! Contexts take at most [`CONTEXT_BUDGET`] bits together with the symbol,
+//! Contexts take at most `CONTEXT_BUDGET` bits together with the symbol,
 //! so a stream's probabilities fit in 2 MiB whatever its precision.
 
 use crate::error::{Error, Result};

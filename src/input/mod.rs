@@ -1,7 +1,7 @@
 //! The input forms and what the encoder is fitted to. Grids, SPH particles
 //! ([`particles`]) and hexahedral cells ([`cells`]) become samples
 //! ([`samples`]) and a reference grid, the deposit of particles and cells
-//! ([`deposit`]); [`prepare`] does this for any form; [`data`] holds a step
+//! ([`deposit`]); [`prepare()`] does this for any form; [`data`] holds a step
 //! copied out of a caller's memory.
 
 pub mod cells;

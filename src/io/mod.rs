@@ -1,7 +1,7 @@
 //! Files and the file system, above the core (which works on memory only):
 //! raw arrays ([`raw`]), VTK ImageData ([`vti`]), crash-safe writes
 //! ([`atomic`]), model files and folders of them ([`models`]), the HDF5
-//! store of a time series and its decoded series ([`store`], [`series`],
+//! store of a time series and its decoded series (`store`, `series`,
 //! feature `hdf5`), and PNG charts ([`plot`]). Used by the command-line
 //! tool, the C API and the MPI layer; never by the encoder.
 
