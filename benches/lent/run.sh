@@ -16,7 +16,10 @@
 #   5. the in-situ run of stage 1 with the CPU backend (half the iterations,
 #      so that one core keeps up with the solver's steps), for the solver's
 #      slowdown beside the GPU's on the same machine (+18.7 % with the GPU
-#      on 2026-11-29, unexplained; never measured there with the CPU).
+#      on 2026-11-29, unexplained; never measured there with the CPU);
+#   6. the in-situ run on the GPU again, its encoder waiting for results by
+#      polling and sleeping (GSENC_GPU_WAIT=sleep) instead of blocking in the
+#      driver, which may spin on a core.
 # Results land in bench-out/ as they do here. After each stage the text
 # results are packed into $OUT/lent.tgz, beside the log $OUT/lent.log (the
 # device tool brings back at most 8 files, and whatever is under $OUT when
@@ -60,7 +63,8 @@ echo "hardware GPUs: $(hardware)"
 
 # Seconds kept for the stages after the GPU rows (estimated from the 2-core
 # machine's per-iteration times: scaling about 100 s on 16 cores, the model
-# about 50 s, the tests about 30 s, in situ on the CPU about 70 s).
+# about 50 s, the tests about 30 s, in situ on the CPU about 70 s; the last
+# stage runs only if they took less).
 reserve=${RESERVE:-300}
 stage "1. GPU rows (benches/gpu.sh)"
 gpu_time=$(( $(left) - reserve ))
@@ -106,6 +110,14 @@ if [ "$(left)" -gt 80 ]; then
     GSENC_BACKEND=cpu timeout $(( $(left) - 5 )) bash benches/insitu.sh 1 8 600 4000 100 30 > bench-out/cpu-insitu.md || echo "benches/insitu.sh: exit $?"
     cat bench-out/cpu-insitu.md
     cp bench-out/insitu/runs.jsonl bench-out/cpu-insitu-runs.jsonl 2>/dev/null || true
+fi
+pack
+
+stage "6. in situ on the GPU, waiting by sleeping (GSENC_GPU_WAIT=sleep)"
+if [ "$(left)" -gt 60 ]; then
+    GSENC_BACKEND=gpu GSENC_GPU_WAIT=sleep timeout $(( $(left) - 5 )) bash benches/insitu.sh 1 8 600 > bench-out/gpu-sleep-insitu.md || echo "benches/insitu.sh: exit $?"
+    cat bench-out/gpu-sleep-insitu.md
+    cp bench-out/insitu/runs.jsonl bench-out/gpu-sleep-insitu-runs.jsonl 2>/dev/null || true
 fi
 pack
 stage "done"

@@ -884,8 +884,8 @@ fn decode_of_several_pieces_writes_one_global_field() {
 /// `--backend`: a GPU that is not there is exit code 7 and no file; the
 /// adapters `gsenc devices` lists; and, on any adapter (llvmpipe on CI), the
 /// same encode through `--backend gpu` names its backend, times its kernels
-/// (unless `GSENC_GPU_TIMING=0`, which changes nothing else) and lands
-/// within 0.3 dB of the CPU's.
+/// (unless `GSENC_GPU_TIMING=0`, which changes nothing else; nor does
+/// `GSENC_GPU_WAIT=sleep`) and lands within 0.3 dB of the CPU's.
 #[test]
 fn backend_choice_end_to_end() {
     let dir = tmpdir("backend");
@@ -923,28 +923,31 @@ fn backend_choice_end_to_end() {
     let c = json(&out);
     assert_eq!(c["backend"], "cpu");
     assert!(c["kernel_seconds"].is_null());
-    let on_gpu = |out: &std::path::Path, timing: &str| {
+    let on_gpu = |out: &std::path::Path, env: &[(&str, &str)]| {
         let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
             .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--schedule", "short"])
             .args(["--iters", "150", "--points", "2048", "-o", out.to_str().unwrap(), "--json", "-q", "--backend", "gpu"])
             .env("GSENC_ADAPTER", adapter)
-            .env("GSENC_GPU_TIMING", timing)
+            .envs(env.iter().copied())
             .output()
             .unwrap();
         assert_eq!(run.status.code(), Some(0), "{}", String::from_utf8_lossy(&run.stderr));
         json(&String::from_utf8_lossy(&run.stdout))
     };
     let gpu = dir.join("gpu.gsm");
-    let g = on_gpu(&gpu, "1");
+    let g = on_gpu(&gpu, &[]);
     assert!(g["backend"].as_str().unwrap().starts_with("wgpu:"), "{g}");
     assert!(g["fell_back"].is_null());
     if let Some(k) = g["kernel_seconds"].as_object() {
         assert!(k["forward"]["passes"].as_u64().unwrap() >= 150, "{g}");
     }
     let untimed = dir.join("untimed.gsm");
-    let u = on_gpu(&untimed, "0");
+    let u = on_gpu(&untimed, &[("GSENC_GPU_TIMING", "0")]);
     assert!(u["kernel_seconds"].as_object().is_none_or(|k| k.is_empty()), "{u}");
     assert!(std::fs::read(&untimed).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_TIMING=0 changed the model");
+    let sleepy = dir.join("sleepy.gsm");
+    on_gpu(&sleepy, &[("GSENC_GPU_WAIT", "sleep")]);
+    assert!(std::fs::read(&sleepy).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_WAIT=sleep changed the model");
     // On a toy field this small a different summation order alone moves the
     // final PSNR by a dB or two (tests/gpu.rs compares encodes on real
     // data); here, the GPU model must be sound and decode alike on both.

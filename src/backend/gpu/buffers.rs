@@ -127,7 +127,7 @@ impl Readback {
         let done = std::sync::Arc::new(parking_lot::Mutex::new(None));
         let d = done.clone();
         slice.map_async(wgpu::MapMode::Read, move |r| *d.lock() = Some(r));
-        gpu.wait(self.submission.take())?;
+        gpu.wait_for(self.submission.take(), || done.lock().is_some())?;
         match done.lock().take() {
             Some(Ok(())) => {}
             Some(Err(e)) => return Err(Error::Device(format!("reading results back: {e}"))),

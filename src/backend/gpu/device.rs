@@ -95,6 +95,9 @@ pub struct Gpu {
     pub limits: wgpu::Limits,
     /// Set by wgpu when the device is lost, or by an error no scope caught.
     failure: Arc<Mutex<Option<String>>>,
+    /// Wait for results by polling and sleeping instead of blocking in the
+    /// driver (`GSENC_GPU_WAIT=sleep`; see [`Gpu::wait_for`]).
+    sleepy_wait: bool,
 }
 
 /// `GSENC_GPU_TIMING=0` opens the device without timestamp queries: no
@@ -130,7 +133,8 @@ impl Gpu {
         device.on_uncaptured_error(Arc::new(move |e| {
             f.lock().get_or_insert(format!("{e}"));
         }));
-        Ok(Gpu { device, queue, adapter: adapter_summary, limits, failure })
+        let sleepy_wait = std::env::var("GSENC_GPU_WAIT").is_ok_and(|v| v.trim() == "sleep");
+        Ok(Gpu { device, queue, adapter: adapter_summary, limits, failure, sleepy_wait })
     }
 
     /// The first failure wgpu reported outside an error scope, if any: the
@@ -159,6 +163,29 @@ impl Gpu {
         }
         self.check()?;
         out
+    }
+
+    /// Waits until `done` says so, which a callback of the submission `index`
+    /// sets when wgpu runs it. By default this blocks in the driver until
+    /// the submission ends. With `GSENC_GPU_WAIT=sleep` the thread instead
+    /// asks wgpu every 100 us and sleeps between asks: for measuring whether
+    /// a driver that spins while it blocks takes a core from a solver beside
+    /// the encoder (docs/BENCHMARKS.md "A lent GPU machine in one call").
+    /// Either way, results and models are the same.
+    pub fn wait_for(&self, index: Option<wgpu::SubmissionIndex>, done: impl Fn() -> bool) -> Result<()> {
+        if !self.sleepy_wait {
+            return self.wait(index);
+        }
+        loop {
+            self.device
+                .poll(wgpu::PollType::Poll)
+                .map_err(|e| Error::Device(format!("waiting for '{}': {e}", self.adapter.name)))?;
+            self.check()?;
+            if done() {
+                return Ok(());
+            }
+            std::thread::sleep(std::time::Duration::from_micros(100));
+        }
     }
 
     /// Waits for the submission `index` (every submission so far when
