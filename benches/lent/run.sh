@@ -36,6 +36,12 @@ exec > >(tee -a "$dest/lent.log") 2>&1
 tee_pid=$!
 echo "kit built from $(cat "$kit/built-from" 2>/dev/null || echo 'an unknown commit')"
 left() { echo $((budget - SECONDS)); }
+insitu() { # NAME ARGS...: benches/insitu.sh ARGS with the caller's variables, its table and runs kept as bench-out/NAME.md and NAME-runs.jsonl
+    local name=$1; shift
+    timeout $(( $(left) - 5 )) bash benches/insitu.sh "$@" > "bench-out/$name.md" || echo "benches/insitu.sh: exit $?"
+    cat "bench-out/$name.md"
+    cp bench-out/insitu/runs.jsonl "bench-out/$name-runs.jsonl" 2>/dev/null || true
+}
 stage() { echo "== $1 (at ${SECONDS} s of ${budget} s)"; }
 pack() { # the text results only (no models, raw grids or task profiles)
     find bench-out -maxdepth 2 -type f \( -name '*.jsonl' -o -name '*.md' -o -name '*.json' -o -name '*.txt' -o -name '*.csv' \) \
@@ -107,17 +113,13 @@ pack
 
 stage "5. in situ with the CPU backend (benches/insitu.sh)"
 if [ "$(left)" -gt 80 ]; then
-    GSENC_BACKEND=cpu timeout $(( $(left) - 5 )) bash benches/insitu.sh 1 8 600 4000 100 30 > bench-out/cpu-insitu.md || echo "benches/insitu.sh: exit $?"
-    cat bench-out/cpu-insitu.md
-    cp bench-out/insitu/runs.jsonl bench-out/cpu-insitu-runs.jsonl 2>/dev/null || true
+    GSENC_BACKEND=cpu insitu cpu-insitu 1 8 600 4000 100 30
 fi
 pack
 
 stage "6. in situ on the GPU, waiting by sleeping (GSENC_GPU_WAIT=sleep)"
 if [ "$(left)" -gt 60 ]; then
-    GSENC_BACKEND=gpu GSENC_GPU_WAIT=sleep timeout $(( $(left) - 5 )) bash benches/insitu.sh 1 8 600 > bench-out/gpu-sleep-insitu.md || echo "benches/insitu.sh: exit $?"
-    cat bench-out/gpu-sleep-insitu.md
-    cp bench-out/insitu/runs.jsonl bench-out/gpu-sleep-insitu-runs.jsonl 2>/dev/null || true
+    GSENC_BACKEND=gpu GSENC_GPU_WAIT=sleep insitu gpu-sleep-insitu 1 8 600
 fi
 pack
 stage "done"
