@@ -13,11 +13,14 @@
 #   3. the scaling model's prediction for the same machine
 #      (benches/scaling_model.sh), to set beside stage 2;
 #   4. the GPU tests (tests/gpu.rs, one test thread, GSENC_REQUIRE_GPU=1);
-#   5. the in-situ run of stage 1 with the CPU backend (half the iterations,
+#   5. how the point passes are cut into workgroups (benches/gpu_split.sh,
+#      at most a minute): the kernels' times with other splits, the same
+#      models (checked), for choosing the defaults;
+#   6. the in-situ run of stage 1 with the CPU backend (half the iterations,
 #      so that one core keeps up with the solver's steps), for the solver's
 #      slowdown beside the GPU's on the same machine (+18.7 % with the GPU
 #      on 2026-11-29, unexplained; never measured there with the CPU);
-#   6. the in-situ run on the GPU again, its encoder waiting for results by
+#   7. the in-situ run on the GPU again, its encoder waiting for results by
 #      polling and sleeping (GSENC_GPU_WAIT=sleep) instead of blocking in the
 #      driver, which may spin on a core.
 # Results land in bench-out/ as they do here. After each stage the text
@@ -69,9 +72,9 @@ echo "hardware GPUs: $(hardware)"
 
 # Seconds kept for the stages after the GPU rows (estimated from the 2-core
 # machine's per-iteration times: scaling about 100 s on 16 cores, the model
-# about 50 s, the tests about 30 s, in situ on the CPU about 70 s; the last
-# stage runs only if they took less).
-reserve=${RESERVE:-300}
+# about 50 s, the tests about 30 s, the split sweep up to 60 s, in situ on
+# the CPU about 70 s; the last stage runs only if they took less).
+reserve=${RESERVE:-330}
 stage "1. GPU rows (benches/gpu.sh)"
 gpu_time=$(( $(left) - reserve ))
 if [ "$gpu_time" -gt 60 ]; then
@@ -111,13 +114,22 @@ if [ "$(left)" -gt 30 ]; then
 fi
 pack
 
-stage "5. in situ with the CPU backend (benches/insitu.sh)"
+stage "5. the work split sweep (benches/gpu_split.sh)"
+# At most a minute, and only while the in-situ stage keeps its time.
+sweep=$(( $(left) - 150 ))
+[ "$sweep" -le 60 ] || sweep=60
+if [ "$sweep" -gt 20 ]; then
+    STOP_AFTER=$((sweep - 10)) timeout "$sweep" bash benches/gpu_split.sh || echo "benches/gpu_split.sh: exit $?"
+fi
+pack
+
+stage "6. in situ with the CPU backend (benches/insitu.sh)"
 if [ "$(left)" -gt 80 ]; then
     GSENC_BACKEND=cpu insitu cpu-insitu 1 8 600 4000 100 30
 fi
 pack
 
-stage "6. in situ on the GPU, waiting by sleeping (GSENC_GPU_WAIT=sleep)"
+stage "7. in situ on the GPU, waiting by sleeping (GSENC_GPU_WAIT=sleep)"
 if [ "$(left)" -gt 60 ]; then
     GSENC_BACKEND=gpu GSENC_GPU_WAIT=sleep insitu gpu-sleep-insitu 1 8 600
 fi

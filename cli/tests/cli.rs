@@ -884,8 +884,9 @@ fn decode_of_several_pieces_writes_one_global_field() {
 /// `--backend`: a GPU that is not there is exit code 7 and no file; the
 /// adapters `gsenc devices` lists; and, on any adapter (llvmpipe on CI), the
 /// same encode through `--backend gpu` names its backend, times its kernels
-/// (unless `GSENC_GPU_TIMING=0`, which changes nothing else; nor does
-/// `GSENC_GPU_WAIT=sleep`) and lands within 0.3 dB of the CPU's.
+/// (unless `GSENC_GPU_TIMING=0`, which changes nothing else; nor do
+/// `GSENC_GPU_WAIT=sleep` and `GSENC_GPU_SPLIT`, whose bad values are usage
+/// errors) and lands within 0.3 dB of the CPU's.
 #[test]
 fn backend_choice_end_to_end() {
     let dir = tmpdir("backend");
@@ -948,6 +949,27 @@ fn backend_choice_end_to_end() {
     let sleepy = dir.join("sleepy.gsm");
     on_gpu(&sleepy, &[("GSENC_GPU_WAIT", "sleep")]);
     assert!(std::fs::read(&sleepy).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_WAIT=sleep changed the model");
+    // Another cut of the work into workgroups (pieces of 3 points, 2
+    // backward slices, bin chunks of 64 primitives of the 200): the same model.
+    let split = dir.join("split.gsm");
+    let s = on_gpu(&split, &[("GSENC_GPU_SPLIT", "3,2,64")]);
+    assert!(std::fs::read(&split).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_SPLIT changed the model");
+    if let (Some(a), Some(b)) = (g["kernel_seconds"]["forward"]["passes"].as_u64(), s["kernel_seconds"]["forward"]["passes"].as_u64()) {
+        assert_eq!(a, b, "{g} {s}");
+    }
+    for bad in ["0,8", "8", "8,8,8,8", "8,x"] {
+        let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
+            .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--iters", "5"])
+            .args(["-o", missing.to_str().unwrap(), "-q", "--backend", "gpu"])
+            .env("GSENC_ADAPTER", adapter)
+            .env("GSENC_GPU_SPLIT", bad)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "GSENC_GPU_SPLIT={bad}: {err}");
+        assert!(err.contains("GSENC_GPU_SPLIT"), "{err}");
+        assert!(!missing.exists());
+    }
     // On a toy field this small a different summation order alone moves the
     // final PSNR by a dB or two (tests/gpu.rs compares encodes on real
     // data); here, the GPU model must be sound and decode alike on both.

@@ -120,13 +120,34 @@ fn depth_from_env() -> usize {
     }
 }
 
+/// `GSENC_GPU_SPLIT=PIECE,SLICES[,CHUNK]` sets how the point passes' work
+/// is cut into workgroups ([`GpuBackend::set_work_split`],
+/// [`GpuBackend::set_bin_chunk`]): the same results whatever the split
+/// (tested), for finding the fastest on a GPU (`benches/gpu_split.sh`).
+/// Unset or empty: the defaults. Anything but two or three positive
+/// integers is an error.
+fn split_from_env() -> Result<Option<(usize, u32, Option<usize>)>> {
+    let Ok(v) = std::env::var("GSENC_GPU_SPLIT") else { return Ok(None) };
+    if v.trim().is_empty() {
+        return Ok(None);
+    }
+    let bad = || Error::arg(format!("GSENC_GPU_SPLIT={v:?}: expected PIECE,SLICES or PIECE,SLICES,CHUNK (positive integers: points a forward workgroup, backward workgroups a brick, primitives a bin workgroup)"));
+    let n: Vec<usize> = v.split(',').map(|x| x.trim().parse::<usize>().ok().filter(|&n| n > 0)).collect::<Option<_>>().ok_or_else(bad)?;
+    match n[..] {
+        [piece, slices] => Ok(Some((piece, u32::try_from(slices).map_err(|_| bad())?, None))),
+        [piece, slices, chunk] => Ok(Some((piece, u32::try_from(slices).map_err(|_| bad())?, Some(chunk)))),
+        _ => Err(bad()),
+    }
+}
+
 impl GpuBackend {
     /// Opens the adapter `req` names and compiles the kernels.
     pub fn new(req: &DeviceRequest) -> Result<GpuBackend> {
+        let split = split_from_env()?;
         let gpu = Gpu::open(req)?;
         let kernels = Kernels::new(&gpu)?;
         let timer = Timer::new(&gpu, points::IN_FLIGHT);
-        Ok(GpuBackend {
+        let mut b = GpuBackend {
             gpu,
             kernels,
             timer,
@@ -145,7 +166,14 @@ impl GpuBackend {
             steps: VecDeque::new(),
             depth: depth_from_env(),
             reruns: 0,
-        })
+        };
+        if let Some((piece, slices, chunk)) = split {
+            b.set_work_split(piece, slices);
+            if let Some(c) = chunk {
+                b.set_bin_chunk(c);
+            }
+        }
+        Ok(b)
     }
 
     /// Starts the candidate lists of training calls and decode slabs at
