@@ -197,7 +197,9 @@ fn calls_are_bitwise_identical_run_to_run() {
 /// chunk here, 64 and 7: uneven, many per cell); the forward pass cuts a
 /// brick's points into pieces (8 by default; 1, 3, 5, and 1000: one a
 /// brick), the backward pass gives each brick slices of its candidates (8
-/// by default; 1, 2 and 13, more than any brick has chunks of 128).
+/// by default; 1, 2 and 13, more than any brick has chunks of 128), and
+/// the reduction gives each primitive a team of threads (8 by default; 1,
+/// 2 and 128).
 #[test]
 fn how_the_work_is_split_does_not_change_the_bits() {
     let Some(mut whole) = gpu() else { return };
@@ -234,6 +236,14 @@ fn how_the_work_is_split_does_not_change_the_bits() {
         // Buffers filled with garbage: the pieces must be written whole.
         g.garbage = points == 3;
         assert!(run(&mut g) == reference, "forward pieces of {points} points, {slices} backward slices");
+    }
+    // One thread a primitive (the reduction as it was before teams), and
+    // teams of 2 and of a whole workgroup.
+    for team in [1, 2, 128] {
+        let mut g = gpu().unwrap();
+        g.set_reduce_team(team);
+        g.garbage = team == 2;
+        assert!(run(&mut g) == reference, "reduction teams of {team}");
     }
 }
 

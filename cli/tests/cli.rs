@@ -950,14 +950,15 @@ fn backend_choice_end_to_end() {
     on_gpu(&sleepy, &[("GSENC_GPU_WAIT", "sleep")]);
     assert!(std::fs::read(&sleepy).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_WAIT=sleep changed the model");
     // Another cut of the work into workgroups (pieces of 3 points, 2
-    // backward slices, bin chunks of 64 primitives of the 200): the same model.
+    // backward slices, bin chunks of 64 primitives of the 200, reduction
+    // teams of 4 threads): the same model.
     let split = dir.join("split.gsm");
-    let s = on_gpu(&split, &[("GSENC_GPU_SPLIT", "3,2,64")]);
+    let s = on_gpu(&split, &[("GSENC_GPU_SPLIT", "3,2,64,4")]);
     assert!(std::fs::read(&split).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_SPLIT changed the model");
     if let (Some(a), Some(b)) = (g["kernel_seconds"]["forward"]["passes"].as_u64(), s["kernel_seconds"]["forward"]["passes"].as_u64()) {
         assert_eq!(a, b, "{g} {s}");
     }
-    for bad in ["0,8", "8", "8,8,8,8", "8,x"] {
+    for bad in ["0,8", "8", "8,8,8,8,8", "8,x", "8,8,8,6", "8,8,8,256"] {
         let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
             .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--iters", "5"])
             .args(["-o", missing.to_str().unwrap(), "-q", "--backend", "gpu"])

@@ -64,6 +64,10 @@ pub fn bin_split(len: usize, chunk: usize) -> Result<u32> {
 /// workgroup each, so that a few dense bricks still fill the GPU. Each
 /// point's sums do not depend on the piece it falls in.
 pub const FORWARD_PIECE: usize = 8;
+/// Threads that reduce one primitive's slots (reduce.wgsl: each finds the
+/// slot of every team-th brick of its range, the first adds them in brick
+/// order); a power of two up to 128. The sums do not depend on it.
+pub const REDUCE_TEAM: u32 = 8;
 /// Workgroups of the backward pass per brick: slice `s` of a brick takes
 /// its candidates' chunks `s`, `s + BACKWARD_SLICES`, ... (128 candidates a
 /// chunk, a thread each); each pair's sums are one thread's whatever the

@@ -14,8 +14,9 @@
 //!    numerator, and each point's loss terms;
 //! 4. `backward`: per (brick, candidate) the pair sums of `GradAcc`, each in
 //!    its own slot (8 workgroups a brick, each a slice of its candidates);
-//! 5. `reduce`: per primitive, its slots summed in brick order, then
-//!    `Frame::finalize`; `loss`: the batch's loss terms;
+//! 5. `reduce`: per primitive, its slots summed in brick order (a team of
+//!    threads finds them, one adds them), then `Frame::finalize`; `loss`:
+//!    the batch's loss terms;
 //! 6. resident training only (`resident.rs`): `adam`, the regularisers and
 //!    the Adam step on parameters and moments that stay on the device;
 //!    `mark` holds back the steps queued after one whose lists overflowed
@@ -72,6 +73,8 @@ pub struct GpuBackend {
     /// vary them).
     forward_piece: usize,
     backward_slices: u32,
+    /// Threads that reduce one primitive (`kernels::REDUCE_TEAM`).
+    reduce_team: u32,
     evaluations: u64,
     /// What resident training holds on the device once the steps in
     /// flight are finished, after a `load`.
@@ -120,24 +123,42 @@ fn depth_from_env() -> usize {
     }
 }
 
-/// `GSENC_GPU_SPLIT=PIECE,SLICES[,CHUNK]` sets how the point passes' work
-/// is cut into workgroups ([`GpuBackend::set_work_split`],
-/// [`GpuBackend::set_bin_chunk`]): the same results whatever the split
-/// (tested), for finding the fastest on a GPU (`benches/gpu_split.sh`).
-/// Unset or empty: the defaults. Anything but two or three positive
-/// integers is an error.
-fn split_from_env() -> Result<Option<(usize, u32, Option<usize>)>> {
+/// What `GSENC_GPU_SPLIT=PIECE,SLICES[,CHUNK[,TEAM]]` sets: how the point
+/// passes' work is cut into workgroups.
+struct Split {
+    piece: usize,
+    slices: u32,
+    chunk: Option<usize>,
+    team: Option<u32>,
+}
+
+/// `GSENC_GPU_SPLIT` ([`GpuBackend::set_work_split`],
+/// [`GpuBackend::set_bin_chunk`], [`GpuBackend::set_reduce_team`]): the
+/// same results whatever the split (tested), for finding the fastest on a
+/// GPU (`benches/gpu_split.sh`). Unset or empty: the defaults. Anything but
+/// two to four positive integers, the fourth a power of two up to 128, is
+/// an error.
+fn split_from_env() -> Result<Option<Split>> {
     let Ok(v) = std::env::var("GSENC_GPU_SPLIT") else { return Ok(None) };
     if v.trim().is_empty() {
         return Ok(None);
     }
-    let bad = || Error::arg(format!("GSENC_GPU_SPLIT={v:?}: expected PIECE,SLICES or PIECE,SLICES,CHUNK (positive integers: points a forward workgroup, backward workgroups a brick, primitives a bin workgroup)"));
+    let bad = || {
+        Error::arg(format!(
+            "GSENC_GPU_SPLIT={v:?}: expected PIECE,SLICES[,CHUNK[,TEAM]] (positive integers: points a forward workgroup, \
+             backward workgroups a brick, primitives a bin workgroup, threads a primitive's reduction, a power of two up to 128)"
+        ))
+    };
     let n: Vec<usize> = v.split(',').map(|x| x.trim().parse::<usize>().ok().filter(|&n| n > 0)).collect::<Option<_>>().ok_or_else(bad)?;
-    match n[..] {
-        [piece, slices] => Ok(Some((piece, u32::try_from(slices).map_err(|_| bad())?, None))),
-        [piece, slices, chunk] => Ok(Some((piece, u32::try_from(slices).map_err(|_| bad())?, Some(chunk)))),
-        _ => Err(bad()),
+    if !(2..=4).contains(&n.len()) {
+        return Err(bad());
     }
+    let team = match n.get(3) {
+        Some(&t) if t.is_power_of_two() && t <= 128 => Some(t as u32),
+        Some(_) => return Err(bad()),
+        None => None,
+    };
+    Ok(Some(Split { piece: n[0], slices: u32::try_from(n[1]).map_err(|_| bad())?, chunk: n.get(2).copied(), team }))
 }
 
 impl GpuBackend {
@@ -160,6 +181,7 @@ impl GpuBackend {
             bin_chunk: kernels::BIN_CHUNK,
             forward_piece: kernels::FORWARD_PIECE,
             backward_slices: kernels::BACKWARD_SLICES,
+            reduce_team: kernels::REDUCE_TEAM,
             evaluations: 0,
             loaded: None,
             in_flight: VecDeque::new(),
@@ -167,10 +189,13 @@ impl GpuBackend {
             depth: depth_from_env(),
             reruns: 0,
         };
-        if let Some((piece, slices, chunk)) = split {
-            b.set_work_split(piece, slices);
-            if let Some(c) = chunk {
+        if let Some(split) = split {
+            b.set_work_split(split.piece, split.slices);
+            if let Some(c) = split.chunk {
                 b.set_bin_chunk(c);
+            }
+            if let Some(t) = split.team {
+                b.set_reduce_team(t);
             }
         }
         Ok(b)
@@ -209,6 +234,13 @@ impl GpuBackend {
     pub fn set_work_split(&mut self, points: usize, slices: u32) {
         self.forward_piece = points.max(1);
         self.backward_slices = slices.max(1);
+    }
+
+    /// Reduces each primitive's slots with a team of `threads` (rounded up
+    /// to a power of two, at most 128; default `kernels::REDUCE_TEAM`); the
+    /// results do not depend on it, and tests vary it.
+    pub fn set_reduce_team(&mut self, threads: u32) {
+        self.reduce_team = threads.clamp(1, 128).next_power_of_two();
     }
 
     /// The adapter this backend runs on.

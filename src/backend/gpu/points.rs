@@ -111,7 +111,7 @@ impl GpuBackend {
             .collect();
         let (coarse, cells) = coarse_cells(&bricks);
         // The dense brick map serves only the device: it moves to the upload.
-        let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, 0, 0];
+        let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, self.reduce_team, 0];
         let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied: std::mem::take(&mut bricks.occupied) };
         self.write_points(&upload)?;
         let nb = bricks.ranges.len();
@@ -306,7 +306,8 @@ impl GpuBackend {
                 let (partial, occ, grad) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?);
                 let backward_groups = count_u32("backward workgroups", nbricks * p.split[1].max(1) as usize)?;
                 dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
-                dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), groups_for(n));
+                let reduce_groups = count_u32("reduce workgroups", n.div_ceil(128 / p.split[2].clamp(1, 128) as usize))?;
+                dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), reduce_groups);
                 if pass == Pass::Gradient {
                     read = vec![(grad, 48 * n as u64), (loss, 8)];
                 } else {
