@@ -252,6 +252,11 @@ impl CpuBackend {
     /// Cuts the occupied bricks into at most `WORK_CHUNKS` contiguous ranges of
     /// similar cost (points x candidates).
     fn work_ranges(bins: &PointBins) -> Vec<(usize, usize)> {
+        Self::work_chunks(bins).into_iter().map(|(range, _)| range).collect()
+    }
+
+    /// [`Self::work_ranges`] with each range's cost.
+    fn work_chunks(bins: &PointBins) -> Vec<((usize, usize), u64)> {
         let nb = bins.bricks.ranges.len();
         let cost = |b: usize| {
             let (s, e) = bins.bricks.ranges[b];
@@ -264,13 +269,13 @@ impl CpuBackend {
         for b in 0..nb {
             acc += cost(b);
             if acc >= target {
-                ranges.push((start, b + 1));
+                ranges.push(((start, b + 1), acc));
                 start = b + 1;
                 acc = 0;
             }
         }
         if start < nb {
-            ranges.push((start, nb));
+            ranges.push(((start, nb), acc));
         }
         ranges
     }
@@ -413,11 +418,11 @@ impl Backend for CpuBackend {
         }
         self.prep.update(params);
         let bins = self.bin_points(&batch.pos);
-        let ranges = profile::serial("work chunks", || Self::work_ranges(&bins));
+        let work = profile::serial("work chunks", || Self::work_chunks(&bins));
         let norm = PointNorm::new(&batch.vref, weights);
         let np = params.len();
-        if self.chunks.len() < ranges.len() {
-            self.chunks.resize_with(ranges.len(), ChunkScratch::default);
+        if self.chunks.len() < work.len() {
+            self.chunks.resize_with(work.len(), ChunkScratch::default);
         }
         let mut acc = std::mem::take(&mut self.acc);
         acc.resize(np, GradAcc::default());
@@ -425,23 +430,34 @@ impl Backend for CpuBackend {
         let blocks = np.div_ceil(block_len);
         let CpuBackend { prep, chunks, evaluations, .. } = self;
         let prep: &Prepared = prep;
-        let chunks = &mut chunks[..ranges.len()];
-        let losses: Vec<(f64, f64, u64)> = chunks
-            .par_iter_mut()
-            .zip(ranges.par_iter())
-            .map(|(sc, &range)| profile::task("gradient chunks", || {
-                if sc.slot.len() != np {
-                    sc.slot.clear();
-                    sc.slot.resize(np, u32::MAX);
-                }
-                sc.touched.clear();
-                sc.acc.clear();
-                let job = GradJob { prep, bins: &bins, batch, norm: &norm, weights };
-                let out = grad_chunk_dispatch(&job, sc, range);
-                sc.group(block_len, blocks);
-                out
-            }))
-            .collect();
+        let chunks = &mut chunks[..work.len()];
+        // Each chunk's sums are its own, so the order in which the chunks
+        // run changes no bit. They are started longest first, on a FIFO
+        // scope (its threads take the oldest task left), so that a thread
+        // that falls idle takes the longest chunk not yet started, as a
+        // longest-first list schedule does: a dense brick's chunk does not
+        // start last and hold the whole pass up (docs/BENCHMARKS.md).
+        let mut losses = vec![(0.0f64, 0.0f64, 0u64); work.len()];
+        let mut slots: Vec<Option<_>> = chunks.iter_mut().zip(losses.iter_mut()).zip(&work).map(Some).collect();
+        let mut order: Vec<usize> = (0..work.len()).collect();
+        order.sort_by_key(|&i| (std::cmp::Reverse(work[i].1), i));
+        let job = GradJob { prep, bins: &bins, batch, norm: &norm, weights };
+        rayon::scope_fifo(|s| {
+            for i in order {
+                let Some(((sc, out), &(range, _))) = slots[i].take() else { continue };
+                let job = &job;
+                s.spawn_fifo(move |_| profile::task("gradient chunks", || {
+                    if sc.slot.len() != np {
+                        sc.slot.clear();
+                        sc.slot.resize(np, u32::MAX);
+                    }
+                    sc.touched.clear();
+                    sc.acc.clear();
+                    *out = grad_chunk_dispatch(job, sc, range);
+                    sc.group(block_len, blocks);
+                }));
+            }
+        });
         let mut out = PointLoss::default();
         for (v, c, e) in losses {
             out.val += v;
