@@ -432,31 +432,41 @@ impl Backend for CpuBackend {
         let prep: &Prepared = prep;
         let chunks = &mut chunks[..work.len()];
         // Each chunk's sums are its own, so the order in which the chunks
-        // run changes no bit. They are started longest first, on a FIFO
-        // scope (its threads take the oldest task left), so that a thread
-        // that falls idle takes the longest chunk not yet started, as a
-        // longest-first list schedule does: a dense brick's chunk does not
-        // start last and hold the whole pass up (docs/BENCHMARKS.md).
-        let mut losses = vec![(0.0f64, 0.0f64, 0u64); work.len()];
-        let mut slots: Vec<Option<_>> = chunks.iter_mut().zip(losses.iter_mut()).zip(&work).map(Some).collect();
-        let mut order: Vec<usize> = (0..work.len()).collect();
-        order.sort_by_key(|&i| (std::cmp::Reverse(work[i].1), i));
+        // run changes no bit. The chunks of more than twice the mean cost
+        // (a dense brick's) are started first, longest first, each its own
+        // task on a FIFO scope (its threads take the oldest task left), so
+        // that none starts last and holds the whole pass up; the others
+        // then run as one parallel iterator in brick order, whose
+        // contiguous runs keep neighbouring bricks' candidates in a core's
+        // cache (started longest first too, they ran 7 % slower on RM 128³
+        // `full`: docs/BENCHMARKS.md).
         let job = GradJob { prep, bins: &bins, batch, norm: &norm, weights };
+        let run = |sc: &mut ChunkScratch, range: (usize, usize)| {
+            profile::task("gradient chunks", || {
+                if sc.slot.len() != np {
+                    sc.slot.clear();
+                    sc.slot.resize(np, u32::MAX);
+                }
+                sc.touched.clear();
+                sc.acc.clear();
+                let out = grad_chunk_dispatch(&job, sc, range);
+                sc.group(block_len, blocks);
+                out
+            })
+        };
+        let mean = work.iter().map(|w| w.1).sum::<u64>() / work.len().max(1) as u64;
+        let mut losses = vec![(0.0f64, 0.0f64, 0u64); work.len()];
+        let mut items: Vec<_> = chunks.iter_mut().zip(losses.iter_mut()).zip(&work).map(|((sc, out), &(range, cost))| Some((sc, out, range, cost))).collect();
+        let mut heavy: Vec<usize> = (0..work.len()).filter(|&i| work[i].1 > 2 * mean).collect();
+        heavy.sort_by_key(|&i| (std::cmp::Reverse(work[i].1), i));
+        let heavy: Vec<_> = heavy.into_iter().filter_map(|i| items[i].take()).collect();
+        let light: Vec<_> = items.into_iter().flatten().collect();
+        let run = &run;
         rayon::scope_fifo(|s| {
-            for i in order {
-                let Some(((sc, out), &(range, _))) = slots[i].take() else { continue };
-                let job = &job;
-                s.spawn_fifo(move |_| profile::task("gradient chunks", || {
-                    if sc.slot.len() != np {
-                        sc.slot.clear();
-                        sc.slot.resize(np, u32::MAX);
-                    }
-                    sc.touched.clear();
-                    sc.acc.clear();
-                    *out = grad_chunk_dispatch(job, sc, range);
-                    sc.group(block_len, blocks);
-                }));
+            for (sc, out, range, _) in heavy {
+                s.spawn_fifo(move |_| *out = run(sc, range));
             }
+            s.spawn_fifo(move |_| light.into_par_iter().for_each(|(sc, out, range, _)| *out = run(sc, range)));
         });
         let mut out = PointLoss::default();
         for (v, c, e) in losses {
