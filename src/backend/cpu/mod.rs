@@ -649,6 +649,41 @@ mod tests {
         }
     }
 
+    /// A batch crowded into a few bricks has chunks of more than twice the
+    /// mean cost, which start first on their own: the gradient and the loss
+    /// are the same bits on 1 and 3 threads, and on 3 threads again.
+    #[test]
+    fn heavy_chunks_first_give_the_same_bits_on_any_thread_count() {
+        let mut rng = Rng::new(8);
+        let params = random_prims(&mut rng, 300);
+        // Two crowded bricks (of edge 2) and points all over.
+        let pos: Vec<[f32; 3]> = (0..900)
+            .map(|i| [0, 1, 2].map(|_| match i % 3 {
+                0 => rng.range(0.2, 1.8),
+                1 => rng.range(4.2, 5.8),
+                _ => rng.range(0.0, 6.0),
+            } as f32))
+            .collect();
+        let batch = PointBatch { vref: (0..pos.len()).map(|_| rng.uniform() as f32).collect(), pos };
+        let mut b = CpuBackend { brick: 2.0, ..CpuBackend::default() };
+        b.prep.update(&params);
+        let work = CpuBackend::work_chunks(&b.bin_points(&batch.pos));
+        let mean = work.iter().map(|w| w.1).sum::<u64>() / work.len() as u64;
+        assert!(work.iter().filter(|w| w.1 > 2 * mean).count() >= 2, "no heavy chunks: {work:?}");
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let mut b = CpuBackend { brick: 2.0, ..CpuBackend::default() };
+                let mut grad = vec![[0.0f32; 12]; params.len()];
+                let loss = b.point_loss_grad(&params, &batch, &LossWeights::default(), &mut grad).unwrap();
+                (loss.val.to_bits(), loss.cov.to_bits(), grad.as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>())
+            })
+        };
+        let one = run(1);
+        assert!(one.2.iter().any(|&x| f32::from_bits(x) != 0.0));
+        assert!(run(3) == one && run(3) == one);
+    }
+
     /// Primitives scattered over [0, 6)^3 with random rotations and sizes.
     pub(super) fn random_prims(rng: &mut Rng, n: usize) -> Vec<Primitive> {
         (0..n)
