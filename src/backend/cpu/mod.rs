@@ -456,17 +456,17 @@ impl Backend for CpuBackend {
         };
         let mean = work.iter().map(|w| w.1).sum::<u64>() / work.len().max(1) as u64;
         let mut losses = vec![(0.0f64, 0.0f64, 0u64); work.len()];
-        let mut items: Vec<_> = chunks.iter_mut().zip(losses.iter_mut()).zip(&work).map(|((sc, out), &(range, cost))| Some((sc, out, range, cost))).collect();
+        let mut items: Vec<_> = chunks.iter_mut().zip(losses.iter_mut()).zip(&work).map(|((sc, out), &(range, _))| Some((sc, out, range))).collect();
         let mut heavy: Vec<usize> = (0..work.len()).filter(|&i| work[i].1 > 2 * mean).collect();
         heavy.sort_by_key(|&i| (std::cmp::Reverse(work[i].1), i));
         let heavy: Vec<_> = heavy.into_iter().filter_map(|i| items[i].take()).collect();
         let light: Vec<_> = items.into_iter().flatten().collect();
         let run = &run;
         rayon::scope_fifo(|s| {
-            for (sc, out, range, _) in heavy {
+            for (sc, out, range) in heavy {
                 s.spawn_fifo(move |_| *out = run(sc, range));
             }
-            s.spawn_fifo(move |_| light.into_par_iter().for_each(|(sc, out, range, _)| *out = run(sc, range)));
+            s.spawn_fifo(move |_| light.into_par_iter().for_each(|(sc, out, range)| *out = run(sc, range)));
         });
         let mut out = PointLoss::default();
         for (v, c, e) in losses {

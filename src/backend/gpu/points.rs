@@ -306,7 +306,8 @@ impl GpuBackend {
                 let (partial, occ, grad) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?);
                 let backward_groups = count_u32("backward workgroups", nbricks * p.split[1].max(1) as usize)?;
                 dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
-                let reduce_groups = count_u32("reduce workgroups", n.div_ceil(128 / p.split[2].clamp(1, 128) as usize))?;
+                // A team of `p.split[2]` threads a primitive.
+                let reduce_groups = groups_for(count_u32("reduce threads", n * p.split[2] as usize)? as usize);
                 dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), reduce_groups);
                 if pass == Pass::Gradient {
                     read = vec![(grad, 48 * n as u64), (loss, 8)];
