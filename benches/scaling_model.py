@@ -12,9 +12,10 @@ schedule of its tasks, in order, on p workers (each task to the first free
 worker, as rayon's work stealing roughly does), plus a fork-join cost per
 pass (`--fork-join-us`, printed both with it and without); a last row
 schedules each pass's longest tasks first. Rayon does neither exactly; the
-two rows show how much the order of the tasks matters. The draw of the
-next batch (passes named `draw: ...`) runs beside the gradient: its serial
-stream on one worker, its tasks in the gradient's pool. The model knows
+two rows show how much the order of the tasks matters. What the loop runs
+beside the gradient (passes named `beside: ...`: the next batch's draw and
+its sort into bricks) takes its serial sections on one worker and its
+tasks in the gradient's pool. The model knows
 nothing of memory bandwidth, caches shared by more cores, or frequency
 changes, so it is an upper bound on what the schedule allows; set it beside
 `benches/scaling.sh` on the machine itself.
@@ -22,6 +23,9 @@ changes, so it is an upper bound on what the schedule allows; set it beside
 import argparse
 import heapq
 import statistics
+
+# The prefix of what the loop runs beside its passes (src/profile.rs `beside`).
+BESIDE = "beside: "
 
 
 def iterations(path):
@@ -53,13 +57,13 @@ def makespan(tasks, p, longest_first=False):
 def predict(its, p, fork_join, longest_first=False):
     total = 0.0
     for it in its:
-        side_serial = sum(-v for n, v in it if n.startswith("draw") and not isinstance(v, list))
-        side_tasks = [t for n, v in it if n.startswith("draw") and isinstance(v, list) for t in v]
-        main = [(n, v) for n, v in it if not n.startswith("draw")]
+        side_serial = sum(-v for n, v in it if n.startswith(BESIDE) and not isinstance(v, list))
+        side_tasks = [t for n, v in it if n.startswith(BESIDE) and isinstance(v, list) for t in v]
+        main = [(n, v) for n, v in it if not n.startswith(BESIDE)]
         if p == 1:
             total += sum(-v if not isinstance(v, list) else sum(v) for _, v in it)
             continue
-        # The draw's tasks join the largest pass of the iteration.
+        # The tasks beside join the largest pass of the iteration.
         largest = max((i for i, (n, v) in enumerate(main) if isinstance(v, list)), key=lambda i: sum(main[i][1]), default=None)
         t_main = 0.0
         for i, (n, v) in enumerate(main):
@@ -78,7 +82,7 @@ def check():
     import tempfile
     # Two iterations, each: a serial section of 1 s; a pass of four tasks
     # (3, 1, 1, 1 s); the draw beside it, a 0.5 s stream and two 1 s tasks.
-    one = ["s\t-1", "p\t3", "p\t1", "p\t1", "p\t1", "draw: stream\t-0.5", "draw: x\t1", "draw: x\t1", "\t0"]
+    one = ["s\t-1", "p\t3", "p\t1", "p\t1", "p\t1", "beside: draw: stream\t-0.5", "beside: draw: x\t1", "beside: draw: x\t1", "\t0"]
     with tempfile.NamedTemporaryFile("w", suffix=".tsv", delete=False) as f:
         f.write("\n".join(one * 2) + "\n")
     try:

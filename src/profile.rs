@@ -13,13 +13,36 @@
 //! The file has one line per record, `pass<TAB>seconds`: a task of a
 //! parallel pass (consecutive tasks of one pass are one run of it), a serial
 //! section (negative seconds), or the end of an iteration (an empty pass).
+//! A record made within [`beside`] (work that runs beside the iteration's
+//! passes, as the next batch's draw does) has `beside: ` before its pass.
 
 use parking_lot::Mutex;
+use std::cell::Cell;
 use std::time::Instant;
 
 const ON: bool = cfg!(feature = "task-profile");
 
 static LOG: Recorder = Recorder::new();
+
+thread_local! {
+    /// Whether this thread runs within [`beside`] (the profile is taken on
+    /// one thread, so every record of such work is made on it).
+    static BESIDE: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Runs `f`, work that runs beside the iteration's passes (the next
+/// batch's draw beside the gradient), and marks its records so.
+#[inline(always)]
+pub fn beside<R>(f: impl FnOnce() -> R) -> R {
+    if ON { marked_beside(f) } else { f() }
+}
+
+fn marked_beside<R>(f: impl FnOnce() -> R) -> R {
+    let was = BESIDE.with(|b| b.replace(true));
+    let r = f();
+    BESIDE.with(|b| b.set(was));
+    r
+}
 
 /// Runs one task of the parallel pass `pass` and records its time.
 #[inline(always)]
@@ -60,8 +83,13 @@ pub fn write() -> std::io::Result<()> {
     }
 }
 
-/// The records, in the order they were made.
-struct Recorder(Mutex<Vec<(&'static str, f64)>>);
+fn in_beside() -> bool {
+    BESIDE.with(Cell::get)
+}
+
+/// The records, in the order they were made: pass, seconds (negative for
+/// a serial section), made beside the passes.
+struct Recorder(Mutex<Vec<(&'static str, f64, bool)>>);
 
 impl Recorder {
     const fn new() -> Recorder {
@@ -76,29 +104,30 @@ impl Recorder {
 
     fn task<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
         let (r, s) = self.timed(f);
-        self.0.lock().push((pass, s));
+        self.0.lock().push((pass, s, in_beside()));
         r
     }
 
     fn serial<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
         let (r, s) = self.timed(f);
-        self.0.lock().push((pass, -s));
+        self.0.lock().push((pass, -s, in_beside()));
         r
     }
 
     fn even<R>(&self, pass: &'static str, tasks: usize, f: impl FnOnce() -> R) -> R {
         let (r, s) = self.timed(f);
         let n = tasks.max(1);
-        self.0.lock().extend(std::iter::repeat_n((pass, s / n as f64), n));
+        self.0.lock().extend(std::iter::repeat_n((pass, s / n as f64, in_beside()), n));
         r
     }
 
     fn iteration_end(&self) {
-        self.0.lock().push(("", 0.0));
+        self.0.lock().push(("", 0.0, false));
     }
 
     fn take_text(&self) -> String {
-        std::mem::take(&mut *self.0.lock()).iter().map(|(pass, s)| format!("{pass}\t{s:.9}\n")).collect()
+        let lines = std::mem::take(&mut *self.0.lock());
+        lines.iter().map(|&(pass, s, beside)| format!("{}{pass}\t{s:.9}\n", if beside { "beside: " } else { "" })).collect()
     }
 }
 
@@ -128,5 +157,20 @@ mod tests {
         assert!(lines[2..6].iter().all(|l| l.1 == lines[2].1 && l.1 >= 0.001), "{lines:?}");
         assert_eq!(lines[6].1, 0.0);
         assert_eq!(r.take_text(), "", "taking the text forgets the records");
+    }
+
+    #[test]
+    fn records_made_beside_the_passes_say_so_and_only_they() {
+        let r = Recorder::new();
+        r.task("a", || ());
+        marked_beside(|| {
+            r.task("draw", || ());
+            marked_beside(|| r.serial("inner", || ()));
+            r.even("sort", 2, || ());
+        });
+        r.task("b", || ());
+        let text = r.take_text();
+        let names: Vec<&str> = text.lines().map(|l| l.split_once('\t').expect("pass<TAB>seconds").0).collect();
+        assert_eq!(names, ["a", "beside: draw", "beside: inner", "beside: sort", "beside: sort", "b"]);
     }
 }

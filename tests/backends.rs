@@ -208,3 +208,13 @@ fn a_device_lost_in_a_resident_encode_starts_it_again_on_the_cpu() {
     let e = encode(&t, &cfg, None, &mut gpu, &mut |_| {}).err().expect("the device error reaches the caller");
     assert!(matches!(e, Error::Device(_)), "{e}");
 }
+
+/// The CPU backend reads a batch's sort into bricks made ahead, and only
+/// one of its own edge (`common::check_sorted_ahead`).
+#[test]
+fn a_batch_sorted_ahead_gives_the_gradient_of_one_sorted_in_the_call() {
+    let mut rng = gsenc::math::rng::Rng::new(31);
+    let params = random_model(&mut rng, 400, 48.0);
+    let plain = random_batch(&mut rng, 5000, 48.0);
+    check_sorted_ahead(&mut CpuBackend::new(), &params, &plain);
+}

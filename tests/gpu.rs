@@ -47,42 +47,6 @@ fn gpu() -> Option<GpuBackend> {
     Some(b)
 }
 
-/// Primitives over a `size`^3 box with every parameter group varied:
-/// rotations, anisotropy, scales beyond the clamp, weights and values.
-fn random_model(rng: &mut Rng, n: usize, size: f64) -> Vec<Primitive> {
-    (0..n)
-        .map(|i| {
-            let mut p = [0f32; 12];
-            for a in 0..3 {
-                p[a] = rng.range(0.0, size) as f32;
-                p[3 + a] = rng.range(0.5f64.ln(), 3.0f64.ln()) as f32;
-            }
-            if i % 5 == 1 {
-                p[3] = 9.0f32.ln(); // clamped at SIGMA_MAX
-            }
-            if i % 5 == 2 {
-                p[4] = 0.25f32.ln(); // clamped at SIGMA_MIN, and under the scale penalty's 0.3
-            }
-            for q in 0..4 {
-                p[6 + q] = rng.range(-1.0, 1.0) as f32;
-            }
-            p[6] += 1.2;
-            p[10] = rng.range(-2.0, 2.0) as f32;
-            p[11] = rng.range(-2.0, 2.0) as f32;
-            p
-        })
-        .collect()
-}
-
-fn random_batch(rng: &mut Rng, count: usize, size: f64) -> PointBatch {
-    let mut b = PointBatch::default();
-    for i in 0..count {
-        b.pos.push([0, 1, 2].map(|_| rng.range(0.0, size) as f32));
-        b.vref.push(if i % 9 == 0 { 0.001 } else { rng.range(0.0, 1.0) as f32 });
-    }
-    b
-}
-
 /// The same parameters bit for bit.
 fn same_bits(a: &[Primitive], b: &[Primitive]) -> bool {
     a.len() == b.len() && a.iter().flatten().zip(b.iter().flatten()).all(|(x, y)| x.to_bits() == y.to_bits())
@@ -479,6 +443,36 @@ fn resident_step_matches_the_host(w: LossWeights) {
     assert!(tight.reruns >= 1);
     assert!(same_bits(&again, &dev_p));
     assert_eq!(again_a.t, 5);
+}
+
+/// The GPU backend reads a batch's sort into bricks made ahead, and only
+/// one of its own edge: the gradient (`common::check_sorted_ahead`) and a
+/// resident step, bit for bit.
+#[test]
+fn a_batch_sorted_ahead_gives_the_step_of_one_sorted_in_the_call() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(37);
+    let params = random_model(&mut rng, 300, 40.0);
+    let plain = random_batch(&mut rng, 4000, 40.0);
+    check_sorted_ahead(&mut g, &params, &plain);
+    let edge = g.brick_edge().unwrap();
+    let w = LossWeights::default();
+    let mut step = |b: &PointBatch| {
+        let r = g.resident().unwrap();
+        r.load(&params, &Adam::new(params.len())).unwrap();
+        let terms = r.step(b, &w, 4e-3, true).unwrap().unwrap();
+        let (mut p, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+        r.store(&mut p, &mut a).unwrap();
+        (terms, p)
+    };
+    let (terms, reference) = step(&plain);
+    assert!(!same_bits(&reference, &params), "the step must move the parameters");
+    for e in [edge, edge / 4.0] {
+        let mut b = plain.clone();
+        b.sort_into_bricks(e);
+        let (t, p) = step(&b);
+        assert!(t.0 == terms.0 && (t.1.scale, t.1.aniso) == (terms.1.scale, terms.1.aniso) && same_bits(&p, &reference), "sorted ahead into bricks of {e}");
+    }
 }
 
 /// Submitted resident steps hold the device until `finish`: up to two may

@@ -11,6 +11,7 @@ const POINTS_PER_TASK: usize = 2048;
 
 /// A dense grid of cubic bricks over a batch's points, and the points sorted
 /// by brick (a stable counting sort: within a brick, in batch order).
+#[derive(Clone, Debug, PartialEq)]
 pub struct PointBricks {
     /// Corner of brick (0, 0, 0): the batch's lowest coordinates.
     pub lo: [f32; 3],
@@ -122,6 +123,33 @@ mod tests {
             assert_eq!(nb / 8 > POINTS_PER_TASK, extent > 100.0, "{nb} bricks");
             check(&pos, &b);
         }
+    }
+
+    /// A batch's sort made ahead is what the backends read for its edge,
+    /// and only for its edge; a batch whose points were replaced after the
+    /// sort (another count) is sorted again.
+    #[test]
+    fn a_batch_keeps_its_sort_for_that_edge_only() {
+        use crate::backend::PointBatch;
+        use std::borrow::Cow;
+        let mut rng = Rng::new(5);
+        let pos: Vec<[f32; 3]> = (0..3000).map(|_| [0, 1, 2].map(|_| rng.range(0.0, 64.0) as f32)).collect();
+        let mut batch = PointBatch::new(pos.clone(), vec![0.5; pos.len()]);
+        assert!(matches!(batch.bricks(16.0), Cow::Owned(_)), "nothing sorted ahead");
+        batch.sort_into_bricks(16.0);
+        let kept = batch.bricks(16.0);
+        assert!(matches!(kept, Cow::Borrowed(_)));
+        assert_eq!(*kept, PointBricks::new(&pos, 16.0));
+        check(&pos, &kept);
+        let other = batch.bricks(8.0);
+        assert!(matches!(other, Cow::Owned(_)));
+        assert_eq!(*other, PointBricks::new(&pos, 8.0));
+        assert_ne!(*other, *kept);
+        batch.pos.truncate(2000);
+        batch.vref.truncate(2000);
+        let again = batch.bricks(16.0);
+        assert!(matches!(again, Cow::Owned(_)), "points replaced after the sort");
+        check(&batch.pos, &again);
     }
 
     fn check(pos: &[[f32; 3]], b: &PointBricks) {

@@ -21,20 +21,47 @@ use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use crate::math::loss::{LossWeights, RegTerms};
 use crate::math::optim::Adam;
+use bricks::PointBricks;
+use std::borrow::Cow;
 
-/// Points and their reference values.
+/// Points and their reference values, and perhaps their sort into bricks.
 #[derive(Clone, Debug, Default)]
 pub struct PointBatch {
     pub pos: Vec<[f32; 3]>,
     pub vref: Vec<f32>,
+    /// The points sorted into bricks of an edge, made ahead of the pass that
+    /// reads them ([`Self::sort_into_bricks`]).
+    sorted: Option<(f32, PointBricks)>,
 }
 
 impl PointBatch {
+    pub fn new(pos: Vec<[f32; 3]>, vref: Vec<f32>) -> PointBatch {
+        PointBatch { pos, vref, sorted: None }
+    }
     pub fn len(&self) -> usize {
         self.pos.len()
     }
     pub fn is_empty(&self) -> bool {
         self.pos.is_empty()
+    }
+
+    /// Sorts the points into bricks of `edge` voxels now and keeps the sort,
+    /// so that a backend whose point passes use that edge
+    /// ([`Backend::brick_edge`]) finds it done: the encoder sorts the next
+    /// batch as it draws it, beside the current iteration's gradient, which
+    /// takes the sort's passes off the iteration's path. The points must not
+    /// change afterwards.
+    pub fn sort_into_bricks(&mut self, edge: f32) {
+        self.sorted = Some((edge, PointBricks::new(&self.pos, edge)));
+    }
+
+    /// The points sorted into bricks of `edge` voxels: the kept sort when it
+    /// has that edge, else a new one ([`PointBricks::new`] either way).
+    pub fn bricks(&self, edge: f32) -> Cow<'_, PointBricks> {
+        match &self.sorted {
+            Some((e, b)) if e.to_bits() == edge.to_bits() && b.order.len() == self.pos.len() => Cow::Borrowed(b),
+            _ => Cow::Owned(PointBricks::new(&self.pos, edge)),
+        }
     }
 }
 
@@ -124,6 +151,13 @@ pub trait Backend: Send {
     /// Why this backend runs on the CPU although a GPU was asked for
     /// (`auto` after a device failure), if it does.
     fn fell_back(&self) -> Option<String> {
+        None
+    }
+
+    /// The edge, in voxels, of the bricks this backend's point passes sort a
+    /// batch into ([`PointBatch::bricks`]), so that a caller can sort a batch
+    /// ahead ([`PointBatch::sort_into_bricks`]); `None` when it sorts none.
+    fn brick_edge(&self) -> Option<f32> {
         None
     }
 

@@ -226,6 +226,13 @@ impl Backend for Fallback {
         self.gpu.as_ref().map_or(vec![], |g| g.kernel_seconds())
     }
 
+    fn brick_edge(&self) -> Option<f32> {
+        match &self.gpu {
+            Some(g) => g.brick_edge(),
+            None => self.cpu.brick_edge(),
+        }
+    }
+
     fn resident(&mut self) -> Option<&mut dyn Resident> {
         self.gpu.as_mut().and_then(|g| g.resident())
     }

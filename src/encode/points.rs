@@ -263,7 +263,7 @@ impl PointSampler {
                 }
             })
         });
-        PointBatch { pos, vref }
+        PointBatch::new(pos, vref)
     }
 
     /// What each point of a batch of counts `c` takes from the random
@@ -376,7 +376,7 @@ mod tests {
             }
         }
         let vref = pos.iter().map(|&x| reference.trilinear(x)).collect();
-        PointBatch { pos, vref }
+        PointBatch::new(pos, vref)
     }
 
     /// Batches of both rules, with and without an error map, from a grid's

@@ -29,11 +29,14 @@ pub const ERROR_MAPS_PER_RUN: usize = 10;
 /// iteration when the pool has a second thread: beside the gradient on the
 /// CPU backend, beside `submit` and `wait` of resident (GPU) steps. So
 /// `draw` may overlap the others; `submit + wait` never exceeds the loop.
-/// `submit` is sorting the batch into bricks, the upload and recording the
-/// command buffer; `wait` the device's remaining time and the read-back.
+/// A batch drawn ahead is also sorted into the backend's bricks there
+/// (`PointBatch::sort_into_bricks`); `submit` is the upload and recording
+/// the command buffer (and the sort of a batch not drawn ahead); `wait`
+/// the device's remaining time and the read-back.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct LoopPhases {
-    /// Drawing training points (relocations' batches included).
+    /// Drawing training points (relocations' batches included), and
+    /// sorting a batch drawn ahead into bricks.
     pub draw: f64,
     /// Resident steps: queuing the step on the device.
     pub submit: f64,
@@ -277,8 +280,20 @@ fn refine(
     // Resident steps submitted and not yet finished: up to the backend's
     // depth, so that the device runs one while the host waits for another.
     let mut pending = 0usize;
-    // A batch drawn while the device ran the last step (resident only).
+    // A batch drawn beside the last iteration, sorted into the bricks of
+    // the backend's point passes (`edge`) there too, so that the iteration
+    // that reads it does not sort it first (profiled as work beside the
+    // iteration's passes: `benches/scaling_model.py`).
     let mut ahead: Option<PointBatch> = None;
+    let draw_ahead = |sampler: &mut PointSampler, edge: Option<f32>| {
+        profile::beside(|| {
+            let mut batch = sampler.draw(points, target.reference, target.samples);
+            if let Some(edge) = edge {
+                batch.sort_into_bricks(edge);
+            }
+            batch
+        })
+    };
     let terms = |pl: PointLoss, reg: RegTerms| {
         let w = &cfg.weights;
         LossTerms {
@@ -345,8 +360,9 @@ fn refine(
             // either. (An adaptive step's end moves only at a score, never
             // below the iteration after it.)
             let draw_next = t + 1 < end(&plateau) && !draws_own(t + 1);
+            let edge = backend.brick_edge();
             let (next, reported) = rayon::join(
-                || draw_next.then(|| timed(&mut phases.draw, || sampler.draw(points, target.reference, target.samples))),
+                || draw_next.then(|| timed(&mut phases.draw, || draw_ahead(&mut sampler, edge))),
                 || -> Result<Option<(PointLoss, RegTerms)>> {
                     let r = backend.resident().expect("checked above");
                     if on_host {
@@ -375,9 +391,10 @@ fn refine(
             // order as without this) while the pool works on this one, so
             // that drawing does not leave the other cores idle.
             let draw_next = t + 1 < end(&plateau) && !draws_own(t + 1);
+            let edge = backend.brick_edge();
             let (pl, next) = rayon::join(
                 || backend.point_loss_grad(&params, &batch, &cfg.weights, &mut grad),
-                || draw_next.then(|| timed(&mut phases.draw, || sampler.draw(points, target.reference, target.samples))),
+                || draw_next.then(|| timed(&mut phases.draw, || draw_ahead(&mut sampler, edge))),
             );
             ahead = next;
             let pl = pl?;

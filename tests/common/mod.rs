@@ -7,7 +7,69 @@
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 use gsenc::model::{Model, ModelMeta};
 use gsenc::math::kernel::Primitive;
+use gsenc::backend::{Backend, PointBatch};
+use gsenc::math::loss::LossWeights;
 use gsenc::math::rng::Rng;
+
+/// Primitives over a `size`^3 box with every parameter group varied:
+/// rotations, anisotropy, scales beyond the clamp, weights and values.
+pub fn random_model(rng: &mut Rng, n: usize, size: f64) -> Vec<Primitive> {
+    (0..n)
+        .map(|i| {
+            let mut p = [0f32; 12];
+            for a in 0..3 {
+                p[a] = rng.range(0.0, size) as f32;
+                p[3 + a] = rng.range(0.5f64.ln(), 3.0f64.ln()) as f32;
+            }
+            if i % 5 == 1 {
+                p[3] = 9.0f32.ln(); // clamped at SIGMA_MAX
+            }
+            if i % 5 == 2 {
+                p[4] = 0.25f32.ln(); // clamped at SIGMA_MIN, and under the scale penalty's 0.3
+            }
+            for q in 0..4 {
+                p[6 + q] = rng.range(-1.0, 1.0) as f32;
+            }
+            p[6] += 1.2;
+            p[10] = rng.range(-2.0, 2.0) as f32;
+            p[11] = rng.range(-2.0, 2.0) as f32;
+            p
+        })
+        .collect()
+}
+
+/// `count` points over a `size`^3 box, every ninth masked (a tiny value).
+pub fn random_batch(rng: &mut Rng, count: usize, size: f64) -> PointBatch {
+    let mut b = PointBatch::default();
+    for i in 0..count {
+        b.pos.push([0, 1, 2].map(|_| rng.range(0.0, size) as f32));
+        b.vref.push(if i % 9 == 0 { 0.001 } else { rng.range(0.0, 1.0) as f32 });
+    }
+    b
+}
+
+/// A batch sorted into the backend's bricks ahead of the call (as the
+/// encoder sorts the next batch beside the gradient) gives the loss and
+/// gradient of the same batch sorted in the call, bit for bit, and a sort
+/// of another edge is not read (it would cut other bricks, and sum in
+/// another order).
+pub fn check_sorted_ahead(backend: &mut dyn Backend, params: &[Primitive], plain: &PointBatch) {
+    let edge = backend.brick_edge().expect("a backend that sorts into bricks");
+    let w = LossWeights::default();
+    let mut run = |b: &PointBatch| {
+        let mut grad = vec![[0.0f32; 12]; params.len()];
+        let loss = backend.point_loss_grad(params, b, &w, &mut grad).unwrap();
+        (loss.val.to_bits(), loss.cov.to_bits(), grad.as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>())
+    };
+    let reference = run(plain);
+    assert!(reference.2.iter().any(|&x| x != 0), "the gradient must not vanish");
+    let mut ahead = plain.clone();
+    ahead.sort_into_bricks(edge);
+    assert!(run(&ahead) == reference, "sorted ahead into bricks of {edge}");
+    let mut other = plain.clone();
+    other.sort_into_bricks(edge / 4.0);
+    assert!(run(&other) == reference, "a sort into bricks of {} must not be read", edge / 4.0);
+}
 
 pub fn sigmoid(x: f64) -> f64 {
     1.0 / (1.0 + (-x).exp())

@@ -31,6 +31,7 @@ use crate::math::primitives_per_task;
 use crate::profile;
 use crate::backend::PointBatch;
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Work chunks per batch: enough for load balance on many cores; fixed so that
 /// the reduction order never depends on the thread count.
@@ -109,8 +110,8 @@ impl Default for CpuBackend {
 }
 
 /// Points sorted into bricks and primitives listed per occupied brick.
-struct PointBins {
-    bricks: PointBricks,
+struct PointBins<'a> {
+    bricks: Cow<'a, PointBricks>,
     /// Per occupied brick: range into `cand`.
     cand_start: Vec<u32>,
     cand: Vec<u32>,
@@ -191,12 +192,13 @@ impl CpuBackend {
     #[doc(hidden)]
     pub fn profile_bin(&mut self, params: &[Primitive], pos: &[[f32; 3]]) -> (usize, usize) {
         self.prep.update(params);
-        let b = self.bin_points(pos);
+        let b = self.bin_points(Cow::Owned(PointBricks::new(pos, self.brick)));
         (b.bricks.ranges.len(), b.cand.len())
     }
 
-    fn bin_points(&self, pos: &[[f32; 3]]) -> PointBins {
-        let bricks = PointBricks::new(pos, self.brick);
+    /// Lists, for each occupied brick of `bricks`, the primitives whose box
+    /// overlaps it.
+    fn bin_points<'a>(&self, bricks: Cow<'a, PointBricks>) -> PointBins<'a> {
         let (bd, occ) = (bricks.dims, &bricks.occupied);
         // List every primitive in the occupied bricks its box overlaps.
         // Occupancy of each row of bricks as a bit mask (rows of up to 64 bricks).
@@ -284,7 +286,7 @@ impl CpuBackend {
 /// What a gradient work chunk reads.
 struct GradJob<'a> {
     prep: &'a Prepared,
-    bins: &'a PointBins,
+    bins: &'a PointBins<'a>,
     batch: &'a PointBatch,
     norm: &'a PointNorm,
     weights: &'a LossWeights,
@@ -373,6 +375,10 @@ impl Backend for CpuBackend {
         "cpu".into()
     }
 
+    fn brick_edge(&self) -> Option<f32> {
+        Some(self.brick)
+    }
+
     /// Counted by the 8-lane blocks actually evaluated (blocks whose box
     /// misses the point are skipped, not counted).
     fn kernel_evaluations(&self) -> u64 {
@@ -386,7 +392,7 @@ impl Backend for CpuBackend {
             return Ok(());
         }
         self.prep.update(params);
-        let bins = self.bin_points(pos);
+        let bins = self.bin_points(Cow::Owned(PointBricks::new(pos, self.brick)));
         let ranges = Self::work_ranges(&bins);
         let prep = &self.prep;
         let results: Vec<(Vec<(u32, f32, f32)>, u64)> = ranges
@@ -417,7 +423,7 @@ impl Backend for CpuBackend {
             return Ok(PointLoss::default());
         }
         self.prep.update(params);
-        let bins = self.bin_points(&batch.pos);
+        let bins = self.bin_points(batch.bricks(self.brick));
         let work = profile::serial("work chunks", || Self::work_chunks(&bins));
         let norm = PointNorm::new(&batch.vref, weights);
         let np = params.len();
@@ -664,10 +670,11 @@ mod tests {
                 _ => rng.range(0.0, 6.0),
             } as f32))
             .collect();
-        let batch = PointBatch { vref: (0..pos.len()).map(|_| rng.uniform() as f32).collect(), pos };
+        let vref = (0..pos.len()).map(|_| rng.uniform() as f32).collect();
+        let batch = PointBatch::new(pos, vref);
         let mut b = CpuBackend { brick: 2.0, ..CpuBackend::default() };
         b.prep.update(&params);
-        let work = CpuBackend::work_chunks(&b.bin_points(&batch.pos));
+        let work = CpuBackend::work_chunks(&b.bin_points(batch.bricks(2.0)));
         let mean = work.iter().map(|w| w.1).sum::<u64>() / work.len() as u64;
         assert!(work.iter().filter(|w| w.1 > 2 * mean).count() >= 2, "no heavy chunks: {work:?}");
         let run = |threads: usize| {

@@ -44,10 +44,12 @@ use self::device::{DeviceRequest, Gpu};
 use self::kernels::Kernels;
 use self::points::Pass;
 use self::timer::Timer;
+use super::bricks::PointBricks;
 use super::{check_len, Backend, Lattice, PointBatch, PointLoss};
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use crate::math::loss::LossWeights;
+use std::borrow::Cow;
 use std::collections::VecDeque;
 
 pub struct GpuBackend {
@@ -274,6 +276,10 @@ impl Backend for GpuBackend {
         true
     }
 
+    fn brick_edge(&self) -> Option<f32> {
+        Some(self.brick)
+    }
+
     fn kernel_seconds(&self) -> Vec<(String, u64, f64)> {
         self.timer.totals()
     }
@@ -300,9 +306,9 @@ impl Backend for GpuBackend {
             return Ok(());
         }
         self.upload_params(params)?;
-        let (p, bricks, ncoarse, upload) = self.upload_points(params.len(), pos, None)?;
+        let (p, bricks, ncoarse, upload) = self.upload_points(params.len(), pos, None, Cow::Owned(PointBricks::new(pos, self.brick)))?;
         let (rn, _, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Evaluate, upload)?;
-        self.count_evaluations(&bricks, &starts);
+        self.count_evaluations(&bricks.ranges, &starts);
         let rn = floats(&rn);
         for (k, &i) in bricks.order.iter().enumerate() {
             rho[i as usize] = rn[2 * k];
@@ -320,11 +326,11 @@ impl Backend for GpuBackend {
             return Ok(PointLoss::default());
         }
         self.upload_params(params)?;
-        let (mut p, bricks, ncoarse, upload) = self.upload_points(params.len(), &batch.pos, Some(&batch.vref))?;
+        let (mut p, bricks, ncoarse, upload) = self.upload_points(params.len(), &batch.pos, Some(&batch.vref), batch.bricks(self.brick))?;
         p.set_objective(&batch.vref, weights);
         p.stage[3] = 1;
         let (g, loss, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Gradient, upload)?;
-        self.count_evaluations(&bricks, &starts);
+        self.count_evaluations(&bricks.ranges, &starts);
         let g = floats(&g);
         for (i, out) in grad.iter_mut().enumerate() {
             out.copy_from_slice(&g[12 * i..12 * i + 12]);

@@ -10,6 +10,7 @@ use super::{bytes, count_u32, seq, words, GpuBackend};
 use crate::backend::bricks::PointBricks;
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
+use std::borrow::Cow;
 
 /// What a point call computes after the forward pass.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -89,11 +90,16 @@ impl GpuBackend {
         Ok(())
     }
 
-    /// Points sorted into bricks: uploads them and the bricks, and returns
-    /// the `Params` of the call (without the loss fields), the bricks, the
-    /// number of coarse cells and what was uploaded.
-    pub(super) fn upload_points(&mut self, n: usize, pos: &[[f32; 3]], vref: Option<&[f32]>) -> Result<(Params, PointBricks, usize, Upload)> {
-        let mut bricks = PointBricks::new(pos, self.brick);
+    /// Points sorted into `bricks` (of this backend's edge): uploads them and
+    /// the bricks, and returns the `Params` of the call (without the loss
+    /// fields), the bricks, the number of coarse cells and what was uploaded.
+    pub(super) fn upload_points<'a>(
+        &mut self,
+        n: usize,
+        pos: &[[f32; 3]],
+        vref: Option<&[f32]>,
+        mut bricks: Cow<'a, PointBricks>,
+    ) -> Result<(Params, Cow<'a, PointBricks>, usize, Upload)> {
         let sorted: Vec<[f32; 4]> = bricks
             .order
             .iter()
@@ -110,9 +116,14 @@ impl GpuBackend {
             .flat_map(|(b, &[s, e])| (s..e).step_by(piece as usize).map(move |p| [b as u32, p, p.saturating_add(piece).min(e), 0]))
             .collect();
         let (coarse, cells) = coarse_cells(&bricks);
-        // The dense brick map serves only the device: it moves to the upload.
+        // The dense brick map serves only the device: it moves to the upload
+        // (a sort made ahead, borrowed from its batch, lends a copy).
+        let occupied = match &mut bricks {
+            Cow::Owned(b) => std::mem::take(&mut b.occupied),
+            Cow::Borrowed(b) => b.occupied.clone(),
+        };
         let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, self.reduce_team, 0];
-        let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied: std::mem::take(&mut bricks.occupied) };
+        let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied };
         self.write_points(&upload)?;
         let nb = bricks.ranges.len();
         let p = Params {
@@ -332,8 +343,8 @@ impl GpuBackend {
     }
 
     /// Kernel evaluations of a forward pass: points times candidates per brick.
-    pub(super) fn count_evaluations(&mut self, bricks: &PointBricks, starts: &[u32]) {
-        for (b, &(s, e)) in bricks.ranges.iter().enumerate() {
+    pub(super) fn count_evaluations(&mut self, ranges: &[(u32, u32)], starts: &[u32]) {
+        for (b, &(s, e)) in ranges.iter().enumerate() {
             self.evaluations += (e - s) as u64 * (starts[b + 1] - starts[b]) as u64;
         }
     }

@@ -10,12 +10,12 @@
 
 use super::points::{InFlight, IN_FLIGHT};
 use super::{bytes, floats, GpuBackend, Pass};
-use crate::backend::bricks::PointBricks;
 use crate::backend::{check_len, PointBatch, PointLoss, Resident};
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use crate::math::loss::{LossWeights, RegTerms};
 use crate::math::optim::{Adam, BETA1, BETA2};
+use std::borrow::Cow;
 
 /// What the device holds between steps.
 #[derive(Clone, Copy, Debug)]
@@ -30,7 +30,8 @@ pub(super) struct Loaded {
 pub(super) struct Step {
     /// What the device will hold once it finishes.
     loaded: Loaded,
-    bricks: PointBricks,
+    /// Each brick's range of points, for the count of kernel evaluations.
+    ranges: Vec<(u32, u32)>,
     report: bool,
 }
 
@@ -71,10 +72,10 @@ impl Resident for GpuBackend {
     }
 
     fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>> {
-        let Step { loaded, bricks, report } = self.steps.pop_front().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
+        let Step { loaded, ranges, report } = self.steps.pop_front().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
         let (_, loss, starts) = self.finish_points()?;
         self.loaded = Some(loaded);
-        self.count_evaluations(&bricks, &starts);
+        self.count_evaluations(&ranges, &starts);
         Ok(report.then(|| {
             let l = floats(&loss);
             (PointLoss { val: l[0] as f64, cov: l[1] as f64 }, RegTerms { scale: l[2] as f64, aniso: l[3] as f64 })
@@ -112,7 +113,7 @@ impl GpuBackend {
     /// Uploads a resident step's batch and submits the step after those in
     /// flight: `n` primitives at Adam's step count `t` before it.
     fn queue_step(&mut self, n: usize, t: u32, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()> {
-        let (mut p, bricks, ncoarse, upload) = self.upload_points(n, &batch.pos, Some(&batch.vref))?;
+        let (mut p, bricks, ncoarse, upload) = self.upload_points(n, &batch.pos, Some(&batch.vref), batch.bricks(self.brick))?;
         let t = t + 1;
         // As loss.rs `regularizers` and optim.rs `Adam::step` compute them on the host.
         let nf = n.max(1) as f32;
@@ -123,7 +124,11 @@ impl GpuBackend {
         p.coarse[2] = report as u32;
         let nbricks = bricks.ranges.len();
         self.submit_points(InFlight { p, nbricks, ncoarse, pass: Pass::Resident { report }, slot: 0, upload })?;
-        self.steps.push_back(Step { loaded: Loaded { n, t }, bricks, report });
+        let ranges = match bricks {
+            Cow::Owned(b) => b.ranges,
+            Cow::Borrowed(b) => b.ranges.clone(),
+        };
+        self.steps.push_back(Step { loaded: Loaded { n, t }, ranges, report });
         Ok(())
     }
 }
