@@ -15,6 +15,10 @@
 //! section (negative seconds), or the end of an iteration (an empty pass).
 //! A record made within [`beside`] (work that runs beside the iteration's
 //! passes, as the next batch's draw does) has `beside: ` before its pass.
+//! A task that forks ([`part`]: a head, then runs in parallel, then a tail
+//! that waits for them) has a third field, `head`, `run` or `tail`, so that
+//! the model starts the runs only after the head and the tail only after
+//! the last run.
 
 use parking_lot::Mutex;
 use std::cell::Cell;
@@ -48,6 +52,35 @@ fn marked_beside<R>(f: impl FnOnce() -> R) -> R {
 #[inline(always)]
 pub fn task<R>(pass: &'static str, f: impl FnOnce() -> R) -> R {
     if ON { LOG.task(pass, f) } else { f() }
+}
+
+/// Where a record stands in a task that forks (see [`part`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Part {
+    /// Before the runs; they start when it ends.
+    Head,
+    /// One of the runs, in parallel with the others.
+    Run,
+    /// After the runs; it starts when the last of them ends.
+    Tail,
+}
+
+impl Part {
+    fn label(self) -> &'static str {
+        match self {
+            Part::Head => "head",
+            Part::Run => "run",
+            Part::Tail => "tail",
+        }
+    }
+}
+
+/// Runs one part of a task of the parallel pass `pass` that forks into
+/// runs, and records its time: each such task records one head, its runs,
+/// then one tail, in that order (on the one thread of a profiled encode).
+#[inline(always)]
+pub fn part<R>(pass: &'static str, part: Part, f: impl FnOnce() -> R) -> R {
+    if ON { LOG.part(pass, Some(part), f) } else { f() }
 }
 
 /// Runs a serial section and records its time.
@@ -87,9 +120,12 @@ fn in_beside() -> bool {
     BESIDE.with(Cell::get)
 }
 
-/// The records, in the order they were made: pass, seconds (negative for
-/// a serial section), made beside the passes.
-struct Recorder(Mutex<Vec<(&'static str, f64, bool)>>);
+/// One record: pass, seconds (negative for a serial section), made beside
+/// the passes, part of a task that forks.
+type Record = (&'static str, f64, bool, Option<Part>);
+
+/// The records, in the order they were made.
+struct Recorder(Mutex<Vec<Record>>);
 
 impl Recorder {
     const fn new() -> Recorder {
@@ -103,31 +139,44 @@ impl Recorder {
     }
 
     fn task<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
+        self.part(pass, None, f)
+    }
+
+    fn part<R>(&self, pass: &'static str, part: Option<Part>, f: impl FnOnce() -> R) -> R {
         let (r, s) = self.timed(f);
-        self.0.lock().push((pass, s, in_beside()));
+        self.0.lock().push((pass, s, in_beside(), part));
         r
     }
 
     fn serial<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
         let (r, s) = self.timed(f);
-        self.0.lock().push((pass, -s, in_beside()));
+        self.0.lock().push((pass, -s, in_beside(), None));
         r
     }
 
     fn even<R>(&self, pass: &'static str, tasks: usize, f: impl FnOnce() -> R) -> R {
         let (r, s) = self.timed(f);
         let n = tasks.max(1);
-        self.0.lock().extend(std::iter::repeat_n((pass, s / n as f64, in_beside()), n));
+        self.0.lock().extend(std::iter::repeat_n((pass, s / n as f64, in_beside(), None), n));
         r
     }
 
     fn iteration_end(&self) {
-        self.0.lock().push(("", 0.0, false));
+        self.0.lock().push(("", 0.0, false, None));
     }
 
     fn take_text(&self) -> String {
         let lines = std::mem::take(&mut *self.0.lock());
-        lines.iter().map(|&(pass, s, beside)| format!("{}{pass}\t{s:.9}\n", if beside { "beside: " } else { "" })).collect()
+        lines
+            .iter()
+            .map(|&(pass, s, beside, part)| {
+                let side = if beside { "beside: " } else { "" };
+                match part {
+                    Some(p) => format!("{side}{pass}\t{s:.9}\t{}\n", p.label()),
+                    None => format!("{side}{pass}\t{s:.9}\n"),
+                }
+            })
+            .collect()
     }
 }
 
@@ -157,6 +206,20 @@ mod tests {
         assert!(lines[2..6].iter().all(|l| l.1 == lines[2].1 && l.1 >= 0.001), "{lines:?}");
         assert_eq!(lines[6].1, 0.0);
         assert_eq!(r.take_text(), "", "taking the text forgets the records");
+    }
+
+    #[test]
+    fn the_parts_of_a_task_that_forks_carry_their_label() {
+        let r = Recorder::new();
+        r.task("p", || ());
+        r.part("p", Some(Part::Head), || ());
+        r.part("p", Some(Part::Run), || ());
+        r.part("p", Some(Part::Run), || ());
+        r.part("p", Some(Part::Tail), || ());
+        let text = r.take_text();
+        let labels: Vec<Option<&str>> = text.lines().map(|l| l.splitn(3, '\t').nth(2)).collect();
+        assert_eq!(labels, [None, Some("head"), Some("run"), Some("run"), Some("tail")]);
+        assert!(text.lines().all(|l| l.starts_with("p\t")), "{text}");
     }
 
     #[test]

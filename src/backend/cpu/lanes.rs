@@ -104,37 +104,23 @@ struct BlockEval {
     y: [Lane; 3],
 }
 
-/// The candidates of one brick, the current point's kernels, and the brick's
-/// gradient sums (11 `GradAcc` terms and the sum of K, per candidate).
+/// The candidates of one brick in blocks of `LANES`, read by every point
+/// of the brick (and by every run of a split brick's points at once).
 #[derive(Default)]
-pub(super) struct BrickSoa {
+pub(super) struct BrickCands {
     blocks: Vec<Block>,
-    eval: Vec<BlockEval>,
-    acc: Vec<[Lane; 12]>,
-    /// The blocks whose box holds the current point, in block order:
-    /// `inside[..n_inside]`.
-    inside: Vec<u32>,
-    n_inside: usize,
     /// Each block's box, the union of its candidates' 5-sigma boxes (points
     /// outside it skip the block, whose kernels are all zero there), by
     /// coordinate (lo x, y, z, hi x, y, z), so that one loop tests a point
-    /// against many blocks at once; `holds[b]` is that test's answer.
+    /// against many blocks at once.
     bounds: [Vec<f32>; 6],
-    holds: Vec<u8>,
 }
 
-impl BrickSoa {
-    pub(super) fn load(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32], with_grad: bool) {
+impl BrickCands {
+    fn load(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32]) {
         let nb = cands.len().div_ceil(LANES);
         self.blocks.clear();
         self.blocks.resize(nb, EMPTY_BLOCK);
-        self.eval.resize(nb, BlockEval::default());
-        self.inside.resize(nb, 0);
-        self.n_inside = 0;
-        if with_grad {
-            self.acc.clear();
-            self.acc.resize(nb, [[0.0; LANES]; 12]);
-        }
         for (c, v) in self.bounds.iter_mut().enumerate() {
             v.clear();
             v.resize(nb, if c < 3 { f32::INFINITY } else { f32::NEG_INFINITY });
@@ -155,7 +141,35 @@ impl BrickSoa {
             blk.w[l] = h.w;
             blk.s[l] = h.s;
         }
+    }
+}
+
+/// One pass of points over a brick's candidates: the current point's
+/// kernels and the pass's gradient sums (11 `GradAcc` terms and the sum of
+/// K, per candidate).
+#[derive(Default)]
+pub(super) struct PointPass {
+    eval: Vec<BlockEval>,
+    acc: Vec<[Lane; 12]>,
+    /// The blocks whose box holds the current point, in block order:
+    /// `inside[..n_inside]`.
+    inside: Vec<u32>,
+    n_inside: usize,
+    /// Whether each block's box holds the current point.
+    holds: Vec<u8>,
+}
+
+impl PointPass {
+    /// Ready for the `nb` blocks of a brick, with zero sums when `with_grad`.
+    pub(super) fn reset(&mut self, nb: usize, with_grad: bool) {
+        self.eval.resize(nb, BlockEval::default());
+        self.inside.resize(nb, 0);
         self.holds.resize(nb, 0);
+        self.n_inside = 0;
+        if with_grad {
+            self.acc.clear();
+            self.acc.resize(nb, [[0.0; LANES]; 12]);
+        }
     }
 
     /// Kernels of every candidate at `x`; returns `(rho, n)` and adds the
@@ -163,18 +177,19 @@ impl BrickSoa {
     /// `evals`. Lane partial sums are added in a fixed order, so the result
     /// depends only on the candidates.
     #[inline(always)]
-    pub(super) fn forward(&mut self, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
+    pub(super) fn forward(&mut self, cands: &BrickCands, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
         // First the blocks whose box holds the point, listed without a
         // branch; then their kernels, in block order. A branch per block
         // would be mispredicted about a third of the time, and each miss
         // would throw away the overlap of consecutive blocks' exp chains.
-        let [lx, ly, lz, hx, hy, hz] = &self.bounds;
-        for (b, h) in self.holds.iter_mut().enumerate() {
+        let [lx, ly, lz, hx, hy, hz] = &cands.bounds;
+        let holds = &mut self.holds[..cands.blocks.len()];
+        for (b, h) in holds.iter_mut().enumerate() {
             // `&`, not `&&`: six comparisons and no branch, vectorised.
             *h = ((x[0] >= lx[b]) & (x[1] >= ly[b]) & (x[2] >= lz[b]) & (x[0] <= hx[b]) & (x[1] <= hy[b]) & (x[2] <= hz[b])) as u8;
         }
         let mut n_in = 0;
-        for (b, &h) in self.holds.iter().enumerate() {
+        for (b, &h) in holds.iter().enumerate() {
             self.inside[n_in] = b as u32;
             n_in += h as usize;
         }
@@ -182,7 +197,7 @@ impl BrickSoa {
         let mut rho = [0.0f32; LANES];
         let mut num = [0.0f32; LANES];
         for &b in &self.inside[..n_in] {
-            let (blk, ev) = (&self.blocks[b as usize], &mut self.eval[b as usize]);
+            let (blk, ev) = (&cands.blocks[b as usize], &mut self.eval[b as usize]);
             let (k, y) = block_kernels(blk, x, &mut rho, &mut num);
             ev.k = k;
             ev.y = y;
@@ -196,12 +211,12 @@ impl BrickSoa {
         (r, n)
     }
 
-    /// Adds the current point's pair terms to the brick's sums.
+    /// Adds the current point's pair terms to the pass's sums.
     #[inline(always)]
-    pub(super) fn backward(&mut self, g_rho: f32, g_n: f32) {
+    pub(super) fn backward(&mut self, cands: &BrickCands, g_rho: f32, g_n: f32) {
         for &b in &self.inside[..self.n_inside] {
             let b = b as usize;
-            let terms = block_pair_terms(&self.blocks[b], &self.eval[b], g_rho, g_n);
+            let terms = block_pair_terms(&cands.blocks[b], &self.eval[b], g_rho, g_n);
             let acc = &mut self.acc[b];
             for t in 0..12 {
                 for l in 0..LANES {
@@ -211,7 +226,18 @@ impl BrickSoa {
         }
     }
 
-    /// The brick's sums of candidate `j`, or `None` when it touched no point.
+    /// Adds another pass's sums over the same blocks to this one's.
+    pub(super) fn add(&mut self, other: &PointPass) {
+        for (a, o) in self.acc.iter_mut().zip(&other.acc) {
+            for t in 0..12 {
+                for l in 0..LANES {
+                    a[t][l] += o[t][l];
+                }
+            }
+        }
+    }
+
+    /// The pass's sums of candidate `j`, or `None` when it touched no point.
     pub(super) fn take(&self, j: usize) -> Option<GradAcc> {
         let (b, l) = (j / LANES, j % LANES);
         let acc = &self.acc[b];
@@ -223,6 +249,37 @@ impl BrickSoa {
             g.0[t] = acc[t][l];
         }
         Some(g)
+    }
+}
+
+/// A brick's candidates and one pass of its points over them.
+#[derive(Default)]
+pub(super) struct BrickSoa {
+    pub(super) cands: BrickCands,
+    pub(super) pass: PointPass,
+}
+
+impl BrickSoa {
+    pub(super) fn load(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32], with_grad: bool) {
+        self.cands.load(hot, boxes, cands);
+        self.pass.reset(self.cands.blocks.len(), with_grad);
+    }
+
+    /// [`PointPass::forward`] over this brick's candidates.
+    #[inline(always)]
+    pub(super) fn forward(&mut self, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
+        self.pass.forward(&self.cands, x, evals)
+    }
+
+    /// [`PointPass::backward`] over this brick's candidates.
+    #[inline(always)]
+    pub(super) fn backward(&mut self, g_rho: f32, g_n: f32) {
+        self.pass.backward(&self.cands, g_rho, g_n)
+    }
+
+    /// Blocks of candidates loaded.
+    pub(super) fn blocks(&self) -> usize {
+        self.cands.blocks.len()
     }
 }
 
@@ -261,7 +318,7 @@ mod tests {
             assert!((rho - r2).abs() <= 1e-5 * (1.0 + r2) && (n - n2).abs() <= 1e-5 * (1.0 + n2), "{rho} {r2} {n} {n2}");
         }
         for (g, e) in expect.iter().enumerate() {
-            let got = soa.take(g).unwrap_or_default();
+            let got = soa.pass.take(g).unwrap_or_default();
             for t in 0..11 {
                 assert!((got.0[t] - e.0[t]).abs() <= 1e-4 * (1.0 + e.0[t].abs()), "candidate {g} term {t}: {} vs {}", got.0[t], e.0[t]);
             }

@@ -19,7 +19,7 @@
 mod lanes;
 mod simd;
 
-use self::lanes::{BrickSoa, Hot, LANES};
+use self::lanes::{BrickCands, BrickSoa, Hot, PointPass, LANES};
 use self::simd::simd_dispatch;
 use super::bricks::PointBricks;
 use super::csr::{csr, Keyed};
@@ -28,7 +28,7 @@ use crate::error::Result;
 use crate::math::kernel::{Frame, GradAcc, Primitive, CUTOFF_D2};
 use crate::math::loss::{point_terms, v_eval, LossWeights, PointNorm};
 use crate::math::primitives_per_task;
-use crate::profile;
+use crate::profile::{self, Part};
 use crate::backend::PointBatch;
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -36,6 +36,17 @@ use std::borrow::Cow;
 /// Work chunks per batch: enough for load balance on many cores; fixed so that
 /// the reduction order never depends on the thread count.
 const WORK_CHUNKS: usize = 64;
+/// A brick that costs more than this many work chunks' shares is a chunk
+/// of its own, its points cut into runs of at most that cost (and at least
+/// `MIN_RUN_COST`) that share the brick's loaded candidates and run in
+/// parallel ([`split_brick`]).
+const SPLIT_SHARES: u64 = 2;
+/// The least cost (points x (candidates + 1)) of a run of a split brick,
+/// so that a small encode (few points, few candidates a brick) never
+/// splits one: on hydrogen 64³ a run costs about 120 µs on one core and
+/// the load before the runs and the merge after them about 20 µs each
+/// (docs/BENCHMARKS.md "A dense brick's points in parallel runs").
+const MIN_RUN_COST: u64 = 1 << 15;
 /// Edge of a decode brick in lattice voxels.
 const DECODE_BRICK: usize = 8;
 
@@ -52,9 +63,23 @@ struct ChunkScratch {
     by_block: Vec<u32>,
     block_start: Vec<u32>,
     soa: BrickSoa,
+    /// The passes of a split brick's runs after the first (which is
+    /// `soa.pass`).
+    runs: Vec<PointPass>,
 }
 
 impl ChunkScratch {
+    /// Ready for a chunk's sums over `np` primitives: no slot taken, nothing
+    /// touched.
+    fn fresh(&mut self, np: usize) {
+        if self.slot.len() != np {
+            self.slot.clear();
+            self.slot.resize(np, u32::MAX);
+        }
+        self.touched.clear();
+        self.acc.clear();
+    }
+
     /// Groups the touched primitives by block of `block_len` (a counting
     /// sort), so that the reduction can run block by block in parallel,
     /// and forgets their slots.
@@ -101,11 +126,16 @@ pub struct CpuBackend {
     acc: Vec<GradAcc>,
     /// Kernels evaluated by the point passes (for throughput figures).
     evaluations: u64,
+    /// How many work chunks' shares a brick may cost before its points are
+    /// cut into runs (`SPLIT_SHARES`); 0 keeps every brick whole, which
+    /// gives the models of gsenc before dense bricks were split, bit for
+    /// bit (the golden models of `tests/support.rs`).
+    pub split_shares: u64,
 }
 
 impl Default for CpuBackend {
     fn default() -> Self {
-        CpuBackend { brick: 16.0, prep: Prepared::default(), chunks: vec![], acc: vec![], evaluations: 0 }
+        CpuBackend { brick: 16.0, prep: Prepared::default(), chunks: vec![], acc: vec![], evaluations: 0, split_shares: SPLIT_SHARES }
     }
 }
 
@@ -251,14 +281,17 @@ impl CpuBackend {
         PointBins { bricks, cand_start, cand }
     }
 
-    /// Cuts the occupied bricks into at most `WORK_CHUNKS` contiguous ranges of
-    /// similar cost (points x candidates).
+    /// Contiguous ranges of bricks of similar cost, in order.
     fn work_ranges(bins: &PointBins) -> Vec<(usize, usize)> {
-        Self::work_chunks(bins).into_iter().map(|(range, _)| range).collect()
+        Self::work_chunks(bins, 0).into_iter().map(|w| w.bricks).collect()
     }
 
-    /// [`Self::work_ranges`] with each range's cost.
-    fn work_chunks(bins: &PointBins) -> Vec<((usize, usize), u64)> {
+    /// Cuts the occupied bricks into about `WORK_CHUNKS` contiguous ranges
+    /// of similar cost (points x candidates); a brick above `split_shares`
+    /// ranges' cost (unless 0) is a chunk of its own whose points run in
+    /// parallel runs. The cut depends on the batch only, never on the
+    /// thread count.
+    fn work_chunks(bins: &PointBins, split_shares: u64) -> Vec<WorkChunk> {
         let nb = bins.bricks.ranges.len();
         let cost = |b: usize| {
             let (s, e) = bins.bricks.ranges[b];
@@ -266,21 +299,42 @@ impl CpuBackend {
         };
         let total: u64 = (0..nb).map(cost).sum();
         let target = total / WORK_CHUNKS as u64 + 1;
-        let mut ranges = vec![];
+        let mut chunks = vec![];
         let (mut start, mut acc) = (0, 0u64);
         for b in 0..nb {
-            acc += cost(b);
+            let c = cost(b);
+            let runs = if split_shares == 0 { 1 } else { c.div_ceil(split_shares * target).min(c / MIN_RUN_COST).max(1) as usize };
+            if runs > 1 {
+                if start < b {
+                    chunks.push(WorkChunk { bricks: (start, b), cost: acc, runs: 1 });
+                }
+                chunks.push(WorkChunk { bricks: (b, b + 1), cost: c, runs });
+                start = b + 1;
+                acc = 0;
+                continue;
+            }
+            acc += c;
             if acc >= target {
-                ranges.push(((start, b + 1), acc));
+                chunks.push(WorkChunk { bricks: (start, b + 1), cost: acc, runs: 1 });
                 start = b + 1;
                 acc = 0;
             }
         }
         if start < nb {
-            ranges.push(((start, nb), acc));
+            chunks.push(WorkChunk { bricks: (start, nb), cost: acc, runs: 1 });
         }
-        ranges
+        chunks
     }
+}
+
+/// A gradient work chunk: whole bricks `bricks.0..bricks.1`, or one brick
+/// (a dense one) whose points are cut into `runs` runs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct WorkChunk {
+    bricks: (usize, usize),
+    /// Points x (candidates + 1), summed over the bricks.
+    cost: u64,
+    runs: usize,
 }
 
 /// What a gradient work chunk reads.
@@ -310,46 +364,119 @@ fn ceiling_pass(soa: &mut BrickSoa, xs: &[[f32; 3]], with_grad: bool) -> (u64, f
 simd_dispatch!(fn ceiling_dispatch(soa: &mut BrickSoa, xs: &[[f32; 3]], with_grad: bool) -> (u64, f32) => ceiling_pass);
 simd_dispatch!(fn grad_chunk_dispatch(job: &GradJob, sc: &mut ChunkScratch, range: (usize, usize)) -> (f64, f64, u64) => grad_chunk);
 simd_dispatch!(fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) => eval_chunk);
+simd_dispatch!(fn brick_run_dispatch(job: &GradJob, cands: &BrickCands, pass: &mut PointPass, points: &[u32], sums: &mut (f64, f64, u64)) -> bool => brick_run);
 
 /// Forward, loss and backward for the points of bricks `b0..b1`; returns the
 /// chunk's (L_val, L_cov, kernel evaluations) and leaves its gradient sums in
 /// `sc`.
 #[inline(always)]
 fn grad_chunk(job: &GradJob, sc: &mut ChunkScratch, (b0, b1): (usize, usize)) -> (f64, f64, u64) {
-    let (mut val, mut cov, mut evals) = (0.0f64, 0.0f64, 0u64);
+    let mut sums = (0.0f64, 0.0f64, 0u64);
     let bins = job.bins;
     let ChunkScratch { slot, touched, acc, soa, .. } = sc;
     for b in b0..b1 {
         let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
         soa.load(&job.prep.hot, &job.prep.boxes, cands, true);
         let (s, e) = bins.bricks.ranges[b];
-        let mut any = false;
-        for &pi in &bins.bricks.order[s as usize..e as usize] {
-            let (rho, n) = soa.forward(job.batch.pos[pi as usize], &mut evals);
-            let t = point_terms(rho, n, job.batch.vref[pi as usize], job.norm, job.weights);
-            val += t.val as f64;
-            cov += t.cov as f64;
-            if t.g_rho != 0.0 || t.g_n != 0.0 {
-                soa.backward(t.g_rho, t.g_n);
-                any = true;
-            }
-        }
-        if !any {
-            continue;
-        }
-        for (j, &g) in cands.iter().enumerate() {
-            if let Some(ga) = soa.take(j) {
-                let si = &mut slot[g as usize];
-                if *si == u32::MAX {
-                    *si = acc.len() as u32;
-                    touched.push(g);
-                    acc.push(GradAcc::default());
-                }
-                acc[*si as usize].add(&ga);
-            }
+        if brick_run(job, &soa.cands, &mut soa.pass, &bins.bricks.order[s as usize..e as usize], &mut sums) {
+            gather(cands, &soa.pass, slot, touched, acc);
         }
     }
-    (val, cov, evals)
+    sums
+}
+
+/// Forward, loss and backward of `points` (a brick's, or a run of them) over
+/// the brick's candidates: adds their (L_val, L_cov, kernel evaluations) to
+/// `sums` and their pair terms to `pass`; returns whether any point had a
+/// gradient.
+#[inline(always)]
+fn brick_run(job: &GradJob, cands: &BrickCands, pass: &mut PointPass, points: &[u32], sums: &mut (f64, f64, u64)) -> bool {
+    let mut any = false;
+    for &pi in points {
+        let (rho, n) = pass.forward(cands, job.batch.pos[pi as usize], &mut sums.2);
+        let t = point_terms(rho, n, job.batch.vref[pi as usize], job.norm, job.weights);
+        sums.0 += t.val as f64;
+        sums.1 += t.cov as f64;
+        if t.g_rho != 0.0 || t.g_n != 0.0 {
+            pass.backward(cands, t.g_rho, t.g_n);
+            any = true;
+        }
+    }
+    any
+}
+
+/// Adds a brick's pair sums (`pass`, over its candidates `cands`) to the
+/// chunk's per-primitive sums.
+fn gather(cands: &[u32], pass: &PointPass, slot: &mut [u32], touched: &mut Vec<u32>, acc: &mut Vec<GradAcc>) {
+    for (j, &g) in cands.iter().enumerate() {
+        if let Some(ga) = pass.take(j) {
+            let si = &mut slot[g as usize];
+            if *si == u32::MAX {
+                *si = acc.len() as u32;
+                touched.push(g);
+                acc.push(GradAcc::default());
+            }
+            acc[*si as usize].add(&ga);
+        }
+    }
+}
+
+/// [`grad_chunk`] for one dense brick `b` whose points are cut into `runs`
+/// runs of consecutive points: the brick's candidates are loaded once (the
+/// head), the runs go forward and backward over them in parallel, each into
+/// its own sums, and the sums are added run by run in order, then grouped
+/// as a chunk's (the tail). The cut depends on the batch only, so the bits
+/// do not depend on the thread count (they differ from the whole brick's by
+/// the order of the sums). `sc` must be fresh ([`ChunkScratch::fresh`]).
+fn split_brick(job: &GradJob, sc: &mut ChunkScratch, b: usize, runs: usize, (block_len, blocks): (usize, usize)) -> (f64, f64, u64) {
+    const PASS: &str = "gradient chunks";
+    let bins = job.bins;
+    let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
+    let (s, e) = bins.bricks.ranges[b];
+    let points = &bins.bricks.order[s as usize..e as usize];
+    // Taken out of `sc` for the while, so that the tail may group `sc`.
+    let (mut soa, mut extra) = (std::mem::take(&mut sc.soa), std::mem::take(&mut sc.runs));
+    profile::part(PASS, Part::Head, || soa.load(&job.prep.hot, &job.prep.boxes, cands, true));
+    if extra.len() < runs - 1 {
+        extra.resize_with(runs - 1, PointPass::default);
+    }
+    let nb = soa.blocks();
+    let BrickSoa { cands: loaded, pass: first } = &mut soa;
+    let loaded = &*loaded;
+    let mut passes: Vec<&mut PointPass> = std::iter::once(first).chain(extra[..runs - 1].iter_mut()).collect();
+    let outs: Vec<((f64, f64, u64), bool)> = passes
+        .par_iter_mut()
+        .enumerate()
+        .map(|(r, pass)| {
+            profile::part(PASS, Part::Run, || {
+                if r > 0 {
+                    pass.reset(nb, true);
+                }
+                let mut sums = (0.0f64, 0.0f64, 0u64);
+                let run = &points[r * points.len() / runs..(r + 1) * points.len() / runs];
+                let any = brick_run_dispatch(job, loaded, pass, run, &mut sums);
+                (sums, any)
+            })
+        })
+        .collect();
+    let (first, rest) = passes.split_first_mut().expect("at least one run");
+    profile::part(PASS, Part::Tail, || {
+        for pass in rest {
+            first.add(pass);
+        }
+        if outs.iter().any(|o| o.1) {
+            gather(cands, first, &mut sc.slot, &mut sc.touched, &mut sc.acc);
+        }
+        sc.group(block_len, blocks);
+    });
+    (sc.soa, sc.runs) = (soa, extra);
+    let mut sums = (0.0f64, 0.0f64, 0u64);
+    for ((v, c, e), _) in outs {
+        sums.0 += v;
+        sums.1 += c;
+        sums.2 += e;
+    }
+    sums
 }
 
 /// `(point, rho, n)` for the points of bricks `b0..b1`, and the kernel count.
@@ -424,7 +551,7 @@ impl Backend for CpuBackend {
         }
         self.prep.update(params);
         let bins = self.bin_points(batch.bricks(self.brick));
-        let work = profile::serial("work chunks", || Self::work_chunks(&bins));
+        let work = profile::serial("work chunks", || Self::work_chunks(&bins, self.split_shares));
         let norm = PointNorm::new(&batch.vref, weights);
         let np = params.len();
         if self.chunks.len() < work.len() {
@@ -447,32 +574,31 @@ impl Backend for CpuBackend {
         // cache (started longest first too, they ran 7 % slower on RM 128³
         // `full`: docs/BENCHMARKS.md).
         let job = GradJob { prep, bins: &bins, batch, norm: &norm, weights };
-        let run = |sc: &mut ChunkScratch, range: (usize, usize)| {
+        let run = |sc: &mut ChunkScratch, w: WorkChunk| {
+            if w.runs > 1 {
+                sc.fresh(np);
+                return split_brick(&job, sc, w.bricks.0, w.runs, (block_len, blocks));
+            }
             profile::task("gradient chunks", || {
-                if sc.slot.len() != np {
-                    sc.slot.clear();
-                    sc.slot.resize(np, u32::MAX);
-                }
-                sc.touched.clear();
-                sc.acc.clear();
-                let out = grad_chunk_dispatch(&job, sc, range);
+                sc.fresh(np);
+                let out = grad_chunk_dispatch(&job, sc, w.bricks);
                 sc.group(block_len, blocks);
                 out
             })
         };
-        let mean = work.iter().map(|w| w.1).sum::<u64>() / work.len().max(1) as u64;
+        let mean = work.iter().map(|w| w.cost).sum::<u64>() / work.len().max(1) as u64;
         let mut losses = vec![(0.0f64, 0.0f64, 0u64); work.len()];
-        let mut items: Vec<_> = chunks.iter_mut().zip(losses.iter_mut()).zip(&work).map(|((sc, out), &(range, _))| Some((sc, out, range))).collect();
-        let mut heavy: Vec<usize> = (0..work.len()).filter(|&i| work[i].1 > 2 * mean).collect();
-        heavy.sort_by_key(|&i| (std::cmp::Reverse(work[i].1), i));
+        let mut items: Vec<_> = chunks.iter_mut().zip(losses.iter_mut()).zip(&work).map(|((sc, out), &w)| Some((sc, out, w))).collect();
+        let mut heavy: Vec<usize> = (0..work.len()).filter(|&i| work[i].cost > 2 * mean).collect();
+        heavy.sort_by_key(|&i| (std::cmp::Reverse(work[i].cost), i));
         let heavy: Vec<_> = heavy.into_iter().filter_map(|i| items[i].take()).collect();
         let light: Vec<_> = items.into_iter().flatten().collect();
         let run = &run;
         rayon::scope_fifo(|s| {
-            for (sc, out, range) in heavy {
-                s.spawn_fifo(move |_| *out = run(sc, range));
+            for (sc, out, w) in heavy {
+                s.spawn_fifo(move |_| *out = run(sc, w));
             }
-            s.spawn_fifo(move |_| light.into_par_iter().for_each(|(sc, out, range)| *out = run(sc, range)));
+            s.spawn_fifo(move |_| light.into_par_iter().for_each(|(sc, out, w)| *out = run(sc, w)));
         });
         let mut out = PointLoss::default();
         for (v, c, e) in losses {
@@ -656,14 +782,16 @@ mod tests {
     }
 
     /// A batch crowded into a few bricks has chunks of more than twice the
-    /// mean cost, which start first on their own: the gradient and the loss
-    /// are the same bits on 1 and 3 threads, and on 3 threads again.
+    /// mean cost, which start first on their own, and bricks above
+    /// `SPLIT_SHARES` chunks' shares, whose points run in runs: the gradient
+    /// and the loss are the same bits on 1 and 3 threads, and on 3 threads
+    /// again, and the gradient of whole bricks up to the order of the sums.
     #[test]
-    fn heavy_chunks_first_give_the_same_bits_on_any_thread_count() {
+    fn heavy_chunks_and_split_bricks_give_the_same_bits_on_any_thread_count() {
         let mut rng = Rng::new(8);
-        let params = random_prims(&mut rng, 300);
+        let params = random_prims(&mut rng, 400);
         // Two crowded bricks (of edge 2) and points all over.
-        let pos: Vec<[f32; 3]> = (0..900)
+        let pos: Vec<[f32; 3]> = (0..3000)
             .map(|i| [0, 1, 2].map(|_| match i % 3 {
                 0 => rng.range(0.2, 1.8),
                 1 => rng.range(4.2, 5.8),
@@ -674,21 +802,42 @@ mod tests {
         let batch = PointBatch::new(pos, vref);
         let mut b = CpuBackend { brick: 2.0, ..CpuBackend::default() };
         b.prep.update(&params);
-        let work = CpuBackend::work_chunks(&b.bin_points(batch.bricks(2.0)));
-        let mean = work.iter().map(|w| w.1).sum::<u64>() / work.len() as u64;
-        assert!(work.iter().filter(|w| w.1 > 2 * mean).count() >= 2, "no heavy chunks: {work:?}");
-        let run = |threads: usize| {
+        let bins = b.bin_points(batch.bricks(2.0));
+        let whole = CpuBackend::work_chunks(&bins, 0);
+        let mean = whole.iter().map(|w| w.cost).sum::<u64>() / whole.len() as u64;
+        assert!(whole.iter().filter(|w| w.cost > 2 * mean).count() >= 2, "no heavy chunks: {whole:?}");
+        // The crowded bricks become chunks of their own, cut into runs of
+        // at most two chunks' shares, unless that would make runs cheaper
+        // than MIN_RUN_COST; every brick is in one chunk, in order.
+        let work = CpuBackend::work_chunks(&bins, SPLIT_SHARES);
+        let split: Vec<&WorkChunk> = work.iter().filter(|w| w.runs > 1).collect();
+        assert!(split.len() >= 2 && split.iter().all(|w| w.bricks.1 == w.bricks.0 + 1 && w.runs >= 4), "{work:?}");
+        let target = whole.iter().map(|w| w.cost).sum::<u64>() / WORK_CHUNKS as u64 + 1;
+        assert!(split.iter().all(|w| w.cost / w.runs as u64 >= MIN_RUN_COST), "{work:?}");
+        assert!(split.iter().all(|w| w.cost.div_ceil(w.runs as u64) <= SPLIT_SHARES * target || w.cost / (w.runs as u64 + 1) < MIN_RUN_COST), "{work:?}");
+        assert_eq!(work[0].bricks.0, 0);
+        assert!(work.windows(2).all(|p| p[0].bricks.1 == p[1].bricks.0) && work.last().unwrap().bricks.1 == bins.bricks.ranges.len());
+        let run = |threads: usize, split_shares: u64| {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| {
-                let mut b = CpuBackend { brick: 2.0, ..CpuBackend::default() };
+                let mut b = CpuBackend { brick: 2.0, split_shares, ..CpuBackend::default() };
                 let mut grad = vec![[0.0f32; 12]; params.len()];
                 let loss = b.point_loss_grad(&params, &batch, &LossWeights::default(), &mut grad).unwrap();
-                (loss.val.to_bits(), loss.cov.to_bits(), grad.as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>())
+                (loss, grad)
             })
         };
-        let one = run(1);
+        let bits = |(l, g): &(PointLoss, Vec<Primitive>)| (l.val.to_bits(), l.cov.to_bits(), g.as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>());
+        let one = bits(&run(1, SPLIT_SHARES));
         assert!(one.2.iter().any(|&x| f32::from_bits(x) != 0.0));
-        assert!(run(3) == one && run(3) == one);
+        assert!(bits(&run(3, SPLIT_SHARES)) == one && bits(&run(3, SPLIT_SHARES)) == one);
+        // Whole bricks: the same sums in another order.
+        let (split_loss, split_grad) = run(2, SPLIT_SHARES);
+        let (whole_loss, whole_grad) = run(2, 0);
+        assert!((split_loss.val - whole_loss.val).abs() <= 1e-9 * whole_loss.val && (split_loss.cov - whole_loss.cov).abs() <= 1e-9 * whole_loss.cov.abs().max(1e-12));
+        let (a, b) = (split_grad.as_flattened(), whole_grad.as_flattened());
+        let diff: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>().sqrt();
+        let norm: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum::<f64>().sqrt();
+        assert!(diff <= 1e-5 * norm, "split bricks' gradient off by {diff} of {norm}");
     }
 
     /// Primitives scattered over [0, 6)^3 with random rotations and sizes.
