@@ -31,6 +31,7 @@ use crate::math::primitives_per_task;
 use crate::profile::{self, Part};
 use crate::backend::PointBatch;
 use rayon::prelude::*;
+use crossbeam_utils::CachePadded;
 use std::borrow::Cow;
 
 /// Work chunks per batch: enough for load balance on many cores; fixed so that
@@ -64,8 +65,9 @@ struct ChunkScratch {
     block_start: Vec<u32>,
     soa: BrickSoa,
     /// The passes of a split brick's runs after the first (which is
-    /// `soa.pass`).
-    runs: Vec<PointPass>,
+    /// `soa.pass`), each on cache lines of its own: every point writes its
+    /// pass, and the runs go on different cores.
+    runs: Vec<CachePadded<PointPass>>,
 }
 
 impl ChunkScratch {
@@ -121,7 +123,9 @@ pub struct CpuBackend {
     /// Edge of a training brick in voxels.
     pub brick: f32,
     prep: Prepared,
-    chunks: Vec<ChunkScratch>,
+    /// Each on cache lines of its own: the chunks run on different cores
+    /// and each writes its scratch at every point.
+    chunks: Vec<CachePadded<ChunkScratch>>,
     /// Reduced pair sums per primitive.
     acc: Vec<GradAcc>,
     /// Kernels evaluated by the point passes (for throughput figures).
@@ -438,12 +442,12 @@ fn split_brick(job: &GradJob, sc: &mut ChunkScratch, b: usize, runs: usize, (blo
     let (mut soa, mut extra) = (std::mem::take(&mut sc.soa), std::mem::take(&mut sc.runs));
     profile::part(PASS, Part::Head, || soa.load(&job.prep.hot, &job.prep.boxes, cands, true));
     if extra.len() < runs - 1 {
-        extra.resize_with(runs - 1, PointPass::default);
+        extra.resize_with(runs - 1, CachePadded::default);
     }
     let nb = soa.blocks();
     let BrickSoa { cands: loaded, pass: first } = &mut soa;
     let loaded = &*loaded;
-    let mut passes: Vec<&mut PointPass> = std::iter::once(first).chain(extra[..runs - 1].iter_mut()).collect();
+    let mut passes: Vec<&mut PointPass> = std::iter::once(first).chain(extra[..runs - 1].iter_mut().map(|p| &mut **p)).collect();
     let outs: Vec<((f64, f64, u64), bool)> = passes
         .par_iter_mut()
         .enumerate()
@@ -555,7 +559,7 @@ impl Backend for CpuBackend {
         let norm = PointNorm::new(&batch.vref, weights);
         let np = params.len();
         if self.chunks.len() < work.len() {
-            self.chunks.resize_with(work.len(), ChunkScratch::default);
+            self.chunks.resize_with(work.len(), CachePadded::default);
         }
         let mut acc = std::mem::take(&mut self.acc);
         acc.resize(np, GradAcc::default());
