@@ -291,7 +291,7 @@ impl CpuBackend {
     }
 
     /// Cuts the occupied bricks into about `WORK_CHUNKS` contiguous ranges
-    /// of similar cost (points x candidates); a brick above `split_shares`
+    /// of similar cost (points x (candidates + 1)); a brick above `split_shares`
     /// ranges' cost (unless 0) is a chunk of its own whose points run in
     /// parallel runs. The cut depends on the batch only, never on the
     /// thread count.
