@@ -203,6 +203,16 @@ def check():
     assert makespan([1.0, 1.0, split], 8) == 4.0 and makespan([split, 1.0, 1.0], 8, fork_join=0.5) == 4.5
     # Had its parts been independent tasks, 8 workers would take 2.
     assert makespan([1.0, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0], 8) == 2.0
+    # A run with no head before it is a broken profile, not a task.
+    with tempfile.NamedTemporaryFile("w", suffix=".tsv", delete=False) as f:
+        f.write("p\t1\np\t2\trun\n\t0\n")
+    try:
+        iterations(f.name)
+        raise AssertionError("a run without its head was read")
+    except SystemExit as e:
+        assert "without its head" in str(e), e
+    finally:
+        os.unlink(f.name)
     print("scaling_model.py: the model's checks pass")
 
 
