@@ -15,9 +15,10 @@ rm -rf target/wheels
 "$venv/bin/maturin" build --release --locked -m python/Cargo.toml -o target/wheels
 "$venv/bin/pip" install -q --disable-pip-version-check --force-reinstall --no-deps target/wheels/gsenc-*.whl
 
-# The tool the decodes are compared with, and libgsenc with HDF5 for the mock solver.
-cargo build --release --locked --features hdf5 --bin gsenc
-cargo build --release --locked -p gsenc-capi --features hdf5
+# The tool the decodes are compared with, and libgsenc with HDF5 for the mock
+# solver (the packages and features of the test command's first build, so
+# nothing is compiled again there).
+cargo build --release --locked --features hdf5
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 # libgsenc.so's soname is libgsenc.so.0, as installed; here a link stands in.

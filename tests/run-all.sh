@@ -29,7 +29,9 @@ if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
 fi
 stage cargo test --release --locked --features hdf5
 # A plain build needs no system library: it must still compile and pass.
-stage cargo test --release --locked -p gsenc-cli --test cli
+# (The packages are those CMake builds, gsenc-capi, and the tool, so that the
+# builds below find the library compiled: workspace-hack/Cargo.toml.)
+stage cargo test --release --locked -p gsenc-capi -p gsenc-cli --test cli
 
 # build.rs regenerates include/gsenc.h; the checked-in copy must match.
 if ! git diff --quiet -- include/gsenc.h; then
@@ -39,7 +41,7 @@ if ! git diff --quiet -- include/gsenc.h; then
 fi
 
 # The library, libgsenc (.so and .a) and the tool, without features.
-stage cargo build --release --locked
+stage cargo build --release --locked -p gsenc-capi -p gsenc-cli
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"

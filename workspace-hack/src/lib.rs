@@ -1,0 +1,1 @@
+//! Empty on purpose: `Cargo.toml` says why this crate exists.
