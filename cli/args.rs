@@ -351,7 +351,9 @@ pub struct GridOutput {
     /// instead of data units.
     #[arg(long)]
     pub normalized: bool,
-    /// Output: .vti (VTK ImageData) or anything else for raw float32, x fastest.
+    /// Output: .vti (VTK ImageData) or anything else for raw float32, x
+    /// fastest (`-`: raw to standard output; the results then go to standard
+    /// error).
     #[arg(short, long)]
     pub output: PathBuf,
     #[arg(long)]

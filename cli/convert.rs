@@ -1,10 +1,10 @@
 //! `gsenc convert`: a model rewritten with another payload.
 
 use crate::args::one_of;
-use crate::output::print_result;
+use crate::output::{print_result, write_output};
 use clap::Args;
 use gsenc::format::{self, Payload};
-use gsenc::io::{read_model_file, write_atomic};
+use gsenc::io::read_model_file;
 use gsenc::{Error, Result};
 use serde_json::json;
 use std::path::PathBuf;
@@ -17,7 +17,8 @@ pub struct ConvertArgs {
     /// no reference is at hand to measure one).
     #[arg(long, value_parser = one_of(&Payload::ALL, Payload::name))]
     payload: Payload,
-    /// Output model file (may not be the input).
+    /// Output model file (may not be the input; `-`: standard output, the
+    /// results then going to standard error).
     #[arg(short, long)]
     output: PathBuf,
     #[arg(long)]
@@ -39,7 +40,7 @@ pub fn convert(a: ConvertArgs) -> Result<()> {
         file.model.meta.encode_psnr = None;
     }
     let bytes = format::write_model_as(&file.model, payload)?;
-    write_atomic(&a.output, &bytes)?;
+    write_output(&a.output, &bytes)?;
     let n = file.model.len().max(1) as f64;
     let before = std::fs::metadata(&a.model).map_err(|e| Error::io(&a.model, e))?.len();
     print_result(

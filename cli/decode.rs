@@ -3,11 +3,11 @@
 //! slabs into a `.vti` or raw float32 file.
 
 use crate::args::{parse_box, parse_dims, BackendArgs, GridOutput};
-use crate::output::{is_vti, kernel_seconds, output_unit, peak_rss_bytes, print_result};
+use crate::output::{is_vti, kernel_seconds, output_unit, peak_rss_bytes, print_result, Sink};
 use clap::Args;
 use gsenc::encode::with_threads;
 use gsenc::field::IndexBox;
-use gsenc::io::{read_field, vti, AtomicFile};
+use gsenc::io::{read_field, vti};
 use gsenc::{Error, Result};
 use serde_json::json;
 use std::path::PathBuf;
@@ -69,7 +69,7 @@ pub fn decode(a: DecodeArgs) -> Result<()> {
     let origin = [0, 1, 2].map(|i| f.bmin[i] + (region.lo[i] as f64 + 0.5) * spacing[i]);
     let out_path = &a.output.output;
     let is_vti = is_vti(out_path);
-    let mut file = AtomicFile::create(out_path)?;
+    let mut file = Sink::create(out_path)?;
     if is_vti {
         file.write(&vti::vti_prefix(region.dims(), origin, spacing, &model.meta.field))?;
     }

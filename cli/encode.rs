@@ -2,7 +2,7 @@
 //! through the library's encode pipeline.
 
 use crate::args::{one_of, CellInput, GridInput, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
-use crate::output::{deposit_keys, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar, target_json};
+use crate::output::{deposit_keys, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar, target_json, write_output};
 use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
@@ -10,7 +10,6 @@ use gsenc::encode::with_threads;
 use gsenc::format::info::precision_json;
 use gsenc::format::{read_model_file, write_model_as, Payload};
 use gsenc::input::{prepare, Input};
-use gsenc::io::write_atomic;
 use gsenc::model::metrics::{occupied_psnr, sampled_psnr};
 use gsenc::Result;
 use serde_json::{json, Map, Value};
@@ -81,7 +80,8 @@ struct EncodeOptions {
     /// 0.1 dB of f32, measured for this model; about 5-6 bytes).
     #[arg(long, default_value = "f32", value_parser = one_of(&Payload::ALL, Payload::name))]
     payload: Payload,
-    /// Output model file.
+    /// Output model file (`-`: standard output; the results then go to
+    /// standard error).
     #[arg(short, long)]
     output: PathBuf,
     #[command(flatten)]
@@ -138,7 +138,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
     })??;
     pb.finish_and_clear();
     let bytes = write_model_as(&encoded.model, o.payload)?;
-    write_atomic(&o.output, &bytes)?;
+    write_output(&o.output, &bytes)?;
     let payload_bytes = read_model_file(&bytes)?.payload_bytes;
 
     let (out, reference) = (&encoded.output, &prepared.reference);

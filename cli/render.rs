@@ -4,11 +4,11 @@
 //! way beside it, and the image PSNR and SSIM between the two.
 
 use crate::args::{named, parse_dims, BackendArgs, GridInput};
-use crate::output::print_result;
+use crate::output::{print_result, write_output};
 use clap::Args;
 use gsenc::encode::with_threads;
 use gsenc::field::Grid;
-use gsenc::io::image::{write_png, Figure};
+use gsenc::io::image::{png_bytes, Figure};
 use gsenc::io::{raw, read_field};
 use gsenc::render::{image_psnr, render, ssim, ColorMap, View, ViewKind, DEFAULT_OPACITY};
 use gsenc::Result;
@@ -21,7 +21,8 @@ pub struct RenderArgs {
     /// A model, the models of a domain's pieces, or a step index (`.gsi`).
     #[arg(required = true)]
     model: Vec<PathBuf>,
-    /// The PNG file to write.
+    /// The PNG file to write (`-`: standard output; the results then go to
+    /// standard error).
     #[arg(long, short)]
     output: PathBuf,
     /// An axis slice AXIS=FRACTION (x, y or z; 0 the first voxel centre, 1
@@ -123,7 +124,7 @@ pub fn render_cmd(a: RenderArgs) -> Result<()> {
         panels.push(("reference", r));
     }
     let figure = Figure { panels, colormap: a.colormap, range: model.meta.range, label: &model.meta.field }.draw()?;
-    write_png(&a.output, &figure)?;
+    write_output(&a.output, &png_bytes(&figure)?)?;
     let (psnr, similarity) = match &theirs {
         Some(r) => (Some(image_psnr(r, &ours)?), Some(ssim(r, &ours)?)),
         None => (None, None),

@@ -34,7 +34,7 @@ pub struct StoreExtractArgs {
     store: PathBuf,
     /// FIELD/STEP/RANK of the model.
     entry: String,
-    /// Output model file.
+    /// Output model file (`-`: standard output).
     #[arg(short, long)]
     output: PathBuf,
     /// Payload of the output (default: the one it is stored with).
@@ -85,13 +85,12 @@ mod imp {
 #[cfg(feature = "hdf5")]
 mod imp {
     use super::*;
-    use crate::output::print_result;
+    use crate::output::{print_result, write_output};
     use gsenc::encode::with_threads;
     use gsenc::format;
     use gsenc::io::read_model_file;
     use gsenc::io::series::{write_decoded_series, SeriesOptions};
     use gsenc::io::store::{EntryKey, Store};
-    use gsenc::io::write_atomic;
     use serde_json::json;
     use std::time::Instant;
 
@@ -136,7 +135,7 @@ mod imp {
         let store = Store::open_read(&a.store)?;
         let (model, stored) = store.read(&parse_entry(&a.entry)?)?;
         let payload = a.payload.unwrap_or(stored);
-        write_atomic(&a.output, &format::write_model_as(&model, payload)?)
+        write_output(&a.output, &format::write_model_as(&model, payload)?)
     }
 
     pub fn decode_series(a: DecodeSeriesArgs) -> Result<()> {

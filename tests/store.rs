@@ -140,6 +140,22 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     assert!(matches!(Store::open_read(&newer), Err(Error::Version(_))));
     assert!(matches!(Store::open_read(dir.join("missing.h5")), Err(Error::Io { .. })));
 
+    // A store made through a dangling symbolic link is made at its target,
+    // and the link stays; a named pipe is refused, and stays a pipe.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        std::os::unix::fs::symlink("linked.h5", dir.join("link.h5")).unwrap();
+        Store::open_append(dir.join("link.h5")).unwrap().append(&m, Payload::Float32).unwrap();
+        assert!(std::fs::symlink_metadata(dir.join("link.h5")).unwrap().file_type().is_symlink());
+        assert_eq!(Store::open_read(dir.join("linked.h5")).unwrap().read(&EntryKey::of(&m.meta)).unwrap().0, m);
+        let fifo = dir.join("pipe.h5");
+        assert!(std::process::Command::new("mkfifo").arg(&fifo).status().unwrap().success());
+        assert!(matches!(Store::open_append(&fifo), Err(Error::InvalidArgument(_))));
+        assert!(matches!(Store::open_read(&fifo), Err(Error::InvalidArgument(_))));
+        assert!(std::fs::symlink_metadata(&fifo).unwrap().file_type().is_fifo());
+    }
+
     // An `auto` step's record round-trips; a start the reader does not know
     // is refused with the entry's name.
     let warm = dir.join("warm.h5");

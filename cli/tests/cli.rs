@@ -988,3 +988,50 @@ fn backend_choice_end_to_end() {
     assert!((on_cpu - on_gpu).abs() < 1e-3, "decoded on the CPU {on_cpu} dB, on the GPU {on_gpu} dB");
     assert!((on_cpu - g["voxel_psnr"].as_f64().unwrap()).abs() < 1e-3, "{on_cpu} vs {g}");
 }
+
+#[test]
+fn standard_output_and_links_as_outputs() {
+    let dir = tmpdir("stdout");
+    let (input, _) = write_input(&dir);
+    let inp = input.to_str().unwrap();
+    let encode = ["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "60", "--iters", "30", "--points", "512", "--backend", "cpu", "--json", "-q", "-o"];
+    let model = dir.join("m.gsm");
+    let (code, _, err) = gsenc(&[&encode[..], &[model.to_str().unwrap()]].concat());
+    assert_eq!(code, 0, "{err}");
+    let file_bytes = std::fs::read(&model).unwrap();
+
+    // `-o -`: the model alone on standard output, the results on standard error.
+    let out = Command::new(env!("CARGO_BIN_EXE_gsenc")).args([&encode[..], &["-"]].concat()).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(out.stdout, file_bytes, "the same model through standard output");
+    assert_eq!(json(&String::from_utf8_lossy(&out.stderr))["bytes"].as_u64().unwrap() as usize, file_bytes.len());
+    assert!(!dir.join("-").exists());
+
+    // A decode to standard output is the raw file's bytes, and nothing else.
+    let raw = dir.join("d.raw");
+    let (code, _, err) = gsenc(&["decode", model.to_str().unwrap(), "--backend", "cpu", "-q", "-o", raw.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    for to in ["-", "/dev/stdout"] {
+        let out = Command::new(env!("CARGO_BIN_EXE_gsenc")).args(["decode", model.to_str().unwrap(), "--backend", "cpu", "-q", "--json", "-o", to]).output().unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        assert_eq!(out.stdout, std::fs::read(&raw).unwrap(), "decode -o {to}");
+        assert_eq!(json(&String::from_utf8_lossy(&out.stderr))["voxels"], 20 * 16 * 12);
+    }
+
+    // Written through a symbolic link, the link stays and its file is replaced.
+    #[cfg(unix)]
+    {
+        std::fs::create_dir(dir.join("kept")).unwrap();
+        std::fs::write(dir.join("kept/m.gsm"), b"old").unwrap();
+        std::os::unix::fs::symlink("kept/m.gsm", dir.join("link.gsm")).unwrap();
+        let (code, _, err) = gsenc(&[&encode[..], &[dir.join("link.gsm").to_str().unwrap()]].concat());
+        assert_eq!(code, 0, "{err}");
+        assert!(std::fs::symlink_metadata(dir.join("link.gsm")).unwrap().file_type().is_symlink());
+        assert_eq!(std::fs::read(dir.join("kept/m.gsm")).unwrap(), file_bytes);
+    }
+    // A folder as the output is an i/o error (5), and stays a folder.
+    let (code, _, err) = gsenc(&[&encode[..], &[dir.join("kept").to_str().unwrap()]].concat());
+    assert_eq!(code, 5, "{err}");
+    assert!(err.contains("folder"), "{err}");
+    assert!(dir.join("kept").is_dir());
+}

@@ -5,7 +5,7 @@
 
 use crate::backend::Backend;
 use crate::error::{Error, Result};
-use crate::io::atomic::{temporary_path, write_atomic};
+use crate::io::atomic::{write_atomic, Replacement};
 use crate::io::store::{EntryKey, Store};
 use crate::field::IndexBox;
 use crate::model::Model;
@@ -76,10 +76,10 @@ pub fn write_decoded_series(
     let mut pieces = Vec::new();
     let mut skipped = Vec::new();
     let mut voxels = 0;
-    let tmp = temporary_path(out_h5)?;
+    let out = Replacement::new(out_h5)?;
     let h5err = |e: hdf5::Error| Error::Hdf5 { path: out_h5.display().to_string(), message: e.to_string() };
     let written = (|| -> Result<()> {
-        let out = File::create(&tmp).map_err(h5err)?;
+        let file = File::create(&out.tmp).map_err(h5err)?;
         for e in entries.iter().filter(|e| e.key.field == field) {
             if let Err(why) = &e.content {
                 skipped.push((e.key.clone(), why.to_string()));
@@ -92,20 +92,17 @@ pub fn write_decoded_series(
                     continue;
                 }
             };
-            let piece = decode_piece(&out, &model, &e.key, opts, backend)?;
+            let piece = decode_piece(&file, &model, &e.key, opts, backend)?;
             voxels += piece.dims.iter().product::<usize>();
             pieces.push(piece);
         }
-        out.close().map_err(h5err)
+        file.close().map_err(h5err)
     })();
     if let Err(e) = written {
-        let _ = std::fs::remove_file(&tmp);
+        out.discard();
         return Err(e);
     }
-    if let Err(e) = std::fs::rename(&tmp, out_h5) {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(out_h5, e));
-    }
+    out.commit()?;
     let h5_name = out_h5.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let xdmf = xdmf_path(out_h5);
     write_atomic(&xdmf, xdmf_text(&field, &h5_name, &pieces).as_bytes())?;

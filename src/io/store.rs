@@ -23,7 +23,7 @@ use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::format::model_file::{packed_payload, read_packed_payload};
 use crate::format::packed::Precision;
 use crate::format::Payload;
-use crate::io::atomic::temporary_path;
+use crate::io::atomic::Replacement;
 use crate::format::check_field_name;
 use crate::math::kernel::Primitive;
 use crate::model::{Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
@@ -100,6 +100,7 @@ impl Store {
         if !path.exists() {
             create_empty(&path)?;
         }
+        regular_file(&path)?;
         let file = File::with_options()
             .with_fapl(|p| p.mdc_config(&never_evict()).libver_v18())
             .open_rw(&path)
@@ -114,6 +115,7 @@ impl Store {
         if !path.exists() {
             return Err(Error::io(&path, std::io::Error::from(std::io::ErrorKind::NotFound)));
         }
+        regular_file(&path)?;
         if !super::hdf5_signature(&path).map_err(|e| Error::io(&path, e))? {
             return Err(Error::format(format!("'{}' is not an HDF5 file", path.display())));
         }
@@ -230,25 +232,30 @@ fn never_evict() -> MetadataCacheConfig {
     }
 }
 
+/// A store is a regular file: HDF5 would wait for ever reading a named pipe.
+fn regular_file(path: &Path) -> Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() => Err(Error::arg(format!("'{}' is not a regular file, so not a store", path.display()))),
+        _ => Ok(()),
+    }
+}
+
 fn create_empty(path: &Path) -> Result<()> {
-    let tmp = temporary_path(path)?;
+    let out = Replacement::new(path)?;
     let made = (|| -> hdf5::Result<()> {
         let f = File::with_options()
             .with_fapl(|p| p.libver_v18())
             .with_fcpl(|p| p.file_space_strategy(FileSpaceStrategy::None))
-            .create_excl(&tmp)?;
+            .create_excl(&out.tmp)?;
         scalar_str_attr(&f, "gsenc_store", STORE_VERSION)?;
         scalar_str_attr(&f, "creator", &format!("gsenc {}", crate::VERSION))?;
         f.close()
     })();
     if let Err(e) = made {
-        let _ = std::fs::remove_file(&tmp);
+        out.discard();
         return Err(h5(path)(e));
     }
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        Error::io(path, e)
-    })
+    out.commit()
 }
 
 fn check_root(file: &File, path: &Path) -> Result<()> {
