@@ -46,7 +46,7 @@ keep() { [ -z "${OUT:-}" ] || cp "$@" "$OUT"/ 2>/dev/null || true; }
 "$bin" devices --json > "$out/gpu-devices.json"
 cat "$out/gpu-devices.json" >&2
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv > "$out/gpu-nvidia-smi.csv" || true
-lscpu | grep -E "Model name|^CPU\(s\)" > "$out/gpu-cpu.txt" || true
+lscpu | grep -E "Model name|^CPU\(s\)|Thread\(s\) per core|Core\(s\) per socket|Socket\(s\)" > "$out/gpu-cpu.txt" || true
 keep "$out/gpu-devices.json" "$out/gpu-nvidia-smi.csv" "$out/gpu-cpu.txt"
 
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)

@@ -52,7 +52,12 @@ pack() { # the text results only (no models, raw grids or task profiles)
 }
 export GSENC_BIN=$kit/bin/gsenc INSITU_BIN=$kit/bin/insitu GSENC_DATA=$kit/data
 export XDG_RUNTIME_DIR=${XDG_RUNTIME_DIR:-/tmp}
-lscpu | grep -E "Model name|^CPU\(s\)"
+# Whether the 16 vCPUs are 16 cores or 8 with two hyperthreads each decides
+# what 16 threads can reach (issue 21's 12x) and whether the in-situ
+# encoder's thread shares the solver's core; a VM may not say (one thread
+# per core shown for what the host runs as siblings).
+lscpu | grep -E "Model name|^CPU\(s\)|Thread\(s\) per core|Core\(s\) per socket|Socket\(s\)|NUMA node\(s\)"
+lscpu -e=CPU,CORE,SOCKET,NODE > bench-out/cpu-topology.txt 2>&1 || true
 echo "vector extensions: $(grep -o -w -E 'avx2|avx512f|avx512vl' /proc/cpuinfo | sort -u | tr '\n' ' ')"
 command -v nvidia-smi > /dev/null && nvidia-smi --query-gpu=name,driver_version,clocks.sm,clocks.max.sm --format=csv
 
