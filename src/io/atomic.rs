@@ -73,12 +73,13 @@ pub struct Replacement {
 impl Replacement {
     pub fn new(path: &Path) -> Result<Replacement> {
         match target(path)? {
-            Target::File(dest) => {
-                let tmp = hidden_beside(&dest)?;
-                Ok(Replacement { dest, tmp })
-            }
+            Target::File(dest) => Replacement::beside(dest),
             Target::Stream => Err(Error::arg(format!("'{}' is not a regular file, and this output must be one", path.display()))),
         }
+    }
+
+    fn beside(dest: PathBuf) -> Result<Replacement> {
+        Ok(Replacement { tmp: hidden_beside(&dest)?, dest })
     }
 
     /// Renames the temporary file over the destination, keeping the
@@ -129,7 +130,7 @@ impl AtomicFile {
         let path = path.as_ref().to_path_buf();
         let (replace, open) = match target(&path)? {
             Target::File(dest) => {
-                let r = Replacement { tmp: hidden_beside(&dest)?, dest };
+                let r = Replacement::beside(dest)?;
                 let open = r.tmp.clone();
                 (Some(r), open)
             }
