@@ -131,7 +131,9 @@ pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gs
 }
 
 /// Writes the last encoded model of `field` to `path` (through a temporary
-/// file and a rename), with the configured payload. Does not wait for
+/// file beside the file `path` names and a rename: a symbolic link stays a
+/// link; a device or a pipe is written in place), with the configured
+/// payload. Does not wait for
 /// queued steps (call `gsenc_wait` first for the newest). Strings are read
 /// during the call only. Not thread-safe on one encoder.
 #[no_mangle]
