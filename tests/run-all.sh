@@ -20,6 +20,24 @@ stage() {
     "$@"
     echo "run-all: '$*' took $((SECONDS - t)) s (at $SECONDS s)" >&2
 }
+# A stage that keeps one core busy (valgrind runs a program's threads one at
+# a time) runs beside the stages after it: `beside CMD...` starts it with its
+# output kept aside, `joined` waits for it, prints that output and its time,
+# and fails the run when it failed. One at a time.
+beside() {
+    beside_cmd="$*" beside_t=$SECONDS
+    "$@" > "$out/beside.log" 2>&1 &
+    beside_pid=$!
+}
+joined() {
+    local rc=0
+    wait "$beside_pid" || rc=$?
+    beside_pid=
+    cat "$out/beside.log"
+    echo "run-all: '$beside_cmd' took $((SECONDS - beside_t)) s beside the stages after it (at $SECONDS s)" >&2
+    [ "$rc" = 0 ] || { echo "run-all: '$beside_cmd' failed (exit $rc)" >&2; exit 1; }
+}
+beside_pid=
 
 stage bash tests/deps.sh
 export GSENC_REQUIRE_GPU=1
@@ -43,7 +61,7 @@ fi
 # The library, libgsenc (.so and .a) and the tool, without features.
 stage cargo build --release --locked -p gsenc-capi -p gsenc-cli
 out="$(mktemp -d)"
-trap 'rm -rf "$out"' EXIT
+trap '[ -z "$beside_pid" ] || kill "$beside_pid" 2>/dev/null; rm -rf "$out"' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
 "$out/version"
 echo "c: 1 passed, 0 failed"
@@ -56,14 +74,16 @@ stage env GSENC_CAPI_TMP="$out" "$out/capi"
 # no Vulkan driver (VK_ICD_FILENAMES names none): memcheck is for gsenc, and
 # glibc's loader and Mesa's driver report their own (suppressible) findings.
 # GSENC_CAPI_MEMCHECK leaves the target-PSNR search (eight encodes behind
-# the calls of one) to the native run above.
+# the calls of one) to the native run above. It takes one core for a
+# minute, beside the parity check and the package.
 cc -std=c99 -g -Wall -Werror -Iinclude tests/c/capi.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/capi-g"
-stage env VK_ICD_FILENAMES=/nonexistent.json GSENC_CAPI_MEMCHECK=1 GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --show-leak-kinds=definite,indirect --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
+beside env VK_ICD_FILENAMES=/nonexistent.json GSENC_CAPI_MEMCHECK=1 GSENC_CAPI_TMP="$out" valgrind -q --leak-check=full --show-leak-kinds=definite,indirect --errors-for-leak-kinds=definite,indirect --error-exitcode=3 "$out/capi-g"
 # The C API and the tool: the same particles and cells, the same models.
 stage bash tests/parity.sh
 
 # The installed CMake package: C and Fortran mock solvers as a separate project.
 stage bash tests/package.sh
+joined
 
 # The MPI layer under mpirun -n 1, 2, 4: C, Fortran, CLI and the mock solver.
 stage bash tests/mpi.sh
