@@ -113,7 +113,9 @@ pub struct gsenc_config {
     /// `GSENC_PAYLOAD_*` of written models (default float32).
     pub payload: i32,
     /// Threads of the encoder's own pool, beside the solver's (default 1;
-    /// give it the cores the solver leaves free); 0 uses every core.
+    /// give it the cores the solver leaves free); 0 uses every core. More
+    /// than 8 a core (at least 64) is refused (`GSENC_STATUS_INVALID_ARGUMENT`):
+    /// the model does not depend on the count, and such a number is a mistake.
     pub threads: u32,
     /// Seeds of the seeding draws (0) and of point sampling (1).
     pub seed_init: u64,

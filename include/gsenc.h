@@ -345,7 +345,9 @@ typedef struct {
   int32_t payload;
   /*
    Threads of the encoder's own pool, beside the solver's (default 1;
-   give it the cores the solver leaves free); 0 uses every core.
+   give it the cores the solver leaves free); 0 uses every core. More
+   than 8 a core (at least 64) is refused (`GSENC_STATUS_INVALID_ARGUMENT`):
+   the model does not depend on the count, and such a number is a mistake.
    */
   uint32_t threads;
   /*

@@ -285,6 +285,14 @@ fn bad_inputs_give_clear_errors() {
     let init = vec![isotropic([1.0; 3], 1.0, 0.5, 0.5); 9];
     assert!(validate(&t, &quick(10, 10, 10), Some(&init)).unwrap_err().to_string().contains("warm start has 9"));
     assert!(with_threads(Some(0), || ()).is_err());
+    // Far more threads than cores is refused before any starts (rayon would
+    // start up to 65,535 that each wait their turn); a few more are not.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let ran = std::sync::atomic::AtomicBool::new(false);
+    let e = with_threads(Some(100_000), || ran.store(true, std::sync::atomic::Ordering::SeqCst)).unwrap_err();
+    assert!(matches!(&e, gsenc::Error::InvalidArgument(m) if m.contains("threads 100000")), "{e}");
+    assert!(!ran.load(std::sync::atomic::Ordering::SeqCst));
+    assert_eq!(with_threads(Some(2 * cores + 1), rayon::current_num_threads).unwrap(), 2 * cores + 1);
 }
 
 /// The fidelity reference: a brute-force transcription of docs/METHOD.md

@@ -255,7 +255,10 @@ fn bad_pushes_are_refused_at_once() {
     assert!(q.poll("rho", 0).is_none());
     let mut cfg = queue_config(8, WhenFull::Block);
     cfg.threads = 0;
-    assert!(BackgroundEncoder::new(cfg, Box::new(gsenc::series::queue::CallerStores)).is_err());
+    assert!(BackgroundEncoder::new(cfg.clone(), Box::new(gsenc::series::queue::CallerStores)).is_err());
+    cfg.threads = 100_000;
+    let e = BackgroundEncoder::new(cfg, Box::new(gsenc::series::queue::CallerStores)).err().expect("100,000 threads refused");
+    assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("threads 100000")), "{e}");
 }
 
 #[test]

@@ -3,6 +3,7 @@
 
 use crate::error::{Error, Result};
 use crate::field::Grid;
+use std::io::Read;
 use std::path::Path;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -54,11 +55,7 @@ impl Order {
 
 /// Decodes raw bytes into a grid (x fastest, float32).
 pub fn parse_raw(bytes: &[u8], dims: [usize; 3], dtype: DType, order: Order) -> Result<Grid> {
-    let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).ok_or_else(|| Error::arg("dims overflow"))?;
-    if n == 0 {
-        return Err(Error::arg(format!("dims must be positive, got {dims:?}")));
-    }
-    let want = n.checked_mul(dtype.size()).ok_or_else(|| Error::arg("dims overflow"))?;
+    let want = raw_len(dims, dtype)?;
     if bytes.len() != want {
         return Err(Error::data(format!(
             "raw input has {} bytes; {}x{}x{} values of {} bytes need {want}",
@@ -78,7 +75,7 @@ pub fn parse_raw(bytes: &[u8], dims: [usize; 3], dtype: DType, order: Order) -> 
     let vals = match order {
         Order::XFastest => vals,
         Order::ZFastest => {
-            let mut out = vec![0f32; n];
+            let mut out = vec![0f32; vals.len()];
             for x in 0..dims[0] {
                 for y in 0..dims[1] {
                     for z in 0..dims[2] {
@@ -92,20 +89,62 @@ pub fn parse_raw(bytes: &[u8], dims: [usize; 3], dtype: DType, order: Order) -> 
     Grid::new(dims, vals)
 }
 
+/// The bytes a grid of `dims` values of `dtype` takes; dims must be positive.
+fn raw_len(dims: [usize; 3], dtype: DType) -> Result<usize> {
+    let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).ok_or_else(|| Error::arg("dims overflow"))?;
+    if n == 0 {
+        return Err(Error::arg(format!("dims must be positive, got {dims:?}")));
+    }
+    n.checked_mul(dtype.size()).ok_or_else(|| Error::arg("dims overflow"))
+}
+
 /// The bytes of a raw array file; a file named `*.zst` is one or more zstd
 /// frames, decompressed here (how the repository's `data/` is stored).
 pub fn read_bytes(path: impl AsRef<Path>) -> Result<Vec<u8>> {
-    let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zst")) {
-        return Ok(bytes);
-    }
-    zstd::stream::decode_all(bytes.as_slice())
-        .map_err(|e| Error::data(format!("{}: not a complete zstd-compressed file ({e})", path.display())))
+    read_upto(path.as_ref(), u64::MAX)
 }
 
+/// The bytes of a raw array file, as [`read_bytes`], but never more than
+/// `limit + 1` of them (of the decompressed content for `*.zst`): enough to
+/// tell content of `limit` bytes from longer content without holding it, so
+/// that a stream that never ends (`/dev/zero`) or a small zstd file that
+/// expands to terabytes is refused instead of filling memory. Pipes work
+/// (`--input <(zstdcat a.zst)`).
+pub fn read_bytes_at_most(path: impl AsRef<Path>, limit: usize) -> Result<Vec<u8>> {
+    read_upto(path.as_ref(), (limit as u64).saturating_add(1))
+}
+
+fn read_upto(path: &Path, cap: u64) -> Result<Vec<u8>> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut out = Vec::new();
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zst")) {
+        let size = file.metadata().map_or(0, |m| m.len());
+        out.reserve(usize::try_from(size.min(cap)).unwrap_or(0));
+        file.take(cap).read_to_end(&mut out).map_err(|e| Error::io(path, e))?;
+        return Ok(out);
+    }
+    let not_zstd = |e: std::io::Error| Error::data(format!("{}: not a complete zstd-compressed file ({e})", path.display()));
+    zstd::stream::read::Decoder::new(file).map_err(not_zstd)?.take(cap).read_to_end(&mut out).map_err(not_zstd)?;
+    Ok(out)
+}
+
+/// Reads a raw grid file (see [`read_bytes`]), no more of it than the grid
+/// takes: content longer than that is refused unread.
 pub fn read_raw(path: impl AsRef<Path>, dims: [usize; 3], dtype: DType, order: Order) -> Result<Grid> {
-    parse_raw(&read_bytes(path)?, dims, dtype, order)
+    let path = path.as_ref();
+    let want = raw_len(dims, dtype)?;
+    let bytes = read_bytes_at_most(path, want)?;
+    if bytes.len() > want {
+        return Err(Error::data(format!(
+            "{}: raw input holds more than the {want} bytes that {}x{}x{} values of {} bytes need",
+            path.display(),
+            dims[0],
+            dims[1],
+            dims[2],
+            dtype.size()
+        )));
+    }
+    parse_raw(&bytes, dims, dtype, order)
 }
 
 /// Which rows of a per-item array file to read: `count` items starting at
@@ -201,6 +240,48 @@ mod tests {
         // Without the name, the compressed bytes are raw data (of the wrong size).
         std::fs::write(dir.join("g.f32"), &packed).unwrap();
         assert!(read_raw(dir.join("g.f32"), [5, 4, 3], DType::F32, Order::XFastest).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A grid reads no more than it takes: longer files, endless streams and
+    /// zstd files that expand far beyond the grid are refused by name, while
+    /// a pipe holding the grid reads like a file.
+    #[test]
+    fn grids_read_no_more_than_they_take() {
+        let dir = std::env::temp_dir().join(format!("gsenc-raw-bound-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let dims = [8, 8, 8];
+        let values: Vec<f32> = (0..512).map(|i| (i % 7) as f32).collect();
+        let mut long = to_f32_bytes(&values);
+        long.extend_from_slice(&[0; 4]);
+        std::fs::write(dir.join("long.f32"), &long).unwrap();
+        let e = read_raw(dir.join("long.f32"), dims, DType::F32, Order::XFastest).unwrap_err();
+        assert!(matches!(&e, Error::InvalidData(m) if m.contains("long.f32") && m.contains("more than the 2048 bytes")), "{e}");
+        // 1 GiB of zeros in about 32 KB of zstd: refused after 2 KB of it.
+        let mut enc = zstd::stream::write::Encoder::new(Vec::new(), 3).unwrap();
+        let zeros = vec![0u8; 1 << 20];
+        for _ in 0..1024 {
+            std::io::Write::write_all(&mut enc, &zeros).unwrap();
+        }
+        std::fs::write(dir.join("bomb.f32.zst"), enc.finish().unwrap()).unwrap();
+        let e = read_raw(dir.join("bomb.f32.zst"), dims, DType::F32, Order::XFastest).unwrap_err();
+        assert!(matches!(&e, Error::InvalidData(m) if m.contains("bomb.f32.zst") && m.contains("more than")), "{e}");
+        assert_eq!(read_bytes_at_most(dir.join("bomb.f32.zst"), 10).unwrap().len(), 11);
+        #[cfg(unix)]
+        {
+            let e = read_raw("/dev/zero", dims, DType::F32, Order::XFastest).unwrap_err();
+            assert!(matches!(&e, Error::InvalidData(m) if m.contains("/dev/zero") && m.contains("more than")), "{e}");
+            let fifo = dir.join("grid.fifo");
+            let made = std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo runs");
+            assert!(made.success(), "mkfifo failed");
+            let bytes = to_f32_bytes(&values);
+            let writer = std::thread::spawn({
+                let fifo = fifo.clone();
+                move || std::fs::write(fifo, bytes).unwrap()
+            });
+            assert_eq!(read_raw(&fifo, dims, DType::F32, Order::XFastest).unwrap().values, values);
+            writer.join().unwrap();
+        }
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

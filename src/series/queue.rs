@@ -173,9 +173,7 @@ pub struct BackgroundEncoder {
 impl BackgroundEncoder {
     /// Starts the worker and its pool of `cfg.threads` threads.
     pub fn new(cfg: QueueConfig, sink: Box<dyn ModelSink>) -> Result<BackgroundEncoder> {
-        if cfg.threads == 0 {
-            return Err(Error::arg("the encode needs at least one thread"));
-        }
+        crate::encode::check_threads(cfg.threads)?;
         if cfg.max_bytes == 0 {
             return Err(Error::arg("the queue's memory budget must be positive"));
         }

@@ -85,6 +85,10 @@ int main(void) {
     bad.budget = 0;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
     bad = cfg;
+    bad.threads = 0xCDCDCDCDu; /* an uninitialised field: refused, not 65,535 threads */
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "threads 3452816845") != NULL, "message names the threads: %s", last_error());
+    bad = cfg;
     bad.schedule = 7;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
     CHECK(strstr(last_error(), "schedule") != NULL, "message names the schedule");
