@@ -3,11 +3,12 @@
 //! and the global field a decode reads.
 
 use crate::error::{Error, Result};
-use crate::format::{model_file_name, read_model_file as parse_model_file, write_model_as, ModelFile, Payload, StepIndex};
+use crate::format::{model_file_name, read_model_file as parse_model_file, write_model_as, ModelFile, Payload, StepIndex, MAGIC};
 use crate::io::atomic::write_atomic;
 use crate::domain::global::GlobalField;
 use crate::model::Model;
 use crate::series::queue::ModelSink;
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 /// A background queue's sink that writes each model as
@@ -26,9 +27,23 @@ impl ModelSink for ModelFolder {
     }
 }
 
+/// The bytes of a model file, read past its first 8 only when they are the
+/// magic: what is not a model (`/dev/zero`, a stream of another format) is
+/// refused after 8 bytes instead of read to its end, which may never come.
+/// [`read_model_file`] and the C API's `gsenc_model_read` read through it.
+pub fn read_model_bytes(path: &Path) -> Result<Vec<u8>> {
+    let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let mut bytes = Vec::with_capacity(file.metadata().map_or(0, |m| usize::try_from(m.len()).unwrap_or(0)));
+    (&mut file).take(MAGIC.len() as u64).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+    if bytes[..] == MAGIC[..] {
+        file.read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+    }
+    Ok(bytes)
+}
+
 /// Reads a model file, naming the file in format errors.
 pub fn read_model_file(path: &Path) -> Result<ModelFile> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = read_model_bytes(path)?;
     parse_model_file(&bytes).map_err(|e| match e {
         Error::Format(m) => Error::Format(format!("{}: {m}", path.display())),
         Error::Version(m) => Error::Version(format!("{}: {m}", path.display())),
@@ -71,5 +86,38 @@ pub fn read_field(paths: &[PathBuf]) -> Result<GlobalField> {
         }
         [one] => Ok(GlobalField::of_model(read_model_file(one)?.model)),
         models => GlobalField::of_pieces(models.iter().map(|p| read_model_file(p).map(|f| f.model)).collect::<Result<Vec<_>>>()?),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::field::{IndexFrame, Transform, ValueRange};
+    use crate::format::write_model;
+    use crate::model::ModelMeta;
+
+    /// A model reads whole; what does not open with the magic is refused
+    /// after its first 8 bytes, so a stream without an end (`/dev/zero`)
+    /// gives an answer instead of filling memory.
+    #[test]
+    fn model_files_are_read_only_past_their_magic() {
+        let dir = std::env::temp_dir().join(format!("gsenc-model-bytes-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let frame = IndexFrame::from_bounds([4; 3], [0.0; 3], [1.0; 3]).unwrap();
+        let meta = ModelMeta::new(frame, ValueRange::new(0.0, 1.0, Transform::Linear).unwrap());
+        let model = Model { meta, params: vec![crate::math::kernel::isotropic([1.0; 3], 1.0, 0.5, 0.5)], support: None };
+        let bytes = write_model(&model).unwrap();
+        std::fs::write(dir.join("m.gsm"), &bytes).unwrap();
+        assert_eq!(read_model_bytes(&dir.join("m.gsm")).unwrap(), bytes);
+        assert_eq!(read_model_file(&dir.join("m.gsm")).unwrap().model.params, model.params);
+        std::fs::write(dir.join("short.gsm"), b"GSEN").unwrap();
+        assert_eq!(read_model_bytes(&dir.join("short.gsm")).unwrap(), b"GSEN");
+        #[cfg(unix)]
+        {
+            assert_eq!(read_model_bytes(Path::new("/dev/zero")).unwrap(), vec![0; 8]);
+            let e = read_model_file(Path::new("/dev/zero")).unwrap_err();
+            assert!(matches!(&e, Error::Format(m) if m.contains("/dev/zero") && m.contains("magic")), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -540,6 +540,9 @@ int main(void) {
     fputs("not a model", f);
     fclose(f);
     EXPECT(gsenc_model_read(path, &model), GSENC_STATUS_FORMAT);
+    /* A stream without an end is refused after its first bytes, not read to it. */
+    EXPECT(gsenc_model_read("/dev/zero", &model), GSENC_STATUS_FORMAT);
+    CHECK(strstr(last_error(), "/dev/zero") != NULL, "message names the file: %s", last_error());
     EXPECT(gsenc_model_read(NULL, &model), GSENC_STATUS_NULL_POINTER);
 
     /* The last-error getter: sizing call, truncation, NUL. */
