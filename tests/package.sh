@@ -8,8 +8,9 @@
 # compiled against the installed module; the C mock solver runs under
 # valgrind memcheck; and a consumer whose module files do not fit compiles
 # the installed gsenc.f90 itself.
-#   bash tests/package.sh [STEPS]   (default 10: each warm-started from the
-#   one before, as the solvers' 20 would be, in half the time)
+#   bash tests/package.sh [STEPS]   (default 10; the mock solvers' own
+#   default is 20: ten steps, each warm-started from the one before, check
+#   the same in half the time)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 steps=${1:-10}
