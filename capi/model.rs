@@ -77,11 +77,7 @@ pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gs
         unsafe { *out = std::ptr::null_mut() };
         // SAFETY: NUL-terminated string or NULL (refused).
         let path = unsafe { c_str(path, "path") }?;
-        let bytes = gsenc::io::read_model_bytes(std::path::Path::new(&path))?;
-        let model = gsenc::format::read_model(&bytes).map_err(|e| match e {
-            gsenc::Error::Format(m) => gsenc::Error::Format(format!("{path}: {m}")),
-            other => other,
-        })?;
+        let model = gsenc::io::read_model_file(std::path::Path::new(&path))?.model;
         // SAFETY: as above.
         unsafe { *out = new_handle(model) };
         Ok(())

@@ -38,4 +38,4 @@ pub fn hdf5_signature(path: &std::path::Path) -> std::io::Result<bool> {
         Err(e) => Err(e),
     }
 }
-pub use models::{read_field, read_model_bytes, read_model_file, read_step, ModelFolder};
+pub use models::{read_field, read_model_file, read_step, ModelFolder};

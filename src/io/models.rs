@@ -30,8 +30,9 @@ impl ModelSink for ModelFolder {
 /// The bytes of a model file, read past its first 8 only when they are the
 /// magic: what is not a model (`/dev/zero`, a stream of another format) is
 /// refused after 8 bytes instead of read to its end, which may never come.
-/// [`read_model_file`] and the C API's `gsenc_model_read` read through it.
-pub fn read_model_bytes(path: &Path) -> Result<Vec<u8>> {
+/// [`read_model_file`] (the tool's, Python's and `gsenc_model_read`'s reader of
+/// a path) reads through it.
+fn read_model_bytes(path: &Path) -> Result<Vec<u8>> {
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut bytes = Vec::with_capacity(file.metadata().map_or(0, |m| usize::try_from(m.len()).unwrap_or(0)));
     (&mut file).take(MAGIC.len() as u64).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
