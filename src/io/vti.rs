@@ -122,12 +122,16 @@ impl Layout {
         usize::try_from(v).map_err(|_| Error::format("vti: block size overflows"))
     }
 
-    /// Raw bytes of one array from a stream that starts at its header.
-    fn payload(&self, b: &[u8]) -> Result<Vec<u8>> {
-        let w = if self.header64 { 8 } else { 4 };
+    /// Raw bytes of one array from a stream that starts at its header; `need`
+    /// is what the array's values take. A compressed array is decompressed
+    /// only as far as `need` (the blocks after it are not read), and no block
+    /// beyond the size its header gives, so a small file whose header or
+    /// zlib stream claims gigabytes is refused instead of filling memory.
+    fn payload(&self, b: &[u8], need: usize) -> Result<Vec<u8>> {
+        let w: usize = if self.header64 { 8 } else { 4 };
         if !self.zlib {
             let n = self.uint(b, 0)?;
-            let data = b.get(w..w + n).ok_or_else(|| Error::format("vti: data array is truncated"))?;
+            let data = w.checked_add(n).and_then(|end| b.get(w..end)).ok_or_else(|| Error::format("vti: data array is truncated"))?;
             return Ok(data.to_vec());
         }
         let nblocks = self.uint(b, 0)?;
@@ -139,15 +143,23 @@ impl Layout {
         let mut at = (3 + nblocks) * w;
         let mut out = Vec::new();
         for i in 0..nblocks {
+            if out.len() >= need {
+                break;
+            }
             let csize = self.uint(b, (3 + i) * w)?;
-            let comp = b.get(at..at + csize).ok_or_else(|| Error::format("vti: compressed block is truncated"))?;
+            let comp = at.checked_add(csize).and_then(|end| b.get(at..end)).ok_or_else(|| Error::format("vti: compressed block is truncated"))?;
             let expect = if i + 1 == nblocks && last != 0 { last } else { block };
+            // zlib expands at most 1032-fold: a larger claim is a corrupt header.
+            if expect > csize.saturating_mul(1032) {
+                return Err(Error::format(format!("vti: zlib block {i} claims {expect} bytes from {csize} compressed")));
+            }
             let mut dec = Vec::with_capacity(expect);
             flate2::read::ZlibDecoder::new(comp)
+                .take(expect as u64 + 1)
                 .read_to_end(&mut dec)
                 .map_err(|e| Error::format(format!("vti: zlib block {i}: {e}")))?;
             if dec.len() != expect {
-                return Err(Error::format(format!("vti: zlib block {i} holds {} bytes, header says {expect}", dec.len())));
+                return Err(Error::format(format!("vti: zlib block {i} holds {} bytes or more, header says {expect}", dec.len())));
             }
             out.extend_from_slice(&dec);
             at += csize;
@@ -156,14 +168,19 @@ impl Layout {
     }
 }
 
-fn convert(bytes: &[u8], ty: &str, big_endian: bool, n: usize) -> Result<Vec<f32>> {
-    let size = match ty {
+/// The bytes one value of a DataArray `type` takes.
+fn type_size(ty: &str) -> Result<usize> {
+    Ok(match ty {
         "Int8" | "UInt8" => 1,
         "Int16" | "UInt16" => 2,
         "Int32" | "UInt32" | "Float32" => 4,
         "Int64" | "UInt64" | "Float64" => 8,
         _ => return Err(Error::format(format!("vti: unsupported data type {ty}"))),
-    };
+    })
+}
+
+fn convert(bytes: &[u8], ty: &str, big_endian: bool, n: usize) -> Result<Vec<f32>> {
+    let size = type_size(ty)?;
     if bytes.len() < n * size {
         return Err(Error::format(format!("vti: array holds {} bytes, {n} values of {ty} need {}", bytes.len(), n * size)));
     }
@@ -222,11 +239,12 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
     if origin.len() != 3 || spacing.len() != 3 {
         return Err(Error::format("vti: Origin and Spacing need 3 numbers"));
     }
-    let point_dims = [
-        (extent[1] - extent[0] + 1) as usize,
-        (extent[3] - extent[2] + 1) as usize,
-        (extent[5] - extent[4] + 1) as usize,
-    ];
+    let too_large = || Error::format(format!("vti: WholeExtent {extent:?} is too large"));
+    let mut point_dims = [0usize; 3];
+    for a in 0..3 {
+        let d = extent[2 * a + 1].checked_sub(extent[2 * a]).and_then(|d| d.checked_add(1));
+        point_dims[a] = d.and_then(|d| usize::try_from(d).ok()).ok_or_else(too_large)?;
+    }
     if find_bytes(xml.as_bytes(), b"<Piece").is_some() {
         let pieces = xml.matches("<Piece").count();
         if pieces > 1 {
@@ -277,12 +295,13 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
         None => Error::format("vti: no point or cell data array"),
     })?;
     let dims = if is_cell { point_dims.map(|d| d.saturating_sub(1).max(1)) } else { point_dims };
-    let n = dims[0] * dims[1] * dims[2];
+    let n = dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d)).ok_or_else(too_large)?;
     let comps: usize = attr(&a, "NumberOfComponents").map(|c| c.parse().unwrap_or(0)).unwrap_or(1);
     if comps != 1 {
         return Err(Error::format(format!("vti: array has {comps} components; gsenc encodes scalars (extract one component first)")));
     }
     let ty = attr(&a, "type").ok_or_else(|| Error::format("vti: DataArray without type"))?;
+    let need = n.checked_mul(type_size(&ty)?).ok_or_else(too_large)?;
     let name = attr(&a, "Name").unwrap_or_else(|| "scalars".into());
     let values = match attr(&a, "format").as_deref().unwrap_or("ascii") {
         "ascii" => {
@@ -294,7 +313,7 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
         }
         "binary" => {
             let raw = base64_decode(xml[dstart..dend].as_bytes());
-            convert(&layout.payload(&raw)?, &ty, layout.big_endian, n)?
+            convert(&layout.payload(&raw, need)?, &ty, layout.big_endian, n)?
         }
         "appended" => {
             let off: usize = attr(&a, "offset").and_then(|o| o.parse().ok()).ok_or_else(|| Error::format("vti: appended array without offset"))?;
@@ -302,8 +321,9 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
             let base64 = attr(app, "encoding").as_deref() == Some("base64");
             let tag_end = xml_end.unwrap();
             let underscore = bytes[tag_end..].iter().position(|&c| c == b'_').ok_or_else(|| Error::format("vti: AppendedData without '_'"))?;
-            let start = tag_end + underscore + 1 + off;
-            let stream = bytes.get(start..).ok_or_else(|| Error::format("vti: appended offset beyond end of file"))?;
+            let beyond = || Error::format("vti: appended offset beyond end of file");
+            let start = (tag_end + underscore + 1).checked_add(off).ok_or_else(beyond)?;
+            let stream = bytes.get(start..).ok_or_else(beyond)?;
             let decoded;
             let stream = if base64 {
                 decoded = base64_decode(stream);
@@ -311,7 +331,7 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
             } else {
                 stream
             };
-            convert(&layout.payload(stream)?, &ty, layout.big_endian, n)?
+            convert(&layout.payload(stream, need)?, &ty, layout.big_endian, n)?
         }
         other => return Err(Error::format(format!("vti: unknown DataArray format '{other}'"))),
     };
@@ -466,5 +486,113 @@ mod tests {
         }
         assert!(parse_vti(b"hello", None).is_err());
         assert!(parse_vti(b"<VTKFile type=\"PolyData\">", None).is_err());
+    }
+
+    /// The fuzzing seeds (`fuzz/vti-seeds`, written by Python's zlib and
+    /// base64, not by this module) read as the grids they were made from, so
+    /// that the fuzzer starts from files that reach every layout's decoder.
+    /// Their first byte is the fuzz target's flag: odd picks the array "v" by name.
+    #[test]
+    fn fuzz_seeds_read_as_made() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/vti-seeds");
+        let halves: Vec<f32> = (0..12).map(|i| i as f32 * 0.5 - 1.0).collect();
+        let mut seen = 0;
+        for entry in std::fs::read_dir(&dir).unwrap() {
+            let path = entry.unwrap().path();
+            let bytes = std::fs::read(&path).unwrap();
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            let v = parse_vti(&bytes[1..], (bytes[0] & 1 == 1).then_some("v")).unwrap_or_else(|e| panic!("{name}: {e}"));
+            let (dims, values) = match name.split('.').next().unwrap() {
+                "cell-bigendian-f64" => ([2, 1, 1], halves[..2].to_vec()),
+                "binary-zlib-u8" => ([3, 2, 2], (0..12).map(|i| i as f32).collect()),
+                _ => ([3, 2, 2], halves.clone()),
+            };
+            assert_eq!((v.grid.dims, v.grid.values), (dims, values), "{name}");
+            seen += 1;
+        }
+        assert_eq!(seen, 14, "seven layouts, each with both flags");
+    }
+
+    /// A zlib-compressed appended array of `data`, in blocks of `block` bytes,
+    /// with header words `header` (block count, block size, last size, then
+    /// each compressed size) in place of the true ones where given.
+    fn zlib_file(data: &[u8], block: usize, header: Option<Vec<u64>>, extent: &str) -> Vec<u8> {
+        use std::io::Write;
+        let blocks: Vec<Vec<u8>> = data
+            .chunks(block)
+            .map(|c| {
+                let mut e = flate2::write::ZlibEncoder::new(vec![], flate2::Compression::default());
+                e.write_all(c).unwrap();
+                e.finish().unwrap()
+            })
+            .collect();
+        let mut words = vec![blocks.len() as u64, block as u64, (data.len() % block) as u64];
+        words.extend(blocks.iter().map(|b| b.len() as u64));
+        let mut f = format!(
+            "<VTKFile type=\"ImageData\" header_type=\"UInt64\" compressor=\"vtkZLibDataCompressor\"><ImageData WholeExtent=\"{extent}\"><PointData><DataArray type=\"UInt8\" Name=\"v\" format=\"appended\" offset=\"0\"/></PointData></ImageData><AppendedData encoding=\"raw\">_"
+        )
+        .into_bytes();
+        for v in header.unwrap_or(words) {
+            f.extend_from_slice(&v.to_le_bytes());
+        }
+        blocks.iter().for_each(|b| f.extend_from_slice(b));
+        f.extend_from_slice(b"</AppendedData></VTKFile>");
+        f
+    }
+
+    /// Where the appended data of a file begin (after its '_').
+    fn appended_at(f: &[u8]) -> usize {
+        let tag = find_bytes(f, b"<AppendedData").unwrap();
+        tag + f[tag..].iter().position(|&c| c == b'_').unwrap() + 1
+    }
+
+    /// Sizes a file claims (its extent, offsets, block headers, zlib streams)
+    /// are checked against what it holds before anything is allocated or
+    /// decompressed for them: each crafted file is refused with a message, and
+    /// a compressed array is decompressed no further than its values need.
+    #[test]
+    fn claimed_sizes_are_bounded() {
+        let refused = |f: &[u8], what: &str| {
+            let e = parse_vti(f, None).unwrap_err();
+            assert!(matches!(&e, Error::Format(m) if m.contains(what)), "wanted '{what}', got {e}");
+        };
+        let data: Vec<u8> = (0..24).collect();
+        let extent = "0 3 0 2 0 1";
+        assert_eq!(parse_vti(&zlib_file(&data, 10, None, extent), None).unwrap().grid.values, data.iter().map(|&b| b as f32).collect::<Vec<_>>());
+        // Extents whose point counts overflow, alone or multiplied.
+        refused(&zlib_file(&data, 10, None, "-9223372036854775808 9223372036854775807 0 0 0 0"), "too large");
+        refused(&zlib_file(&data, 10, None, "0 4294967296 0 4294967296 0 4294967296"), "too large");
+        // An extent far larger than the file: the values are not there.
+        refused(&zlib_file(&data, 10, None, "0 99999 0 99999 0 9"), "values of UInt8 need");
+        // A block header claiming 2^60 bytes, and one claiming more than zlib
+        // can expand its compressed block to.
+        let real = zlib_file(&data, 10, None, extent);
+        let csizes: Vec<u64> = {
+            let at = appended_at(&real) + 24;
+            (0..3).map(|i| u64::from_le_bytes(real[at + 8 * i..at + 8 * i + 8].try_into().unwrap())).collect()
+        };
+        refused(&zlib_file(&data, 10, Some([vec![3, 1 << 60, 4], csizes.clone()].concat()), extent), "claims");
+        refused(&zlib_file(&data, 10, Some([vec![3, 10, 4], vec![csizes[0], u64::MAX - 8, csizes[2]]].concat()), extent), "truncated");
+        // A block whose stream expands beyond its header's size stops there.
+        let bomb = vec![7u8; 1 << 20];
+        let f = zlib_file(&bomb, 1 << 20, Some(vec![1, 24, 24, 0]), extent);
+        let csize = (f.len() - appended_at(&f) - 32 - b"</AppendedData></VTKFile>".len()) as u64;
+        refused(&zlib_file(&bomb, 1 << 20, Some(vec![1, 24, 24, csize]), extent), "holds 25 bytes or more, header says 24");
+        // Blocks past the values are not read: of a stream of four 10-byte
+        // blocks whose fourth is corrupt, a 24-value array reads the first three.
+        let long: Vec<u8> = (0..40).collect();
+        let good = zlib_file(&long, 10, None, extent);
+        let at = appended_at(&good);
+        let mut words: Vec<u64> = (0..7).map(|i| u64::from_le_bytes(good[at + 8 * i..at + 8 * i + 8].try_into().unwrap())).collect();
+        words[6] = u64::MAX;
+        let more = zlib_file(&long, 10, Some(words), extent);
+        assert_eq!(parse_vti(&more, None).unwrap().grid.values, data.iter().map(|&b| b as f32).collect::<Vec<_>>());
+        // An uncompressed header, and an appended offset, near 2^64.
+        let mut g = write_vti_bytes(&grid(), [0.0; 3], [1.0; 3], "v");
+        let at = appended_at(&g);
+        g[at..at + 8].copy_from_slice(&(u64::MAX - 4).to_le_bytes());
+        refused(&g, "truncated");
+        let g = String::from_utf8_lossy(&write_vti_bytes(&grid(), [0.0; 3], [1.0; 3], "v")).replace("offset=\"0\"", "offset=\"18446744073709551615\"");
+        refused(g.as_bytes(), "beyond end of file");
     }
 }
