@@ -204,7 +204,7 @@ mod tests {
             let scale_x = codes(n, 7);
             let rbits: Vec<u8> = (0..n / 2).map(|i| 1 + (i % bits as usize) as u8).collect();
             let mut rotation: Vec<u16> = codes(3 * rbits.len(), bits);
-            rotation.iter_mut().enumerate().for_each(|(i, r)| *r &= (1 << rbits[i % rbits.len()]) - 1);
+            rotation.iter_mut().enumerate().for_each(|(i, r)| *r &= ((1u32 << rbits[i % rbits.len()]) - 1) as u16);
             let cases: Vec<(Stream, Vec<u16>)> = vec![
                 (Stream::Scale { bits }, codes(3 * n, bits)),
                 (Stream::RotationIndex, codes(n, 2)),
