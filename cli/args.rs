@@ -222,8 +222,19 @@ pub struct ItemFiles {
 }
 
 impl ItemFiles {
-    fn read(&self, path: &Path, comps: usize) -> Result<Vec<f64>> {
-        raw::read_items(path, self.dtype, comps, raw::Rows { count: self.count, row: self.row })
+    fn rows(&self) -> raw::Rows {
+        raw::Rows { count: self.count, row: self.row }
+    }
+
+    /// The first array of an input, read whole, and how many items it holds
+    /// (every row): the bound on each other array's read ([`Self::read`]).
+    fn read_first(&self, path: &Path, comps: usize) -> Result<(Vec<f64>, usize)> {
+        raw::read_items_counted(path, self.dtype, comps, self.rows())
+    }
+
+    /// Another array of the input whose first array holds `held` items.
+    fn read(&self, path: &Path, comps: usize, held: usize) -> Result<Vec<f64>> {
+        raw::read_items_beside(path, self.dtype, comps, self.rows(), held)
     }
 }
 
@@ -274,11 +285,12 @@ impl ParticleInput {
     pub fn load(&self, row: Option<usize>) -> Result<ParticleArrays> {
         let mut f = self.files.clone();
         f.row = row.unwrap_or(f.row);
-        let positions = triples(f.read(&self.positions, 3)?);
-        let smoothing_length = f.read(&self.smoothing_length, 1)?;
-        let values = to_f32(f.read(&self.values, 1)?);
+        let (positions, held) = f.read_first(&self.positions, 3)?;
+        let positions = triples(positions);
+        let smoothing_length = f.read(&self.smoothing_length, 1, held)?;
+        let values = to_f32(f.read(&self.values, 1, held)?);
         let mass = match &self.mass {
-            Some(p) => to_f32(f.read(p, 1)?),
+            Some(p) => to_f32(f.read(p, 1, held)?),
             None => vec![1.0; positions.len()],
         };
         Ok(ParticleArrays { positions, smoothing_length, mass, values })
@@ -323,11 +335,12 @@ impl CellArrays {
 impl CellInput {
     pub fn load(&self) -> Result<CellArrays> {
         let f = &self.files;
-        let centres = triples(f.read(&self.centers, 3)?);
-        let values = to_f32(f.read(&self.values, 1)?);
+        let (centres, held) = f.read_first(&self.centers, 3)?;
+        let centres = triples(centres);
+        let values = to_f32(f.read(&self.values, 1, held)?);
         let (edges, volumes) = match (&self.sizes, &self.volumes) {
-            (Some(p), _) => (triples(f.read(p, 3)?), vec![]),
-            (None, Some(p)) => (vec![], f.read(p, 1)?),
+            (Some(p), _) => (triples(f.read(p, 3, held)?), vec![]),
+            (None, Some(p)) => (vec![], f.read(p, 1, held)?),
             (None, None) => return Err(Error::arg("give --sizes or --volumes")),
         };
         Ok(CellArrays { centres, edges, volumes, values })

@@ -155,8 +155,8 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     let files = &a.input.files;
     let count = files.count.ok_or_else(|| Error::arg("encode-series needs --count (particles per step)"))?;
     let dtype = files.dtype;
-    let value_bytes = raw::read_bytes(&a.input.values)?.len();
-    let rows = value_bytes / (count * dtype.size()).max(1);
+    let value_bytes = raw::content_len(&a.input.values)?;
+    let rows = usize::try_from(value_bytes / (count * dtype.size()).max(1) as u64).unwrap_or(usize::MAX);
     let steps = parse_steps(a.steps.as_deref(), rows)?;
     let (warm, payload) = (a.warm, a.payload);
     let range = match a.values.spec()? {
@@ -325,7 +325,7 @@ pub struct PlotSeriesArgs {
 /// Final validation PSNR per step of one `encode-series` CSV, and its label:
 /// the warm start of its warm-started steps, or "independent".
 fn read_series_csv(path: &Path) -> Result<(String, Vec<(f64, f64)>)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = gsenc::io::read_whole(path)?;
     let text = String::from_utf8_lossy(&bytes);
     let mut lines = text.lines();
     if lines.next() != Some("field,step,start,iteration,validation_psnr") {

@@ -355,6 +355,17 @@ fn particles_encode_deposit_and_eval_agree() {
     ]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("row 2"), "{err}");
+    // A device as the first array is refused unread; as another array, it is
+    // read no further than the first array's items.
+    #[cfg(unix)]
+    for (positions, hh, code, says) in [("/dev/zero".to_owned(), s(&hh), 2, "is a device"), (s(&pos), "/dev/zero".to_owned(), 3, "more than 1200 items")] {
+        let (c, _, err) = gsenc(&[
+            "deposit", "particles", "--positions", &positions, "--smoothing-length", &hh, "--values", &s(&val),
+            "--count", "600", "--dims", "8", "-o", dir.join("x.raw").to_str().unwrap(),
+        ]);
+        assert_eq!(c, code, "{err}");
+        assert!(err.contains("/dev/zero") && err.contains(says), "{err}");
+    }
     let zero_hh = dir.join("hh_zero.f32");
     write_f32(&zero_hh, &[0.0; 1200]);
     let (code, _, err) = gsenc(&[

@@ -38,4 +38,64 @@ pub fn hdf5_signature(path: &std::path::Path) -> std::io::Result<bool> {
         Err(e) => Err(e),
     }
 }
+/// The whole content of a file or a pipe, refusing a device (`/dev/zero`, a
+/// disk, a terminal) unread: its content may have no end to read to. The
+/// readers of whole files (`.vti`, step indexes, CSV) read through it.
+pub fn read_whole(path: &std::path::Path) -> crate::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut file = std::fs::File::open(path).map_err(|e| crate::Error::io(path, e))?;
+    if is_device(&file) {
+        return Err(device_error(path));
+    }
+    let mut bytes = Vec::with_capacity(file.metadata().map_or(0, |m| usize::try_from(m.len()).unwrap_or(0)));
+    file.read_to_end(&mut bytes).map_err(|e| crate::Error::io(path, e))?;
+    Ok(bytes)
+}
+
+fn device_error(path: &std::path::Path) -> crate::Error {
+    crate::Error::arg(format!("{}: is a device, whose content has no end to read to; give a file or a pipe", path.display()))
+}
+
+/// Whether `file` is a character or block device (`/dev/zero`, a disk, a
+/// terminal): one that can be read without end, unlike a file or a pipe.
+fn is_device(file: &std::fs::File) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        file.metadata().is_ok_and(|m| m.file_type().is_char_device() || m.file_type().is_block_device())
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = file;
+        false
+    }
+}
+
 pub use models::{read_field, read_model_file, read_step, ModelFolder};
+
+#[cfg(test)]
+mod tests {
+    use crate::Error;
+
+    /// Whole-file readers refuse a device by name, before reading it (a read
+    /// of `/dev/zero` to its end would never return), and read files whole.
+    #[cfg(unix)]
+    #[test]
+    fn whole_file_readers_refuse_devices() {
+        let zero = std::path::Path::new("/dev/zero");
+        let errors = [
+            super::read_whole(zero).unwrap_err(),
+            super::vti::read_vti(zero, None).unwrap_err(),
+            super::read_step(zero).map(|_| ()).unwrap_err(),
+        ];
+        for e in errors {
+            assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("/dev/zero") && m.contains("is a device")), "{e}");
+        }
+        let p = std::env::temp_dir().join(format!("gsenc-read-whole-{}", std::process::id()));
+        std::fs::write(&p, b"\xffwhole").unwrap();
+        assert_eq!(super::read_whole(&p).unwrap(), b"\xffwhole");
+        let e = super::read_step(&p).map(|_| ()).unwrap_err();
+        assert!(matches!(&e, Error::Format(m) if m.contains("not a step index")), "{e}");
+        std::fs::remove_file(&p).unwrap();
+    }
+}

@@ -55,7 +55,8 @@ pub fn read_model_file(path: &Path) -> Result<ModelFile> {
 /// Reads a step index and every rank's model it names (rank order),
 /// checking that each is the piece the index says.
 pub fn read_step(index_path: &Path) -> Result<(StepIndex, Vec<Model>)> {
-    let text = std::fs::read_to_string(index_path).map_err(|e| Error::io(index_path, e))?;
+    let bytes = super::read_whole(index_path)?;
+    let text = String::from_utf8(bytes).map_err(|_| Error::format(format!("{}: not a step index (not UTF-8 text)", index_path.display())))?;
     let index = StepIndex::from_json(&text).map_err(|e| e.in_context(&index_path.display().to_string()))?;
     let dir = index_path.parent().unwrap_or(Path::new("."));
     let mut models = Vec::with_capacity(index.pieces.len());

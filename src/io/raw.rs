@@ -99,7 +99,9 @@ fn raw_len(dims: [usize; 3], dtype: DType) -> Result<usize> {
 }
 
 /// The bytes of a raw array file; a file named `*.zst` is one or more zstd
-/// frames, decompressed here (how the repository's `data/` is stored).
+/// frames, decompressed here (how the repository's `data/` is stored). The
+/// file is read to its end, so a device (`/dev/zero`) is refused unread; see
+/// [`read_bytes_at_most`] for a read whose length is known.
 pub fn read_bytes(path: impl AsRef<Path>) -> Result<Vec<u8>> {
     read_upto(path.as_ref(), u64::MAX)
 }
@@ -116,16 +118,46 @@ pub fn read_bytes_at_most(path: impl AsRef<Path>, limit: usize) -> Result<Vec<u8
 
 fn read_upto(path: &Path, cap: u64) -> Result<Vec<u8>> {
     let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    if cap == u64::MAX && super::is_device(&file) {
+        return Err(super::device_error(path));
+    }
     let mut out = Vec::new();
-    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zst")) {
+    if !is_zst(path) {
         let size = file.metadata().map_or(0, |m| m.len());
         out.reserve(usize::try_from(size.min(cap)).unwrap_or(0));
         file.take(cap).read_to_end(&mut out).map_err(|e| Error::io(path, e))?;
         return Ok(out);
     }
-    let not_zstd = |e: std::io::Error| Error::data(format!("{}: not a complete zstd-compressed file ({e})", path.display()));
+    let not_zstd = |e| not_zstd(path, e);
     zstd::stream::read::Decoder::new(file).map_err(not_zstd)?.take(cap).read_to_end(&mut out).map_err(not_zstd)?;
     Ok(out)
+}
+
+/// How many bytes [`read_bytes`] would return, without holding them: a
+/// regular file's length, a `.zst` file's decompressed length (decompressed
+/// to count it), a pipe's (read to its end, so it is spent).
+pub fn content_len(path: impl AsRef<Path>) -> Result<u64> {
+    let path = path.as_ref();
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    if super::is_device(&file) {
+        return Err(super::device_error(path));
+    }
+    if !is_zst(path) {
+        match file.metadata() {
+            Ok(m) if m.is_file() => return Ok(m.len()),
+            _ => return std::io::copy(&mut &file, &mut std::io::sink()).map_err(|e| Error::io(path, e)),
+        }
+    }
+    let not_zstd = |e| not_zstd(path, e);
+    std::io::copy(&mut zstd::stream::read::Decoder::new(file).map_err(not_zstd)?, &mut std::io::sink()).map_err(not_zstd)
+}
+
+fn not_zstd(path: &Path, e: std::io::Error) -> Error {
+    Error::data(format!("{}: not a complete zstd-compressed file ({e})", path.display()))
+}
+
+fn is_zst(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("zst"))
 }
 
 /// Reads a raw grid file (see [`read_bytes`]), no more of it than the grid
@@ -191,10 +223,38 @@ pub fn parse_items(bytes: &[u8], dtype: DType, comps: usize, rows: Rows, what: &
     })
 }
 
-/// Reads per-item arrays from a file (see [`parse_items`]).
+/// Reads per-item arrays from a file (see [`parse_items`]). The file is read
+/// whole (a regular file, a pipe or a `.zst`); see [`read_items_beside`] for
+/// the other arrays of the same items.
 pub fn read_items(path: impl AsRef<Path>, dtype: DType, comps: usize, rows: Rows) -> Result<Vec<f64>> {
+    Ok(read_items_counted(path.as_ref(), dtype, comps, rows)?.0)
+}
+
+/// As [`read_items`], with how many items the whole file holds (every row):
+/// what the other arrays of the same items must hold ([`read_items_beside`]).
+pub fn read_items_counted(path: &Path, dtype: DType, comps: usize, rows: Rows) -> Result<(Vec<f64>, usize)> {
+    let bytes = read_bytes(path)?;
+    let held = bytes.len() / (comps * dtype.size()).max(1);
+    Ok((parse_items(&bytes, dtype, comps, rows, &path.display().to_string())?, held))
+}
+
+/// Reads another array of items whose first array holds `held` items (every
+/// row), as [`read_items`], but no further than `held` items take: a file
+/// that holds more (an endless stream, a zstd file that expands beyond them)
+/// is refused unread past them. One that holds fewer is read, for the
+/// caller's check of the arrays' lengths to name both.
+pub fn read_items_beside(path: impl AsRef<Path>, dtype: DType, comps: usize, rows: Rows, held: usize) -> Result<Vec<f64>> {
     let path = path.as_ref();
-    parse_items(&read_bytes(path)?, dtype, comps, rows, &path.display().to_string())
+    let want = held.checked_mul(comps * dtype.size()).ok_or_else(|| Error::arg("item count overflows"))?;
+    let bytes = read_bytes_at_most(path, want)?;
+    if bytes.len() > want {
+        return Err(Error::data(format!(
+            "{}: holds more than {held} items of {comps} values of {} bytes, the number the input's first array holds",
+            path.display(),
+            dtype.size()
+        )));
+    }
+    parse_items(&bytes, dtype, comps, rows, &path.display().to_string())
 }
 
 /// A grid as little-endian float32, x fastest.
@@ -282,6 +342,68 @@ mod tests {
             assert_eq!(read_raw(&fifo, dims, DType::F32, Order::XFastest).unwrap().values, values);
             writer.join().unwrap();
         }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// The first array of an input is read whole, but not from a device; the
+    /// others read no further than the first's items take, so that longer
+    /// files, endless streams and zstd bombs are refused by name, while a
+    /// shorter one is read for the caller's length check.
+    #[test]
+    fn item_arrays_read_no_more_than_their_first() {
+        let dir = std::env::temp_dir().join(format!("gsenc-raw-items-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let all = Rows { count: None, row: 0 };
+        let pos: Vec<f32> = (0..30).map(|i| i as f32).collect();
+        std::fs::write(dir.join("pos.f32"), to_f32_bytes(&pos)).unwrap();
+        let (first, held) = read_items_counted(&dir.join("pos.f32"), DType::F32, 3, all).unwrap();
+        assert_eq!((first.len(), held), (30, 10));
+        // Two rows of five: all ten items count, whichever row is read.
+        let (row1, held) = read_items_counted(&dir.join("pos.f32"), DType::F32, 3, Rows { count: Some(5), row: 1 }).unwrap();
+        assert_eq!((row1[0], held), (15.0, 10));
+        std::fs::write(dir.join("h.f32"), to_f32_bytes(&[0.5; 10])).unwrap();
+        assert_eq!(read_items_beside(dir.join("h.f32"), DType::F32, 1, all, 10).unwrap(), vec![0.5; 10]);
+        std::fs::write(dir.join("short.f32"), to_f32_bytes(&[0.5; 9])).unwrap();
+        assert_eq!(read_items_beside(dir.join("short.f32"), DType::F32, 1, all, 10).unwrap().len(), 9);
+        std::fs::write(dir.join("long.f32"), to_f32_bytes(&[0.5; 11])).unwrap();
+        let mut enc = zstd::stream::write::Encoder::new(Vec::new(), 3).unwrap();
+        let zeros = vec![0u8; 1 << 20];
+        for _ in 0..1024 {
+            std::io::Write::write_all(&mut enc, &zeros).unwrap();
+        }
+        std::fs::write(dir.join("bomb.f32.zst"), enc.finish().unwrap()).unwrap();
+        let mut longer = vec![dir.join("long.f32"), dir.join("bomb.f32.zst")];
+        if cfg!(unix) {
+            longer.push("/dev/zero".into());
+        }
+        for p in &longer {
+            let e = read_items_beside(p, DType::F32, 1, all, 10).unwrap_err();
+            let name = p.file_name().unwrap().to_string_lossy().into_owned();
+            assert!(matches!(&e, Error::InvalidData(m) if m.contains(&name) && m.contains("more than 10 items")), "{e}");
+        }
+        #[cfg(unix)]
+        {
+            for e in [read_items("/dev/zero", DType::F32, 3, all).unwrap_err(), content_len("/dev/zero").unwrap_err()] {
+                assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("/dev/zero") && m.contains("is a device")), "{e}");
+            }
+            // A pipe is read to its end, and counted the same way.
+            let fifo = dir.join("pos.fifo");
+            assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo runs").success());
+            for counted in [false, true] {
+                let writer = std::thread::spawn({
+                    let (fifo, bytes) = (fifo.clone(), to_f32_bytes(&pos));
+                    move || std::fs::write(fifo, bytes).unwrap()
+                });
+                match counted {
+                    false => assert_eq!(read_items(&fifo, DType::F32, 3, all).unwrap(), first),
+                    true => assert_eq!(content_len(&fifo).unwrap(), 120),
+                }
+                writer.join().unwrap();
+            }
+        }
+        // A file's length without reading it, and a .zst's decompressed length.
+        assert_eq!(content_len(dir.join("pos.f32")).unwrap(), 120);
+        assert_eq!(content_len(dir.join("bomb.f32.zst")).unwrap(), 1 << 30);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -349,7 +349,7 @@ fn find_bytes(hay: &[u8], needle: &[u8]) -> Option<usize> {
 
 pub fn read_vti(path: impl AsRef<Path>, array: Option<&str>) -> Result<VtiGrid> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = super::read_whole(path)?;
     parse_vti(&bytes, array).map_err(|e| match e {
         Error::Format(m) => Error::Format(format!("{}: {m}", path.display())),
         other => other,
