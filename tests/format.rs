@@ -410,6 +410,35 @@ fn step_index_round_trips_and_refuses_other_json() {
     assert!(matches!(StepIndex::from_json(&newer), Err(gsenc::Error::Version(_))));
     let missing_rank = text.replace("\"ranks\": 2", "\"ranks\": 3");
     assert!(StepIndex::from_json(&missing_rank).unwrap_err().to_string().contains("ranks"));
+
+    // A layout the decode cannot trust is refused by what is wrong with it.
+    let with = |edit: &dyn Fn(&mut serde_json::Value)| {
+        let mut v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        edit(&mut v);
+        StepIndex::from_json(&v.to_string())
+    };
+    let bad: [(&dyn Fn(&mut serde_json::Value), &str); 10] = [
+        (&|v| v["gamma"] = 0.0.into(), "voxels a world unit"),
+        (&|v| v["gamma"] = (-16.0).into(), "voxels a world unit"),
+        (&|v| v["dims"][2] = 0.into(), "empty or too large"),
+        (&|v| v["dims"] = serde_json::json!([1u64 << 32, 1u64 << 32, 1u64 << 32]), "empty or too large"),
+        (&|v| v["range"]["transform"] = "sqrt".into(), "unknown transform 'sqrt'"),
+        (&|v| v["range"]["vmax"] = 0.1.into(), "max > min"),
+        (&|v| v["halo"] = 33.into(), "halo of 33"),
+        (&|v| v["pieces"][1]["hi"][0] = 33.into(), "rank 1's voxels"),
+        (&|v| v["pieces"][0]["lo"][1] = 16.into(), "rank 0's voxels"),
+        (&|v| {
+            v["ranks"] = 0.into();
+            v["pieces"] = serde_json::json!([]);
+        }, "no pieces"),
+    ];
+    for (edit, says) in bad {
+        let e = with(edit).unwrap_err();
+        assert!(matches!(&e, gsenc::Error::Format(m) if m.contains(says)), "{says}: {e}");
+    }
+    // The edits are what made them fail: the same path to an edit that keeps
+    // the index as it was reads.
+    assert_eq!(with(&|v| v["halo"] = 4.into()).unwrap(), index);
 }
 
 #[test]

@@ -81,7 +81,7 @@ impl IndexFrame {
             let voxels = (piece.bmin[a] - self.bmin[a]) * self.gamma;
             if voxels < -LATTICE_TOLERANCE || (voxels - voxels.round()).abs() > LATTICE_TOLERANCE {
                 return Err(Error::arg(format!(
-                    "the piece starts {voxels} voxels from the global corner along axis {a}: it is not on the global lattice"
+                    "the piece starts {voxels:?} voxels from the global corner along axis {a}: it is not on the global lattice"
                 )));
             }
             lo[a] = voxels.round() as usize;

@@ -3,7 +3,7 @@
 //! every piece (docs/FORMAT.md "The step index").
 
 use crate::error::{Error, Result};
-use crate::field::{IndexBox, IndexFrame, ValueRange};
+use crate::field::{IndexBox, IndexFrame, Transform, ValueRange};
 use crate::model::Model;
 
 /// What rank 0 writes beside each step's per-rank models, so that a reader
@@ -110,7 +110,36 @@ impl StepIndex {
         if index.pieces.len() != index.ranks || index.pieces.iter().enumerate().any(|(i, p)| p.rank as usize != i) {
             return Err(Error::format("step index: the pieces do not list ranks 0..ranks once each"));
         }
+        index.check_layout().map_err(|m| Error::format(format!("step index: {m}")))?;
         Ok(index)
+    }
+
+    /// What the decode trusts of an index beyond its shape: a lattice of
+    /// whole voxels with a finite corner and a positive voxel size, a known
+    /// transform and a range of max > min, at least one piece, each a
+    /// non-empty box within the lattice, and a halo no wider than it.
+    fn check_layout(&self) -> std::result::Result<(), String> {
+        let voxels = self.dims.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
+        if self.dims.contains(&0) || voxels.is_none() {
+            return Err(format!("its lattice {:?} is empty or too large", self.dims));
+        }
+        if !(self.gamma.is_finite() && self.gamma > 0.0) || self.bmin.iter().any(|b| !b.is_finite()) {
+            return Err(format!("its lattice has corner {:?} and {:?} voxels a world unit (finite, and positive voxels, wanted)", self.bmin, self.gamma));
+        }
+        let transform = Transform::from_name(&self.range.transform).ok_or_else(|| format!("unknown transform '{}'", self.range.transform))?;
+        ValueRange::new(self.range.vmin, self.range.vmax, transform).map_err(|e| e.to_string())?;
+        if self.pieces.is_empty() {
+            return Err("it lists no pieces".into());
+        }
+        for p in &self.pieces {
+            if (0..3).any(|a| p.lo[a] >= p.hi[a] || p.hi[a] > self.dims[a]) {
+                return Err(format!("rank {}'s voxels {:?}..{:?} are not a box within the lattice {:?}", p.rank, p.lo, p.hi, self.dims));
+            }
+        }
+        if self.halo > self.dims.iter().copied().max().unwrap_or(0) {
+            return Err(format!("a halo of {} voxels is wider than the lattice {:?}", self.halo, self.dims));
+        }
+        Ok(())
     }
 
     /// The global frame and every piece's box.
@@ -124,7 +153,6 @@ impl StepIndex {
     pub fn check_pieces(&self, pieces: &[Model]) -> Result<()> {
         let global = IndexFrame { dims: self.dims, bmin: self.bmin, gamma: self.gamma };
         for (p, m) in self.pieces.iter().zip(pieces) {
-            let b = global.box_of(&m.meta.frame)?;
             let what = || format!("the model of rank {} ({})", p.rank, p.model);
             if m.meta.field != self.field || m.meta.step != self.step || m.meta.rank != p.rank {
                 return Err(Error::data(format!(
@@ -132,6 +160,13 @@ impl StepIndex {
                     what(), m.meta.field, m.meta.step, m.meta.rank, self.field, self.step, p.rank
                 )));
             }
+            if (m.meta.frame.gamma - self.gamma).abs() > 1e-12 * self.gamma || m.meta.range.transform.name() != self.range.transform {
+                return Err(Error::data(format!(
+                    "{} has {:?} voxels a world unit and transform {}, the index {:?} and {}",
+                    what(), m.meta.frame.gamma, m.meta.range.transform.name(), self.gamma, self.range.transform
+                )));
+            }
+            let b = global.box_of(&m.meta.frame)?;
             if b.lo != p.lo || b.hi != p.hi {
                 return Err(Error::data(format!("{} covers voxels {:?}..{:?}, the index says {:?}..{:?}", what(), b.lo, b.hi, p.lo, p.hi)));
             }

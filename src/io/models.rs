@@ -94,7 +94,7 @@ pub fn read_field(paths: &[PathBuf]) -> Result<GlobalField> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::field::{IndexFrame, Transform, ValueRange};
+    use crate::field::{IndexBox, IndexFrame, Transform, ValueRange};
     use crate::format::write_model;
     use crate::model::ModelMeta;
 
@@ -119,6 +119,42 @@ mod tests {
             assert_eq!(read_model_bytes(Path::new("/dev/zero")).unwrap(), vec![0; 8]);
             let e = read_model_file(Path::new("/dev/zero")).unwrap_err();
             assert!(matches!(&e, Error::Format(m) if m.contains("/dev/zero") && m.contains("magic")), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A step's models are checked against its index: a model of another
+    /// voxel size or transform than the index says is refused by name, as a
+    /// model of another box is, and the models the index names read.
+    #[test]
+    fn a_step_reads_only_the_models_its_index_names() {
+        let dir = std::env::temp_dir().join(format!("gsenc-read-step-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let global = IndexFrame { dims: [8, 4, 4], bmin: [0.0; 3], gamma: 4.0 };
+        let boxes = [IndexBox { lo: [0; 3], hi: [5, 4, 4] }, IndexBox { lo: [3, 0, 0], hi: [8, 4, 4] }];
+        let range = ValueRange::new(0.0, 2.0, Transform::Linear).unwrap();
+        let names = vec![model_file_name("rho", 3, 0), model_file_name("rho", 3, 1)];
+        let index = StepIndex::new("rho", 3, None, &range, &global, &boxes, 1, names.clone());
+        std::fs::write(dir.join("rho_000003.gsi"), index.to_json()).unwrap();
+        let piece = |rank: usize, frame: IndexFrame, range: ValueRange| {
+            let mut meta = ModelMeta::new(frame, range);
+            (meta.field, meta.step, meta.rank) = ("rho".into(), 3, rank as u32);
+            let model = Model { meta, params: vec![crate::math::kernel::isotropic([1.0; 3], 1.0, 0.5, 0.5)], support: None };
+            std::fs::write(dir.join(&names[rank]), write_model(&model).unwrap()).unwrap();
+        };
+        for (rank, b) in boxes.iter().enumerate() {
+            piece(rank, global.sub_frame(b), range);
+        }
+        let (read, models) = read_step(&dir.join("rho_000003.gsi")).unwrap();
+        assert_eq!((read, models.len()), (index.clone(), 2));
+        assert_eq!(models[1].meta.frame, global.sub_frame(&boxes[1]));
+        let finer = IndexFrame { gamma: 8.0, ..global.sub_frame(&boxes[1]) };
+        let logged = ValueRange { transform: Transform::Log10, ..range };
+        let shifted = global.sub_frame(&IndexBox { lo: [2, 0, 0], hi: [7, 4, 4] });
+        for (frame, range, says) in [(finer, range, "8.0 voxels a world unit"), (global.sub_frame(&boxes[1]), logged, "transform log10"), (shifted, range, "covers voxels [2, 0, 0]")] {
+            piece(1, frame, range);
+            let e = read_step(&dir.join("rho_000003.gsi")).map(|_| ()).unwrap_err();
+            assert!(matches!(&e, Error::InvalidData(m) if m.contains("rank 1") && m.contains(says)), "{says}: {e}");
         }
         std::fs::remove_dir_all(&dir).unwrap();
     }
