@@ -1,0 +1,61 @@
+//! The forward pass alone (`Backend::evaluate_points`): each work chunk's
+//! points evaluated over their brick's candidates, loaded into lanes once a
+//! brick. The same lane code as the training pass's forward (`lanes.rs`).
+
+use super::binning::PointBins;
+use super::lanes::BrickSoa;
+use super::simd::simd_dispatch;
+use super::{CpuBackend, Prepared};
+use crate::backend::bricks::PointBricks;
+use crate::backend::check_len;
+use crate::error::Result;
+use crate::math::kernel::Primitive;
+use rayon::prelude::*;
+use std::borrow::Cow;
+
+simd_dispatch!(fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) => eval_chunk);
+
+/// `(point, rho, n)` for the points of bricks `b0..b1`, and the kernel count.
+#[inline(always)]
+fn eval_chunk(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], (b0, b1): (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
+    let mut soa = BrickSoa::default();
+    let mut out = vec![];
+    let mut evals = 0;
+    for b in b0..b1 {
+        let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
+        soa.load(&prep.hot, &prep.boxes, cands, false);
+        let (s, e) = bins.bricks.ranges[b];
+        for &pi in &bins.bricks.order[s as usize..e as usize] {
+            let (r, nn) = soa.forward(pos[pi as usize], &mut evals);
+            out.push((pi, r, nn));
+        }
+    }
+    (out, evals)
+}
+
+impl CpuBackend {
+    /// [`crate::backend::Backend::evaluate_points`].
+    pub(super) fn forward_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
+        check_len("rho", rho.len(), pos.len())?;
+        check_len("n", n.len(), pos.len())?;
+        if pos.is_empty() {
+            return Ok(());
+        }
+        self.prep.update(params);
+        let bins = self.bin_points(Cow::Owned(PointBricks::new(pos, self.brick)));
+        let ranges = Self::work_ranges(&bins);
+        let prep = &self.prep;
+        let results: Vec<(Vec<(u32, f32, f32)>, u64)> = ranges
+            .par_iter()
+            .map(|&range| eval_chunk_dispatch(prep, &bins, pos, range))
+            .collect();
+        for (part, evals) in results {
+            self.evaluations += evals;
+            for (i, r, nn) in part {
+                rho[i as usize] = r;
+                n[i as usize] = nn;
+            }
+        }
+        Ok(())
+    }
+}
