@@ -117,7 +117,9 @@ impl StepIndex {
     /// What the decode trusts of an index beyond its shape: a lattice of
     /// whole voxels with a finite corner and a positive voxel size, a known
     /// transform and a range of max > min, at least one piece, each a
-    /// non-empty box within the lattice, and a halo no wider than it.
+    /// non-empty box within the lattice. (Any halo is one: the blend's ramp
+    /// only divides by it, and a run may ask for one wider than its
+    /// lattice.)
     fn check_layout(&self) -> std::result::Result<(), String> {
         let voxels = self.dims.iter().try_fold(1usize, |n, &d| n.checked_mul(d));
         if self.dims.contains(&0) || voxels.is_none() {
@@ -135,9 +137,6 @@ impl StepIndex {
             if (0..3).any(|a| p.lo[a] >= p.hi[a] || p.hi[a] > self.dims[a]) {
                 return Err(format!("rank {}'s voxels {:?}..{:?} are not a box within the lattice {:?}", p.rank, p.lo, p.hi, self.dims));
             }
-        }
-        if self.halo > self.dims.iter().copied().max().unwrap_or(0) {
-            return Err(format!("a halo of {} voxels is wider than the lattice {:?}", self.halo, self.dims));
         }
         Ok(())
     }

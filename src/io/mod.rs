@@ -18,6 +18,7 @@ pub mod store;
 pub mod vti;
 
 pub use atomic::{write_atomic, AtomicFile};
+pub use models::{read_field, read_model_file, read_step, ModelFolder};
 
 /// Whether `path` starts with HDF5's signature (an HDF5 store, as opposed
 /// to a model file); false when it cannot be read. Builds without the
@@ -38,6 +39,7 @@ pub fn hdf5_signature(path: &std::path::Path) -> std::io::Result<bool> {
         Err(e) => Err(e),
     }
 }
+
 /// The whole content of a file or a pipe, refusing a device (`/dev/zero`, a
 /// disk, a terminal) unread: its content may have no end to read to. The
 /// readers of whole files (`.vti`, step indexes, CSV) read through it.
@@ -70,8 +72,6 @@ fn is_device(file: &std::fs::File) -> bool {
         false
     }
 }
-
-pub use models::{read_field, read_model_file, read_step, ModelFolder};
 
 #[cfg(test)]
 mod tests {
