@@ -2,7 +2,7 @@
 # Fuzzes the readers of foreign files for a bounded time each: the model
 # reader (fuzz/fuzz_targets/model_reader.rs, seeds in fuzz/seeds) and the
 # .vti reader (vti_reader.rs, seeds in fuzz/vti-seeds). FUZZ_SECONDS a target,
-# default 20, from a fixed libFuzzer seed (FUZZ_SEED, default 1) so that CI
+# default 12, from a fixed libFuzzer seed (FUZZ_SEED, default 1) so that CI
 # explores the same inputs every run; set another seed or a longer time to
 # explore further. Any panic, hang (10 s an input) or allocation over 2 GiB
 # fails the run and leaves the input in fuzz/artifacts/. Runs on stable Rust:
@@ -14,7 +14,7 @@ if ! cargo fuzz --version >/dev/null 2>&1; then
     # Unoptimised: it only runs cargo, and builds in 22 s instead of 40 (2 cores).
     cargo install cargo-fuzz --locked --version 0.13.2 --debug
 fi
-seconds="${FUZZ_SECONDS:-20}"
+seconds="${FUZZ_SECONDS:-12}"
 for target in model_reader:seeds vti_reader:vti-seeds; do
     name="${target%%:*}"
     mkdir -p "corpus/$name"
