@@ -18,6 +18,13 @@ pub struct IndexFrame {
 }
 
 impl IndexFrame {
+    /// Whether a frame read from a file can be decoded on: no empty axis, a
+    /// finite corner, a finite positive voxel size. The readers of model
+    /// headers, store entries and step indexes check it.
+    pub fn is_valid(&self) -> bool {
+        !self.dims.contains(&0) && self.gamma.is_finite() && self.gamma > 0.0 && self.bmin.iter().all(|b| b.is_finite())
+    }
+
     /// `gamma = min_a D_a / (bmax_a - bmin_a)`: isotropic voxels (METHOD.md
     /// "Frames and units").
     pub fn from_bounds(dims: [usize; 3], bmin: [f64; 3], bmax: [f64; 3]) -> Result<IndexFrame> {

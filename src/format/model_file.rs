@@ -382,7 +382,8 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     if crc32fast::hash(&bytes[..bytes.len() - 4]) != stored_crc {
         return Err(Error::format("model file checksum mismatch (corrupted)"));
     }
-    if dims.iter().any(|&d| d == 0) || !(gamma.is_finite() && gamma > 0.0) || bmin.iter().any(|b| !b.is_finite()) {
+    let frame = IndexFrame { dims, bmin, gamma };
+    if !frame.is_valid() {
         return Err(Error::format("model header holds an invalid index frame"));
     }
     let range = ValueRange::new(vmin, vmax, transform).map_err(|e| Error::format(format!("model header: {e}")))?;
@@ -402,7 +403,7 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     }
     let model = Model {
         meta: ModelMeta {
-            frame: IndexFrame { dims, bmin, gamma },
+            frame,
             range,
             field,
             step,

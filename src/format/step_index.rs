@@ -125,7 +125,7 @@ impl StepIndex {
         if self.dims.contains(&0) || voxels.is_none() {
             return Err(format!("its lattice {:?} is empty or too large", self.dims));
         }
-        if !(self.gamma.is_finite() && self.gamma > 0.0) || self.bmin.iter().any(|b| !b.is_finite()) {
+        if !self.frame().is_valid() {
             return Err(format!("its lattice has corner {:?} and {:?} voxels a world unit (finite, and positive voxels, wanted)", self.bmin, self.gamma));
         }
         let transform = Transform::from_name(&self.range.transform).ok_or_else(|| format!("unknown transform '{}'", self.range.transform))?;
@@ -141,16 +141,20 @@ impl StepIndex {
         Ok(())
     }
 
+    /// The global lattice's frame.
+    pub fn frame(&self) -> IndexFrame {
+        IndexFrame { dims: self.dims, bmin: self.bmin, gamma: self.gamma }
+    }
+
     /// The global frame and every piece's box.
     pub fn layout(&self) -> (IndexFrame, Vec<IndexBox>) {
-        let global = IndexFrame { dims: self.dims, bmin: self.bmin, gamma: self.gamma };
-        (global, self.pieces.iter().map(|p| IndexBox { lo: p.lo, hi: p.hi }).collect())
+        (self.frame(), self.pieces.iter().map(|p| IndexBox { lo: p.lo, hi: p.hi }).collect())
     }
 
     /// Checks that `pieces` (the models of this index, in rank order) are
     /// the ones it names: field, step, rank, range and box.
     pub fn check_pieces(&self, pieces: &[Model]) -> Result<()> {
-        let global = IndexFrame { dims: self.dims, bmin: self.bmin, gamma: self.gamma };
+        let global = self.frame();
         for (p, m) in self.pieces.iter().zip(pieces) {
             let what = || format!("the model of rank {} ({})", p.rank, p.model);
             if m.meta.field != self.field || m.meta.step != self.step || m.meta.rank != p.rank {

@@ -45,17 +45,21 @@ pub fn hdf5_signature(path: &std::path::Path) -> std::io::Result<bool> {
 /// readers of whole files (`.vti`, step indexes, CSV) read through it.
 pub fn read_whole(path: &std::path::Path) -> crate::Result<Vec<u8>> {
     use std::io::Read;
-    let mut file = std::fs::File::open(path).map_err(|e| crate::Error::io(path, e))?;
-    if is_device(&file) {
-        return Err(device_error(path));
-    }
+    let mut file = open_to_end(path)?;
     let mut bytes = Vec::with_capacity(file.metadata().map_or(0, |m| usize::try_from(m.len()).unwrap_or(0)));
     file.read_to_end(&mut bytes).map_err(|e| crate::Error::io(path, e))?;
     Ok(bytes)
 }
 
-fn device_error(path: &std::path::Path) -> crate::Error {
-    crate::Error::arg(format!("{}: is a device, whose content has no end to read to; give a file or a pipe", path.display()))
+/// Opens `path` for a read to its end: a device is refused (InvalidArgument,
+/// naming it), since its content may have no end. [`read_whole`] and the
+/// unbounded readers of `raw` open through it.
+pub(crate) fn open_to_end(path: &std::path::Path) -> crate::Result<std::fs::File> {
+    let file = std::fs::File::open(path).map_err(|e| crate::Error::io(path, e))?;
+    if is_device(&file) {
+        return Err(crate::Error::arg(format!("{}: is a device, whose content has no end to read to; give a file or a pipe", path.display())));
+    }
+    Ok(file)
 }
 
 /// Whether `file` is a character or block device (`/dev/zero`, a disk, a

@@ -117,10 +117,10 @@ pub fn read_bytes_at_most(path: impl AsRef<Path>, limit: usize) -> Result<Vec<u8
 }
 
 fn read_upto(path: &Path, cap: u64) -> Result<Vec<u8>> {
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    if cap == u64::MAX && super::is_device(&file) {
-        return Err(super::device_error(path));
-    }
+    let file = match cap {
+        u64::MAX => super::open_to_end(path)?,
+        _ => std::fs::File::open(path).map_err(|e| Error::io(path, e))?,
+    };
     let mut out = Vec::new();
     if !is_zst(path) {
         let size = file.metadata().map_or(0, |m| m.len());
@@ -138,10 +138,7 @@ fn read_upto(path: &Path, cap: u64) -> Result<Vec<u8>> {
 /// to count it), a pipe's (read to its end, so it is spent).
 pub fn content_len(path: impl AsRef<Path>) -> Result<u64> {
     let path = path.as_ref();
-    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    if super::is_device(&file) {
-        return Err(super::device_error(path));
-    }
+    let file = super::open_to_end(path)?;
     if !is_zst(path) {
         match file.metadata() {
             Ok(m) if m.is_file() => return Ok(m.len()),

@@ -440,8 +440,8 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
         _ => return Err(bad(format!("has invalid dims {dims_raw:?}"))),
     };
     let bmin = f64s("bmin", 3)?;
-    let gamma = f64a("gamma")?;
-    if !(gamma.is_finite() && gamma > 0.0) || bmin.iter().any(|b| !b.is_finite()) {
+    let frame = IndexFrame { dims, bmin: [bmin[0], bmin[1], bmin[2]], gamma: f64a("gamma")? };
+    if !frame.is_valid() {
         return Err(bad("holds an invalid index frame".into()));
     }
     let transform_name = stra("transform")?;
@@ -449,7 +449,7 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
     let range = ValueRange::new(f64a("vmin")?, f64a("vmax")?, transform).map_err(|e| bad(e.to_string()))?;
     let unknown_is_none = |v: f64| (!v.is_nan()).then_some(v);
     let meta = ModelMeta {
-        frame: IndexFrame { dims, bmin: [bmin[0], bmin[1], bmin[2]], gamma },
+        frame,
         range,
         field: stra("field")?,
         step: u64a("step")?,
