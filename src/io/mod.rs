@@ -6,6 +6,7 @@
 //! tool, the C API and the MPI layer; never by the encoder.
 
 pub mod atomic;
+mod budget;
 pub mod image;
 pub mod models;
 pub mod plot;
@@ -41,14 +42,18 @@ pub fn hdf5_signature(path: &std::path::Path) -> std::io::Result<bool> {
 }
 
 /// The whole content of a file or a pipe, refusing a device (`/dev/zero`, a
-/// disk, a terminal) unread: its content may have no end to read to. The
-/// readers of whole files (`.vti`, step indexes, CSV) read through it.
+/// disk, a terminal) unread: its content may have no end to read to. Content
+/// beyond half the memory available (what is parsed from it takes as much
+/// again) is refused by name rather than read on (`budget`). The readers of
+/// whole files (`.vti`, step indexes, CSV) read through it.
 pub fn read_whole(path: &std::path::Path) -> crate::Result<Vec<u8>> {
-    use std::io::Read;
-    let mut file = open_to_end(path)?;
-    let mut bytes = Vec::with_capacity(file.metadata().map_or(0, |m| usize::try_from(m.len()).unwrap_or(0)));
-    file.read_to_end(&mut bytes).map_err(|e| crate::Error::io(path, e))?;
-    Ok(bytes)
+    let file = open_to_end(path)?;
+    budget::read_within(path, &file, file_len(&file), budget::whole_read_budget(1), |e| crate::Error::io(path, e))
+}
+
+/// The length of a regular file (not of a pipe, whose metadata says 0).
+fn file_len(file: &std::fs::File) -> Option<u64> {
+    file.metadata().ok().filter(|m| m.is_file()).map(|m| m.len())
 }
 
 /// Opens `path` for a read to its end: a device is refused (InvalidArgument,

@@ -100,10 +100,22 @@ fn raw_len(dims: [usize; 3], dtype: DType) -> Result<usize> {
 
 /// The bytes of a raw array file; a file named `*.zst` is one or more zstd
 /// frames, decompressed here (how the repository's `data/` is stored). The
-/// file is read to its end, so a device (`/dev/zero`) is refused unread; see
-/// [`read_bytes_at_most`] for a read whose length is known.
+/// file is read to its end, so a device (`/dev/zero`) is refused unread, and
+/// so is content beyond the memory available (a pipe without end, a `.zst`
+/// that expands without end: `budget`); see [`read_bytes_at_most`] for a
+/// read whose length is known.
 pub fn read_bytes(path: impl AsRef<Path>) -> Result<Vec<u8>> {
-    read_upto(path.as_ref(), u64::MAX)
+    read_bytes_within(path.as_ref(), super::budget::whole_read_budget(0))
+}
+
+/// [`read_bytes`], refusing content beyond `budget` bytes.
+fn read_bytes_within(path: &Path, budget: u64) -> Result<Vec<u8>> {
+    let file = super::open_to_end(path)?;
+    if !is_zst(path) {
+        return super::budget::read_within(path, &file, super::file_len(&file), budget, |e| Error::io(path, e));
+    }
+    let decoder = zstd::stream::read::Decoder::new(file).map_err(|e| not_zstd(path, e))?;
+    super::budget::read_within(path, decoder, None, budget, |e| not_zstd(path, e))
 }
 
 /// The bytes of a raw array file, as [`read_bytes`], but never more than
@@ -113,18 +125,12 @@ pub fn read_bytes(path: impl AsRef<Path>) -> Result<Vec<u8>> {
 /// expands to terabytes is refused instead of filling memory. Pipes work
 /// (`--input <(zstdcat a.zst)`).
 pub fn read_bytes_at_most(path: impl AsRef<Path>, limit: usize) -> Result<Vec<u8>> {
-    read_upto(path.as_ref(), (limit as u64).saturating_add(1))
-}
-
-fn read_upto(path: &Path, cap: u64) -> Result<Vec<u8>> {
-    let file = match cap {
-        u64::MAX => super::open_to_end(path)?,
-        _ => std::fs::File::open(path).map_err(|e| Error::io(path, e))?,
-    };
+    let path = path.as_ref();
+    let cap = (limit as u64).saturating_add(1);
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
     let mut out = Vec::new();
     if !is_zst(path) {
-        let size = file.metadata().map_or(0, |m| m.len());
-        out.reserve(usize::try_from(size.min(cap)).unwrap_or(0));
+        out.reserve(usize::try_from(super::file_len(&file).unwrap_or(0).min(cap)).unwrap_or(0));
         file.take(cap).read_to_end(&mut out).map_err(|e| Error::io(path, e))?;
         return Ok(out);
     }
@@ -229,8 +235,10 @@ pub fn read_items(path: impl AsRef<Path>, dtype: DType, comps: usize, rows: Rows
 
 /// As [`read_items`], with how many items the whole file holds (every row):
 /// what the other arrays of the same items must hold ([`read_items_beside`]).
+/// Content beyond the memory available for it and the values parsed from
+/// it (8 bytes each) is refused by name ([`read_bytes`]).
 pub fn read_items_counted(path: &Path, dtype: DType, comps: usize, rows: Rows) -> Result<(Vec<f64>, usize)> {
-    let bytes = read_bytes(path)?;
+    let bytes = read_bytes_within(path, super::budget::whole_read_budget(8 / dtype.size() as u64))?;
     let held = bytes.len() / (comps * dtype.size()).max(1);
     Ok((parse_items(&bytes, dtype, comps, rows, &path.display().to_string())?, held))
 }
@@ -342,8 +350,8 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
-    /// The first array of an input is read whole, but not from a device; the
-    /// others read no further than the first's items take, so that longer
+    /// The first array of an input is read whole, but not from a device nor
+    /// beyond the memory available; the others read no further than the first's items take, so that longer
     /// files, endless streams and zstd bombs are refused by name, while a
     /// shorter one is read for the caller's length check.
     #[test]
@@ -397,6 +405,26 @@ mod tests {
                 }
                 writer.join().unwrap();
             }
+        }
+        // The first array is bounded by the memory available: within a budget
+        // of 1 MiB, the 1 GiB bomb and an endless pipe are refused after 1 MiB.
+        let over = |e: &Error, name: &str| matches!(e, Error::Io { path, source } if path.contains(name) && source.kind() == std::io::ErrorKind::OutOfMemory);
+        assert_eq!(read_bytes_within(&dir.join("pos.f32"), 120).unwrap().len(), 120);
+        assert!(over(&read_bytes_within(&dir.join("pos.f32"), 119).unwrap_err(), "pos.f32"));
+        let e = read_bytes_within(&dir.join("bomb.f32.zst"), 1 << 20).unwrap_err();
+        assert!(over(&e, "bomb.f32.zst"), "{e}");
+        #[cfg(unix)]
+        {
+            let fifo = dir.join("endless.fifo");
+            assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo runs").success());
+            let writer = std::thread::spawn({
+                let fifo = fifo.clone();
+                // Writes until the reader has gone (a broken pipe).
+                move || std::io::copy(&mut std::io::repeat(1), &mut std::fs::File::create(fifo).unwrap()).unwrap_err()
+            });
+            let e = read_bytes_within(&fifo, 1 << 20).unwrap_err();
+            assert!(over(&e, "endless.fifo"), "{e}");
+            assert_eq!(writer.join().unwrap().kind(), std::io::ErrorKind::BrokenPipe);
         }
         // A file's length without reading it, and a .zst's decompressed length.
         assert_eq!(content_len(dir.join("pos.f32")).unwrap(), 120);
