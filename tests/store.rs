@@ -172,6 +172,22 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     }
     let e = Store::open_read(&warm).unwrap().read(&EntryKey::of(&w.meta)).unwrap_err();
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("rho/5/rank_0 has an unknown warm start 'sideways'"), "{e}");
+
+    // An entry that declares 2^40 primitives in a chunked dataset it never
+    // wrote (HDF5 would read its fill value: 52 TB) is refused unread.
+    let huge = dir.join("huge.h5");
+    Store::open_append(&huge).unwrap().append(&m, Payload::Float32).unwrap();
+    {
+        let f = hdf5::File::open_rw(&huge).unwrap();
+        let g = f.group("rho/3/rank_0").unwrap();
+        let n = 1usize << 40;
+        g.unlink("params").unwrap();
+        g.new_dataset::<f32>().shape([12, n]).chunk([12, 1024]).create("params").unwrap();
+        g.delete_attr("count").unwrap();
+        g.new_attr::<u64>().create("count").unwrap().write_scalar(&(n as u64)).unwrap();
+    }
+    let e = Store::open_read(&huge).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
+    assert!(matches!(e, Error::Format(_)) && e.to_string().contains("dataset params declares 52776558133248 bytes"), "{e}");
 }
 
 /// h5dump, from HDF5's own tools, reads the store without gsenc.

@@ -30,14 +30,22 @@ impl ModelSink for ModelFolder {
 /// The bytes of a model file, read past its first 8 only when they are the
 /// magic: what is not a model (`/dev/zero`, a stream of another format) is
 /// refused after 8 bytes instead of read to its end, which may never come.
+/// Past the magic, content beyond half the memory available (the model
+/// parsed from it takes as much again) is refused by name, so that a pipe
+/// that never ends after a model's first bytes cannot fill memory.
 /// [`read_model_file`] (the tool's, Python's and `gsenc_model_read`'s reader of
 /// a path) reads through it.
 fn read_model_bytes(path: &Path) -> Result<Vec<u8>> {
+    read_model_bytes_within(path, super::budget::whole_read_budget(1))
+}
+
+fn read_model_bytes_within(path: &Path, budget: u64) -> Result<Vec<u8>> {
     let mut file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
-    let mut bytes = Vec::with_capacity(file.metadata().map_or(0, |m| usize::try_from(m.len()).unwrap_or(0)));
+    let mut bytes = Vec::new();
     (&mut file).take(MAGIC.len() as u64).read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
     if bytes[..] == MAGIC[..] {
-        file.read_to_end(&mut bytes).map_err(|e| Error::io(path, e))?;
+        let rest = super::file_len(&file).map(|n| n.saturating_sub(MAGIC.len() as u64));
+        bytes.extend(super::budget::read_within(path, &file, rest, budget, |e| Error::io(path, e))?);
     }
     Ok(bytes)
 }
@@ -100,7 +108,8 @@ mod tests {
 
     /// A model reads whole; what does not open with the magic is refused
     /// after its first 8 bytes, so a stream without an end (`/dev/zero`)
-    /// gives an answer instead of filling memory.
+    /// gives an answer instead of filling memory, and what does is read no
+    /// further than the memory budget past them.
     #[test]
     fn model_files_are_read_only_past_their_magic() {
         let dir = std::env::temp_dir().join(format!("gsenc-model-bytes-{}", std::process::id()));
@@ -119,7 +128,25 @@ mod tests {
             assert_eq!(read_model_bytes(Path::new("/dev/zero")).unwrap(), vec![0; 8]);
             let e = read_model_file(Path::new("/dev/zero")).unwrap_err();
             assert!(matches!(&e, Error::Format(m) if m.contains("/dev/zero") && m.contains("magic")), "{e}");
+            // The magic, then a pipe without end: refused at the budget.
+            let fifo = dir.join("endless.fifo");
+            assert!(std::process::Command::new("mkfifo").arg(&fifo).status().expect("mkfifo runs").success());
+            let writer = std::thread::spawn({
+                let fifo = fifo.clone();
+                move || {
+                    let mut f = std::fs::File::create(fifo).unwrap();
+                    std::io::Write::write_all(&mut f, MAGIC).unwrap();
+                    std::io::copy(&mut std::io::repeat(0), &mut f).unwrap_err()
+                }
+            });
+            let e = read_model_bytes_within(&fifo, 1 << 20).unwrap_err();
+            assert!(matches!(&e, Error::Io { path, source } if path.contains("endless.fifo") && source.kind() == std::io::ErrorKind::OutOfMemory), "{e}");
+            assert_eq!(writer.join().unwrap().kind(), std::io::ErrorKind::BrokenPipe);
         }
+        // A model within the budget reads; one byte over it does not.
+        let rest = (bytes.len() - MAGIC.len()) as u64;
+        assert_eq!(read_model_bytes_within(&dir.join("m.gsm"), rest).unwrap(), bytes);
+        assert!(read_model_bytes_within(&dir.join("m.gsm"), rest - 1).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

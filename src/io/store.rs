@@ -407,11 +407,11 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
 fn read_support(g: &Group, info: &EntryInfo, path: &Path) -> Result<Option<Support>> {
     let Ok(ds) = g.dataset("support") else { return Ok(None) };
     let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), EntryKey::of(&info.meta).path()));
-    let bits: Vec<u8> = ds.read_raw().map_err(|e| bad(format!("support: {e}")))?;
+    let bits: Vec<u8> = read_all(&ds, "support", &bad)?;
     let support = Support::from_bits(info.meta.frame.dims, bits).map_err(|e| bad(e.to_string()))?;
     // 1.2: the decode outside it, when not zero.
     let Ok(a) = ds.attr("outside") else { return Ok(Some(support)) };
-    let v: Vec<f32> = a.read_raw().map_err(|e| bad(format!("support attribute outside: {e}")))?;
+    let v: Vec<f32> = read_all(&a, "support attribute outside", &bad)?;
     let [offset, gain] = v[..] else { return Err(bad(format!("support attribute outside holds {} values, not 2", v.len()))) };
     support.with_outside(Outside { offset, gain }).map(Some).map_err(|e| bad(e.to_string()))
 }
@@ -426,7 +426,7 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
         scalar(name)?.read_scalar::<VarLenUnicode>().map(|s| s.as_str().to_owned()).map_err(|e| bad(format!("attribute {name}: {e}")))
     };
     let f64s = |name: &str, len: usize| -> Result<Vec<f64>> {
-        let v = scalar(name)?.read_raw::<f64>().map_err(|e| bad(format!("attribute {name}: {e}")))?;
+        let v: Vec<f64> = read_all(&*scalar(name)?, &format!("attribute {name}"), &bad)?;
         if v.len() != len {
             return Err(bad(format!("attribute {name} holds {} values, not {len}", v.len())));
         }
@@ -434,7 +434,7 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
     };
     let payload_name = stra("payload")?;
     let payload = Payload::from_name(&payload_name).map_err(|_| bad(format!("has an unknown payload '{payload_name}'")))?;
-    let dims_raw = scalar("dims")?.read_raw::<u64>().map_err(|e| bad(format!("attribute dims: {e}")))?;
+    let dims_raw: Vec<u64> = read_all(&*scalar("dims")?, "attribute dims", &bad)?;
     let dims: [usize; 3] = match dims_raw.as_slice() {
         [x, y, z] if [x, y, z].iter().all(|&&d| d > 0 && d <= u32::MAX as u64) => [*x as usize, *y as usize, *z as usize],
         _ => return Err(bad(format!("has invalid dims {dims_raw:?}"))),
@@ -489,18 +489,34 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
     Ok(EntryInfo { meta, payload, count, stored_bytes })
 }
 
+/// The values of a dataset or an attribute, refusing one whose declared
+/// size goes beyond half the memory available (`io/budget.rs`) unread: a
+/// foreign file may declare a dataset far larger than it stores (HDF5
+/// reads unwritten chunks as the fill value), whose read would otherwise
+/// ask for that much memory.
+fn read_all<T: H5Type>(c: &hdf5::Container, what: &str, bad: &dyn Fn(String) -> Error) -> Result<Vec<T>> {
+    let bytes = (c.size() as u64).saturating_mul(std::mem::size_of::<T>() as u64);
+    let budget = super::budget::whole_read_budget(1);
+    if bytes > budget {
+        return Err(bad(format!("{what} declares {bytes} bytes, more than the {budget} a read of it may take of the memory available")));
+    }
+    c.read_raw::<T>().map_err(|e| bad(format!("{what}: {e}")))
+}
+
 fn read_rows<T: H5Type>(g: &Group, name: &str, rows: usize, n: usize, bad: &dyn Fn(String) -> Error) -> Result<(Dataset, Vec<T>)> {
     let ds = g.dataset(name).map_err(|_| bad(format!("has no dataset '{name}'")))?;
     if ds.shape() != [rows, n] {
         return Err(bad(format!("dataset {name} has shape {:?}, not [{rows}, {n}]", ds.shape())));
     }
-    let v = ds.read_raw::<T>().map_err(|e| bad(format!("dataset {name}: {e}")))?;
+    let v = read_all::<T>(&ds, &format!("dataset {name}"), bad)?;
     Ok((ds, v))
 }
 
 fn read_maps(ds: &Dataset, len: usize, bad: &dyn Fn(String) -> Error) -> Result<Vec<Affine>> {
     let get = |name: &str| -> Result<Vec<f32>> {
-        let v = ds.attr(name).and_then(|a| a.read_raw::<f32>()).map_err(|e| bad(format!("{} attribute {name}: {e}", ds.name())))?;
+        let what = format!("{} attribute {name}", ds.name());
+        let a = ds.attr(name).map_err(|e| bad(format!("{what}: {e}")))?;
+        let v: Vec<f32> = read_all(&a, &what, bad)?;
         if v.len() != len {
             return Err(bad(format!("{} attribute {name} holds {} values, not {len}", ds.name(), v.len())));
         }
@@ -519,7 +535,7 @@ fn read_params(g: &Group, info: &EntryInfo, path: &Path) -> Result<(Vec<Primitiv
     let params = match info.payload {
         Payload::Packed => {
             let ds = g.dataset("packed").map_err(|_| bad("has no dataset 'packed'".into()))?;
-            let bytes: Vec<u8> = ds.read_raw().map_err(|e| bad(format!("dataset packed: {e}")))?;
+            let bytes: Vec<u8> = read_all(&ds, "dataset packed", &bad)?;
             let packed = read_packed_payload(&bytes, n).map_err(|e| bad(e.to_string()))?;
             precision = Some(packed.precision);
             packed.params().map_err(|e| bad(e.to_string()))?
