@@ -188,6 +188,22 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     }
     let e = Store::open_read(&huge).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("dataset params declares 52776558133248 bytes"), "{e}");
+    // A count beyond what the coded payloads (8-bit, packed) hold is
+    // refused before anything is decoded: by the datasets' shapes, and by
+    // what the packed payload's streams can hold.
+    for payload in [Payload::Bits8(CentreCoding::Float16), Payload::Packed] {
+        let claims = dir.join("claims.h5");
+        let _ = std::fs::remove_file(&claims);
+        Store::open_append(&claims).unwrap().append(&m, payload).unwrap();
+        {
+            let f = hdf5::File::open_rw(&claims).unwrap();
+            let g = f.group("rho/3/rank_0").unwrap();
+            g.delete_attr("count").unwrap();
+            g.new_attr::<u64>().create("count").unwrap().write_scalar(&(1u64 << 40)).unwrap();
+        }
+        let e = Store::open_read(&claims).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
+        assert!(matches!(e, Error::Format(_)), "{payload:?}: {e}");
+    }
 }
 
 /// h5dump, from HDF5's own tools, reads the store without gsenc.
