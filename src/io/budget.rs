@@ -27,7 +27,10 @@ pub(crate) fn memory_available() -> Option<u64> {
 }
 
 /// What the process's cgroup (v2, or v1's memory controller) allows beyond
-/// what it uses now; `None` without a limit or where it cannot be read.
+/// what it uses now, counting its inactive file cache as free (the kernel
+/// reclaims that before it refuses memory: a job that has written much
+/// output has its usage near the limit without being short of memory);
+/// `None` without a limit or where it cannot be read.
 #[cfg(target_os = "linux")]
 fn cgroup_left() -> Option<u64> {
     let groups = std::fs::read_to_string("/proc/self/cgroup").ok()?;
@@ -35,22 +38,24 @@ fn cgroup_left() -> Option<u64> {
     for line in groups.lines() {
         let mut parts = line.splitn(3, ':');
         let (_, controllers, group) = (parts.next()?, parts.next()?, parts.next()?);
-        let (limit, usage) = match controllers {
-            "" => {
-                let dir = format!("/sys/fs/cgroup{group}");
-                (read(format!("{dir}/memory.max")), read(format!("{dir}/memory.current")))
-            }
+        let (dir, limit, usage, cache) = match controllers {
+            "" => (format!("/sys/fs/cgroup{group}"), "memory.max", "memory.current", "inactive_file"),
             c if c.split(',').any(|c| c == "memory") => {
-                let dir = format!("/sys/fs/cgroup/memory{group}");
-                (read(format!("{dir}/memory.limit_in_bytes")), read(format!("{dir}/memory.usage_in_bytes")))
+                (format!("/sys/fs/cgroup/memory{group}"), "memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file")
             }
             _ => continue,
         };
-        if let (Some(limit), Some(usage)) = (limit, usage) {
-            return Some(limit.saturating_sub(usage));
-        }
+        let (Some(limit), Some(usage)) = (read(format!("{dir}/{limit}")), read(format!("{dir}/{usage}"))) else { continue };
+        let stat = std::fs::read_to_string(format!("{dir}/memory.stat")).unwrap_or_default();
+        return Some(limit.saturating_sub(usage).saturating_add(stat_value(&stat, cache).unwrap_or(0)).min(limit));
     }
     None
+}
+
+/// The value of `key` in a cgroup's `memory.stat` (lines of `key value`).
+#[cfg(target_os = "linux")]
+fn stat_value(stat: &str, key: &str) -> Option<u64> {
+    stat.lines().find_map(|l| l.strip_prefix(key)?.strip_prefix(' ')?.trim().parse().ok())
 }
 
 /// The most bytes a whole read may hold when what is read from them takes
@@ -98,6 +103,16 @@ mod tests {
         let available = memory_available().expect("Linux says how much memory is available");
         assert!(available > 0 && available <= total * 1024, "{available} of {total} KiB");
         assert_eq!(whole_read_budget(1), available / 2);
+    }
+
+    /// A cgroup's inactive file cache is read by its exact key.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn cgroup_stats_are_read_by_key() {
+        let stat = "active_file 7\ninactive_file_extra 5\ninactive_file 4096\ntotal_inactive_file 8192\n";
+        assert_eq!(stat_value(stat, "inactive_file"), Some(4096));
+        assert_eq!(stat_value(stat, "total_inactive_file"), Some(8192));
+        assert_eq!(stat_value(stat, "missing"), None);
     }
 
     /// Content within the budget reads whole; content beyond it is refused
