@@ -394,6 +394,27 @@ fn non_finite_parameters_behind_a_valid_checksum_are_refused() {
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("non-finite"), "{e}");
 }
 
+/// The step-index fuzzing seeds (`fuzz/gsi-seeds`, written by Python's json,
+/// not by gsenc) read as the indexes gsenc makes of the same layouts, so that
+/// the fuzzer starts from indexes that reach the decode.
+#[test]
+fn step_index_fuzz_seeds_read_as_made() {
+    let seed = |name: &str| StepIndex::from_json(&std::fs::read_to_string(format!("{}/fuzz/gsi-seeds/{name}", env!("CARGO_MANIFEST_DIR"))).unwrap()).unwrap();
+    let names = |field: &str, step: u64, ranks: usize| (0..ranks).map(|r| gsenc::format::model_file_name(field, step, r as u32)).collect::<Vec<_>>();
+    let b = |lo: [usize; 3], hi: [usize; 3]| IndexBox { lo, hi };
+    let linear = |vmin, vmax| ValueRange::new(vmin, vmax, Transform::Linear).unwrap();
+    let two = IndexFrame { dims: [8, 4, 4], bmin: [0.0; 3], gamma: 4.0 };
+    let two_boxes = [b([0, 0, 0], [5, 4, 4]), b([3, 0, 0], [8, 4, 4])];
+    assert_eq!(seed("two-ranks.gsi"), StepIndex::new("rho", 3, Some(0.25), &linear(0.0, 2.0), &two, &two_boxes, 1, names("rho", 3, 2)));
+    let four = IndexFrame { dims: [6, 6, 3], bmin: [-1.5, -1.5, -0.75], gamma: 2.0 };
+    let four_boxes = [b([0, 0, 0], [5, 5, 3]), b([1, 0, 0], [6, 5, 3]), b([0, 1, 0], [5, 6, 3]), b([1, 1, 0], [6, 6, 3])];
+    let log = ValueRange::new(-3.0, 1.5, Transform::Log10).unwrap();
+    assert_eq!(seed("four-ranks-log10.gsi"), StepIndex::new("density", 12, None, &log, &four, &four_boxes, 2, names("density", 12, 4)));
+    let one = IndexFrame { dims: [3, 2, 2], bmin: [0.0; 3], gamma: 1.0 };
+    assert_eq!(seed("one-rank.gsi"), StepIndex::new("v", 0, None, &linear(-1.0, 1.0), &one, &[b([0; 3], [3, 2, 2])], 0, names("v", 0, 1)));
+    assert_eq!(std::fs::read_dir(format!("{}/fuzz/gsi-seeds", env!("CARGO_MANIFEST_DIR"))).unwrap().count(), 3);
+}
+
 #[test]
 fn step_index_round_trips_and_refuses_other_json() {
     let global = IndexFrame { dims: [32, 16, 16], bmin: [-1.0, 0.0, 0.5], gamma: 16.0 };

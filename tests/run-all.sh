@@ -7,7 +7,7 @@
 # scaling model's scheduler, the store
 # read by h5py, the Python package (pytest), the ADIOS2 operator and the
 # ParaView reader (pytest, headless), and a bounded fuzzing run of
-# the model reader. The GPU
+# the model, .vti and step-index readers. The GPU
 # backend's tests run on Mesa's lavapipe when there is no GPU, and fail
 # (GSENC_REQUIRE_GPU=1) rather than skip when wgpu sees no adapter at all.
 # Needs nothing beyond the repository (tests/deps.sh installs the system packages).
@@ -110,5 +110,5 @@ stage bash tests/python.sh
 # reader, with the adios2 and vtk wheels.
 stage bash tests/plugins.sh
 
-# The model reader under libFuzzer for a bounded time.
+# The readers of foreign files under libFuzzer for a bounded time.
 stage bash tests/fuzz.sh
