@@ -158,6 +158,11 @@ fn render_draws_the_model_beside_its_reference_and_rejects_bad_views() {
         (&["--volume", "--elevation", "120"][..], "elevation"),
         (&["--volume", "--opacity", "0"][..], "opacity"),
         (&["--colormap", "rainbow"][..], "viridis"),
+        // A lattice beyond what a decode makes is refused before anything
+        // is allocated (500 GB aborted the tool before), and one whose
+        // voxel count wraps past 64 bits is too.
+        (&["--dims", "5000,5000,5000"][..], "decode dims [5000, 5000, 5000] are too large"),
+        (&["--dims", "4294967295,4294967295,4294967295"][..], "are too large"),
     ] {
         let mut args = vec!["render", m, "-o", p];
         args.extend_from_slice(bad);

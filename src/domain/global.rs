@@ -105,6 +105,8 @@ impl GlobalField {
     /// every value passed through `unit`.
     pub fn decode(&self, backend: &mut dyn Backend, dims: [usize; 3], region: IndexBox, additive: bool, unit: &dyn Fn(f32) -> f32) -> Result<Vec<f32>> {
         region.check_within(dims)?;
+        // Before the product below, which wraps beyond 64 bits.
+        self.merged().lattice_dims(Some(dims))?;
         let n: usize = region.dims().iter().product();
         let mut out = Vec::new();
         out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;

@@ -232,7 +232,9 @@ impl Model {
         }
     }
 
-    fn lattice_dims(&self, dims: Option<[usize; 3]>) -> Result<[usize; 3]> {
+    /// `dims` (the model's own when `None`), refused when a decode onto
+    /// them has no voxel or more than it decodes.
+    pub(crate) fn lattice_dims(&self, dims: Option<[usize; 3]>) -> Result<[usize; 3]> {
         let out_dims = dims.unwrap_or(self.meta.frame.dims);
         if out_dims.iter().any(|&d| d == 0) {
             return Err(Error::arg(format!("decode dims must be positive, got {out_dims:?}")));
