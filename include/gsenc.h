@@ -313,7 +313,8 @@ typedef struct {
    */
   int32_t warm_start;
   /*
-   Iterations and points per iteration; 0 keeps the schedule's.
+   Iterations and points per iteration (at most 2^24); 0 keeps the
+   schedule's.
    */
   uint32_t iterations;
   uint32_t points;

@@ -195,6 +195,10 @@ fn bad_inputs_fail_with_codes_and_messages() {
     let (code, _, err) = enc(&["--budget", "4000"], "20,16,12", inp);
     assert_eq!(code, 2);
     assert!(err.contains("exceeds the 3840 voxels"), "{err}");
+    // A batch of 4e9 points (320 GB: it aborted the tool) is refused first.
+    let (code, _, err) = gsenc(&["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "10", "--points", "4000000000", "-o", ms, "--quiet"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("4000000000 points per iteration are more than the 16777216"), "{err}");
     vals[123] = f32::NAN;
     let nan = dir.join("nan.f32");
     std::fs::write(&nan, gsenc::io::raw::to_f32_bytes(&vals)).unwrap();

@@ -50,6 +50,11 @@ impl PointRule {
 
 /// The paper's learning rate, of every schedule but `tuned` and `tuned-full`.
 pub const PAPER_LEARNING_RATE: f32 = 8e-3;
+/// The most points a training batch or a validation set may hold: 2^24, a
+/// thousand times the largest batch of the paper's schedules (16,384). A
+/// batch takes about 50 bytes a point, so a count beyond this is a mistake
+/// rather than a plan, refused before anything is allocated.
+pub const MAX_POINTS: usize = 1 << 24;
 /// The learning rate of the `tuned` and `tuned-full` schedules.
 pub const TUNED_LEARNING_RATE: f32 = 0.04;
 

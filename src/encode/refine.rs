@@ -113,6 +113,9 @@ pub fn validate(target: &Target, cfg: &EncodeConfig, init: Option<&[Primitive]>)
     if cfg.points() == 0 {
         return Err(Error::arg("points per iteration must be at least 1"));
     }
+    if cfg.points() > crate::encode::config::MAX_POINTS {
+        return Err(Error::arg(format!("{} points per iteration are more than the {} a batch may hold", cfg.points(), crate::encode::config::MAX_POINTS)));
+    }
     if !(cfg.learning_rate.is_finite() && cfg.learning_rate > 0.0) {
         return Err(Error::arg("learning rate must be positive"));
     }

@@ -32,6 +32,9 @@ impl Validation {
         if count == 0 || every == 0 {
             return Err(Error::arg("validation needs at least one point and a positive interval"));
         }
+        if count > crate::encode::config::MAX_POINTS {
+            return Err(Error::arg(format!("{count} validation points are more than the {} a validation set may hold", crate::encode::config::MAX_POINTS)));
+        }
         let mut rng = Rng::new(seed);
         let mut points = Vec::with_capacity(count);
         let mut values = Vec::with_capacity(count);
@@ -67,3 +70,24 @@ impl Validation {
     }
 }
 
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::encode::config::MAX_POINTS;
+
+    /// A validation set is refused before anything is allocated when it
+    /// has no point, no interval, or more points than [`MAX_POINTS`] (a
+    /// count of 4e9, 64 GB, aborted the tool before); a set within them
+    /// holds the reference's values at its points.
+    #[test]
+    fn validation_sets_are_bounded_before_they_are_drawn() {
+        let reference = Grid::new([4, 4, 4], (0..64).map(|i| i as f32 / 63.0).collect()).unwrap();
+        for (count, every) in [(0, 10), (10, 0), (MAX_POINTS + 1, 10), (4_000_000_000, 10)] {
+            assert!(matches!(Validation::from_reference(&reference, count, 1, every), Err(Error::InvalidArgument(_))), "{count} points every {every}");
+        }
+        let v = Validation::from_reference(&reference, 1000, 1, 10).unwrap();
+        assert_eq!((v.points.len(), v.values.len()), (1000, 1000));
+        assert!(v.points.iter().zip(&v.values).all(|(p, &x)| reference.values[p[0] as usize + 4 * (p[1] as usize + 4 * p[2] as usize)] == x));
+    }
+}
