@@ -50,7 +50,7 @@ pub struct Normalized {
 impl ValueRange {
     pub fn new(vmin: f64, vmax: f64, transform: Transform) -> Result<ValueRange> {
         if !(vmin.is_finite() && vmax.is_finite()) || vmax <= vmin {
-            return Err(Error::arg(format!("value range [{vmin}, {vmax}] must be finite with max > min")));
+            return Err(Error::arg(format!("value range [{vmin:?}, {vmax:?}] must be finite with max > min")));
         }
         Ok(ValueRange { vmin, vmax, transform })
     }
