@@ -282,4 +282,12 @@ fn decoded_series_matches_each_model_and_xdmf_points_at_it() {
     // Rank 1's box starts 2 world units further in x: origin = bmin + half a voxel.
     let spacing = 24.0 / 12.0 / 12.0;
     assert!(xdmf.contains(&format!("{:e} {:e} {:e}</DataItem>", 0.5 + spacing / 2.0, -1.0 + spacing / 2.0, 2.0 + spacing / 2.0)), "{xdmf}");
+    // A scale whose lattice the decode refuses is refused by name before
+    // HDF5 is asked for it (which failed with "unknown library error"), and
+    // the series already written stays.
+    let before = std::fs::read(&out).unwrap();
+    opts.scale = 1e10;
+    let e = write_decoded_series(&s, &out, &opts, &mut cpu).unwrap_err();
+    assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("are too large")), "{e}");
+    assert_eq!(std::fs::read(&out).unwrap(), before);
 }

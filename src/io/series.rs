@@ -112,6 +112,8 @@ pub fn write_decoded_series(
 fn decode_piece(out: &File, model: &Model, key: &EntryKey, opts: &SeriesOptions, backend: &mut dyn Backend) -> Result<Piece> {
     let f = &model.meta.frame;
     let dims = f.dims.map(|d| ((d as f64 * opts.scale).round() as usize).max(1));
+    // A lattice the decode refuses is refused before HDF5 is asked for it.
+    model.lattice_dims(Some(dims))?;
     let spacing = [0, 1, 2].map(|a| f.dims[a] as f64 / dims[a] as f64 / f.gamma);
     let origin = [0, 1, 2].map(|a| f.bmin[a] + 0.5 * spacing[a]);
     let h5err = |e: hdf5::Error| Error::Hdf5 { path: out.filename(), message: e.to_string() };
