@@ -301,7 +301,9 @@ typedef struct {
    */
   size_t struct_size;
   /*
-   Number of Gaussians per field and step (default 32000).
+   Number of Gaussians per field and step (default 32000). One whose
+   training would take more memory than the process can (about 800
+   bytes a Gaussian) fails that step with `GSENC_STATUS_INVALID_ARGUMENT`.
    */
   uint64_t budget;
   /*

@@ -55,6 +55,7 @@ pub mod format;
 pub mod input;
 pub mod io;
 pub mod math;
+pub mod memory;
 pub mod profile;
 pub mod model;
 pub mod render;

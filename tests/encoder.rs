@@ -271,6 +271,15 @@ fn bad_inputs_give_clear_errors() {
     assert!(err(quick(0, 10, 10)).contains("at least 1"));
     assert!(err(quick(513, 10, 10)).contains("exceeds the 512 voxels"));
     assert!(err(quick(10, 10, 0)).contains("points"));
+    assert!(err(quick(10, 10, gsenc::encode::config::MAX_POINTS + 1)).contains("more than the 16777216 a batch may hold"));
+    // A budget whose training state would not fit in the memory given.
+    use gsenc::encode::refine::{check_training_memory, TRAINING_BYTES_PER_POINT as PT, TRAINING_BYTES_PER_PRIMITIVE as PR};
+    let fits = 1000 * PR + 256 * PT;
+    assert!(check_training_memory(1000, 256, Some(fits)).is_ok());
+    let e = check_training_memory(1000, 256, Some(fits - 1)).unwrap_err();
+    assert!(matches!(&e, gsenc::Error::InvalidArgument(m) if m.contains("a budget of 1000 primitives") && m.contains(&format!("more than the {}", fits - 1))), "{e}");
+    assert!(check_training_memory(usize::MAX, usize::MAX, None).is_ok(), "nothing is refused where the system says nothing");
+    assert!(check_training_memory(usize::MAX, 1, Some(u64::MAX - 1)).is_err(), "the need saturates instead of wrapping");
     let mut nan = g.clone();
     nan.values[77] = f32::NAN;
     let e = validate(&Target { reference: &nan, samples: &nan }, &quick(10, 10, 10), None).unwrap_err().to_string();

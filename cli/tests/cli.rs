@@ -174,6 +174,36 @@ fn render_draws_the_model_beside_its_reference_and_rejects_bad_views() {
     assert_eq!(std::fs::read(&png).unwrap(), before);
 }
 
+/// A budget whose training state cannot fit in the memory the process may
+/// take (here `ulimit -v` of 3 GB; 7M primitives take about 5.6 GB) is a
+/// usage error before it is allocated: the allocation aborted the tool
+/// before (exit 134), and in a simulation that links gsenc the whole run.
+/// A budget that fits encodes under the same limit.
+#[cfg(target_os = "linux")]
+#[test]
+fn a_budget_beyond_the_memory_available_is_refused() {
+    let dir = tmpdir("memory");
+    let grid = dir.join("g.u8");
+    std::fs::write(&grid, (0..192 * 192 * 192u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect::<Vec<u8>>()).unwrap();
+    let model = dir.join("m.gsm");
+    let limited = |budget: &str| {
+        let script = format!(
+            "ulimit -v 3000000 && exec \"$0\" encode grid --input '{}' --dims 192,192,192 --dtype u8 --budget {budget} --iters 2 --backend cpu -o '{}' --quiet",
+            grid.display(),
+            model.display()
+        );
+        let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_gsenc")).output().unwrap();
+        (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+    };
+    let (code, err) = limited("7000000");
+    assert_eq!(code, Some(2), "{err}");
+    assert!(err.contains("a budget of 7000000 primitives takes about") && err.contains("give a smaller budget"), "{err}");
+    assert!(!model.exists());
+    let (code, err) = limited("20000");
+    assert_eq!(code, Some(0), "{err}");
+    assert!(model.exists());
+}
+
 #[test]
 fn bad_inputs_fail_with_codes_and_messages() {
     let dir = tmpdir("errors");

@@ -1,0 +1,121 @@
+//! How much memory this process can still take: the least of what Linux
+//! says is available (`MemAvailable`), what the process's cgroup leaves
+//! under its limit (a batch job's memory request), and what its resource
+//! limits leave (`ulimit -v`, `ulimit -d`). What cannot fit is refused
+//! before it is allocated, with an error that says so: an allocation that
+//! fails aborts the process, and in a simulation that links gsenc that is
+//! the whole run. Readers of inputs whose length nothing bounds use it
+//! (`io/budget.rs`), and so does an encode, before it allocates its
+//! training state (`encode::refine::validate`).
+
+/// Bytes of memory this process can take now, where the system says
+/// (Linux); `None` elsewhere, where nothing is refused on its account.
+pub fn available() -> Option<u64> {
+    #[cfg(target_os = "linux")]
+    {
+        let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
+        let system = kib_value(&meminfo, "MemAvailable:")?;
+        let least = [cgroup_left(), limits_left()].into_iter().flatten().fold(system, u64::min);
+        Some(least)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        None
+    }
+}
+
+/// The value in bytes of a `key: N kB` line (`/proc/meminfo`, `/proc/self/status`).
+#[cfg(target_os = "linux")]
+fn kib_value(text: &str, key: &str) -> Option<u64> {
+    let kib: u64 = text.lines().find_map(|l| l.strip_prefix(key))?.trim().strip_suffix("kB")?.trim().parse().ok()?;
+    Some(kib.saturating_mul(1024))
+}
+
+/// What the process's cgroup (v2, or v1's memory controller) allows beyond
+/// what it uses now, counting its inactive file cache as free (the kernel
+/// reclaims that before it refuses memory: a job that has written much
+/// output has its usage near the limit without being short of memory);
+/// `None` without a limit or where it cannot be read.
+#[cfg(target_os = "linux")]
+fn cgroup_left() -> Option<u64> {
+    let groups = std::fs::read_to_string("/proc/self/cgroup").ok()?;
+    let read = |p: String| std::fs::read_to_string(p).ok().and_then(|s| s.trim().parse::<u64>().ok());
+    for line in groups.lines() {
+        let mut parts = line.splitn(3, ':');
+        let (_, controllers, group) = (parts.next()?, parts.next()?, parts.next()?);
+        let (dir, limit, usage, cache) = match controllers {
+            "" => (format!("/sys/fs/cgroup{group}"), "memory.max", "memory.current", "inactive_file"),
+            c if c.split(',').any(|c| c == "memory") => {
+                (format!("/sys/fs/cgroup/memory{group}"), "memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file")
+            }
+            _ => continue,
+        };
+        let (Some(limit), Some(usage)) = (read(format!("{dir}/{limit}")), read(format!("{dir}/{usage}"))) else { continue };
+        let stat = std::fs::read_to_string(format!("{dir}/memory.stat")).unwrap_or_default();
+        return Some(limit.saturating_sub(usage).saturating_add(stat_value(&stat, cache).unwrap_or(0)).min(limit));
+    }
+    None
+}
+
+/// The value of `key` in a cgroup's `memory.stat` (lines of `key value`).
+#[cfg(target_os = "linux")]
+fn stat_value(stat: &str, key: &str) -> Option<u64> {
+    stat.lines().find_map(|l| l.strip_prefix(key)?.strip_prefix(' ')?.trim().parse().ok())
+}
+
+/// What the process's soft limits on its address space and its data leave
+/// beyond what it has mapped now; `None` when neither is set.
+#[cfg(target_os = "linux")]
+fn limits_left() -> Option<u64> {
+    let limits = std::fs::read_to_string("/proc/self/limits").ok()?;
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let left = |name: &str, used: &str| Some(soft_limit(&limits, name)?.saturating_sub(kib_value(&status, used).unwrap_or(0)));
+    [left("Max address space", "VmSize:"), left("Max data size", "VmData:")].into_iter().flatten().min()
+}
+
+/// The soft limit in bytes on the `name` line of `/proc/self/limits`;
+/// `None` when it is unlimited.
+#[cfg(target_os = "linux")]
+fn soft_limit(limits: &str, name: &str) -> Option<u64> {
+    limits.lines().find_map(|l| l.strip_prefix(name))?.split_whitespace().next()?.parse().ok()
+}
+
+#[cfg(test)]
+mod tests {
+    #[cfg(target_os = "linux")]
+    use super::*;
+
+    /// The available memory is read where Linux says it, and is no more than
+    /// the machine's total (read here from the same file, independently).
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn available_memory_is_positive_and_at_most_the_total() {
+        let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap();
+        let total: u64 = meminfo.lines().find(|l| l.starts_with("MemTotal:")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
+        let available = available().expect("Linux says how much memory is available");
+        assert!(available > 0 && available <= total * 1024, "{available} of {total} KiB");
+    }
+
+    /// A cgroup's inactive file cache is read by its exact key.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn cgroup_stats_are_read_by_key() {
+        let stat = "active_file 7\ninactive_file_extra 5\ninactive_file 4096\ntotal_inactive_file 8192\n";
+        assert_eq!(stat_value(stat, "inactive_file"), Some(4096));
+        assert_eq!(stat_value(stat, "total_inactive_file"), Some(8192));
+        assert_eq!(stat_value(stat, "missing"), None);
+    }
+
+    /// Soft limits are read from their line, unlimited ones are none, and
+    /// `kB` values are read in bytes.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn limits_and_sizes_are_read_by_name() {
+        let limits = "Limit                     Soft Limit           Hard Limit           Units     \n\
+                      Max data size             unlimited            unlimited            bytes     \n\
+                      Max address space         4096000000           unlimited            bytes     \n";
+        assert_eq!(soft_limit(limits, "Max address space"), Some(4_096_000_000));
+        assert_eq!(soft_limit(limits, "Max data size"), None);
+        assert_eq!(kib_value("VmPeak:\t  900 kB\nVmSize:\t  812 kB\n", "VmSize:"), Some(812 * 1024));
+    }
+}
