@@ -141,8 +141,10 @@ pub unsafe extern "C" fn gsenc_push_grid(
         if strides.iter().any(|&s| s <= 0) {
             return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
         }
+        let voxels = dims.iter().product::<usize>();
+        gsenc::memory::check_fits("gsenc_push_grid: the field's copy", 4 * voxels as u64)?;
         // SAFETY: the caller's array holds every element its extents and strides name.
-        let buffer = enc.queue.recycled_buffer(dims.iter().product());
+        let buffer = enc.queue.recycled_buffer(voxels);
         // SAFETY: as above.
         let values = unsafe { copy_grid(dtype, g.data, dims, strides, buffer) };
         let frame = IndexFrame { dims, bmin: g.origin, gamma: 1.0 / g.spacing };
@@ -171,6 +173,8 @@ pub unsafe extern "C" fn gsenc_push_particles(
         let p = unsafe { read_sized(particles, "gsenc_push_particles: particles") }?;
         let dtype = DType::from_c(p.dtype)?;
         let n = item_count(p.count, "particle")?;
+        // Positions, smoothing lengths (f64), masses and values (f32).
+        gsenc::memory::check_fits("gsenc_push_particles: the particles' copy", 40 * n as u64)?;
         for (ptr, name) in [(p.positions, "positions"), (p.smoothing_length, "smoothing_length"), (p.values, "values")] {
             if ptr.is_null() {
                 return fail(gsenc_status::NullPointer, format!("gsenc_push_particles: {name} is NULL"));
@@ -213,6 +217,9 @@ pub unsafe extern "C" fn gsenc_push_cells(
         let c = unsafe { read_sized(cells, "gsenc_push_cells: cells") }?;
         let dtype = DType::from_c(c.dtype)?;
         let n = item_count(c.count, "cell")?;
+        // Centres and edges (or volumes) in f64, values in f32; a mesh's
+        // points are counted below.
+        gsenc::memory::check_fits("gsenc_push_cells: the cells' copy", 52 * n as u64)?;
         if c.values.is_null() {
             return fail(gsenc_status::NullPointer, "gsenc_push_cells: values is NULL");
         }
@@ -233,6 +240,7 @@ pub unsafe extern "C" fn gsenc_push_cells(
                     return fail(gsenc_status::NullPointer, "gsenc_push_cells: points or connectivity is NULL");
                 }
                 let np = item_count(c.point_count, "point")?;
+                gsenc::memory::check_fits("gsenc_push_cells: the mesh points' copy", 24 * np as u64)?;
                 let points = unsafe { read_tuples(dtype, c.points, np, c.point_stride, c.point_component_stride) };
                 // SAFETY: 8 indices per cell.
                 let conn = unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) };

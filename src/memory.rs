@@ -1,27 +1,75 @@
 //! How much memory this process can still take: the least of what Linux
 //! says is available (`MemAvailable`), what the process's cgroup leaves
-//! under its limit (a batch job's memory request), and what its resource
-//! limits leave (`ulimit -v`, `ulimit -d`). What cannot fit is refused
+//! under its limit (a batch job's memory request), what its resource
+//! limits leave (`ulimit -v`, `ulimit -d`), and what `GSENC_MEMORY_LIMIT`
+//! leaves (the most memory the process may hold, for a code that shares
+//! its node and wants gsenc's share bounded). What cannot fit is refused
 //! before it is allocated, with an error that says so: an allocation that
 //! fails aborts the process, and in a simulation that links gsenc that is
 //! the whole run. Readers of inputs whose length nothing bounds use it
 //! (`io/budget.rs`), and so does an encode, before it allocates its
 //! training state (`encode::refine::validate`).
 
+/// The variable that bounds the memory the process may hold: bytes, or a
+/// number with a suffix `k`, `M`, `G` or `T` (powers of 1024), as `8G`.
+pub const LIMIT_VARIABLE: &str = "GSENC_MEMORY_LIMIT";
+
 /// Bytes of memory this process can take now, where the system says
-/// (Linux); `None` elsewhere, where nothing is refused on its account.
+/// (Linux); `None` elsewhere, where nothing is refused on its account
+/// (unless `GSENC_MEMORY_LIMIT` is set: then the limit as a whole, since
+/// what the process holds is not known there).
 pub fn available() -> Option<u64> {
     #[cfg(target_os = "linux")]
     {
         let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
         let system = kib_value(&meminfo, "MemAvailable:")?;
-        let least = [cgroup_left(), limits_left()].into_iter().flatten().fold(system, u64::min);
-        Some(least)
+        let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+        let asked = env_limit().map(|limit| limit.saturating_sub(kib_value(&status, "VmRSS:").unwrap_or(0)));
+        Some([cgroup_left(), limits_left(), asked].into_iter().flatten().fold(system, u64::min))
     }
     #[cfg(not(target_os = "linux"))]
     {
-        None
+        env_limit()
     }
+}
+
+/// Refuses to allocate `bytes` for `what` when this process cannot take them
+/// now (an InvalidArgument error naming both sizes).
+pub fn check_fits(what: &str, bytes: u64) -> crate::Result<()> {
+    check_fits_in(what, bytes, available())
+}
+
+/// [`check_fits`] against `available` bytes (nothing is refused with `None`).
+pub fn check_fits_in(what: &str, bytes: u64, available: Option<u64>) -> crate::Result<()> {
+    match available {
+        Some(left) if bytes > left => Err(crate::Error::arg(format!("{what} takes {bytes} bytes, more than the {left} this process can take now"))),
+        _ => Ok(()),
+    }
+}
+
+/// `GSENC_MEMORY_LIMIT` in bytes; a value it cannot read is ignored, with
+/// a warning in the log.
+fn env_limit() -> Option<u64> {
+    let text = std::env::var(LIMIT_VARIABLE).ok()?;
+    let parsed = parse_size(&text);
+    if parsed.is_none() {
+        tracing::warn!(value = %text, "{LIMIT_VARIABLE} is not a size such as 8G or 1073741824; ignored");
+    }
+    parsed
+}
+
+/// A size in bytes: digits, then at most one of `k`, `M`, `G`, `T`
+/// (powers of 1024).
+fn parse_size(text: &str) -> Option<u64> {
+    let t = text.trim();
+    let (digits, shift) = match t.char_indices().last()? {
+        (i, 'k' | 'K') => (&t[..i], 10),
+        (i, 'm' | 'M') => (&t[..i], 20),
+        (i, 'g' | 'G') => (&t[..i], 30),
+        (i, 't' | 'T') => (&t[..i], 40),
+        _ => (t, 0),
+    };
+    digits.parse::<u64>().ok()?.checked_mul(1 << shift)
 }
 
 /// The value in bytes of a `key: N kB` line (`/proc/meminfo`, `/proc/self/status`).
@@ -104,6 +152,17 @@ mod tests {
         assert_eq!(stat_value(stat, "inactive_file"), Some(4096));
         assert_eq!(stat_value(stat, "total_inactive_file"), Some(8192));
         assert_eq!(stat_value(stat, "missing"), None);
+    }
+
+    /// Sizes read with their suffixes; what is not a size is none.
+    #[test]
+    fn sizes_read_with_their_suffixes() {
+        for (text, bytes) in [("1073741824", 1 << 30), ("8G", 8 << 30), ("512m", 512 << 20), (" 3k ", 3 << 10), ("2T", 2 << 40)] {
+            assert_eq!(super::parse_size(text), Some(bytes), "{text}");
+        }
+        for text in ["", "G", "-1", "1.5G", "8GB", "lots", "99999999999T"] {
+            assert_eq!(super::parse_size(text), None, "{text}");
+        }
     }
 
     /// Soft limits are read from their line, unlimited ones are none, and

@@ -277,7 +277,7 @@ fn bad_inputs_give_clear_errors() {
     let fits = 1000 * PR + 256 * PT;
     assert!(check_training_memory(1000, 256, Some(fits)).is_ok());
     let e = check_training_memory(1000, 256, Some(fits - 1)).unwrap_err();
-    assert!(matches!(&e, gsenc::Error::InvalidArgument(m) if m.contains("a budget of 1000 primitives") && m.contains(&format!("more than the {}", fits - 1))), "{e}");
+    assert!(matches!(&e, gsenc::Error::InvalidArgument(m) if m.contains("a budget of 1000 primitives") && m.contains(&format!("takes {fits} bytes, more than the {}", fits - 1))), "{e}");
     assert!(check_training_memory(usize::MAX, usize::MAX, None).is_ok(), "nothing is refused where the system says nothing");
     assert!(check_training_memory(usize::MAX, 1, Some(u64::MAX - 1)).is_err(), "the need saturates instead of wrapping");
     let mut nan = g.clone();

@@ -7,6 +7,7 @@ use numpy::ndarray::{ArrayView, Dimension};
 use numpy::{PyArray1, PyArray3, PyReadonlyArray, PyUntypedArray, PyUntypedArrayMethods};
 use pyo3::exceptions::{PyTypeError, PyValueError};
 use pyo3::prelude::*;
+use crate::errors::IntoPy;
 
 /// The dtypes an input array may have.
 pub const DTYPES: &str = "uint8, int8, uint16, int16, uint32, int32, uint64, int64, float32 or float64";
@@ -58,37 +59,49 @@ macro_rules! element {
 }
 element!(u8, i8, u16, i16, u32, i32, u64, i64, f32, f64);
 
-/// The elements of `view` in C (logical) order as float32.
-pub fn to_f32<T: Element, D: Dimension>(view: ArrayView<'_, T, D>) -> Vec<f32> {
-    view.iter().map(|v| v.f32()).collect()
+/// The elements of `view` in C (logical) order as float32; a copy this
+/// process cannot take now is a ValueError (`gsenc::memory`), not an abort
+/// of the interpreter.
+pub fn to_f32<T: Element, D: Dimension>(view: ArrayView<'_, T, D>, what: &str) -> PyResult<Vec<f32>> {
+    fits(view.len(), 4, what)?;
+    Ok(view.iter().map(|v| v.f32()).collect())
 }
 
-/// The elements of `view` in C (logical) order as float64.
-pub fn to_f64<T: Element, D: Dimension>(view: ArrayView<'_, T, D>) -> Vec<f64> {
-    view.iter().map(|v| v.f64()).collect()
+/// The elements of `view` in C (logical) order as float64 (as [`to_f32`]).
+pub fn to_f64<T: Element, D: Dimension>(view: ArrayView<'_, T, D>, what: &str) -> PyResult<Vec<f64>> {
+    fits(view.len(), 8, what)?;
+    Ok(view.iter().map(|v| v.f64()).collect())
+}
+
+fn fits(n: usize, size: u64, what: &str) -> PyResult<()> {
+    gsenc::memory::check_fits(&format!("{what}: the array's copy"), (n as u64).saturating_mul(size)).py_err()
 }
 
 /// A 3D array `[z][y][x]` of any supported dtype: its dims (x, y, z) and values, x fastest.
 pub fn grid_values(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<([usize; 3], Vec<f32>)> {
     with_view!(obj, numpy::Ix3, what, |view| {
         let s = view.shape();
-        ([s[2], s[1], s[0]], to_f32(view))
-    })
+        let dims = [s[2], s[1], s[0]];
+        to_f32(view, what).map(|v| (dims, v))
+    })?
 }
 
 /// A 1D array of `n` values (any supported dtype) as float32, or `None`.
 pub fn values(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<f32>> {
-    with_view!(obj, numpy::Ix1, what, |view| to_f32(view))
+    with_view!(obj, numpy::Ix1, what, |view| to_f32(view, what))?
 }
 
 /// A 1D array as float64.
 pub fn values_f64(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<f64>> {
-    with_view!(obj, numpy::Ix1, what, |view| to_f64(view))
+    with_view!(obj, numpy::Ix1, what, |view| to_f64(view, what))?
 }
 
 /// An `(n, 3)` array as triples of float64.
 pub fn triples(obj: &Bound<'_, PyAny>, what: &str) -> PyResult<Vec<[f64; 3]>> {
-    let flat: PyResult<(usize, Vec<f64>)> = with_view!(obj, numpy::Ix2, what, |view| (view.shape()[1], to_f64(view)));
+    let flat: PyResult<(usize, Vec<f64>)> = with_view!(obj, numpy::Ix2, what, |view| {
+        let cols = view.shape()[1];
+        to_f64(view, what).map(|v| (cols, v))
+    })?;
     let (cols, flat) = flat?;
     if cols != 3 {
         return Err(PyValueError::new_err(format!("{what}: an (n, 3) array is needed, got {cols} columns")));

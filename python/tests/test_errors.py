@@ -101,3 +101,18 @@ def test_encode_arguments_and_data():
         gsenc.encode_cells(pos, v, budget=10, dims=(8, 8, 8), **QUICK)
     with pytest.raises(ValueError, match="not both"):
         gsenc.encode_cells(pos, v, volumes=h, budget=10, dims=(8, 8, 8), fit_dims=8, **QUICK)
+
+
+def test_copies_beyond_the_memory_are_refused(monkeypatch, good):
+    """An array whose copy the process cannot take now raises ValueError
+    before anything is allocated (a failed allocation would abort the
+    interpreter), as does a decode onto a lattice beyond what a decode
+    makes; with room again the same call works."""
+    field = blobs()
+    monkeypatch.setenv("GSENC_MEMORY_LIMIT", "1M")
+    with pytest.raises(ValueError, match="the array's copy takes .* this process can take now"):
+        gsenc.encode_grid(field, 40, **QUICK)
+    monkeypatch.delenv("GSENC_MEMORY_LIMIT")
+    assert len(gsenc.encode_grid(field, 40, **QUICK)) == 40
+    with pytest.raises(ValueError, match="are too large"):
+        gsenc.read(good).decode(dims=(5000, 5000, 5000))

@@ -154,15 +154,9 @@ pub const TRAINING_BYTES_PER_POINT: u64 = 64;
 /// bytes (what [`crate::memory::available`] says; nothing is refused where
 /// it says nothing).
 pub fn check_training_memory(budget: usize, points: usize, available: Option<u64>) -> Result<()> {
-    let Some(available) = available else { return Ok(()) };
     let need = (budget as u64).saturating_mul(TRAINING_BYTES_PER_PRIMITIVE).saturating_add((points as u64).saturating_mul(TRAINING_BYTES_PER_POINT));
-    if need > available {
-        return Err(Error::arg(format!(
-            "a budget of {budget} primitives takes about {need} bytes of memory to train ({TRAINING_BYTES_PER_PRIMITIVE} a primitive), \
-             more than the {available} this process can take now; give a smaller budget"
-        )));
-    }
-    Ok(())
+    let what = format!("training a budget of {budget} primitives (about {TRAINING_BYTES_PER_PRIMITIVE} bytes a primitive)");
+    crate::memory::check_fits_in(&what, need, available)
 }
 
 /// Encodes `target` into `cfg.budget` primitives, seeded from its samples, or

@@ -4,6 +4,7 @@
  * enum values, NaN data, wrong call order, unwritable folders, foreign
  * files); and the background queue: pushes copy, failures are reported
  * by wait and poll, a full queue under each policy, cancel. Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
+#define _POSIX_C_SOURCE 200112L /* setenv */
 #include <math.h>
 #include <stddef.h>
 #include <stdio.h>
@@ -190,6 +191,17 @@ int main(void) {
         CHECK(psnr[step] > 20.0, "step %d PSNR %.2f dB above the floor", step, psnr[step]);
     }
     EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK); /* nothing pending */
+    /* A copy the process cannot take now is refused before anything is
+     * allocated (an allocation that failed would abort this program): with
+     * GSENC_MEMORY_LIMIT below what the process holds, nothing is left. The
+     * step is not taken, so it may be pushed again once there is room. */
+    setenv("GSENC_MEMORY_LIMIT", "1M", 1);
+    EXPECT(gsenc_push_grid(enc, "roomy", 0, 0.0, &grid), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "the field's copy takes 15360 bytes") != NULL && strstr(last_error(), "this process can take now") != NULL,
+          "a copy beyond the memory: %s", last_error());
+    unsetenv("GSENC_MEMORY_LIMIT");
+    EXPECT(gsenc_push_grid(enc, "roomy", 0, 0.0, &grid), GSENC_STATUS_OK);
+    EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
     gsenc_job job;
     memset(&job, 0, sizeof job);
     EXPECT(gsenc_poll(enc, "rho", 1, &job), GSENC_STATUS_STRUCT_SIZE);
