@@ -9,6 +9,9 @@
 //! above it in this list:
 //! - [`profile`]: task timings for the thread-scaling model (feature
 //!   `task-profile`; without it, nothing but the calls it wraps);
+//! - [`memory`]: how much memory the process can still take, so that what
+//!   cannot fit is refused before it is allocated (a failed allocation
+//!   aborts the process);
 //! - [`math`]: the one definition of a primitive, its kernel, the objective,
 //!   their gradients, Adam, the random stream;
 //! - [`field`]: grids, value ranges, index frames and boxes;
