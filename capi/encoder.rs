@@ -12,6 +12,7 @@ use crate::config::{gsenc_config, OutputFormat, Settings};
 use crate::ffi::time_of;
 use crate::handles::Kind;
 use crate::status::{fail, gsenc_status, guard, Failure};
+use gsenc::domain::halo::Kind as DataKind;
 use gsenc::input::{Placement, StepData};
 use gsenc::io::preview::Previewed;
 use gsenc::io::ModelFolder;
@@ -214,6 +215,24 @@ impl gsenc_encoder {
             Pushed::Skipped => fail(gsenc_status::Skipped, format!("{}; the step was skipped", full())),
             Pushed::Busy => fail(gsenc_status::Busy, format!("{}; nothing was queued, push it again later", full())),
         }
+    }
+
+    /// Pushes the step this rank `made` (its checked and copied data), or
+    /// reports the failure that stopped it before it had data. For an MPI
+    /// encoder the failure is also this rank's part of the ranks' push
+    /// (`Decomposition::refuse`), so that every rank's push of the step
+    /// fails together instead of the others waiting for this one.
+    pub(crate) fn push_made(&mut self, field: &str, step: u64, time: f64, kind: DataKind, made: Result<StepData, Failure>) -> Result<(), Failure> {
+        let failure = match made {
+            Ok(data) => return self.push(field.to_owned(), step, time, data),
+            Err(f) => f,
+        };
+        #[cfg(feature = "mpi")]
+        if let Some(ranks) = self.ranks.as_mut() {
+            ranks.refuse(field, step, kind, gsenc::Error::arg(&failure.1));
+        }
+        let _ = kind;
+        Err(failure)
     }
 
     /// Queues a job: on this encoder alone, or across the ranks (then rank 0

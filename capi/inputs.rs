@@ -5,7 +5,8 @@
 
 use crate::encoder::{encoder_mut, gsenc_encoder};
 use crate::ffi::{c_str, copy_grid, extents, item_count, read_scalars, read_sized, read_tuples, DType};
-use crate::status::{fail, gsenc_status, guard};
+use crate::status::{fail, gsenc_status, guard, Failure};
+use gsenc::domain::halo::Kind as DataKind;
 use gsenc::field::{Grid, IndexFrame};
 use gsenc::input::StepData;
 use std::os::raw::{c_char, c_void};
@@ -122,34 +123,45 @@ pub unsafe extern "C" fn gsenc_push_grid(
     guard(|| {
         let enc = encoder_mut(encoder, "gsenc_push_grid")?;
         // SAFETY: a NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") }?;
-        // SAFETY: NULL or the caller's gsenc_grid.
-        let g = unsafe { read_sized(grid, "gsenc_push_grid: grid") }?;
-        let dtype = DType::from_c(g.dtype)?;
-        if g.data.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_push_grid: data is NULL");
-        }
-        let dims = extents(g.extents)?;
-        if !(g.spacing.is_finite() && g.spacing > 0.0) || g.origin.iter().any(|o| !o.is_finite()) {
-            return fail(gsenc_status::InvalidArgument, format!("origin {:?} and spacing {} must be finite, spacing positive", g.origin, g.spacing));
-        }
-        let strides = if g.strides == [0; 3] {
-            [1, dims[0] as i64, (dims[0] * dims[1]) as i64]
-        } else {
-            g.strides
-        };
-        if strides.iter().any(|&s| s <= 0) {
-            return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
-        }
-        let voxels = dims.iter().product::<usize>();
-        gsenc::memory::check_fits("gsenc_push_grid: the field's copy", 4 * voxels as u64)?;
-        // SAFETY: the caller's array holds every element its extents and strides name.
-        let buffer = enc.queue.recycled_buffer(voxels);
-        // SAFETY: as above.
-        let values = unsafe { copy_grid(dtype, g.data, dims, strides, buffer) };
-        let frame = IndexFrame { dims, bmin: g.origin, gamma: 1.0 / g.spacing };
-        enc.push(field, step, time, StepData::Grid { grid: Grid::new(dims, values)?, frame })
+        let field = unsafe { c_str(field, "field") };
+        let name = field.as_ref().map_or(String::new(), Clone::clone);
+        // SAFETY: `grid` as `grid_data` needs it, per this function's contract.
+        let made = field.and_then(|_| unsafe { grid_data(enc, grid) });
+        enc.push_made(&name, step, time, DataKind::Grid, made)
     })
+}
+
+/// The checked copy of a caller's grid.
+///
+/// # Safety
+/// `grid` is NULL or the caller's gsenc_grid, whose array holds every element its extents and strides name.
+unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<StepData, Failure> {
+    // SAFETY: NULL or the caller's gsenc_grid.
+    let g = unsafe { read_sized(grid, "gsenc_push_grid: grid") }?;
+    let dtype = DType::from_c(g.dtype)?;
+    if g.data.is_null() {
+        return fail(gsenc_status::NullPointer, "gsenc_push_grid: data is NULL");
+    }
+    let dims = extents(g.extents)?;
+    if !(g.spacing.is_finite() && g.spacing > 0.0) || g.origin.iter().any(|o| !o.is_finite()) {
+        return fail(gsenc_status::InvalidArgument, format!("origin {:?} and spacing {} must be finite, spacing positive", g.origin, g.spacing));
+    }
+    let strides = if g.strides == [0; 3] {
+        [1, dims[0] as i64, (dims[0] * dims[1]) as i64]
+    } else {
+        g.strides
+    };
+    if strides.iter().any(|&s| s <= 0) {
+        return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
+    }
+    let voxels = dims.iter().product::<usize>();
+    gsenc::memory::check_fits("gsenc_push_grid: the field's copy", 4 * voxels as u64)?;
+    // SAFETY: the caller's array holds every element its extents and strides name.
+    let buffer = enc.queue.recycled_buffer(voxels);
+    // SAFETY: as above.
+    let values = unsafe { copy_grid(dtype, g.data, dims, strides, buffer) };
+    let frame = IndexFrame { dims, bmin: g.origin, gamma: 1.0 / g.spacing };
+    Ok(StepData::Grid { grid: Grid::new(dims, values)?, frame })
 }
 
 /// Hands over one field of step `step` as SPH particles (see
@@ -168,31 +180,42 @@ pub unsafe extern "C" fn gsenc_push_particles(
     guard(|| {
         let enc = encoder_mut(encoder, "gsenc_push_particles")?;
         // SAFETY: a NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") }?;
-        // SAFETY: NULL or the caller's gsenc_particles.
-        let p = unsafe { read_sized(particles, "gsenc_push_particles: particles") }?;
-        let dtype = DType::from_c(p.dtype)?;
-        let n = item_count(p.count, "particle")?;
-        // Positions, smoothing lengths (f64), masses and values (f32).
-        gsenc::memory::check_fits("gsenc_push_particles: the particles' copy", 40 * n as u64)?;
-        for (ptr, name) in [(p.positions, "positions"), (p.smoothing_length, "smoothing_length"), (p.values, "values")] {
-            if ptr.is_null() {
-                return fail(gsenc_status::NullPointer, format!("gsenc_push_particles: {name} is NULL"));
-            }
-        }
-        // SAFETY (every read below): the caller's arrays hold every element
-        // that `count` and the strides name.
-        let positions = unsafe { read_tuples(dtype, p.positions, n, p.position_stride, p.position_component_stride) };
-        let smoothing_length = unsafe { read_scalars(dtype, p.smoothing_length, n, p.smoothing_length_stride) };
-        let values = unsafe { read_scalars(dtype, p.values, n, p.value_stride) }.into_iter().map(|v| v as f32).collect();
-        let mass = if p.mass.is_null() {
-            vec![1.0; n]
-        } else {
-            unsafe { read_scalars(dtype, p.mass, n, p.mass_stride) }.into_iter().map(|v| v as f32).collect()
-        };
-        let placement = enc.placement();
-        enc.push(field, step, time, StepData::Particles { positions, smoothing_length, mass, values, placement })
+        let field = unsafe { c_str(field, "field") };
+        let name = field.as_ref().map_or(String::new(), Clone::clone);
+        // SAFETY: `particles` as `particle_data` needs it, per this function's contract.
+        let made = field.and_then(|_| unsafe { particle_data(enc, particles) });
+        enc.push_made(&name, step, time, DataKind::Particles, made)
     })
+}
+
+/// The checked copy of a caller's particles.
+///
+/// # Safety
+/// `particles` is NULL or the caller's gsenc_particles, whose arrays hold every element that `count` and the strides name.
+unsafe fn particle_data(enc: &gsenc_encoder, particles: *const gsenc_particles) -> Result<StepData, Failure> {
+    // SAFETY: NULL or the caller's gsenc_particles.
+    let p = unsafe { read_sized(particles, "gsenc_push_particles: particles") }?;
+    let dtype = DType::from_c(p.dtype)?;
+    let n = item_count(p.count, "particle")?;
+    // Positions, smoothing lengths (f64), masses and values (f32).
+    gsenc::memory::check_fits("gsenc_push_particles: the particles' copy", 40 * n as u64)?;
+    for (ptr, name) in [(p.positions, "positions"), (p.smoothing_length, "smoothing_length"), (p.values, "values")] {
+        if ptr.is_null() {
+            return fail(gsenc_status::NullPointer, format!("gsenc_push_particles: {name} is NULL"));
+        }
+    }
+    // SAFETY (every read below): the caller's arrays hold every element
+    // that `count` and the strides name.
+    let positions = unsafe { read_tuples(dtype, p.positions, n, p.position_stride, p.position_component_stride) };
+    let smoothing_length = unsafe { read_scalars(dtype, p.smoothing_length, n, p.smoothing_length_stride) };
+    let values = unsafe { read_scalars(dtype, p.values, n, p.value_stride) }.into_iter().map(|v| v as f32).collect();
+    let mass = if p.mass.is_null() {
+        vec![1.0; n]
+    } else {
+        unsafe { read_scalars(dtype, p.mass, n, p.mass_stride) }.into_iter().map(|v| v as f32).collect()
+    };
+    let placement = enc.placement();
+    Ok(StepData::Particles { positions, smoothing_length, mass, values, placement })
 }
 
 /// Hands over one field of step `step` on hexahedral cells (see
@@ -212,53 +235,69 @@ pub unsafe extern "C" fn gsenc_push_cells(
     guard(|| {
         let enc = encoder_mut(encoder, "gsenc_push_cells")?;
         // SAFETY: a NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") }?;
-        // SAFETY: NULL or the caller's gsenc_cells.
-        let c = unsafe { read_sized(cells, "gsenc_push_cells: cells") }?;
-        let dtype = DType::from_c(c.dtype)?;
-        let n = item_count(c.count, "cell")?;
-        // Centres and edges (or volumes) in f64, values in f32; a mesh's
-        // points are counted below.
-        gsenc::memory::check_fits("gsenc_push_cells: the cells' copy", 52 * n as u64)?;
-        if c.values.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_push_cells: values is NULL");
-        }
-        // SAFETY (every read below): the caller's arrays hold every element
-        // that the counts and strides name.
-        let values: Vec<f32> = unsafe { read_scalars(dtype, c.values, n, c.value_stride) }.into_iter().map(|v| v as f32).collect();
-        let data = match c.layout {
-            GSENC_CELLS_BOXES => {
-                if c.centres.is_null() || c.edges.is_null() {
-                    return fail(gsenc_status::NullPointer, "gsenc_push_cells: centres or edges is NULL");
-                }
-                let centres = unsafe { read_tuples(dtype, c.centres, n, c.centre_stride, c.centre_component_stride) };
-                let edges = unsafe { read_tuples(dtype, c.edges, n, c.edge_stride, c.edge_component_stride) };
-                StepData::Cells { centres, edges, volumes: Vec::new(), values, placement: enc.placement() }
-            }
-            GSENC_CELLS_HEXAHEDRA => {
-                if c.points.is_null() || c.connectivity.is_null() {
-                    return fail(gsenc_status::NullPointer, "gsenc_push_cells: points or connectivity is NULL");
-                }
-                let np = item_count(c.point_count, "point")?;
-                gsenc::memory::check_fits("gsenc_push_cells: the mesh points' copy", 24 * np as u64)?;
-                let points = unsafe { read_tuples(dtype, c.points, np, c.point_stride, c.point_component_stride) };
-                // SAFETY: 8 indices per cell.
-                let conn = unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) };
-                if let Some(i) = conn.iter().position(|&k| k < 0 || k as u64 >= np as u64) {
-                    return fail(
-                        gsenc_status::InvalidArgument,
-                        format!("connectivity entry {i} (cell {}) is {}, outside 0..{np}", i / 8, conn[i]),
-                    );
-                }
-                let (centres, volumes) = conn
-                    .chunks_exact(8)
-                    .map(|k| gsenc::input::cells::hexahedron_centre_volume(&std::array::from_fn(|j| points[k[j] as usize])))
-                    .unzip();
-                StepData::Cells { centres, edges: Vec::new(), volumes, values, placement: enc.placement() }
-            }
-            l => return fail(gsenc_status::InvalidArgument, format!("unknown cell layout {l}")),
+        let field = unsafe { c_str(field, "field") };
+        let name = field.as_ref().map_or(String::new(), Clone::clone);
+        // SAFETY: NULL or the caller's gsenc_cells (read again below).
+        let kind = match unsafe { cells.as_ref() }.map(|c| c.layout) {
+            Some(GSENC_CELLS_HEXAHEDRA) => DataKind::CellVolumes,
+            _ => DataKind::CellBoxes,
         };
-        enc.push(field, step, time, data)
+        // SAFETY: `cells` as `cell_data` needs it, per this function's contract.
+        let made = field.and_then(|_| unsafe { cell_data(enc, cells) });
+        enc.push_made(&name, step, time, kind, made)
     })
+}
+
+/// The checked copy of a caller's cells.
+///
+/// # Safety
+/// `cells` is NULL or the caller's gsenc_cells, whose arrays hold every element that the counts and strides name.
+unsafe fn cell_data(enc: &gsenc_encoder, cells: *const gsenc_cells) -> Result<StepData, Failure> {
+    // SAFETY: NULL or the caller's gsenc_cells.
+    let c = unsafe { read_sized(cells, "gsenc_push_cells: cells") }?;
+    let dtype = DType::from_c(c.dtype)?;
+    let n = item_count(c.count, "cell")?;
+    // Centres and edges (or volumes) in f64, values in f32; a mesh's
+    // points are counted below.
+    gsenc::memory::check_fits("gsenc_push_cells: the cells' copy", 52 * n as u64)?;
+    if c.values.is_null() {
+        return fail(gsenc_status::NullPointer, "gsenc_push_cells: values is NULL");
+    }
+    // SAFETY (every read below): the caller's arrays hold every element
+    // that the counts and strides name.
+    let values: Vec<f32> = unsafe { read_scalars(dtype, c.values, n, c.value_stride) }.into_iter().map(|v| v as f32).collect();
+    let data = match c.layout {
+        GSENC_CELLS_BOXES => {
+            if c.centres.is_null() || c.edges.is_null() {
+                return fail(gsenc_status::NullPointer, "gsenc_push_cells: centres or edges is NULL");
+            }
+            let centres = unsafe { read_tuples(dtype, c.centres, n, c.centre_stride, c.centre_component_stride) };
+            let edges = unsafe { read_tuples(dtype, c.edges, n, c.edge_stride, c.edge_component_stride) };
+            StepData::Cells { centres, edges, volumes: Vec::new(), values, placement: enc.placement() }
+        }
+        GSENC_CELLS_HEXAHEDRA => {
+            if c.points.is_null() || c.connectivity.is_null() {
+                return fail(gsenc_status::NullPointer, "gsenc_push_cells: points or connectivity is NULL");
+            }
+            let np = item_count(c.point_count, "point")?;
+            gsenc::memory::check_fits("gsenc_push_cells: the mesh points' copy", 24 * np as u64)?;
+            let points = unsafe { read_tuples(dtype, c.points, np, c.point_stride, c.point_component_stride) };
+            // SAFETY: 8 indices per cell.
+            let conn = unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) };
+            if let Some(i) = conn.iter().position(|&k| k < 0 || k as u64 >= np as u64) {
+                return fail(
+                    gsenc_status::InvalidArgument,
+                    format!("connectivity entry {i} (cell {}) is {}, outside 0..{np}", i / 8, conn[i]),
+                );
+            }
+            let (centres, volumes) = conn
+                .chunks_exact(8)
+                .map(|k| gsenc::input::cells::hexahedron_centre_volume(&std::array::from_fn(|j| points[k[j] as usize])))
+                .unzip();
+            StepData::Cells { centres, edges: Vec::new(), volumes, values, placement: enc.placement() }
+        }
+        l => return fail(gsenc_status::InvalidArgument, format!("unknown cell layout {l}")),
+    };
+    Ok(data)
 }
 

@@ -245,6 +245,23 @@ impl Decomposition {
         Ok(Distributed { pushed, index })
     }
 
+    /// Takes part in the ranks' push of `field` step `step` (of `kind`) that
+    /// this rank failed before it had data to push (`why`: a copy it could
+    /// not take, an array of its own that was refused): every rank's push
+    /// fails together, this rank's with `why`, the others' naming this rank,
+    /// instead of the others waiting for it in the collective.
+    pub fn refuse(&mut self, field: &str, step: u64, kind: Kind, why: Error) -> Error {
+        if let Err(e) = self.check_thread() {
+            return e;
+        }
+        let what = format!("field '{field}' step {step}");
+        let pushed = format!("{what} as {}", kind_name(kind));
+        match self.agree::<()>(Err(why), fingerprint(field, step, kind), &pushed, &format!("its data for {what}")) {
+            Err(e) => e,
+            Ok(()) => Error::Mpi(format!("{what}: a refused push was agreed")),
+        }
+    }
+
     /// What this rank checks alone before the first collective: the form
     /// matches the field's, a grid sits on the field's lattice; and the
     /// local value range for the first step.

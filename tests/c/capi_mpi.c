@@ -3,6 +3,7 @@
  * pushing its slab of a grid and its particles for two steps, the step index
  * and every rank's model written, misuse reported on every rank, and the
  * caller's communicator untouched after destroy. */
+#define _POSIX_C_SOURCE 200112L /* setenv */
 #include "gsenc.h"
 #include <math.h>
 #include <mpi.h>
@@ -135,6 +136,17 @@ int main(int argc, char **argv) {
         else
             CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "refused") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
         slab[5] = 0.0f;
+        /* One rank cannot take its copy (GSENC_MEMORY_LIMIT there): that
+         * rank gets INVALID_ARGUMENT, the others MPI naming it, and no rank
+         * waits in the push for another. */
+        if (rank == 0) setenv("GSENC_MEMORY_LIMIT", "1M", 1);
+        s = gsenc_push_grid(enc, "rho", 3, 0.3, &g);
+        if (rank == 0) {
+            CHECK(s == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "the field's copy takes") != NULL, "short rank got %s: %s", gsenc_status_string(s), last_error());
+            unsetenv("GSENC_MEMORY_LIMIT");
+        } else {
+            CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "rank 0 refused") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+        }
         /* The encoder goes on: step 3 again, everywhere. */
         EXPECT(gsenc_push_grid(enc, "rho", 3, 0.3, &g), GSENC_STATUS_OK);
         EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
