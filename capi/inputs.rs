@@ -120,14 +120,33 @@ pub unsafe extern "C" fn gsenc_push_grid(
     time: f64,
     grid: *const gsenc_grid,
 ) -> gsenc_status {
+    // SAFETY (both): `field` and `grid` per this function's contract.
+    unsafe { push_step(encoder, "gsenc_push_grid", field, step, time, DataKind::Grid, |enc| grid_data(enc, grid)) }
+}
+
+/// One push of one field of one step: the encoder and the field's name
+/// checked, `make` (the checked copy of the caller's data) run, and what it
+/// made pushed, or its failure reported (`push_made`, which for an MPI
+/// encoder lets the other ranks' pushes fail too instead of waiting).
+///
+/// # Safety
+/// `field` is NULL or a NUL-terminated string.
+unsafe fn push_step(
+    encoder: *mut gsenc_encoder,
+    what: &str,
+    field: *const c_char,
+    step: u64,
+    time: f64,
+    kind: DataKind,
+    make: impl FnOnce(&gsenc_encoder) -> Result<StepData, Failure>,
+) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_push_grid")?;
+        let enc = encoder_mut(encoder, what)?;
         // SAFETY: a NUL-terminated string or NULL (refused).
         let field = unsafe { c_str(field, "field") };
         let name = field.as_ref().map_or(String::new(), Clone::clone);
-        // SAFETY: `grid` as `grid_data` needs it, per this function's contract.
-        let made = field.and_then(|_| unsafe { grid_data(enc, grid) });
-        enc.push_made(&name, step, time, DataKind::Grid, made)
+        let made = field.and_then(|_| make(enc));
+        enc.push_made(&name, step, time, kind, made)
     })
 }
 
@@ -177,15 +196,8 @@ pub unsafe extern "C" fn gsenc_push_particles(
     time: f64,
     particles: *const gsenc_particles,
 ) -> gsenc_status {
-    guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_push_particles")?;
-        // SAFETY: a NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") };
-        let name = field.as_ref().map_or(String::new(), Clone::clone);
-        // SAFETY: `particles` as `particle_data` needs it, per this function's contract.
-        let made = field.and_then(|_| unsafe { particle_data(enc, particles) });
-        enc.push_made(&name, step, time, DataKind::Particles, made)
-    })
+    // SAFETY (both): `field` and `particles` per this function's contract.
+    unsafe { push_step(encoder, "gsenc_push_particles", field, step, time, DataKind::Particles, |enc| particle_data(enc, particles)) }
 }
 
 /// The checked copy of a caller's particles.
@@ -232,20 +244,14 @@ pub unsafe extern "C" fn gsenc_push_cells(
     time: f64,
     cells: *const gsenc_cells,
 ) -> gsenc_status {
-    guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_push_cells")?;
-        // SAFETY: a NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") };
-        let name = field.as_ref().map_or(String::new(), Clone::clone);
-        // SAFETY: NULL or the caller's gsenc_cells (read again below).
-        let kind = match unsafe { cells.as_ref() }.map(|c| c.layout) {
-            Some(GSENC_CELLS_HEXAHEDRA) => DataKind::CellVolumes,
-            _ => DataKind::CellBoxes,
-        };
-        // SAFETY: `cells` as `cell_data` needs it, per this function's contract.
-        let made = field.and_then(|_| unsafe { cell_data(enc, cells) });
-        enc.push_made(&name, step, time, kind, made)
-    })
+    // The form the ranks' push names, read as cell_data reads the struct
+    // (its size checked first). SAFETY: NULL or the caller's gsenc_cells.
+    let kind = match unsafe { read_sized(cells, "gsenc_push_cells: cells") } {
+        Ok(c) if c.layout == GSENC_CELLS_HEXAHEDRA => DataKind::CellVolumes,
+        _ => DataKind::CellBoxes,
+    };
+    // SAFETY (both): `field` and `cells` per this function's contract.
+    unsafe { push_step(encoder, "gsenc_push_cells", field, step, time, kind, |enc| cell_data(enc, cells)) }
 }
 
 /// The checked copy of a caller's cells.
