@@ -144,9 +144,10 @@ pub fn validate(target: &Target, cfg: &EncodeConfig, init: Option<&[Primitive]>)
 /// Host memory an encode's training state takes a primitive (parameters,
 /// Adam's moments, gradients, frames, candidate lists, the backend's
 /// scratch) and a point of a batch: the peak resident sizes of CPU encodes
-/// of 0.5M and 2M primitives on a 256³ grid differ by 843 bytes a
-/// primitive (2026-12-03). Only for refusing a budget that cannot fit
-/// before anything is allocated for it (an allocation that fails aborts).
+/// of 0.5M and 2M primitives of RM 256³ differ by 807 bytes a primitive,
+/// of a random 256³ grid by 843 (docs/BENCHMARKS.md "Memory of an
+/// encode"). Only for refusing a budget that cannot fit before anything is
+/// allocated for it (an allocation that fails aborts).
 pub const TRAINING_BYTES_PER_PRIMITIVE: u64 = 800;
 pub const TRAINING_BYTES_PER_POINT: u64 = 64;
 

@@ -70,7 +70,6 @@ impl Validation {
     }
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -351,9 +351,10 @@ mod tests {
     }
 
     /// The first array of an input is read whole, but not from a device nor
-    /// beyond the memory available; the others read no further than the first's items take, so that longer
-    /// files, endless streams and zstd bombs are refused by name, while a
-    /// shorter one is read for the caller's length check.
+    /// beyond the memory available; the others read no further than the
+    /// first's items take, so that longer files, endless streams and zstd
+    /// bombs are refused by name, while a shorter one is read for the
+    /// caller's length check.
     #[test]
     fn item_arrays_read_no_more_than_their_first() {
         let dir = std::env::temp_dir().join(format!("gsenc-raw-items-{}", std::process::id()));
