@@ -280,6 +280,15 @@ fn bad_inputs_give_clear_errors() {
     assert!(matches!(&e, gsenc::Error::InvalidArgument(m) if m.contains("a budget of 1000 primitives") && m.contains(&format!("takes {fits} bytes, more than the {}", fits - 1))), "{e}");
     assert!(check_training_memory(usize::MAX, usize::MAX, None).is_ok(), "nothing is refused where the system says nothing");
     assert!(check_training_memory(usize::MAX, 1, Some(u64::MAX - 1)).is_err(), "the need saturates instead of wrapping");
+    // The target search's cap is a budget that check accepts, with room.
+    use gsenc::encode::target::{fitting_budget, MIN_BUDGET};
+    for (available, points) in [(1u64 << 30, 3072usize), (5 << 30, 16384), (123_456_789, 1)] {
+        let n = fitting_budget(Some(available), points);
+        assert!(check_training_memory(n, points, Some(available / 4 * 3)).is_ok(), "{n} in {available}");
+        assert!(check_training_memory(n + 1, points, Some(available / 4 * 3)).is_err(), "{n} + 1 in {available}");
+    }
+    assert_eq!(fitting_budget(Some(1000), 3072), MIN_BUDGET);
+    assert_eq!(fitting_budget(None, 3072), usize::MAX);
     let mut nan = g.clone();
     nan.values[77] = f32::NAN;
     let e = validate(&Target { reference: &nan, samples: &nan }, &quick(10, 10, 10), None).unwrap_err().to_string();

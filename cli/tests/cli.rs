@@ -204,6 +204,34 @@ fn a_budget_beyond_the_memory_available_is_refused() {
     assert!(model.exists());
 }
 
+/// A target PSNR's search stays within the budgets whose training fits: on
+/// a random grid that never reaches 80 dB the search goes to its cap
+/// (2,000,000 asked), which under `ulimit -v` of 1.2 GB does not fit; the
+/// search then caps itself at what fits and ends with a model (before, the
+/// encode at the cap was refused and the whole command failed, exit 2).
+#[cfg(target_os = "linux")]
+#[test]
+fn a_target_search_caps_itself_at_the_memory_available() {
+    let dir = tmpdir("memory-target");
+    let grid = dir.join("g.u8");
+    std::fs::write(&grid, (0..128 * 128 * 128u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect::<Vec<u8>>()).unwrap();
+    let model = dir.join("m.gsm");
+    let script = format!(
+        "ulimit -v 1200000 && exec \"$0\" encode grid --input '{}' --dims 128,128,128 --dtype u8 --target-psnr 80 --budget 2000000 \
+         --iters 2 --points 64 --backend cpu -o '{}' --json",
+        grid.display(),
+        model.display()
+    );
+    let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_gsenc")).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(0), "{err}");
+    let v = json(&String::from_utf8_lossy(&out.stdout));
+    let cap = v["target"]["cap"].as_u64().unwrap();
+    assert!(cap >= 16 && cap < 2_000_000, "cap {cap}");
+    assert!(v["primitives"].as_u64().unwrap() <= cap, "{v}");
+    assert_eq!(gsenc::format::read_model(&std::fs::read(&model).unwrap()).unwrap().params.len() as u64, v["primitives"].as_u64().unwrap());
+}
+
 #[test]
 fn bad_inputs_fail_with_codes_and_messages() {
     let dir = tmpdir("errors");

@@ -117,7 +117,10 @@ pub fn encode_to_target(
         0 => default_cap(prepared),
         b => b,
     }
-    .min(prepared.reference.len());
+    .min(prepared.reference.len())
+    // A budget whose training cannot fit would fail the encode that tries
+    // it (`refine::check_training_memory`): the search stays within what fits.
+    .min(fitting_budget(crate::memory::available(), request.config.points()));
     let mut search = Search { prepared, request, target: t.db, cap, backend, progress, probes: vec![], tries: vec![] };
     let (first, curve) = match request.start {
         Start::Seeded => {
@@ -170,6 +173,20 @@ pub fn encode_to_target(
     tracing::info!(target = t.db, psnr = encoded.psnr, budget = encoded.model.len(), landed, "target PSNR");
     encoded.target = Some(TargetReport { target: t.db, landed, cap, probes: search.probes, tries: search.tries, chosen, curve, seconds: started.elapsed().as_secs_f64() });
     Ok(encoded)
+}
+
+/// The largest budget whose training, with batches of `points`, fits in
+/// three quarters of `available` bytes (as `refine::check_training_memory`
+/// counts it; the quarter left is for what the search's own probes leave
+/// mapped before the encode at the cap checks again: a 1.3M cap taken at
+/// the whole was refused 19 MB short under `ulimit -v`), at least
+/// [`MIN_BUDGET`], which the search needs to start; unbounded with `None`.
+pub fn fitting_budget(available: Option<u64>, points: usize) -> usize {
+    use crate::encode::refine::{TRAINING_BYTES_PER_POINT, TRAINING_BYTES_PER_PRIMITIVE};
+    available.map_or(usize::MAX, |m| {
+        let n = (m / 4 * 3).saturating_sub(points as u64 * TRAINING_BYTES_PER_POINT) / TRAINING_BYTES_PER_PRIMITIVE;
+        usize::try_from(n).unwrap_or(usize::MAX).max(MIN_BUDGET)
+    })
 }
 
 /// The budget the slope (dB per doubling) says reaches `aim` from `p` dB at
