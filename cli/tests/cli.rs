@@ -174,6 +174,26 @@ fn render_draws_the_model_beside_its_reference_and_rejects_bad_views() {
     assert_eq!(std::fs::read(&png).unwrap(), before);
 }
 
+/// A random `n`^3 u8 grid in `dir`, and the tool run with `args` (where
+/// `GRID` stands for the grid's path) under `ulimit -v` of `kib`: its exit
+/// code, standard output and standard error.
+#[cfg(target_os = "linux")]
+fn encode_under_ulimit(dir: &Path, n: u32, kib: u64, args: &[&str]) -> (Option<i32>, String, String) {
+    let grid = dir.join(format!("random{n}.u8"));
+    if !grid.exists() {
+        std::fs::write(&grid, (0..n * n * n).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect::<Vec<u8>>()).unwrap();
+    }
+    let args: Vec<String> = args.iter().map(|a| if *a == "GRID" { grid.display().to_string() } else { a.to_string() }).collect();
+    let out = Command::new("sh")
+        .arg("-c")
+        .arg(format!("ulimit -v {kib} && exec \"$0\" \"$@\""))
+        .arg(env!("CARGO_BIN_EXE_gsenc"))
+        .args(&args)
+        .output()
+        .unwrap();
+    (out.status.code(), String::from_utf8_lossy(&out.stdout).into_owned(), String::from_utf8_lossy(&out.stderr).into_owned())
+}
+
 /// A budget whose training state cannot fit in the memory the process may
 /// take (here `ulimit -v` of 3 GB; 7M primitives take about 5.6 GB) is a
 /// usage error before it is allocated: the allocation aborted the tool
@@ -183,17 +203,12 @@ fn render_draws_the_model_beside_its_reference_and_rejects_bad_views() {
 #[test]
 fn a_budget_beyond_the_memory_available_is_refused() {
     let dir = tmpdir("memory");
-    let grid = dir.join("g.u8");
-    std::fs::write(&grid, (0..192 * 192 * 192u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect::<Vec<u8>>()).unwrap();
     let model = dir.join("m.gsm");
+    let m = model.to_str().unwrap();
     let limited = |budget: &str| {
-        let script = format!(
-            "ulimit -v 3000000 && exec \"$0\" encode grid --input '{}' --dims 192,192,192 --dtype u8 --budget {budget} --iters 2 --backend cpu -o '{}' --quiet",
-            grid.display(),
-            model.display()
-        );
-        let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_gsenc")).output().unwrap();
-        (out.status.code(), String::from_utf8_lossy(&out.stderr).into_owned())
+        let args = ["encode", "grid", "--input", "GRID", "--dims", "192,192,192", "--dtype", "u8", "--budget", budget, "--iters", "2", "--backend", "cpu", "-o", m, "--quiet"];
+        let (code, _, err) = encode_under_ulimit(&dir, 192, 3_000_000, &args);
+        (code, err)
     };
     let (code, err) = limited("7000000");
     assert_eq!(code, Some(2), "{err}");
@@ -213,19 +228,12 @@ fn a_budget_beyond_the_memory_available_is_refused() {
 #[test]
 fn a_target_search_caps_itself_at_the_memory_available() {
     let dir = tmpdir("memory-target");
-    let grid = dir.join("g.u8");
-    std::fs::write(&grid, (0..128 * 128 * 128u32).map(|i| (i.wrapping_mul(2654435761) >> 24) as u8).collect::<Vec<u8>>()).unwrap();
     let model = dir.join("m.gsm");
-    let script = format!(
-        "ulimit -v 1200000 && exec \"$0\" encode grid --input '{}' --dims 128,128,128 --dtype u8 --target-psnr 80 --budget 2000000 \
-         --iters 2 --points 64 --backend cpu -o '{}' --json",
-        grid.display(),
-        model.display()
-    );
-    let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_gsenc")).output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(0), "{err}");
-    let v = json(&String::from_utf8_lossy(&out.stdout));
+    let args = ["encode", "grid", "--input", "GRID", "--dims", "128,128,128", "--dtype", "u8", "--target-psnr", "80", "--budget", "2000000"];
+    let args = [&args[..], &["--iters", "2", "--points", "64", "--backend", "cpu", "-o", model.to_str().unwrap(), "--json"]].concat();
+    let (code, out, err) = encode_under_ulimit(&dir, 128, 1_200_000, &args);
+    assert_eq!(code, Some(0), "{err}");
+    let v = json(&out);
     let cap = v["target"]["cap"].as_u64().unwrap();
     assert!(cap >= 16 && cap < 2_000_000, "cap {cap}");
     assert!(v["primitives"].as_u64().unwrap() <= cap, "{v}");
