@@ -17,26 +17,29 @@ pub const LIMIT_VARIABLE: &str = "GSENC_MEMORY_LIMIT";
 /// Bytes of memory this process can take now, where the system says
 /// (Linux); `None` elsewhere, where nothing is refused on its account
 /// (unless `GSENC_MEMORY_LIMIT` is set: then the limit as a whole, since
-/// what the process holds is not known there).
-pub fn available() -> Option<u64> {
+/// what the process holds is not known there). An error only when
+/// `GSENC_MEMORY_LIMIT` is set to what is not a size.
+pub fn available() -> crate::Result<Option<u64>> {
+    let limit = env_limit()?;
     #[cfg(target_os = "linux")]
     {
-        let meminfo = std::fs::read_to_string("/proc/meminfo").ok()?;
-        let system = kib_value(&meminfo, "MemAvailable:")?;
+        let Some(system) = std::fs::read_to_string("/proc/meminfo").ok().and_then(|m| kib_value(&m, "MemAvailable:")) else {
+            return Ok(limit);
+        };
         let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-        let asked = env_limit().map(|limit| limit.saturating_sub(kib_value(&status, "VmRSS:").unwrap_or(0)));
-        Some([cgroup_left(), limits_left(), asked].into_iter().flatten().fold(system, u64::min))
+        let asked = limit.map(|limit| limit.saturating_sub(kib_value(&status, "VmRSS:").unwrap_or(0)));
+        Ok(Some([cgroup_left(), limits_left(), asked].into_iter().flatten().fold(system, u64::min)))
     }
     #[cfg(not(target_os = "linux"))]
     {
-        env_limit()
+        Ok(limit)
     }
 }
 
 /// Refuses to allocate `bytes` for `what` when this process cannot take them
 /// now (an InvalidArgument error naming both sizes).
 pub fn check_fits(what: &str, bytes: u64) -> crate::Result<()> {
-    check_fits_in(what, bytes, available())
+    check_fits_in(what, bytes, available()?)
 }
 
 /// [`check_fits`] against `available` bytes (nothing is refused with `None`).
@@ -47,15 +50,15 @@ pub fn check_fits_in(what: &str, bytes: u64, available: Option<u64>) -> crate::R
     }
 }
 
-/// `GSENC_MEMORY_LIMIT` in bytes; a value it cannot read is ignored, with
-/// a warning in the log.
-fn env_limit() -> Option<u64> {
-    let text = std::env::var(LIMIT_VARIABLE).ok()?;
-    let parsed = parse_size(&text);
-    if parsed.is_none() {
-        tracing::warn!(value = %text, "{LIMIT_VARIABLE} is not a size such as 8G or 1073741824; ignored");
+/// `GSENC_MEMORY_LIMIT` in bytes (`None` when unset or empty); a value
+/// that is not a size is an error, as a bad `GSENC_BACKEND` is.
+fn env_limit() -> crate::Result<Option<u64>> {
+    match std::env::var(LIMIT_VARIABLE) {
+        Ok(text) if !text.trim().is_empty() => parse_size(&text)
+            .map(Some)
+            .ok_or_else(|| crate::Error::arg(format!("{LIMIT_VARIABLE}: '{text}' is not a size such as 8G or 1073741824"))),
+        _ => Ok(None),
     }
-    parsed
 }
 
 /// A size in bytes: digits, then at most one of `k`, `M`, `G`, `T`
@@ -140,7 +143,7 @@ mod tests {
     fn available_memory_is_positive_and_at_most_the_total() {
         let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap();
         let total: u64 = meminfo.lines().find(|l| l.starts_with("MemTotal:")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
-        let available = available().expect("Linux says how much memory is available");
+        let available = available().unwrap().expect("Linux says how much memory is available");
         assert!(available > 0 && available <= total * 1024, "{available} of {total} KiB");
     }
 

@@ -265,6 +265,24 @@ fn bad_inputs_fail_with_codes_and_messages() {
     let (code, _, err) = gsenc(&["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "10", "--points", "4000000000", "-o", ms, "--quiet"]);
     assert_eq!(code, 2);
     assert!(err.contains("4000000000 points per iteration are more than the 16777216"), "{err}");
+    // A memory limit that is not a size is a usage error, as a bad
+    // GSENC_BACKEND is, not a limit silently ignored; a size is taken.
+    let limited = dir.join("limited.gsm");
+    for (limit, code) in [("lots", 2), ("8GB", 2), ("64G", 0)] {
+        let out = Command::new(env!("CARGO_BIN_EXE_gsenc"))
+            .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "10", "--iters", "5", "--points", "256", "--quiet"])
+            .arg("-o")
+            .arg(&limited)
+            .env("GSENC_MEMORY_LIMIT", limit)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(code), "{limit}: {err}");
+        if code == 2 {
+            assert!(err.contains(&format!("GSENC_MEMORY_LIMIT: '{limit}' is not a size")), "{err}");
+        }
+        assert_eq!(limited.exists(), code == 0, "{limit}");
+    }
     vals[123] = f32::NAN;
     let nan = dir.join("nan.f32");
     std::fs::write(&nan, gsenc::io::raw::to_f32_bytes(&vals)).unwrap();

@@ -116,7 +116,7 @@ pub fn validate(target: &Target, cfg: &EncodeConfig, init: Option<&[Primitive]>)
     if cfg.points() > crate::encode::config::MAX_POINTS {
         return Err(Error::arg(format!("{} points per iteration are more than the {} a batch may hold", cfg.points(), crate::encode::config::MAX_POINTS)));
     }
-    check_training_memory(cfg.budget, cfg.points(), crate::memory::available())?;
+    check_training_memory(cfg.budget, cfg.points(), crate::memory::available()?)?;
     if !(cfg.learning_rate.is_finite() && cfg.learning_rate > 0.0) {
         return Err(Error::arg("learning rate must be positive"));
     }

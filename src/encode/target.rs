@@ -120,7 +120,7 @@ pub fn encode_to_target(
     .min(prepared.reference.len())
     // A budget whose training cannot fit would fail the encode that tries
     // it (`refine::check_training_memory`): the search stays within what fits.
-    .min(fitting_budget(crate::memory::available(), request.config.points()));
+    .min(fitting_budget(crate::memory::available()?, request.config.points()));
     let mut search = Search { prepared, request, target: t.db, cap, backend, progress, probes: vec![], tries: vec![] };
     let (first, curve) = match request.start {
         Start::Seeded => {

@@ -12,8 +12,8 @@ use std::path::Path;
 /// The most bytes a whole read may hold when what is read from them takes
 /// `kept_per_byte` times as much memory again (the values parsed from it,
 /// a decoded copy): the available memory's share for the bytes.
-pub(crate) fn whole_read_budget(kept_per_byte: u64) -> u64 {
-    crate::memory::available().map_or(u64::MAX, |m| m / (1 + kept_per_byte))
+pub(crate) fn whole_read_budget(kept_per_byte: u64) -> Result<u64> {
+    Ok(crate::memory::available()?.map_or(u64::MAX, |m| m / (1 + kept_per_byte)))
 }
 
 /// Reads `from` (the content of `path`) to its end when it holds no more

@@ -48,7 +48,7 @@ pub fn hdf5_signature(path: &std::path::Path) -> std::io::Result<bool> {
 /// whole files (`.vti`, step indexes, CSV) read through it.
 pub fn read_whole(path: &std::path::Path) -> crate::Result<Vec<u8>> {
     let file = open_to_end(path)?;
-    budget::read_within(path, &file, file_len(&file), budget::whole_read_budget(1), |e| crate::Error::io(path, e))
+    budget::read_within(path, &file, file_len(&file), budget::whole_read_budget(1)?, |e| crate::Error::io(path, e))
 }
 
 /// The length of a regular file (not of a pipe, whose metadata says 0).

@@ -36,7 +36,7 @@ impl ModelSink for ModelFolder {
 /// [`read_model_file`] (the tool's, Python's and `gsenc_model_read`'s reader of
 /// a path) reads through it.
 fn read_model_bytes(path: &Path) -> Result<Vec<u8>> {
-    read_model_bytes_within(path, super::budget::whole_read_budget(1))
+    read_model_bytes_within(path, super::budget::whole_read_budget(1)?)
 }
 
 fn read_model_bytes_within(path: &Path, budget: u64) -> Result<Vec<u8>> {

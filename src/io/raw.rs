@@ -105,7 +105,7 @@ fn raw_len(dims: [usize; 3], dtype: DType) -> Result<usize> {
 /// that expands without end: `budget`); see [`read_bytes_at_most`] for a
 /// read whose length is known.
 pub fn read_bytes(path: impl AsRef<Path>) -> Result<Vec<u8>> {
-    read_bytes_within(path.as_ref(), super::budget::whole_read_budget(0))
+    read_bytes_within(path.as_ref(), super::budget::whole_read_budget(0)?)
 }
 
 /// [`read_bytes`], refusing content beyond `budget` bytes.
@@ -238,7 +238,7 @@ pub fn read_items(path: impl AsRef<Path>, dtype: DType, comps: usize, rows: Rows
 /// Content beyond the memory available for it and the values parsed from
 /// it (8 bytes each) is refused by name ([`read_bytes`]).
 pub fn read_items_counted(path: &Path, dtype: DType, comps: usize, rows: Rows) -> Result<(Vec<f64>, usize)> {
-    let bytes = read_bytes_within(path, super::budget::whole_read_budget(8 / dtype.size() as u64))?;
+    let bytes = read_bytes_within(path, super::budget::whole_read_budget(8 / dtype.size() as u64)?)?;
     let held = bytes.len() / (comps * dtype.size()).max(1);
     Ok((parse_items(&bytes, dtype, comps, rows, &path.display().to_string())?, held))
 }

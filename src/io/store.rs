@@ -496,7 +496,7 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
 /// ask for that much memory.
 fn read_all<T: H5Type>(c: &hdf5::Container, what: &str, bad: &dyn Fn(String) -> Error) -> Result<Vec<T>> {
     let bytes = (c.size() as u64).saturating_mul(std::mem::size_of::<T>() as u64);
-    let budget = super::budget::whole_read_budget(1);
+    let budget = super::budget::whole_read_budget(1)?;
     if bytes > budget {
         return Err(bad(format!("{what} declares {bytes} bytes, more than the {budget} a read of it may take of the memory available")));
     }
