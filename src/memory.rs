@@ -28,7 +28,7 @@ pub fn available() -> crate::Result<Option<u64>> {
         };
         let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
         let asked = limit.map(|limit| limit.saturating_sub(kib_value(&status, "VmRSS:").unwrap_or(0)));
-        Ok(Some([cgroup_left(), limits_left(), asked].into_iter().flatten().fold(system, u64::min)))
+        Ok(Some([cgroup_left(), limits_left(&status), asked].into_iter().flatten().fold(system, u64::min)))
     }
     #[cfg(not(target_os = "linux"))]
     {
@@ -115,12 +115,12 @@ fn stat_value(stat: &str, key: &str) -> Option<u64> {
 }
 
 /// What the process's soft limits on its address space and its data leave
-/// beyond what it has mapped now; `None` when neither is set.
+/// beyond what it has mapped now (`status`: `/proc/self/status`); `None`
+/// when neither is set.
 #[cfg(target_os = "linux")]
-fn limits_left() -> Option<u64> {
+fn limits_left(status: &str) -> Option<u64> {
     let limits = std::fs::read_to_string("/proc/self/limits").ok()?;
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let left = |name: &str, used: &str| Some(soft_limit(&limits, name)?.saturating_sub(kib_value(&status, used).unwrap_or(0)));
+    let left = |name: &str, used: &str| Some(soft_limit(&limits, name)?.saturating_sub(kib_value(status, used).unwrap_or(0)));
     [left("Max address space", "VmSize:"), left("Max data size", "VmData:")].into_iter().flatten().min()
 }
 
