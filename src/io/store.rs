@@ -180,6 +180,9 @@ impl Store {
     /// as its rank 0); the others are unaffected.
     pub fn entries(&self) -> Result<Vec<Entry>> {
         let err = h5(&self.path);
+        // One share of the memory for the whole listing: asking it costs
+        // tens of microseconds, and a store may hold thousands of entries.
+        let budget = super::budget::whole_read_budget(1)?;
         let mut out = Vec::new();
         for field in self.file.member_names().map_err(&err)? {
             let Ok(fg) = self.file.group(&field) else { continue };
@@ -199,7 +202,7 @@ impl Store {
                 for rank_name in sg.member_names().map_err(&err)? {
                     let Some(rank) = rank_name.strip_prefix("rank_").and_then(|r| r.parse::<u32>().ok()) else { continue };
                     let key = EntryKey { field: field.clone(), step, rank };
-                    let content = sg.group(&rank_name).map_err(&err).and_then(|g| read_info(&g, &key, &self.path));
+                    let content = sg.group(&rank_name).map_err(&err).and_then(|g| read_info(&g, &key, &self.path, budget));
                     out.push(Entry { key, content });
                 }
             }
@@ -214,9 +217,10 @@ impl Store {
             .file
             .group(&key.path())
             .map_err(|_| Error::arg(format!("{} holds no model {}", self.path.display(), key.path())))?;
-        let info = read_info(&g, key, &self.path)?;
-        let (params, precision) = read_params(&g, &info, &self.path)?;
-        let support = read_support(&g, &info, &self.path)?;
+        let budget = super::budget::whole_read_budget(1)?;
+        let info = read_info(&g, key, &self.path, budget)?;
+        let (params, precision) = read_params(&g, &info, &self.path, budget)?;
+        let support = read_support(&g, &info, &self.path, budget)?;
         Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
     }
 }
@@ -404,19 +408,19 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
 }
 
 /// The entry's support, when it has one.
-fn read_support(g: &Group, info: &EntryInfo, path: &Path) -> Result<Option<Support>> {
+fn read_support(g: &Group, info: &EntryInfo, path: &Path, budget: u64) -> Result<Option<Support>> {
     let Ok(ds) = g.dataset("support") else { return Ok(None) };
     let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), EntryKey::of(&info.meta).path()));
-    let bits: Vec<u8> = read_all(&ds, "support", &bad)?;
+    let bits: Vec<u8> = read_all(&ds, "support", budget, &bad)?;
     let support = Support::from_bits(info.meta.frame.dims, bits).map_err(|e| bad(e.to_string()))?;
     // 1.2: the decode outside it, when not zero.
     let Ok(a) = ds.attr("outside") else { return Ok(Some(support)) };
-    let v: Vec<f32> = read_all(&a, "support attribute outside", &bad)?;
+    let v: Vec<f32> = read_all(&a, "support attribute outside", budget, &bad)?;
     let [offset, gain] = v[..] else { return Err(bad(format!("support attribute outside holds {} values, not 2", v.len()))) };
     support.with_outside(Outside { offset, gain }).map(Some).map_err(|e| bad(e.to_string()))
 }
 
-fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
+fn read_info(g: &Group, key: &EntryKey, path: &Path, budget: u64) -> Result<EntryInfo> {
     let bad = |what: String| Error::format(format!("{}:{} {what} (an append cut short, or not written by gsenc)", path.display(), key.path()));
     let scalar = |name: &str| -> Result<hdf5::Attribute> { g.attr(name).map_err(|_| bad(format!("has no attribute '{name}'"))) };
     let f64a = |name: &str| scalar(name)?.read_scalar::<f64>().map_err(|e| bad(format!("attribute {name}: {e}")));
@@ -426,7 +430,7 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
         scalar(name)?.read_scalar::<VarLenUnicode>().map(|s| s.as_str().to_owned()).map_err(|e| bad(format!("attribute {name}: {e}")))
     };
     let f64s = |name: &str, len: usize| -> Result<Vec<f64>> {
-        let v: Vec<f64> = read_all(&*scalar(name)?, &format!("attribute {name}"), &bad)?;
+        let v: Vec<f64> = read_all(&*scalar(name)?, &format!("attribute {name}"), budget, &bad)?;
         if v.len() != len {
             return Err(bad(format!("attribute {name} holds {} values, not {len}", v.len())));
         }
@@ -434,7 +438,7 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
     };
     let payload_name = stra("payload")?;
     let payload = Payload::from_name(&payload_name).map_err(|_| bad(format!("has an unknown payload '{payload_name}'")))?;
-    let dims_raw: Vec<u64> = read_all(&*scalar("dims")?, "attribute dims", &bad)?;
+    let dims_raw: Vec<u64> = read_all(&*scalar("dims")?, "attribute dims", budget, &bad)?;
     let dims: [usize; 3] = match dims_raw.as_slice() {
         [x, y, z] if [x, y, z].iter().all(|&&d| d > 0 && d <= u32::MAX as u64) => [*x as usize, *y as usize, *z as usize],
         _ => return Err(bad(format!("has invalid dims {dims_raw:?}"))),
@@ -490,33 +494,32 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path) -> Result<EntryInfo> {
 }
 
 /// The values of a dataset or an attribute, refusing one whose declared
-/// size goes beyond half the memory available (`io/budget.rs`) unread: a
-/// foreign file may declare a dataset far larger than it stores (HDF5
-/// reads unwritten chunks as the fill value), whose read would otherwise
-/// ask for that much memory.
-fn read_all<T: H5Type>(c: &hdf5::Container, what: &str, bad: &dyn Fn(String) -> Error) -> Result<Vec<T>> {
+/// size goes beyond `budget` (the reader's share of the memory available,
+/// `io/budget.rs`) unread: a foreign file may declare a dataset far larger
+/// than it stores (HDF5 reads unwritten chunks as the fill value), whose
+/// read would otherwise ask for that much memory.
+fn read_all<T: H5Type>(c: &hdf5::Container, what: &str, budget: u64, bad: &dyn Fn(String) -> Error) -> Result<Vec<T>> {
     let bytes = (c.size() as u64).saturating_mul(std::mem::size_of::<T>() as u64);
-    let budget = super::budget::whole_read_budget(1)?;
     if bytes > budget {
         return Err(bad(format!("{what} declares {bytes} bytes, more than the {budget} a read of it may take of the memory available")));
     }
     c.read_raw::<T>().map_err(|e| bad(format!("{what}: {e}")))
 }
 
-fn read_rows<T: H5Type>(g: &Group, name: &str, rows: usize, n: usize, bad: &dyn Fn(String) -> Error) -> Result<(Dataset, Vec<T>)> {
+fn read_rows<T: H5Type>(g: &Group, name: &str, rows: usize, n: usize, budget: u64, bad: &dyn Fn(String) -> Error) -> Result<(Dataset, Vec<T>)> {
     let ds = g.dataset(name).map_err(|_| bad(format!("has no dataset '{name}'")))?;
     if ds.shape() != [rows, n] {
         return Err(bad(format!("dataset {name} has shape {:?}, not [{rows}, {n}]", ds.shape())));
     }
-    let v = read_all::<T>(&ds, &format!("dataset {name}"), bad)?;
+    let v = read_all::<T>(&ds, &format!("dataset {name}"), budget, bad)?;
     Ok((ds, v))
 }
 
-fn read_maps(ds: &Dataset, len: usize, bad: &dyn Fn(String) -> Error) -> Result<Vec<Affine>> {
+fn read_maps(ds: &Dataset, len: usize, budget: u64, bad: &dyn Fn(String) -> Error) -> Result<Vec<Affine>> {
     let get = |name: &str| -> Result<Vec<f32>> {
         let what = format!("{} attribute {name}", ds.name());
         let a = ds.attr(name).map_err(|e| bad(format!("{what}: {e}")))?;
-        let v: Vec<f32> = read_all(&a, &what, bad)?;
+        let v: Vec<f32> = read_all(&a, &what, budget, bad)?;
         if v.len() != len {
             return Err(bad(format!("{} attribute {name} holds {} values, not {len}", ds.name(), v.len())));
         }
@@ -527,7 +530,7 @@ fn read_maps(ds: &Dataset, len: usize, bad: &dyn Fn(String) -> Error) -> Result<
 }
 
 /// The entry's primitives, and the packed payload's precision when it has one.
-fn read_params(g: &Group, info: &EntryInfo, path: &Path) -> Result<(Vec<Primitive>, Option<Precision>)> {
+fn read_params(g: &Group, info: &EntryInfo, path: &Path, budget: u64) -> Result<(Vec<Primitive>, Option<Precision>)> {
     let key = EntryKey::of(&info.meta);
     let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), key.path()));
     let n = usize::try_from(info.count).map_err(|_| bad("count exceeds this machine's memory".into()))?;
@@ -535,29 +538,29 @@ fn read_params(g: &Group, info: &EntryInfo, path: &Path) -> Result<(Vec<Primitiv
     let params = match info.payload {
         Payload::Packed => {
             let ds = g.dataset("packed").map_err(|_| bad("has no dataset 'packed'".into()))?;
-            let bytes: Vec<u8> = read_all(&ds, "dataset packed", &bad)?;
+            let bytes: Vec<u8> = read_all(&ds, "dataset packed", budget, &bad)?;
             let packed = read_packed_payload(&bytes, n).map_err(|e| bad(e.to_string()))?;
             precision = Some(packed.precision);
             packed.params().map_err(|e| bad(e.to_string()))?
         }
         Payload::Float32 => {
-            let (_, rows) = read_rows::<f32>(g, "params", 12, n, &bad)?;
+            let (_, rows) = read_rows::<f32>(g, "params", 12, n, budget, &bad)?;
             (0..n).map(|i| std::array::from_fn(|k| rows[k * n + i])).collect()
         }
         Payload::Bits8(coding) => {
             let centres = match coding {
                 CentreCoding::Float16 => {
-                    let (_, half) = read_rows::<half::f16>(g, "centres", 3, n, &bad)?;
+                    let (_, half) = read_rows::<half::f16>(g, "centres", 3, n, budget, &bad)?;
                     Centres::Float16(half.into_iter().map(|h| h.to_bits()).collect())
                 }
                 CentreCoding::Fixed16 => {
-                    let (ds, codes) = read_rows::<u16>(g, "centres", 3, n, &bad)?;
-                    let m = read_maps(&ds, 3, &bad)?;
+                    let (ds, codes) = read_rows::<u16>(g, "centres", 3, n, budget, &bad)?;
+                    let m = read_maps(&ds, 3, budget, &bad)?;
                     Centres::Fixed16 { maps: [m[0], m[1], m[2]], codes }
                 }
             };
-            let (ds, codes) = read_rows::<u8>(g, "codes", 9, n, &bad)?;
-            let m = read_maps(&ds, 9, &bad)?;
+            let (ds, codes) = read_rows::<u8>(g, "codes", 9, n, budget, &bad)?;
+            let m = read_maps(&ds, 9, budget, &bad)?;
             let q = Quantized { n, centres, maps: std::array::from_fn(|k| m[k]), codes };
             q.dequantize().map_err(|e| bad(e.to_string()))?
         }
