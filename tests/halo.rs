@@ -4,7 +4,7 @@
 //! voxels; the step index round-trips and refuses what is not one.
 
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
-use gsenc::domain::halo::{data_bounds, join, split, Kind};
+use gsenc::domain::halo::{data_bounds, exchange_bytes, fill, join, joined_bytes, plan, Kind};
 use gsenc::field::IndexBox;
 use gsenc::input::cells::{CellSize, Cells};
 use gsenc::input::particles::Particles;
@@ -14,6 +14,33 @@ use gsenc::input::StepData;
 fn field(x: [f64; 3]) -> f32 {
     let r2: f64 = (0..3).map(|a| (x[a] - [0.45, 0.55, 0.5][a]).powi(2)).sum();
     (-r2 / 0.03).exp() as f32 + 0.1 * x[0] as f32
+}
+
+/// What `data` sends each piece: `plan` counts, `fill` writes one buffer,
+/// cut here by the counts. The buffer starts as NaN and no input is NaN,
+/// so a slot `fill` leaves unwritten (a count too large) shows.
+fn split(data: &StepData, global: &IndexFrame, pieces: &[IndexBox]) -> gsenc::Result<Vec<Vec<f64>>> {
+    let routing = plan(data, global, pieces)?;
+    let flat = fill(data, global, pieces, &routing);
+    assert_eq!(flat.len(), routing.total());
+    assert!(flat.iter().all(|v| !v.is_nan()), "a value of the split was never written");
+    let mut rest = &flat[..];
+    Ok(routing.lens().iter().map(|&n| {
+        let (piece, tail) = rest.split_at(n);
+        rest = tail;
+        piece.to_vec()
+    }).collect())
+}
+
+/// The memory `exchange_bytes` predicts is what the buffers and the joined
+/// data hold: the values sent and received as f64, and the join's own
+/// `bytes()`, counted from its arrays.
+fn check_exchange_bytes(kind: Kind, sent: &[Vec<Vec<f64>>], p: usize, piece: &IndexBox, joined: &StepData) {
+    let out: usize = sent[p].iter().map(Vec::len).sum();
+    let inn: usize = sent.iter().map(|s| s[p].len()).sum();
+    assert_eq!(joined_bytes(kind, inn, piece), joined.bytes() as u64, "piece {p}");
+    let want = 8 * inn as u64 + (joined.bytes() as u64).max(8 * out as u64);
+    assert_eq!(exchange_bytes(kind, out, inn, piece), want, "piece {p}");
 }
 
 /// Pseudo-random points in the unit cube.
@@ -52,6 +79,7 @@ fn check_pieces(parts: Vec<StepData>, global_ref: &Grid, global: &IndexFrame, ha
     for (p, piece) in pieces.iter().enumerate() {
         let received: Vec<&[f64]> = sent.iter().map(|s| s[p].as_slice()).collect();
         let joined = join(kind, &received, global, piece).unwrap();
+        check_exchange_bytes(kind, &sent, p, piece, &joined);
         let reference = prepare(&joined);
         assert_eq!(reference.dims, piece.dims());
         let mut differing = 0;
@@ -115,27 +143,38 @@ fn cell_pieces_deposit_the_serial_reference() {
     }
     let values: Vec<f32> = centres.iter().map(|&c| field(c)).collect();
     let range = ValueRange::from_data(&values, Transform::Linear).unwrap();
-    let cells = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &values };
-    let serial = prepare_cells(&cells, &Placement { dims: [24; 3], bounds: None }, &RangeSpec::Fixed(range)).unwrap();
-    let parts: Vec<StepData> = (0..4)
-        .map(|r| {
-            let mine: Vec<usize> = (0..centres.len()).filter(|&j| owner(&centres[j]) == r).collect();
-            StepData::Cells {
-                centres: mine.iter().map(|&j| centres[j]).collect(),
-                edges: mine.iter().map(|&j| edges[j]).collect(),
-                volumes: Vec::new(),
-                values: mine.iter().map(|&j| values[j]).collect(),
-                placement: Placement { dims: [24; 3], bounds: None },
-            }
-        })
-        .collect();
-    check_pieces(parts, &serial.reference, &serial.frame, 3, 0.08, &|d| match d {
-        StepData::Cells { centres, edges, values, placement, .. } => {
-            let c = Cells { centres, size: CellSize::Edges(edges), values };
-            prepare_cells(&c, placement, &RangeSpec::Fixed(range)).unwrap().reference
+    // The same cubes given by their edges and by their volumes.
+    let volumes: Vec<f64> = edges.iter().map(|e| e[0] * e[1] * e[2]).collect();
+    for by_volume in [false, true] {
+        fn size<'a>(by_volume: bool, edges: &'a [[f64; 3]], volumes: &'a [f64]) -> CellSize<'a> {
+            if by_volume { CellSize::Volumes(volumes) } else { CellSize::Edges(edges) }
         }
-        _ => unreachable!(),
-    });
+        let cells = Cells { centres: &centres, size: size(by_volume, &edges, &volumes), values: &values };
+        let serial = prepare_cells(&cells, &Placement { dims: [24; 3], bounds: None }, &RangeSpec::Fixed(range)).unwrap();
+        let parts: Vec<StepData> = (0..4)
+            .map(|r| {
+                let mine: Vec<usize> = (0..centres.len()).filter(|&j| owner(&centres[j]) == r).collect();
+                fn pick<T: Copy>(all: &[T], mine: &[usize]) -> Vec<T> {
+                    mine.iter().map(|&j| all[j]).collect()
+                }
+                StepData::Cells {
+                    centres: pick(&centres, &mine),
+                    edges: if by_volume { Vec::new() } else { pick(&edges, &mine) },
+                    volumes: if by_volume { pick(&volumes, &mine) } else { Vec::new() },
+                    values: pick(&values, &mine),
+                    placement: Placement { dims: [24; 3], bounds: None },
+                }
+            })
+            .collect();
+        assert_eq!(Kind::of(&parts[0]), if by_volume { Kind::CellVolumes } else { Kind::CellBoxes });
+        check_pieces(parts, &serial.reference, &serial.frame, 3, 0.08, &|d| match d {
+            StepData::Cells { centres, edges, volumes, values, placement } => {
+                let c = Cells { centres, size: size(by_volume, edges, volumes), values };
+                prepare_cells(&c, placement, &RangeSpec::Fixed(range)).unwrap().reference
+            }
+            _ => unreachable!(),
+        });
+    }
 }
 
 #[test]
@@ -160,7 +199,9 @@ fn grid_pieces_are_the_global_grid_with_halo_and_must_tile_it() {
     let sent: Vec<Vec<Vec<f64>>> = parts.iter().map(|d| split(d, &global, &pieces).unwrap()).collect();
     for (p, piece) in pieces.iter().enumerate() {
         let received: Vec<&[f64]> = sent.iter().map(|s| s[p].as_slice()).collect();
-        let StepData::Grid { grid, frame } = join(Kind::Grid, &received, &global, piece).unwrap() else { panic!() };
+        let joined = join(Kind::Grid, &received, &global, piece).unwrap();
+        check_exchange_bytes(Kind::Grid, &sent, p, piece, &joined);
+        let StepData::Grid { grid, frame } = joined else { panic!() };
         assert_eq!(frame, global.sub_frame(piece));
         for (i, &v) in grid.values.iter().enumerate() {
             let [x, y, z] = grid.coords(i);

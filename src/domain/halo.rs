@@ -111,57 +111,122 @@ fn reach(data: &StepData, j: usize, gamma: f64) -> f64 {
     }
 }
 
-/// Splits a rank's data into one buffer of records per piece (`pieces`:
-/// boxes of the lattice of `global`). Items go to every piece they reach;
-/// grid voxels to every piece that holds them.
-pub fn split(data: &StepData, global: &IndexFrame, pieces: &[IndexBox]) -> Result<Vec<Vec<f64>>> {
-    let mut out = vec![Vec::new(); pieces.len()];
-    let boxes: Vec<Bounds> = pieces.iter().map(|b| global.sub_frame(b).world_box()).collect();
-    let route = |centres: &[[f64; 3]], out: &mut Vec<Vec<f64>>, record: &dyn Fn(usize, &mut Vec<f64>)| {
-        for (j, c) in centres.iter().enumerate() {
-            let r = reach(data, j, global.gamma);
-            for (p, b) in boxes.iter().enumerate() {
-                if (0..3).all(|a| c[a] + r >= b.min[a] && c[a] - r <= b.max[a]) {
-                    record(j, &mut out[p]);
-                }
-            }
-        }
+/// What one rank sends each piece, counted before anything is allocated,
+/// so that the exchange's memory can be checked first
+/// ([`exchange_bytes`]): `lens()[p]` values of records for piece `p`.
+pub struct Routing {
+    lens: Vec<usize>,
+    /// A grid's box in the global lattice (`None` for items).
+    grid: Option<IndexBox>,
+}
+
+impl Routing {
+    /// Values for each piece, in piece order.
+    pub fn lens(&self) -> &[usize] {
+        &self.lens
+    }
+
+    /// Values for all pieces.
+    pub fn total(&self) -> usize {
+        self.lens.iter().sum()
+    }
+}
+
+/// Counts what a rank's data sends each piece (`pieces`: boxes of the
+/// lattice of `global`). Items go to every piece they reach; grid voxels to
+/// every piece that holds them. An error for a grid off the lattice.
+pub fn plan(data: &StepData, global: &IndexFrame, pieces: &[IndexBox]) -> Result<Routing> {
+    let grid = match data {
+        StepData::Grid { frame, .. } => Some(grid_box(global, frame)?),
+        _ => None,
     };
-    match data {
-        StepData::Grid { grid, frame } => {
-            let mine = grid_box(global, frame)?;
+    let mut lens = vec![0; pieces.len()];
+    route(data, global, pieces, grid.as_ref(), &mut |p, n, _| lens[p] += n);
+    Ok(Routing { lens, grid })
+}
+
+/// The records [`plan`] counted, in one buffer, piece after piece
+/// (`routing.lens()` long each).
+pub fn fill(data: &StepData, global: &IndexFrame, pieces: &[IndexBox], routing: &Routing) -> Vec<f64> {
+    let mut out = vec![f64::NAN; routing.total()];
+    let mut at: Vec<usize> = routing.lens.iter().scan(0, |start, &n| Some(std::mem::replace(start, *start + n))).collect();
+    route(data, global, pieces, routing.grid.as_ref(), &mut |p, n, write| {
+        write(&mut out[at[p]..at[p] + n]);
+        at[p] += n;
+    });
+    out
+}
+
+/// Where each record of a rank's data goes: `emit(piece, n, write)` for
+/// each run of `n` values, which `write` writes into a slice of `n`.
+/// `grid` is the box of a grid's data (from [`grid_box`]).
+fn route(data: &StepData, global: &IndexFrame, pieces: &[IndexBox], grid: Option<&IndexBox>, emit: &mut dyn FnMut(usize, usize, &dyn Fn(&mut [f64]))) {
+    let (centres, width) = match data {
+        StepData::Grid { grid: values, .. } => {
+            let Some(mine) = grid else { return };
             for (p, piece) in pieces.iter().enumerate() {
-                let Some(common) = intersect(&mine, piece) else { continue };
-                let buf = &mut out[p];
-                buf.extend(common.lo.iter().chain(&common.hi).map(|&v| v as f64));
+                let Some(common) = intersect(mine, piece) else { continue };
+                emit(p, 6, &|out| out.iter_mut().zip(common.lo.iter().chain(&common.hi)).for_each(|(o, &v)| *o = v as f64));
+                let n = common.hi[0] - common.lo[0];
                 for k in common.lo[2]..common.hi[2] {
                     for j in common.lo[1]..common.hi[1] {
-                        let row = grid.index(common.lo[0] - mine.lo[0], j - mine.lo[1], k - mine.lo[2]);
-                        let n = common.hi[0] - common.lo[0];
-                        buf.extend(grid.values[row..row + n].iter().map(|&v| v as f64));
+                        let row = values.index(common.lo[0] - mine.lo[0], j - mine.lo[1], k - mine.lo[2]);
+                        emit(p, n, &|out| out.iter_mut().zip(&values.values[row..row + n]).for_each(|(o, &v)| *o = v as f64));
                     }
                 }
             }
+            return;
         }
-        StepData::Particles { positions, smoothing_length, mass, values, .. } => {
-            route(positions, &mut out, &|j, buf| {
-                buf.extend(positions[j]);
-                buf.extend([smoothing_length[j], mass[j] as f64, values[j] as f64]);
-            });
-        }
-        StepData::Cells { centres, edges, volumes, values, .. } => {
-            let boxes = volumes.is_empty();
-            route(centres, &mut out, &|j, buf| {
-                buf.extend(centres[j]);
-                match boxes {
-                    true => buf.extend(edges[j]),
-                    false => buf.push(volumes[j]),
-                }
-                buf.push(values[j] as f64);
-            });
+        StepData::Particles { positions, .. } => (positions, Kind::Particles.record_len()),
+        StepData::Cells { centres, .. } => (centres, Kind::of(data).record_len()),
+    };
+    let boxes: Vec<Bounds> = pieces.iter().map(|b| global.sub_frame(b).world_box()).collect();
+    for (j, c) in centres.iter().enumerate() {
+        let r = reach(data, j, global.gamma);
+        for (p, b) in boxes.iter().enumerate() {
+            if (0..3).all(|a| c[a] + r >= b.min[a] && c[a] - r <= b.max[a]) {
+                emit(p, width, &|out| record(data, j, out));
+            }
         }
     }
-    Ok(out)
+}
+
+/// Item `j`'s record (the layout of its [`Kind`]) into `out`.
+fn record(data: &StepData, j: usize, out: &mut [f64]) {
+    match data {
+        StepData::Grid { .. } => {}
+        StepData::Particles { positions, smoothing_length, mass, values, .. } => {
+            out.copy_from_slice(&[positions[j][0], positions[j][1], positions[j][2], smoothing_length[j], mass[j] as f64, values[j] as f64]);
+        }
+        StepData::Cells { centres, edges, volumes, values, .. } => {
+            out[..3].copy_from_slice(&centres[j]);
+            match volumes.is_empty() {
+                true => out[3..6].copy_from_slice(&edges[j]),
+                false => out[3] = volumes[j],
+            }
+            out[out.len() - 1] = values[j] as f64;
+        }
+    }
+}
+
+/// The most a rank holds at once exchanging and joining its piece: what it
+/// sends (`sent` values) and receives (`received` values), both as `f64`,
+/// then what it received and the joined step data, of which the larger.
+pub fn exchange_bytes(kind: Kind, sent: usize, received: usize, piece: &IndexBox) -> u64 {
+    8 * received as u64 + joined_bytes(kind, received, piece).max(8 * sent as u64)
+}
+
+/// The [`StepData::bytes`] of what [`join`] makes of `received` values of
+/// records for `piece`.
+pub fn joined_bytes(kind: Kind, received: usize, piece: &IndexBox) -> u64 {
+    let items = (kind != Kind::Grid).then(|| (received / kind.record_len()) as u64);
+    match kind {
+        Kind::Grid => piece.dims().iter().map(|&n| n as u64).product::<u64>() * 4,
+        // Centres, the value, and the rest of the record.
+        Kind::Particles => items.unwrap_or(0) * (24 + 4 + 8 + 4),
+        Kind::CellBoxes => items.unwrap_or(0) * (24 + 4 + 24),
+        Kind::CellVolumes => items.unwrap_or(0) * (24 + 4 + 8),
+    }
 }
 
 /// Joins the records every rank sent to `piece` into its step data, placed

@@ -18,6 +18,7 @@ use crate::error::{Error, Result};
 use crate::field::{Bounds, IndexBox, IndexFrame, Transform, ValueRange};
 use crate::format::StepIndex;
 use crate::input::StepData;
+use crate::memory;
 use crate::series::queue::{BackgroundEncoder, Job, Pushed};
 use crate::series::SeriesRange;
 use mpi::collective::SystemOperation;
@@ -99,6 +100,14 @@ fn fingerprint(field: &str, step: u64, kind: Kind) -> u64 {
         h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
     }
     h
+}
+
+/// A push of `field` step `step` as `kind` in words: the step
+/// (`field 'rho' step 3`), the push (`... as a grid`), and its fingerprint.
+fn labels(field: &str, step: u64, kind: Kind) -> (String, String, u64) {
+    let what = format!("field '{field}' step {step}");
+    let pushed = format!("{what} as {}", kind_name(kind));
+    (what, pushed, fingerprint(field, step, kind))
 }
 
 fn kind_name(kind: Kind) -> &'static str {
@@ -206,9 +215,7 @@ impl Decomposition {
     pub fn push(&mut self, queue: &BackgroundEncoder, job: Job, model_file: &dyn Fn(u32) -> String) -> Result<Distributed> {
         self.check_thread()?;
         let kind = Kind::of(&job.data);
-        let what = format!("field '{}' step {}", job.field, job.step);
-        let pushed = format!("{what} as {}", kind_name(kind));
-        let key = fingerprint(&job.field, job.step, kind);
+        let (what, pushed, key) = labels(&job.field, job.step, kind);
         let local = queue.check(&job).and_then(|()| self.check_local(&job, kind));
         let stats = self.agree(local, key, &pushed, &format!("its data for {what}"))?;
         if !self.fields.contains_key(&job.field) {
@@ -216,20 +223,24 @@ impl Decomposition {
             self.fields.insert(job.field.clone(), layout);
         }
         let layout = &self.fields[&job.field];
-        let split = halo::split(&job.data, &layout.global, &layout.pieces).and_then(|bufs| {
-            bufs.iter()
-                .map(|b| i32::try_from(b.len()).map_err(|_| Error::arg(format!("{what}: more than 2^31 values for one rank in one step"))))
-                .collect::<Result<Vec<i32>>>()
-                .and_then(|counts| match counts.iter().try_fold(0i32, |a, &c| a.checked_add(c)) {
-                    Some(_) => Ok((bufs, counts)),
-                    None => Err(Error::arg(format!("{what}: more than 2^31 values to send in one step"))),
-                })
-        });
-        let (bufs, counts) = self.agree(split, key, &pushed, &format!("to split its data of {what}"))?;
-        let received = self.exchange(&bufs, &counts);
-        drop(bufs);
-        let received: Vec<&[f64]> = received.0.iter().map(|r| &received.1[r.clone()]).collect();
         let piece = layout.pieces[self.rank];
+        // What this rank sends each piece, counted, and what it will receive,
+        // checked against its memory before either buffer is allocated.
+        let routing = halo::plan(&job.data, &layout.global, &layout.pieces).and_then(|r| Ok((mpi_counts(r.lens(), &what, "send")?, r)));
+        let mut recv_counts = vec![0i32; self.size];
+        let none = vec![0i32; self.size];
+        self.comm.all_to_all_into(routing.as_ref().map_or(&none[..], |(c, _)| &c[..]), &mut recv_counts[..]);
+        let fits = routing.and_then(|(counts, r)| {
+            let received: Vec<usize> = recv_counts.iter().map(|&c| c as usize).collect();
+            mpi_counts(&received, &what, "receive")?;
+            let bytes = halo::exchange_bytes(kind, r.total(), received.iter().sum(), &piece);
+            memory::check_fits(&format!("{what}: exchanging this rank's piece"), bytes)?;
+            Ok((counts, r))
+        });
+        let (counts, routing) = self.agree(fits, key, &pushed, &format!("to exchange its data of {what}"))?;
+        let send = halo::fill(&job.data, &layout.global, &layout.pieces, &routing);
+        let received = self.exchange(send, &counts, &recv_counts);
+        let received: Vec<&[f64]> = received.0.iter().map(|r| &received.1[r.clone()]).collect();
         let joined = halo::join(kind, &received, &layout.global, &piece);
         // All ranks decide about a full queue together.
         let room = joined.as_ref().map_or(true, |d| queue.has_room(d.bytes()));
@@ -254,9 +265,8 @@ impl Decomposition {
         if let Err(e) = self.check_thread() {
             return e;
         }
-        let what = format!("field '{field}' step {step}");
-        let pushed = format!("{what} as {}", kind_name(kind));
-        match self.agree::<()>(Err(why), fingerprint(field, step, kind), &pushed, &format!("its data for {what}")) {
+        let (what, pushed, key) = labels(field, step, kind);
+        match self.agree::<()>(Err(why), key, &pushed, &format!("its data for {what}")) {
             Err(e) => e,
             Ok(()) => Error::Mpi(format!("{what}: a refused push was agreed")),
         }
@@ -361,24 +371,33 @@ impl Decomposition {
         Ok(Layout { kind, global, pieces, range })
     }
 
-    /// Sends `bufs[r]` to rank `r`; returns what each rank sent here, as
-    /// ranges of one buffer. Collective.
-    fn exchange(&self, bufs: &[Vec<f64>], counts: &[i32]) -> (Vec<std::ops::Range<usize>>, Vec<f64>) {
-        let mut recv_counts = vec![0i32; self.size];
-        self.comm.all_to_all_into(counts, &mut recv_counts[..]);
+    /// Sends `counts[r]` values of `send` (piece after piece) to rank `r`;
+    /// returns what each rank sent here (`recv_counts[r]` values), as ranges
+    /// of one buffer. `send` is freed before the answer. Collective.
+    fn exchange(&self, send: Vec<f64>, counts: &[i32], recv_counts: &[i32]) -> (Vec<std::ops::Range<usize>>, Vec<f64>) {
         let displs = |c: &[i32]| c.iter().scan(0i32, |at, &n| Some(std::mem::replace(at, *at + n))).collect::<Vec<i32>>();
-        let send: Vec<f64> = bufs.concat();
         let total: usize = recv_counts.iter().map(|&c| c as usize).sum();
         let mut recv = vec![0f64; total];
-        let (sd, rd) = (displs(counts), displs(&recv_counts));
+        let (sd, rd) = (displs(counts), displs(recv_counts));
         {
             let partition = Partition::new(&send[..], counts, &sd[..]);
-            let mut into = PartitionMut::new(&mut recv[..], &recv_counts[..], &rd[..]);
+            let mut into = PartitionMut::new(&mut recv[..], recv_counts, &rd[..]);
             self.comm.all_to_all_varcount_into(&partition, &mut into);
         }
-        let ranges = rd.iter().zip(&recv_counts).map(|(&d, &c)| d as usize..(d + c) as usize).collect();
+        let ranges = rd.iter().zip(recv_counts).map(|(&d, &c)| d as usize..(d + c) as usize).collect();
         (ranges, recv)
     }
+}
+
+/// `lens` values, one count per rank, as MPI's `int` counts, refused when
+/// their sum (a displacement) passes `i32::MAX`; `way` is "send" or
+/// "receive".
+fn mpi_counts(lens: &[usize], what: &str, way: &str) -> Result<Vec<i32>> {
+    let total = lens.iter().fold(0usize, |a, &n| a.saturating_add(n));
+    if i32::try_from(total).is_err() {
+        return Err(Error::arg(format!("{what}: {total} values to {way} in one step, more than MPI's 2^31 - 1")));
+    }
+    Ok(lens.iter().map(|&n| n as i32).collect())
 }
 
 impl Drop for Decomposition {

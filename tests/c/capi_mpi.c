@@ -1,8 +1,8 @@
 /* The MPI side of the C API, run under mpirun -n 1, 2 and 4 (tests/mpi.sh):
  * errors before MPI_Init, a collective create over MPI_Comm_c2f, each rank
  * pushing its slab of a grid and its particles for two steps, the step index
- * and every rank's model written, misuse reported on every rank, and the
- * caller's communicator untouched after destroy. */
+ * and every rank's model written, misuse and a rank short of memory reported
+ * on every rank, and the caller's communicator untouched after destroy. */
 #define _POSIX_C_SOURCE 200112L /* setenv */
 #include "gsenc.h"
 #include <math.h>
@@ -22,6 +22,17 @@ static const char *last_error(void) {
 }
 
 #define N 24
+
+/* This process's resident memory in bytes (VmRSS), or -1. */
+static long resident_bytes(void) {
+    FILE *f = fopen("/proc/self/status", "r");
+    char line[256];
+    long kib = -1;
+    while (f && fgets(line, sizeof line, f))
+        if (sscanf(line, "VmRSS: %ld kB", &kib) == 1) break;
+    if (f) fclose(f);
+    return kib < 0 ? -1 : kib * 1024;
+}
 
 static float blob(double x, double y, double z, int step) {
     double dx = x - 0.4 - 0.05 * step, dy = y - 0.5, dz = z - 0.5;
@@ -146,6 +157,33 @@ int main(int argc, char **argv) {
             unsetenv("GSENC_MEMORY_LIMIT");
         } else {
             CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "rank 0 refused") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+        }
+        /* One rank has room for its copy of a larger grid but not for the
+         * exchange (what it sends and receives, as doubles, and its joined
+         * piece: about five copies): that rank gets INVALID_ARGUMENT naming
+         * the exchange, the others MPI naming it, before any buffer of the
+         * exchange is allocated. */
+        {
+            const int bx = 64, bn = 128;
+            float *big = malloc(sizeof(float) * (size_t)bx * bn * bn);
+            for (size_t i = 0; i < (size_t)bx * bn * bn; i++) big[i] = (float)(i % 977);
+            gsenc_grid gb = {sizeof gb, GSENC_DTYPE_FLOAT32, big, {(uint64_t)bx, bn, bn}, {0, 0, 0}, {(double)(rank * bx) / bn, 0, 0}, 1.0 / bn};
+            long rss = resident_bytes();
+            CHECK(rss > 0, "VmRSS of /proc/self/status");
+            if (rank == 0) {
+                /* The copy (4 MB) fits in 12 MB more than now; the exchange (about 21 MB) does not. */
+                char limit[32];
+                snprintf(limit, sizeof limit, "%ld", rss + (12L << 20));
+                setenv("GSENC_MEMORY_LIMIT", limit, 1);
+            }
+            s = gsenc_push_grid(enc, "big", 1, 0.0, &gb);
+            if (rank == 0) {
+                CHECK(s == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "exchanging this rank's piece takes") != NULL, "short rank got %s: %s", gsenc_status_string(s), last_error());
+                unsetenv("GSENC_MEMORY_LIMIT");
+            } else {
+                CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "rank 0 refused to exchange") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+            }
+            free(big);
         }
         /* The encoder goes on: step 3 again, everywhere. */
         EXPECT(gsenc_push_grid(enc, "rho", 3, 0.3, &g), GSENC_STATUS_OK);
