@@ -244,23 +244,23 @@ pub unsafe extern "C" fn gsenc_push_cells(
     time: f64,
     cells: *const gsenc_cells,
 ) -> gsenc_status {
-    // The form the ranks' push names, read as cell_data reads the struct
-    // (its size checked first). SAFETY: NULL or the caller's gsenc_cells.
-    let kind = match unsafe { read_sized(cells, "gsenc_push_cells: cells") } {
+    // Read once (its size checked first): its layout is the form the
+    // ranks' push names even when the copy fails. SAFETY: NULL or the
+    // caller's gsenc_cells.
+    let c = unsafe { read_sized(cells, "gsenc_push_cells: cells") };
+    let kind = match &c {
         Ok(c) if c.layout == GSENC_CELLS_HEXAHEDRA => DataKind::CellVolumes,
         _ => DataKind::CellBoxes,
     };
-    // SAFETY (both): `field` and `cells` per this function's contract.
-    unsafe { push_step(encoder, "gsenc_push_cells", field, step, time, kind, |enc| cell_data(enc, cells)) }
+    // SAFETY (both): `field` and the arrays of `cells` per this function's contract.
+    unsafe { push_step(encoder, "gsenc_push_cells", field, step, time, kind, |enc| cell_data(enc, &c?)) }
 }
 
 /// The checked copy of a caller's cells.
 ///
 /// # Safety
-/// `cells` is NULL or the caller's gsenc_cells, whose arrays hold every element that the counts and strides name.
-unsafe fn cell_data(enc: &gsenc_encoder, cells: *const gsenc_cells) -> Result<StepData, Failure> {
-    // SAFETY: NULL or the caller's gsenc_cells.
-    let c = unsafe { read_sized(cells, "gsenc_push_cells: cells") }?;
+/// `c`'s arrays hold every element that the counts and strides name.
+unsafe fn cell_data(enc: &gsenc_encoder, c: &gsenc_cells) -> Result<StepData, Failure> {
     let dtype = DType::from_c(c.dtype)?;
     let n = item_count(c.count, "cell")?;
     // Centres and edges (or volumes) in f64, values in f32; a mesh's

@@ -348,6 +348,13 @@ int main(void) {
     hex.layout = GSENC_CELLS_HEXAHEDRA;
     hex.connectivity = NULL;
     EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, &hex), GSENC_STATUS_NULL_POINTER);
+    hex.connectivity = conn;
+    /* The struct itself: NULL, or older than this gsenc. */
+    EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, NULL), GSENC_STATUS_NULL_POINTER);
+    CHECK(strstr(last_error(), "cells") != NULL, "NULL cells: %s", last_error());
+    hex.struct_size = sizeof hex - 8;
+    EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, &hex), GSENC_STATUS_STRUCT_SIZE);
+    hex.struct_size = sizeof hex;
 
     /* Bad data and arguments: each refused with its code, the series intact. */
     val[3] = NAN;
