@@ -105,15 +105,25 @@ mod imp {
         let payload = a.payload;
         // Every model is read and checked before the store is touched.
         let files = a.models.iter().map(|p| read_model_file(p)).collect::<Result<Vec<_>>>()?;
+        let created = !a.store.exists();
         let mut store = Store::open_append(&a.store)?;
         let mut added = Vec::new();
-        for f in &files {
+        for (f, path) in files.iter().zip(&a.models) {
             let chosen = payload.unwrap_or(f.payload);
             let mut model = f.model.clone();
             if chosen != f.payload && chosen != Payload::Float32 {
                 model.meta.encode_psnr = None; // no longer the PSNR of what is stored
             }
-            store.append(&model, chosen)?;
+            if let Err(e) = store.append(&model, chosen) {
+                // What was added stays (and is named); a store this command
+                // created and could add nothing to (a full disk) is removed.
+                drop(store);
+                if added.is_empty() && created {
+                    let _ = std::fs::remove_file(&a.store);
+                }
+                eprintln!("gsenc store add: {} not added; {} of {} added before it: {added:?}", path.display(), added.len(), files.len());
+                return Err(e);
+            }
             added.push(EntryKey::of(&model.meta).path());
         }
         print_result(a.json, json!({ "store": a.store.display().to_string(), "added": added }));

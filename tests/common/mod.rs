@@ -4,6 +4,8 @@
 //! the repository's real data.
 #![allow(dead_code)]
 
+pub mod disk;
+
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};
 use gsenc::model::{Model, ModelMeta};
 use gsenc::math::kernel::Primitive;
