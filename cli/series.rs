@@ -89,7 +89,9 @@ fn parse_steps(spec: Option<&str>, rows: usize) -> Result<Vec<usize>> {
         Some(s) if s.contains("..") => {
             let (a, b) = s.split_once("..").unwrap();
             let parse = |x: &str| x.trim().parse::<usize>().map_err(|_| Error::arg(format!("--steps '{s}' is not A..B")));
-            (parse(a)?..parse(b)?).collect()
+            // Steps past the first missing one are not listed: the check
+            // below names that one, and a range as long as 2^64 is not held.
+            (parse(a)?..parse(b)?.min(rows.saturating_add(1))).collect()
         }
         Some(s) => s
             .split(',')

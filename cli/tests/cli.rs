@@ -873,6 +873,13 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
     assert_eq!(code, 2);
     assert!(err.contains("step 3 is missing"), "{err}");
     assert!(!other.exists());
+    // So is a range far beyond it (which once asked for 2^63 bytes of steps).
+    let mut args = common.to_vec();
+    args.extend(["--steps", "1..18446744073709551615", "-o", other.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2, "{err}");
+    assert!(err.contains("step 3 is missing"), "{err}");
+    assert!(!other.exists());
 }
 
 #[test]
