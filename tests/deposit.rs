@@ -291,6 +291,32 @@ fn deposits_do_not_depend_on_the_thread_count() {
     assert_eq!(bits(&run(1)), bits(&run(2)));
 }
 
+/// A cell deposit in other units (lengths times 2^340, volumes times
+/// 2^1020: exact in floating point) is the same grid, bit for bit: the
+/// deposit works in the lattice's own units, and its volume weights are
+/// scaled by a power of two, so volumes near f64's limit no longer sum to
+/// inf (which gave inf / inf = NaN before).
+#[test]
+fn cell_deposits_do_not_depend_on_the_units() {
+    let mut rng = Rng::new(9);
+    let centres: Vec<[f64; 3]> = (0..300).map(|_| [rng.range(0.0, 16.0), rng.range(0.0, 16.0), rng.range(0.0, 16.0)]).collect();
+    let vols: Vec<f64> = (0..300).map(|_| rng.range(0.5, 9.0)).collect();
+    let vals: Vec<f32> = (0..300).map(|_| rng.range(0.0, 10.0) as f32).collect();
+    let placement = Placement { dims: [16; 3], bounds: None };
+    let deposit = |centres: &[[f64; 3]], vols: &[f64]| {
+        let c = Cells { centres, size: CellSize::Volumes(vols), values: &vals };
+        prepare_cells(&c, &placement, &unit_range()).unwrap()
+    };
+    let plain = deposit(&centres, &vols);
+    let far: Vec<[f64; 3]> = centres.iter().map(|c| c.map(|x| x * 2f64.powi(340))).collect();
+    let huge: Vec<f64> = vols.iter().map(|v| v * 2f64.powi(1020)).collect();
+    assert!(huge.iter().sum::<f64>().is_infinite(), "the volumes must overflow when summed");
+    let scaled = deposit(&far, &huge);
+    let differ = bits(&plain).iter().zip(bits(&scaled)).filter(|(a, b)| *a != b).count();
+    assert_eq!(differ, 0, "{differ} of {} voxels differ in other units", plain.reference.values.len());
+    assert_eq!(plain.frame.gamma, scaled.frame.gamma * 2f64.powi(340));
+}
+
 fn data_err(r: Result<Prepared, Error>, needle: &str) {
     match r {
         Err(Error::InvalidData(m)) | Err(Error::InvalidArgument(m)) => assert!(m.contains(needle), "'{m}' lacks '{needle}'"),

@@ -98,6 +98,17 @@ fn a_grid_encode_is_the_refinement_loops_model_labelled_and_scored_as_stored() {
 }
 
 #[test]
+fn a_grid_whose_frame_is_not_finite_is_refused_before_any_work() {
+    let g = blobs([8, 8, 8], 3, 2);
+    let range = RangeSpec::FromData(Transform::Linear);
+    for (bmin, gamma) in [([f64::NAN, 0.0, 0.0], 1.0), ([0.0; 3], f64::INFINITY), ([0.0; 3], 0.0)] {
+        let frame = IndexFrame { dims: g.dims, bmin, gamma };
+        let Err(e) = prepare(&Input::Grid { values: &g, frame }, &range) else { panic!("a frame at {bmin:?}, gamma {gamma} was taken") };
+        assert!(matches!(e, gsenc::Error::InvalidArgument(_)) && e.to_string().contains("finite"), "{e}");
+    }
+}
+
+#[test]
 fn particles_run_the_longer_full_schedule_and_a_warm_start_its_regime() {
     let mut rng = Rng::new(4);
     let n = 300;

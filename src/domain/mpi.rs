@@ -297,7 +297,7 @@ impl Decomposition {
         };
         if transform == Transform::Log10 {
             if let Some(v) = values.iter().find(|&&v| v <= 0.0) {
-                return Err(Error::data(format!("log10 transform needs positive values; got {v}")));
+                return Err(Error::data(format!("log10 transform needs positive values; got {v:?}")));
             }
         }
         let t = |v: f32| if transform == Transform::Log10 { (v as f64).log10() } else { v as f64 };

@@ -163,7 +163,7 @@ pub struct TargetPsnr {
 impl TargetPsnr {
     pub fn new(db: f64) -> Result<TargetPsnr> {
         if !(db.is_finite() && db > 0.0 && db <= MAX_TARGET_DB) {
-            return Err(crate::error::Error::arg(format!("target PSNR must be more than 0 and at most {MAX_TARGET_DB} dB, got {db}")));
+            return Err(crate::error::Error::arg(format!("target PSNR must be more than 0 and at most {MAX_TARGET_DB} dB, got {db:?}")));
         }
         Ok(TargetPsnr { db, curve: None })
     }

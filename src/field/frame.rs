@@ -44,11 +44,15 @@ impl IndexFrame {
         if !(spacing.is_finite() && spacing > 0.0) {
             return Err(Error::arg(format!("grid spacing must be positive, got {spacing}")));
         }
-        Ok(IndexFrame {
+        let frame = IndexFrame {
             dims,
             bmin: [origin[0] - 0.5 * spacing, origin[1] - 0.5 * spacing, origin[2] - 0.5 * spacing],
             gamma: 1.0 / spacing,
-        })
+        };
+        if !frame.bmin.iter().all(|b| b.is_finite()) || !frame.gamma.is_finite() {
+            return Err(Error::arg(format!("grid origin {origin:?} and spacing {spacing:?} must be finite (and the first voxel's corner too)")));
+        }
+        Ok(frame)
     }
 
     pub fn world_to_index(&self, x: [f64; 3]) -> [f64; 3] {
@@ -179,6 +183,17 @@ impl Bounds {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_grid_frame_is_finite_or_refused() {
+        let f = IndexFrame::for_grid([4; 3], [1.0, 2.0, 3.0], 0.5).unwrap();
+        assert_eq!((f.bmin, f.gamma), ([0.75, 1.75, 2.75], 2.0));
+        assert!(f.is_valid());
+        for (origin, spacing) in [([f64::NAN, 0.0, 0.0], 1.0), ([0.0, f64::INFINITY, 0.0], 1.0), ([-f64::MAX, 0.0, 0.0], 1e300), ([0.0; 3], 1e-320)] {
+            let e = IndexFrame::for_grid([4; 3], origin, spacing).unwrap_err();
+            assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("finite"), "{origin:?} {spacing}: {e}");
+        }
+    }
 
     #[test]
     fn index_frame_round_trips() {

@@ -7,7 +7,7 @@
 use crate::error::{Error, Result};
 use crate::field::{Bounds, Grid, IndexFrame, Transform, ValueRange};
 use crate::input::cells::Cells;
-use crate::input::deposit::{deposit, lattice_len, DepositStats};
+use crate::input::deposit::{deposit, lattice_len, DepositStats, Splat};
 use crate::input::items::{Conversion, Item};
 use crate::input::particles::Particles;
 use crate::input::samples::{Sample, SampleArrays, SampleSet};
@@ -161,6 +161,9 @@ pub fn prepare(input: &Input, range: &RangeSpec) -> Result<Prepared> {
             if values.dims != frame.dims {
                 return Err(Error::arg(format!("grid of {:?} voxels, frame of {:?}", values.dims, frame.dims)));
             }
+            if !frame.is_valid() {
+                return Err(Error::arg(format!("grid corner {:?} and voxel size {:?} must be finite, the voxel size positive", frame.bmin, 1.0 / frame.gamma)));
+            }
             let range = range.resolve(&values.values)?;
             let norm = range.normalize(&values.values)?;
             Ok(Prepared {
@@ -180,6 +183,19 @@ pub fn prepare(input: &Input, range: &RangeSpec) -> Result<Prepared> {
             Ok(Prepared { form: Form::Grid, samples: None, ..p })
         }
         Input::Cells { cells, placement } => prepare_cells(cells, &placement, range),
+    }
+}
+
+/// Scales the deposit's weights (masses, volumes) by the power of two that
+/// brings the largest near 1. The deposit uses them only through ratios
+/// (`num / den`), and a power of two changes no bit of those, but their
+/// sums can no longer overflow (cells of volume 1e308 gave inf / inf) or
+/// underflow (masses of 1e-300).
+fn scale_weights(splats: &mut [Splat]) {
+    let top = splats.iter().fold(0f64, |a, s| a.max(s.m));
+    if top > 0.0 && top.is_finite() {
+        let scale = 2f64.powi(-(top.log2().floor() as i32));
+        splats.iter_mut().for_each(|s| s.m *= scale);
     }
 }
 
@@ -229,6 +245,7 @@ fn prepare_items(form: Form, items: &dyn Conversion, values: &[f32], dims: [usiz
         splats.extend(it.splat);
     }
     drop(converted);
+    scale_weights(&mut splats);
     if samples.is_empty() {
         return Err(Error::data(format!(
             "none of the {} items lies inside the bounds {:?} .. {:?}",
