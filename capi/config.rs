@@ -95,8 +95,8 @@ pub struct gsenc_config {
     pub schedule: i32,
     /// `GSENC_WARM_*` (default auto).
     pub warm_start: i32,
-    /// Iterations and points per iteration (at most 2^24); 0 keeps the
-    /// schedule's.
+    /// Iterations (at most 10^7, as `warm_iterations`) and points per
+    /// iteration (at most 2^24), checked at create; 0 keeps the schedule's.
     pub iterations: u32,
     pub points: u32,
     /// `GSENC_TRANSFORM_*` applied before normalising (default linear).

@@ -315,8 +315,8 @@ typedef struct {
    */
   int32_t warm_start;
   /*
-   Iterations and points per iteration (at most 2^24); 0 keeps the
-   schedule's.
+   Iterations (at most 10^7, as `warm_iterations`) and points per
+   iteration (at most 2^24), checked at create; 0 keeps the schedule's.
    */
   uint32_t iterations;
   uint32_t points;

@@ -267,6 +267,10 @@ fn bad_inputs_fail_with_codes_and_messages() {
     let (code, _, err) = gsenc(&["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "10", "--points", "4000000000", "-o", ms, "--quiet"]);
     assert_eq!(code, 2);
     assert!(err.contains("4000000000 points per iteration are more than the 16777216"), "{err}");
+    // So are 2^32 + 1 iterations (which ran for days), before any work.
+    let (code, _, err) = gsenc(&["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "10", "--iters", "4294967297", "-o", ms, "--quiet"]);
+    assert_eq!(code, 2);
+    assert!(err.contains("iterations 4294967297 are more than the 10000000"), "{err}");
     // A memory limit that is not a size is a usage error, as a bad
     // GSENC_BACKEND is, not a limit silently ignored; a size is taken.
     let limited = dir.join("limited.gsm");

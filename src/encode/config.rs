@@ -55,6 +55,20 @@ pub const PAPER_LEARNING_RATE: f32 = 8e-3;
 /// batch takes about 50 bytes a point, so a count beyond this is a mistake
 /// rather than a plan, refused before anything is allocated.
 pub const MAX_POINTS: usize = 1 << 24;
+/// The most iterations an encode may run: 10^7, 2,500 times the longest
+/// of the paper's schedules (4,000), some hours at a millisecond an
+/// iteration. A count beyond it (an uninitialised 0xCDCDCDCD from C, say)
+/// is a mistake rather than a plan: refused before the encode starts,
+/// instead of keeping the queue busy for weeks.
+pub const MAX_ITERATIONS: usize = 10_000_000;
+
+/// Refuses `iterations` beyond [`MAX_ITERATIONS`]; `what` names them.
+pub fn check_iterations(iterations: usize, what: &str) -> crate::error::Result<()> {
+    match iterations > MAX_ITERATIONS {
+        true => Err(crate::error::Error::arg(format!("{what} {iterations} are more than the {MAX_ITERATIONS} an encode may run"))),
+        false => Ok(()),
+    }
+}
 /// The learning rate of the `tuned` and `tuned-full` schedules.
 pub const TUNED_LEARNING_RATE: f32 = 0.04;
 
@@ -214,6 +228,25 @@ impl EncodeConfig {
     }
     pub fn iterations(&self) -> usize {
         self.iterations.unwrap_or(self.schedule.iterations(self.particles))
+    }
+    /// What can be checked before there are data: points per iteration
+    /// within 1..=[`MAX_POINTS`], iterations at most [`MAX_ITERATIONS`], a
+    /// positive learning rate. Every encode checks it; so do a series and
+    /// the background queue when they are made, so that a C caller's
+    /// create refuses it rather than its first step.
+    pub fn check(&self) -> crate::error::Result<()> {
+        use crate::error::Error;
+        if self.points() == 0 {
+            return Err(Error::arg("points per iteration must be at least 1"));
+        }
+        if self.points() > MAX_POINTS {
+            return Err(Error::arg(format!("{} points per iteration are more than the {MAX_POINTS} a batch may hold", self.points())));
+        }
+        check_iterations(self.iterations(), "iterations")?;
+        if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
+            return Err(Error::arg("learning rate must be positive"));
+        }
+        Ok(())
     }
     pub fn points(&self) -> usize {
         self.points.unwrap_or(self.schedule.points())

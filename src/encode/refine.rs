@@ -110,16 +110,8 @@ pub fn validate(target: &Target, cfg: &EncodeConfig, init: Option<&[Primitive]>)
             cfg.budget
         )));
     }
-    if cfg.points() == 0 {
-        return Err(Error::arg("points per iteration must be at least 1"));
-    }
-    if cfg.points() > crate::encode::config::MAX_POINTS {
-        return Err(Error::arg(format!("{} points per iteration are more than the {} a batch may hold", cfg.points(), crate::encode::config::MAX_POINTS)));
-    }
+    cfg.check()?;
     check_training_memory(cfg.budget, cfg.points(), crate::memory::available()?)?;
-    if !(cfg.learning_rate.is_finite() && cfg.learning_rate > 0.0) {
-        return Err(Error::arg("learning rate must be positive"));
-    }
     if target.samples.is_empty() {
         return Err(Error::data("no samples"));
     }

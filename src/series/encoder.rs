@@ -98,6 +98,10 @@ impl SeriesEncoder {
         if cfg.validation_points > 0 && cfg.validation_every == 0 {
             return Err(Error::arg("validation needs a positive interval"));
         }
+        cfg.encode.check()?;
+        if let Some(w) = cfg.warm_iterations {
+            crate::encode::config::check_iterations(w, "warm iterations")?;
+        }
         Ok(SeriesEncoder { cfg, fields: BTreeMap::new(), agreed_ranges: BTreeMap::new() })
     }
 

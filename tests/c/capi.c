@@ -89,6 +89,20 @@ int main(void) {
     bad.threads = 0xCDCDCDCDu; /* an uninitialised field: refused, not 65,535 threads */
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
     CHECK(strstr(last_error(), "threads 3452816845") != NULL, "message names the threads: %s", last_error());
+    /* So are uninitialised iterations and points: at create, not at the
+     * first step (they ran for weeks, or failed only at gsenc_wait). */
+    bad = cfg;
+    bad.iterations = 0xCDCDCDCDu;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "iterations 3452816845") != NULL, "message names the iterations: %s", last_error());
+    bad = cfg;
+    bad.warm_iterations = 0xCDCDCDCDu;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "warm iterations 3452816845") != NULL, "message names the warm iterations: %s", last_error());
+    bad = cfg;
+    bad.points = 0xCDCDCDCDu;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "3452816845 points") != NULL, "message names the points: %s", last_error());
     bad = cfg;
     bad.schedule = 7;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
