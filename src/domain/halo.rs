@@ -177,8 +177,7 @@ fn route(data: &StepData, global: &IndexFrame, pieces: &[IndexBox], grid: Option
             }
             return;
         }
-        StepData::Particles { positions, .. } => (positions, Kind::Particles.record_len()),
-        StepData::Cells { centres, .. } => (centres, Kind::of(data).record_len()),
+        StepData::Particles { positions: centres, .. } | StepData::Cells { centres, .. } => (centres, Kind::of(data).record_len()),
     };
     let boxes: Vec<Bounds> = pieces.iter().map(|b| global.sub_frame(b).world_box()).collect();
     for (j, c) in centres.iter().enumerate() {
