@@ -221,7 +221,9 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 /// Evaluates the model at `count` world points (`points`: x, y, z per
 /// point, interleaved) into `out` (`count` floats, data units, with the
 /// model's support), both owned by the caller. On the CPU: a few points do
-/// not pay for opening a GPU. Thread-safe, also on one model.
+/// not pay for opening a GPU. Runs in runs of 65,536 points, so that it
+/// holds about a megabyte besides the caller's arrays however many points
+/// there are. Thread-safe, also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
     guard(|| {
@@ -229,16 +231,21 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
         if points.is_null() || out.is_null() {
             return fail(gsenc_status::NullPointer, "gsenc_model_evaluate: points or out is NULL");
         }
-        let n = usize::try_from(count).map_err(|_| Failure(gsenc_status::InvalidArgument, "count too large".into()))?;
-        // SAFETY: the caller's arrays hold 3 count doubles and count floats.
-        let (pts, out) = unsafe { (std::slice::from_raw_parts(points, 3 * n), std::slice::from_raw_parts_mut(out, n)) };
-        if pts.iter().any(|v| !v.is_finite()) {
+        // No array of the caller's holds more than isize::MAX bytes.
+        let n = usize::try_from(count).ok().filter(|&n| n.checked_mul(24).is_some_and(|b| b <= isize::MAX as usize));
+        let Some(n) = n else {
+            return fail(gsenc_status::InvalidArgument, format!("gsenc_model_evaluate: count {count} is more points than an array can hold"));
+        };
+        // SAFETY: the caller's arrays hold 3 count doubles (read in place
+        // as count [f64; 3], of the same layout) and count floats.
+        let (pts, out) = unsafe { (std::slice::from_raw_parts(points.cast::<[f64; 3]>(), n), std::slice::from_raw_parts_mut(out, n)) };
+        if pts.iter().flatten().any(|v| !v.is_finite()) {
             return fail(gsenc_status::InvalidData, "gsenc_model_evaluate: a point is not finite");
         }
-        let points: Vec<[f64; 3]> = pts.chunks_exact(3).map(|p| [p[0], p[1], p[2]]).collect();
-        let values = m.evaluate(&mut CpuBackend::new(), &points)?;
-        for (o, v) in out.iter_mut().zip(values) {
-            *o = m.meta.range.denormalize(v) as f32;
+        // Into the caller's array, in runs: nothing sized by count is copied.
+        m.evaluate_into(&mut CpuBackend::new(), pts, out)?;
+        for o in out.iter_mut() {
+            *o = m.meta.range.denormalize(*o) as f32;
         }
         Ok(())
     })

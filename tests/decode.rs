@@ -104,3 +104,37 @@ fn bad_boxes_and_sink_errors_are_reported() {
     assert_eq!(calls, 1);
     assert!(e.to_string().contains("disk full"));
 }
+
+/// Evaluating at points runs in runs of `EVALUATE_RUN` points: over several
+/// runs (and points outside the box), the values are the backend's one call
+/// over all the points to within float rounding (the backend bins the
+/// points it is given, and the sums of a point follow its bin), every point
+/// written, and at voxel centres they are the decode's.
+#[test]
+fn evaluating_in_runs_gives_the_one_call_and_the_decode() {
+    use gsenc::backend::Backend;
+    use gsenc::model::EVALUATE_RUN;
+    let m = model();
+    let mut rng = Rng::new(3);
+    let n = 2 * EVALUATE_RUN + 123;
+    let points: Vec<[f64; 3]> = (0..n).map(|_| [rng.range(-3.0, 27.0), rng.range(-3.0, 23.0), rng.range(-3.0, 19.0)]).collect();
+    let got = m.evaluate(&mut CpuBackend::new(), &points).unwrap();
+    let f = &m.meta.frame;
+    let index: Vec<[f32; 3]> = points.iter().map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)).collect();
+    let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
+    CpuBackend::new().evaluate_points(&m.params, &index, &mut rho, &mut num).unwrap();
+    let once: Vec<f32> = (0..n).map(|i| m.value_at(index[i], rho[i], num[i])).collect();
+    assert_close(&got, &once);
+    let differ = got.iter().zip(&once).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+    assert!(differ < n / 100, "{differ} of {n} points differ from one call in their last bits");
+
+    let dims = m.meta.frame.dims;
+    let decoded = m.decode(&mut CpuBackend::new(), Some(dims)).unwrap().values;
+    let centres: Vec<[f64; 3]> = (0..dims[0] * dims[1] * dims[2])
+        .map(|i| [i % dims[0], (i / dims[0]) % dims[1], i / (dims[0] * dims[1])].map(|c| c as f64))
+        .collect();
+    assert_close(&m.evaluate(&mut CpuBackend::new(), &centres).unwrap(), &decoded);
+    // Room for another count of values is refused.
+    let mut short = vec![0.0; 5];
+    assert!(m.evaluate_into(&mut CpuBackend::new(), &centres, &mut short).is_err());
+}

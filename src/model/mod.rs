@@ -129,6 +129,10 @@ pub struct Model {
 
 /// Default most voxels decoded at once by [`Model::decode_streaming`]: 64 MB of f32.
 pub const DEFAULT_SLAB_VOXELS: usize = 1 << 24;
+
+/// Points a run of [`Model::evaluate_into`] evaluates at once (its scratch
+/// takes 20 bytes a point).
+pub const EVALUATE_RUN: usize = 1 << 16;
 /// Largest lattice a decode accepts (2^34 voxels, 64 GiB of float32).
 const MAX_DECODE_VOXELS: usize = 1 << 34;
 
@@ -210,17 +214,39 @@ impl Model {
     }
 
     /// The decoded value (normalised) at world points, each finite: what a
-    /// decode gives at a voxel centre, anywhere in space.
+    /// decode gives at a voxel centre, anywhere in space. The answer is
+    /// reserved fallibly (an error, not an abort, when it cannot fit).
     pub fn evaluate(&self, backend: &mut dyn Backend, points: &[[f64; 3]]) -> Result<Vec<f32>> {
+        let mut out = Vec::new();
+        out.try_reserve_exact(points.len()).map_err(|_| Error::arg(format!("cannot allocate the values of {} points", points.len())))?;
+        out.resize(points.len(), 0.0);
+        self.evaluate_into(backend, points, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`Model::evaluate`] into `out` (one value a point), in runs of
+    /// [`EVALUATE_RUN`] points, so that what it holds besides the caller's
+    /// arrays is bounded however many points there are.
+    pub fn evaluate_into(&self, backend: &mut dyn Backend, points: &[[f64; 3]], out: &mut [f32]) -> Result<()> {
+        if out.len() != points.len() {
+            return Err(Error::arg(format!("{} points, room for {} values", points.len(), out.len())));
+        }
         if let Some(i) = points.iter().position(|p| p.iter().any(|v| !v.is_finite())) {
             return Err(Error::data(format!("point {i} is not finite")));
         }
         let f = &self.meta.frame;
-        let index: Vec<[f32; 3]> = points.iter().map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)).collect();
-        let n = points.len();
-        let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
-        backend.evaluate_points(&self.params, &index, &mut rho, &mut num)?;
-        Ok((0..n).map(|i| self.value_at(index[i], rho[i], num[i])).collect())
+        let run = points.len().clamp(1, EVALUATE_RUN);
+        let (mut index, mut rho, mut num) = (Vec::with_capacity(run), vec![0.0; run], vec![0.0; run]);
+        for (points, out) in points.chunks(run).zip(out.chunks_mut(run)) {
+            index.clear();
+            index.extend(points.iter().map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)));
+            let n = points.len();
+            backend.evaluate_points(&self.params, &index, &mut rho[..n], &mut num[..n])?;
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = self.value_at(index[i], rho[i], num[i]);
+            }
+        }
+        Ok(())
     }
 
     /// The decoded value at index-frame points, from their `(rho, n)`.

@@ -273,6 +273,9 @@ int main(void) {
     pts[0] = NAN;
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_DATA);
     EXPECT(gsenc_model_evaluate(NULL, pts, 4, at), GSENC_STATUS_NULL_POINTER);
+    /* More points than any array can hold: refused, nothing read. */
+    EXPECT(gsenc_model_evaluate(model, pts, UINT64_MAX / 16, at), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "more points than an array can hold") != NULL, "huge count: %s", last_error());
     /* A handle of the wrong kind; a model after destroy. */
     EXPECT(gsenc_wait((gsenc_encoder *)model, NULL), GSENC_STATUS_INVALID_ARGUMENT);
     EXPECT(gsenc_model_info_get((gsenc_model *)enc, &info), GSENC_STATUS_INVALID_ARGUMENT);
