@@ -96,6 +96,9 @@ pub unsafe extern "C" fn gsenc_model_read_buffer(data: *const u8, size: usize, o
         }
         // SAFETY: non-null pointer to the caller's handle slot.
         unsafe { *out = std::ptr::null_mut() };
+        if size > isize::MAX as usize {
+            return fail(gsenc_status::InvalidArgument, format!("gsenc_model_read_buffer: size {size} is more bytes than a buffer can hold"));
+        }
         // SAFETY: the caller's `size` readable bytes at `data`.
         let bytes = unsafe { std::slice::from_raw_parts(data, size) };
         let model = gsenc::format::read_model(bytes)?;

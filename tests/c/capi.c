@@ -489,6 +489,8 @@ int main(void) {
     EXPECT(gsenc_model_read_buffer(mbytes, nbytes / 2, &inmem), GSENC_STATUS_FORMAT);
     CHECK(inmem == NULL && strstr(last_error(), "bad format") != NULL, "half a model: %s", last_error());
     EXPECT(gsenc_model_read_buffer(NULL, nbytes, &inmem), GSENC_STATUS_NULL_POINTER);
+    EXPECT(gsenc_model_read_buffer(mbytes, SIZE_MAX, &inmem), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(inmem == NULL && strstr(last_error(), "more bytes than a buffer can hold") != NULL, "a size no buffer has: %s", last_error());
     free(fbytes);
     free(mbytes);
     gsenc_encoder_destroy(enc);
