@@ -207,6 +207,43 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
 }
 
 /// h5dump, from HDF5's own tools, reads the store without gsenc.
+/// A store whose global heap (where HDF5 keeps its string attributes,
+/// without a checksum) was corrupted is refused by name before HDF5 reads
+/// it: one changed byte in an object's size made HDF5 1.10 copy past its
+/// buffer (a segmentation fault of the reader), a zero size loop forever.
+/// The sound store opens; so does one whose heap it leaves alone.
+#[test]
+fn a_corrupted_global_heap_is_refused_before_hdf5_reads_it() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("heap");
+    let path = dir.join("s.h5");
+    let mut s = Store::open_append(&path).unwrap();
+    for step in 0..3 {
+        s.append(&model("rho", step, 0, 50, 0.5), Payload::Float32).unwrap();
+    }
+    drop(s);
+    let sound = std::fs::read(&path).unwrap();
+    let heap = sound.windows(8).position(|w| w == b"GCOL\x01\x00\x00\x00").expect("a store keeps its strings in a global heap");
+    let open = |bytes: &[u8]| {
+        let p = dir.join("c.h5");
+        std::fs::write(&p, bytes).unwrap();
+        Store::open_read(&p).and_then(|s| s.entries().map(|e| e.len()))
+    };
+    assert_eq!(open(&sound).unwrap(), 3);
+    for (what, at, byte) in [("an object's size", heap + 16 + 9, 0x2d), ("an object's size", heap + 16 + 11, 0xf5), ("the collection's size", heap + 9, 0x80), ("a zero size", heap + 16 + 8, 0)] {
+        let mut bad = sound.clone();
+        bad[at] = byte;
+        if what == "a zero size" {
+            bad[at..at + 8].fill(0);
+            bad[heap + 16..heap + 18].fill(0); // as the free space (index 0)
+        }
+        match open(&bad) {
+            Err(Error::Format(m)) => assert!(m.contains(&format!("global heap collection at byte {heap}")), "{what}: {m}"),
+            other => panic!("{what}: {:?}", other.map(|_| ())),
+        }
+    }
+}
+
 #[test]
 fn h5dump_reads_the_store() {
     let _serial = common::hdf5_serial();

@@ -7,6 +7,8 @@
 
 pub mod atomic;
 mod budget;
+#[cfg(feature = "hdf5")]
+mod global_heap;
 pub mod image;
 pub mod models;
 pub mod plot;

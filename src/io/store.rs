@@ -101,6 +101,7 @@ impl Store {
             create_empty(&path)?;
         }
         regular_file(&path)?;
+        super::global_heap::check(&path)?;
         let file = File::with_options()
             .with_fapl(|p| p.mdc_config(&never_evict()).libver_v18())
             .open_rw(&path)
@@ -119,6 +120,7 @@ impl Store {
         if !super::hdf5_signature(&path).map_err(|e| Error::io(&path, e))? {
             return Err(Error::format(format!("'{}' is not an HDF5 file", path.display())));
         }
+        super::global_heap::check(&path)?;
         let file = File::open(&path).map_err(h5(&path))?;
         check_root(&file, &path)?;
         Ok(Store { file, path })

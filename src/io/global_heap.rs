@@ -1,0 +1,182 @@
+//! The global heap collections of an HDF5 file, checked before HDF5 reads
+//! them. Variable-length strings (the store's string attributes) live in
+//! these collections, which carry no checksum, and the HDF5 1.10 that
+//! Debian 12 ships trusts their sizes: one corrupted byte there made
+//! `H5HG_read` copy past its buffer (a segmentation fault) or loop forever
+//! (an object of size 0). A file whose collection does not parse is
+//! refused here instead, as a Format error naming the byte.
+//!
+//! A collection (HDF5 file format, "Global Heap") is `GCOL`, version 1,
+//! three reserved bytes, its size (the superblock's "size of lengths"
+//! bytes), then objects: a 2-byte index, a 2-byte reference count, four
+//! reserved bytes, the object's size, its data padded to 8 bytes; index 0
+//! is the free space, whose size counts its header. HDF5 finds collections
+//! through the strings that point at them, which only HDF5 can read, so
+//! the whole file is searched for collection headers. The 8-byte header
+//! `GCOL 01 00 00 00` is not expected elsewhere (it is a float32 of 5.4e7
+//! next to the smallest subnormal); a false match that does not parse
+//! would refuse a sound file, one that parses changes nothing.
+
+use crate::error::{Error, Result};
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::Path;
+
+/// The header that opens a collection, version 1.
+const HEADER: &[u8; 8] = b"GCOL\x01\x00\x00\x00";
+/// Bytes read at a time while searching.
+const CHUNK: usize = 1 << 22;
+
+/// Refuses the HDF5 file at `path` when a global heap collection in it
+/// does not parse within its own size and the file.
+pub fn check(path: &Path) -> Result<()> {
+    let io = |e| Error::io(path, e);
+    let mut f = File::open(path).map_err(io)?;
+    let len = f.metadata().map_err(io)?.len();
+    let lengths = size_of_lengths(&mut f).map_err(io)?;
+    for at in headers(&mut f).map_err(io)? {
+        if let Err(why) = parse(&mut f, at, len, lengths).map_err(io)? {
+            return Err(Error::format(format!(
+                "{}: the HDF5 global heap collection at byte {at} is corrupt ({why}); refused before HDF5 reads it",
+                path.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// The superblock's size of lengths (8 unless it says otherwise).
+fn size_of_lengths(f: &mut File) -> std::io::Result<u64> {
+    let mut sb = [0u8; 16];
+    f.seek(SeekFrom::Start(0))?;
+    let n = f.read(&mut sb)?;
+    // Versions 0 and 1 keep it at byte 14, versions 2 and 3 at byte 10.
+    let at = match sb[8] {
+        0 | 1 => 14,
+        _ => 10,
+    };
+    Ok(match (n > at).then(|| sb[at]) {
+        Some(s @ (2 | 4 | 8)) => s as u64,
+        _ => 8,
+    })
+}
+
+/// Where the file holds a collection header.
+fn headers(f: &mut File) -> std::io::Result<Vec<u64>> {
+    let mut found = Vec::new();
+    let mut buf = vec![0u8; CHUNK + HEADER.len()];
+    let (mut base, mut kept) = (0u64, 0usize);
+    f.seek(SeekFrom::Start(0))?;
+    loop {
+        let n = f.read(&mut buf[kept..])?;
+        if n == 0 {
+            return Ok(found);
+        }
+        let end = kept + n;
+        found.extend(buf[..end].windows(HEADER.len()).enumerate().filter(|(_, w)| *w == HEADER).map(|(i, _)| base + i as u64));
+        // The last 7 bytes start the next window, so that a header across
+        // two reads is found once.
+        kept = end.min(HEADER.len() - 1);
+        buf.copy_within(end - kept..end, 0);
+        base += (end - kept) as u64;
+    }
+}
+
+/// Walks the collection at `at` as HDF5 does; `Ok(Err(why))` when it does
+/// not parse.
+fn parse(f: &mut File, at: u64, len: u64, lengths: u64) -> std::io::Result<std::result::Result<(), String>> {
+    // Little-endian, of `n` bytes at `pos` (inside the file: checked below).
+    let mut read = |pos: u64, n: u64| -> std::io::Result<u64> {
+        let mut b = [0u8; 8];
+        f.seek(SeekFrom::Start(pos))?;
+        f.read_exact(&mut b[..n as usize])?;
+        Ok(u64::from_le_bytes(b))
+    };
+    let object_header = 8 + lengths;
+    if at + object_header > len {
+        return Ok(Err("its size is past the end of the file".into()));
+    }
+    let size = read(at + 8, lengths)?;
+    let Some(end) = at.checked_add(size).filter(|&e| e <= len && size >= object_header) else {
+        return Ok(Err(format!("its size {size} does not fit the file")));
+    };
+    let mut p = at + object_header;
+    // Until the tail is too small for an object's header (free space).
+    while p + object_header <= end {
+        let index = read(p, 2)?;
+        let object = read(p + 8, lengths)?;
+        let need = match index {
+            0 => object,
+            _ => object.checked_add(7).map_or(u64::MAX, |s| object_header.saturating_add(s & !7)),
+        };
+        if need == 0 || need > end - p {
+            return Ok(Err(format!("object {index} at byte {p} of size {object} runs past the collection's end")));
+        }
+        p += need;
+    }
+    Ok(Ok(()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A collection of `objects` (index, data) and its free space, as HDF5
+    /// lays it out, after `pad` bytes of something else.
+    fn collection(pad: usize, objects: &[(u16, &[u8])], size: u64) -> Vec<u8> {
+        let mut c = vec![0xAB; pad];
+        c.extend(HEADER);
+        c.extend(size.to_le_bytes());
+        for (i, d) in objects {
+            c.extend(i.to_le_bytes());
+            c.extend([1, 0, 0, 0, 0, 0]);
+            c.extend((d.len() as u64).to_le_bytes());
+            c.extend(*d);
+            c.resize(c.len() + (8 - d.len() % 8) % 8, 0);
+        }
+        let free = pad as u64 + size - c.len() as u64;
+        c.extend([0, 0, 0, 0, 0, 0, 0, 0]);
+        c.extend(free.to_le_bytes());
+        c.resize(pad + size as usize, 0);
+        c
+    }
+
+    fn check_bytes(name: &str, bytes: &[u8]) -> Result<()> {
+        let p = std::env::temp_dir().join(format!("gsenc-gcol-{name}-{}", std::process::id()));
+        std::fs::write(&p, bytes).unwrap();
+        let r = check(&p);
+        std::fs::remove_file(&p).unwrap();
+        r
+    }
+
+    #[test]
+    fn sound_collections_pass_and_corrupt_sizes_are_refused() {
+        let good = collection(100, &[(1, b"1.2"), (2, b"gsenc 0.1.0"), (3, b"matched")], 4096);
+        check_bytes("good", &good).unwrap();
+        // Two collections, the second's header across the search's first
+        // and second reads (the first reads CHUNK + 8 bytes).
+        let second = CHUNK + 4;
+        let mut two = good.clone();
+        two.resize(second, 0);
+        two.extend(collection(0, &[(1, b"f32")], 4096));
+        check_bytes("two", &two).unwrap();
+        // An object's size past the end (the copy HDF5 made past its buffer).
+        let mut bad = good.clone();
+        bad[100 + 16 + 8 + 1] = 0xF5;
+        let e = check_bytes("object", &bad).unwrap_err();
+        assert!(matches!(e, Error::Format(_)) && e.to_string().contains("byte 100") && e.to_string().contains("object 1"), "{e}");
+        // The collection's own size past the end of the file.
+        let mut bad = good.clone();
+        bad[100 + 9] = 0x80;
+        assert!(check_bytes("size", &bad).unwrap_err().to_string().contains("does not fit the file"));
+        // A free space of size 0 (HDF5 looped forever on it).
+        let mut bad = good;
+        let free = 100 + 16 + 3 * 16 + 8 + 16 + 8;
+        bad[free + 8..free + 16].copy_from_slice(&0u64.to_le_bytes());
+        assert!(check_bytes("zero", &bad).unwrap_err().to_string().contains("object 0"));
+        // In the second collection, across the reads.
+        let mut bad = two;
+        bad[second + 16 + 8 + 2] = 0xFF;
+        assert!(check_bytes("straddle", &bad).unwrap_err().to_string().contains(&format!("collection at byte {second}")));
+    }
+}
