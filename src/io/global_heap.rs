@@ -73,7 +73,7 @@ fn headers(f: &mut File) -> std::io::Result<Vec<u64>> {
             return Ok(found);
         }
         let end = kept + n;
-        found.extend(buf[..end].windows(HEADER.len()).enumerate().filter(|(_, w)| *w == HEADER).map(|(i, _)| base + i as u64));
+        found.extend(memchr::memmem::find_iter(&buf[..end], HEADER).map(|i| base + i as u64));
         // The last 7 bytes start the next window, so that a header across
         // two reads is found once.
         kept = end.min(HEADER.len() - 1);
