@@ -85,26 +85,30 @@ fn headers(f: &mut File) -> std::io::Result<Vec<u64>> {
 /// Walks the collection at `at` as HDF5 does; `Ok(Err(why))` when it does
 /// not parse.
 fn parse(f: &mut File, at: u64, len: u64, lengths: u64) -> std::io::Result<std::result::Result<(), String>> {
-    // Little-endian, of `n` bytes at `pos` (inside the file: checked below).
-    let mut read = |pos: u64, n: u64| -> std::io::Result<u64> {
-        let mut b = [0u8; 8];
-        f.seek(SeekFrom::Start(pos))?;
-        f.read_exact(&mut b[..n as usize])?;
-        Ok(u64::from_le_bytes(b))
-    };
     let object_header = 8 + lengths;
     if at + object_header > len {
         return Ok(Err("its size is past the end of the file".into()));
     }
-    let size = read(at + 8, lengths)?;
+    let size = Bytes::File(f).le(at + 8, lengths)?;
     let Some(end) = at.checked_add(size).filter(|&e| e <= len && size >= object_header) else {
         return Ok(Err(format!("its size {size} does not fit the file")));
+    };
+    // A small collection (as those of strings are: 4 KiB and up) is read
+    // whole, so that walking it costs one read.
+    let mut bytes = match size <= 1 << 20 {
+        true => {
+            let mut b = vec![0u8; size as usize];
+            f.seek(SeekFrom::Start(at))?;
+            f.read_exact(&mut b)?;
+            Bytes::Memory(at, b)
+        }
+        false => Bytes::File(f),
     };
     let mut p = at + object_header;
     // Until the tail is too small for an object's header (free space).
     while p + object_header <= end {
-        let index = read(p, 2)?;
-        let object = read(p + 8, lengths)?;
+        let index = bytes.le(p, 2)?;
+        let object = bytes.le(p + 8, lengths)?;
         let need = match index {
             0 => object,
             _ => object.checked_add(7).map_or(u64::MAX, |s| object_header.saturating_add(s & !7)),
@@ -115,6 +119,31 @@ fn parse(f: &mut File, at: u64, len: u64, lengths: u64) -> std::io::Result<std::
         p += need;
     }
     Ok(Ok(()))
+}
+
+/// Where a collection is read from: the file, or its bytes from `.0` on.
+enum Bytes<'a> {
+    File(&'a mut File),
+    Memory(u64, Vec<u8>),
+}
+
+impl Bytes<'_> {
+    /// The little-endian number of `n` (at most 8) bytes at file offset
+    /// `pos` (which the caller keeps inside the file or the collection).
+    fn le(&mut self, pos: u64, n: u64) -> std::io::Result<u64> {
+        let mut b = [0u8; 8];
+        match self {
+            Bytes::File(f) => {
+                f.seek(SeekFrom::Start(pos))?;
+                f.read_exact(&mut b[..n as usize])?;
+            }
+            Bytes::Memory(start, bytes) => {
+                let i = (pos - *start) as usize;
+                b[..n as usize].copy_from_slice(&bytes[i..i + n as usize]);
+            }
+        }
+        Ok(u64::from_le_bytes(b))
+    }
 }
 
 #[cfg(test)]
