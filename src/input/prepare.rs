@@ -190,7 +190,7 @@ pub fn prepare(input: &Input, range: &RangeSpec) -> Result<Prepared> {
 /// brings the largest near 1. The deposit uses them only through ratios
 /// (`num / den`), and a power of two changes no bit of those, but their
 /// sums can no longer overflow (cells of volume 1e308 gave inf / inf) or
-/// underflow (masses of 1e-300).
+/// underflow (volumes of 1e-300).
 fn scale_weights(splats: &mut [Splat]) {
     let top = splats.iter().fold(0f64, |a, s| a.max(s.m));
     if top > 0.0 && top.is_finite() {
