@@ -239,7 +239,7 @@ impl Model {
         let (mut index, mut rho, mut num) = (Vec::with_capacity(run), vec![0.0; run], vec![0.0; run]);
         for (points, out) in points.chunks(run).zip(out.chunks_mut(run)) {
             index.clear();
-            index.extend(points.iter().map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)));
+            index.extend(points.iter().map(|&p| f.world_to_index(p).map(|u| u as f32)));
             let n = points.len();
             backend.evaluate_points(&self.params, &index, &mut rho[..n], &mut num[..n])?;
             for (i, o) in out.iter_mut().enumerate() {
