@@ -242,10 +242,8 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
         // SAFETY: the caller's arrays hold 3 count doubles (read in place
         // as count [f64; 3], of the same layout) and count floats.
         let (pts, out) = unsafe { (std::slice::from_raw_parts(points.cast::<[f64; 3]>(), n), std::slice::from_raw_parts_mut(out, n)) };
-        if pts.iter().flatten().any(|v| !v.is_finite()) {
-            return fail(gsenc_status::InvalidData, "gsenc_model_evaluate: a point is not finite");
-        }
-        // Into the caller's array, in runs: nothing sized by count is copied.
+        // Into the caller's array, in runs: nothing sized by count is
+        // copied. A point that is not finite is InvalidData, by index.
         m.evaluate_into(&mut CpuBackend::new(), pts, out)?;
         for o in out.iter_mut() {
             *o = m.meta.range.denormalize(*o) as f32;
