@@ -206,6 +206,20 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     }
 }
 
+/// The bytes of a store of `entries` (field, step, payload; rank 0, 40
+/// primitives each), written in a fresh `tmpdir(name)`, which is returned.
+fn sound_store(name: &str, entries: &[(&str, u64, Payload)]) -> (std::path::PathBuf, Vec<u8>) {
+    let dir = tmpdir(name);
+    let path = dir.join("s.h5");
+    let mut s = Store::open_append(&path).unwrap();
+    for &(field, step, payload) in entries {
+        s.append(&model(field, step, 0, 40, 0.5), payload).unwrap();
+    }
+    drop(s);
+    let bytes = std::fs::read(&path).unwrap();
+    (dir, bytes)
+}
+
 /// A store whose global heap (where HDF5 keeps its string attributes,
 /// without a checksum) was corrupted is refused by name before HDF5 reads
 /// it: one changed byte in an object's size made HDF5 1.10 copy past its
@@ -214,14 +228,7 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
 #[test]
 fn a_corrupted_global_heap_is_refused_before_hdf5_reads_it() {
     let _serial = common::hdf5_serial();
-    let dir = tmpdir("heap");
-    let path = dir.join("s.h5");
-    let mut s = Store::open_append(&path).unwrap();
-    for step in 0..3 {
-        s.append(&model("rho", step, 0, 50, 0.5), Payload::Float32).unwrap();
-    }
-    drop(s);
-    let sound = std::fs::read(&path).unwrap();
+    let (dir, sound) = sound_store("heap", &[("rho", 0, Payload::Float32), ("rho", 1, Payload::Float32), ("rho", 2, Payload::Float32)]);
     let heap = sound.windows(8).position(|w| w == b"GCOL\x01\x00\x00\x00").expect("a store keeps its strings in a global heap");
     let open = |bytes: &[u8]| {
         let p = dir.join("c.h5");
@@ -250,14 +257,7 @@ fn a_corrupted_global_heap_is_refused_before_hdf5_reads_it() {
 #[test]
 fn stores_with_random_bytes_changed_give_errors_not_crashes() {
     let _serial = common::hdf5_serial();
-    let dir = tmpdir("corrupt");
-    let path = dir.join("s.h5");
-    let mut s = Store::open_append(&path).unwrap();
-    for (field, step) in [("rho", 0), ("rho", 1), ("temp", 0)] {
-        s.append(&model(field, step, 0, 40, 0.5), Payload::ALL[step as usize % 3]).unwrap();
-    }
-    drop(s);
-    let sound = std::fs::read(&path).unwrap();
+    let (dir, sound) = sound_store("corrupt", &[("rho", 0, Payload::ALL[0]), ("rho", 1, Payload::ALL[1]), ("temp", 0, Payload::ALL[0])]);
     let mut rng = gsenc::math::rng::Rng::new(17);
     let (mut refused, mut read) = (0, 0);
     for _ in 0..1500 {
