@@ -190,8 +190,12 @@ public:
         uint32_t esize = 0;
         std::memcpy(&esize, in + 8, 4);
         const size_t h = HeaderSize(ndims);
-        if (size < h || esize != ElementSize(type))
+        if (size < h || esize == 0 || esize != ElementSize(type))
             throw std::runtime_error("gsenc ADIOS2 operator: a damaged block header");
+        // ADIOS2 does not say how large `out` is: it holds the block's count
+        // of values, which only this header says. So every field must agree
+        // with every other (and the model's own lattice, below) before a
+        // value is written: a damaged count would write past `out`.
         Dims count(ndims);
         size_t pos = kFixedHeader, n = 1;
         for (auto &c : count)
@@ -200,6 +204,8 @@ public:
             std::memcpy(&v, in + pos, 8);
             pos += 8;
             c = v;
+            if (v != 0 && n > SIZE_MAX / esize / v)
+                throw std::runtime_error("gsenc ADIOS2 operator: a damaged block header (its count overflows)");
             n *= c;
         }
         uint64_t budget = 0, body = 0;
@@ -220,6 +226,16 @@ public:
         if (gsenc_model_read_buffer(reinterpret_cast<const uint8_t *>(data), body, &model) != GSENC_STATUS_OK)
             throw std::runtime_error("gsenc ADIOS2 operator: " + LastError());
         const uint64_t dims[3] = {count[2], count[1], count[0]}; // x fastest
+        // The model was encoded from this very block, so its lattice is the
+        // block's count (the model's bytes are checked by their CRC).
+        gsenc_model_info info;
+        std::memset(&info, 0, sizeof info);
+        info.struct_size = sizeof info;
+        if (gsenc_model_info_get(model, &info) != GSENC_STATUS_OK || !std::equal(dims, dims + 3, info.dims))
+        {
+            gsenc_model_destroy(model);
+            throw std::runtime_error("gsenc ADIOS2 operator: a damaged block header (its count is not its model's lattice)");
+        }
         std::vector<float> decoded(type == DataType::Double ? n : 0);
         float *target = type == DataType::Float ? reinterpret_cast<float *>(out) : decoded.data();
         const gsenc_status st = gsenc_model_decode(model, dims, target, n);

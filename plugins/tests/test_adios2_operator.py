@@ -148,3 +148,82 @@ def test_a_target_quality_instead_of_a_budget(tmp_path, steps, plugin_dir):
     write(tmp_path / "t.bp", xml(tmp_path / "t.xml", dict(target_psnr=50, schedule="short", threads=1)), steps[:1])
     (got, *_), = read(tmp_path / "t.bp")
     assert abs(psnr(got, steps[0][0]) - 50.0) <= 1.0
+
+
+# Reads step 0 of a BP file with bytes of data.0 changed, one change at a
+# time, each restored before the next: a line per change, "same" (every
+# value as read from the sound file), "error <message>" or "wrong".
+DAMAGED_READER = textwrap.dedent("""
+    import sys, numpy as np, adios2
+    from adios2 import bindings
+    path, sound = sys.argv[1], np.load(sys.argv[2])
+    changes = [tuple(map(int, c.split(":"))) for c in sys.argv[3].split(",")]
+    def step0():
+        io = adios2.Adios().declare_io("in")
+        r = io.open(path, bindings.Mode.Read)
+        r.begin_step()
+        got = []
+        for name in sound.files:
+            v = io.inquire_variable(name)
+            a = np.zeros(v.shape(), dtype=sound[name].dtype)
+            r.get(v, a, bindings.Mode.Sync)
+            got.append(a)
+        r.close()
+        return got
+    with open(path + "/data.0", "r+b") as f:
+        for at, value in changes:
+            f.seek(at); was = f.read(1); f.seek(at); f.write(bytes([value])); f.flush()
+            try:
+                got = step0()
+                same = all(np.array_equal(a, sound[n], equal_nan=True) for a, n in zip(got, sound.files))
+                print("same" if same else "wrong", flush=True)
+            except Exception as e:
+                print("error", str(e).replace(chr(10), " "), flush=True)
+            f.seek(at); f.write(was); f.flush()
+""")
+
+
+def test_a_damaged_block_is_an_error_not_a_crash(written, tmp_path):
+    """ADIOS2 does not tell the operator how large the buffer it decodes
+    into is: the block's own header says it. One byte changed in a block's
+    header (or in its model) must give an error naming the operator, or
+    the sound values where the byte is one the operator does not need (the
+    reserved bytes, the budget); before the header was checked against the
+    model's lattice, a changed count made the reader write past ADIOS2's
+    buffer (SIGSEGV)."""
+    bp = tmp_path / "damaged.bp"
+    import shutil
+    shutil.copytree(written / "gsenc.bp", bp)
+    (sound,) = [read(bp)[0]]
+    np.savez(tmp_path / "sound.npz", **dict(zip(NAMES, sound)))
+    data = (bp / "data.0").read_bytes()
+    starts = [i for i in range(len(data)) if data[i:i + 4] == b"GSA2"]
+    assert len(starts) == 2 * len(NAMES), starts  # a block per variable and step
+    changes, models = [], 0
+    for at in starts[:len(NAMES)]:  # step 0's blocks
+        ndims = data[at + 7]
+        header = 16 + 8 * ndims + 16
+        body = int.from_bytes(data[at + header - 8:at + header], "little")
+        models += data[at + 5] == 1
+        # Every header byte; every 61st byte of a model (a raw block's
+        # values are the values).
+        where = list(range(at, at + header)) + (list(range(at + header, at + header + body, 61)) if data[at + 5] == 1 else [])
+        for w in where:
+            for v in sorted({data[w] ^ 0x01, data[w] ^ 0x80, 0x00, 0xFF} - {data[w]}):
+                changes.append((w, v))
+    assert models == 1  # rho is a model; the line, the tiny block and the holed field are raw
+    done = subprocess.run([sys.executable, "-c", DAMAGED_READER, str(bp), str(tmp_path / "sound.npz"), ",".join(f"{a}:{v}" for a, v in changes)],
+                          capture_output=True, text=True)
+    lines = done.stdout.splitlines()
+    assert done.returncode == 0, f"the reader died ({done.returncode}) at change {len(lines)} of {len(changes)}, byte {changes[len(lines)][0] - starts[0]} from the first block: {done.stderr[-2000:]}"
+    assert len(lines) == len(changes)
+    same = set()
+    for (w, v), line in zip(changes, lines):
+        block = max(s for s in starts if s <= w)
+        offset = w - block
+        assert line == "same" or (line.startswith("error") and "gsenc ADIOS2 operator" in line), f"byte {offset} of the block at {block} set to {v}: {line}"
+        if line == "same":
+            same.add(offset)
+        # A 3D block's count (bytes 16 to 39) changed is always an error.
+        assert not (data[block + 7] == 3 and 16 <= offset < 40 and line == "same"), f"byte {offset} of the block at {block} set to {v}"
+    assert {12, 13, 14, 15} <= same, same  # reserved
