@@ -133,27 +133,31 @@ fn create_mpi(_: Settings, _: i32) -> Result<gsenc_encoder, Failure> {
 /// encoder and everything it holds. Failures of the drained jobs are not
 /// reported: call `gsenc_wait` first to see them. NULL, and a handle
 /// destroyed already, are ignored; other calls with it afterwards fail with
-/// `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
+/// `GSENC_STATUS_INVALID_ARGUMENT`. A call on it in flight on another thread
+/// is waited for first.
 /// Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
 /// duplicated communicator).
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
-    if !encoder.is_null() && crate::handles::release(encoder, Kind::Encoder) {
+    crate::handles::release(encoder, Kind::Encoder, || {
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             // SAFETY: made by Box::into_raw in gsenc_encoder_create, and live
-            // until now (released above, so never freed twice).
+            // until now (released, so never freed twice, and no call holds it).
             let mut enc = unsafe { Box::from_raw(encoder) };
             let _ = enc.queue.wait(None);
             enc.flush();
             drop(enc); // the queue's drop joins its idle worker
         }));
-    }
+    });
 }
 
-pub(crate) fn encoder_mut<'a>(encoder: *mut gsenc_encoder, what: &str) -> Result<&'a mut gsenc_encoder, Failure> {
-    crate::handles::check(encoder, Kind::Encoder, what)?;
-    // SAFETY: a live handle from gsenc_encoder_create, used by one thread.
-    Ok(unsafe { &mut *encoder })
+/// Runs `f` on the live encoder `encoder`, no other call using it meanwhile
+/// (a call from another thread waits for this one).
+pub(crate) fn with_encoder<R>(encoder: *mut gsenc_encoder, what: &str, f: impl FnOnce(&mut gsenc_encoder) -> Result<R, Failure>) -> Result<R, Failure> {
+    crate::handles::hold(encoder, Kind::Encoder, what, true, || {
+        // SAFETY: a live handle from gsenc_encoder_create, held alone.
+        f(unsafe { &mut *encoder })
+    })
 }
 
 impl gsenc_encoder {

@@ -13,9 +13,10 @@
 ! Handles (encoder, model) are type(c_ptr): initialise them to c_null_ptr,
 ! free them with gsenc_encoder_destroy / gsenc_model_destroy.
 !
-! Threading and ownership are as in gsenc.h: an encoder is used by one
-! thread at a time; a model by any number; pushed arrays are copied before the
-! call returns. Connectivity of hexahedra is 0-based, in VTK order, as in C.
+! Threading and ownership are as in gsenc.h: calls on one encoder from
+! several threads (an OpenMP loop over fields) run one at a time; a model is
+! read by any number at once; a destroy waits for the calls in flight on its
+! handle; pushed arrays are copied before the call returns. Connectivity of hexahedra is 0-based, in VTK order, as in C.
 !
 ! This source is installed beside gsenc.mod, so that a build with another
 ! Fortran compiler can compile it itself (see the CMake package).

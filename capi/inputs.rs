@@ -3,7 +3,7 @@
 //! hexahedra), and the pushes that copy one field of a step out of them
 //! into the encoder's queue.
 
-use crate::encoder::{encoder_mut, gsenc_encoder};
+use crate::encoder::{gsenc_encoder, with_encoder};
 use crate::ffi::{c_str, copy_grid, extents, item_count, read_scalars, read_sized, read_tuples, DType};
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::domain::halo::Kind as DataKind;
@@ -110,7 +110,7 @@ pub struct gsenc_particles {
 /// at once. The step is queued for the background encode (see
 /// `gsenc_config.when_full` for a full queue: `GSENC_STATUS_BUSY` or
 /// `GSENC_STATUS_SKIPPED`); `gsenc_wait` and `gsenc_poll` follow it.
-/// Not thread-safe on one encoder (one thread at a time); different
+/// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_grid(
@@ -141,12 +141,13 @@ unsafe fn push_step(
     make: impl FnOnce(&gsenc_encoder) -> Result<StepData, Failure>,
 ) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, what)?;
-        // SAFETY: a NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") };
-        let name = field.as_ref().map_or(String::new(), Clone::clone);
-        let made = field.and_then(|_| make(enc));
-        enc.push_made(&name, step, time, kind, made)
+        with_encoder(encoder, what, |enc| {
+            // SAFETY: a NUL-terminated string or NULL (refused).
+            let field = unsafe { c_str(field, "field") };
+            let name = field.as_ref().map_or(String::new(), Clone::clone);
+            let made = field.and_then(|_| make(enc));
+            enc.push_made(&name, step, time, kind, made)
+        })
     })
 }
 
@@ -186,7 +187,7 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Step
 /// Hands over one field of step `step` as SPH particles (see
 /// `gsenc_particles`), deposited on the configured `dims` and bounds. The
 /// arrays and `field` are copied before the call returns.
-/// Not thread-safe on one encoder (one thread at a time); different
+/// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_particles(
@@ -234,7 +235,7 @@ unsafe fn particle_data(enc: &gsenc_encoder, particles: *const gsenc_particles) 
 /// `gsenc_cells`), deposited on the configured `dims` and bounds
 /// (volume-weighted). The arrays and `field` are copied before the call
 /// returns.
-/// Not thread-safe on one encoder (one thread at a time); different
+/// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_cells(

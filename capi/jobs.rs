@@ -2,7 +2,7 @@
 //! cancel, and the last model of a field (its step and PSNR, or written to
 //! a file).
 
-use crate::encoder::{encoder_mut, gsenc_encoder};
+use crate::encoder::{gsenc_encoder, with_encoder};
 use crate::ffi::{c_str, check_sized};
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::format::write_model_as;
@@ -14,22 +14,23 @@ use std::os::raw::c_char;
 /// encoded and written. Returns the first failure not reported before
 /// (its message names the field and step; later steps were still encoded),
 /// else `GSENC_STATUS_OK`. Models bound for an HDF5 store are written here,
-/// on the caller's thread. Not thread-safe on one encoder.
+/// on the caller's thread. Calls on one encoder run one at a time.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_wait(encoder: *mut gsenc_encoder, field: *const c_char) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_wait")?;
-        // SAFETY: NULL or a NUL-terminated string.
-        let field = if field.is_null() { None } else { Some(unsafe { c_str(field, "field") }?) };
-        if let Some(f) = &field {
-            gsenc::format::check_field_name(f)?;
-        }
-        let waited = enc.queue.wait(field.as_deref());
-        enc.flush();
-        waited?;
-        // A store write that failed in the flush is a failure of this wait too.
-        enc.queue.wait(field.as_deref())?;
-        Ok(())
+        with_encoder(encoder, "gsenc_wait", |enc| {
+            // SAFETY: NULL or a NUL-terminated string.
+            let field = if field.is_null() { None } else { Some(unsafe { c_str(field, "field") }?) };
+            if let Some(f) = &field {
+                gsenc::format::check_field_name(f)?;
+            }
+            let waited = enc.queue.wait(field.as_deref());
+            enc.flush();
+            waited?;
+            // A store write that failed in the flush is a failure of this wait too.
+            enc.queue.wait(field.as_deref())?;
+            Ok(())
+        })
     })
 }
 
@@ -65,68 +66,70 @@ pub struct gsenc_job {
 
 /// Fills `*job` with the state of `field`'s step `step`, without waiting.
 /// `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
-/// for an HDF5 store are written here. Not thread-safe on one encoder.
+/// for an HDF5 store are written here. Calls on one encoder run one at a time.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c_char, step: u64, job: *mut gsenc_job) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_poll")?;
-        // SAFETY: a NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") }?;
-        // SAFETY: NULL or the caller's gsenc_job.
-        unsafe { check_sized(job.cast_const(), "gsenc_poll: job") }?;
-        enc.flush();
-        let Some(state) = enc.queue.poll(&field, step) else {
-            return fail(gsenc_status::CallOrder, format!("field '{field}' step {step} was never pushed"));
-        };
-        let mut out = gsenc_job {
-            struct_size: std::mem::size_of::<gsenc_job>(),
-            state: GSENC_JOB_QUEUED,
-            iteration: 0,
-            iterations: 0,
-            error: gsenc_status::Ok as i32,
-            psnr: f64::NAN,
-        };
-        let mut message = None;
-        match state {
-            JobState::Queued => {}
-            JobState::Running { iteration, iterations } => {
-                out.state = GSENC_JOB_RUNNING;
-                out.iteration = iteration as u32;
-                out.iterations = iterations as u32;
+        with_encoder(encoder, "gsenc_poll", |enc| {
+            // SAFETY: a NUL-terminated string or NULL (refused).
+            let field = unsafe { c_str(field, "field") }?;
+            // SAFETY: NULL or the caller's gsenc_job.
+            unsafe { check_sized(job.cast_const(), "gsenc_poll: job") }?;
+            enc.flush();
+            let Some(state) = enc.queue.poll(&field, step) else {
+                return fail(gsenc_status::CallOrder, format!("field '{field}' step {step} was never pushed"));
+            };
+            let mut out = gsenc_job {
+                struct_size: std::mem::size_of::<gsenc_job>(),
+                state: GSENC_JOB_QUEUED,
+                iteration: 0,
+                iterations: 0,
+                error: gsenc_status::Ok as i32,
+                psnr: f64::NAN,
+            };
+            let mut message = None;
+            match state {
+                JobState::Queued => {}
+                JobState::Running { iteration, iterations } => {
+                    out.state = GSENC_JOB_RUNNING;
+                    out.iteration = iteration as u32;
+                    out.iterations = iterations as u32;
+                }
+                JobState::Written { psnr, .. } | JobState::Encoded { psnr } => {
+                    out.state = GSENC_JOB_DONE;
+                    out.psnr = psnr;
+                }
+                JobState::Failed(e) => {
+                    out.state = GSENC_JOB_FAILED;
+                    let f = Failure::from(e.in_context(&format!("field '{field}' step {step}")));
+                    out.error = f.0 as i32;
+                    message = Some(f.1);
+                }
+                JobState::Skipped => out.state = GSENC_JOB_SKIPPED,
+                JobState::Cancelled => out.state = GSENC_JOB_CANCELLED,
             }
-            JobState::Written { psnr, .. } | JobState::Encoded { psnr } => {
-                out.state = GSENC_JOB_DONE;
-                out.psnr = psnr;
+            // SAFETY: as above.
+            unsafe { job.write(out) };
+            if let Some(m) = message {
+                crate::status::set_last_error(m);
             }
-            JobState::Failed(e) => {
-                out.state = GSENC_JOB_FAILED;
-                let f = Failure::from(e.in_context(&format!("field '{field}' step {step}")));
-                out.error = f.0 as i32;
-                message = Some(f.1);
-            }
-            JobState::Skipped => out.state = GSENC_JOB_SKIPPED,
-            JobState::Cancelled => out.state = GSENC_JOB_CANCELLED,
-        }
-        // SAFETY: as above.
-        unsafe { job.write(out) };
-        if let Some(m) = message {
-            crate::status::set_last_error(m);
-        }
-        Ok(())
+            Ok(())
+        })
     })
 }
 
 /// Drops every queued step and stops the running one at its next
 /// iteration; returns when the worker is idle. Their states become
 /// `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
-/// encoded one. The encoder stays usable. Not thread-safe on one encoder.
+/// encoded one. The encoder stays usable. Calls on one encoder run one at a time.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_encoder_cancel")?;
-        enc.queue.cancel();
-        enc.flush();
-        Ok(())
+        with_encoder(encoder, "gsenc_encoder_cancel", |enc| {
+            enc.queue.cancel();
+            enc.flush();
+            Ok(())
+        })
     })
 }
 
@@ -135,18 +138,19 @@ pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gs
 /// link; a device or a pipe is written in place), with the configured
 /// payload. Does not wait for
 /// queued steps (call `gsenc_wait` first for the newest). Strings are read
-/// during the call only. Not thread-safe on one encoder.
+/// during the call only. Calls on one encoder run one at a time.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, field: *const c_char, path: *const c_char) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_encoder_write_model")?;
-        // SAFETY: NUL-terminated strings or NULL (refused).
-        let (field, path) = unsafe { (c_str(field, "field")?, c_str(path, "path")?) };
-        let Some((model, _)) = enc.queue.last(&field) else {
-            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
-        };
-        write_atomic(&path, &write_model_as(&model, enc.settings.series.payload)?)?;
-        Ok(())
+        with_encoder(encoder, "gsenc_encoder_write_model", |enc| {
+            // SAFETY: NUL-terminated strings or NULL (refused).
+            let (field, path) = unsafe { (c_str(field, "field")?, c_str(path, "path")?) };
+            let Some((model, _)) = enc.queue.last(&field) else {
+                return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
+            };
+            write_atomic(&path, &write_model_as(&model, enc.settings.series.payload)?)?;
+            Ok(())
+        })
     })
 }
 
@@ -156,7 +160,7 @@ pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, 
 /// `*size` is set to the bytes the model takes in any case: call with a
 /// NULL `buffer` to learn it; a `capacity` below it is
 /// `GSENC_STATUS_INVALID_ARGUMENT` with nothing written. Does not wait for
-/// queued steps. Not thread-safe on one encoder.
+/// queued steps. Calls on one encoder run one at a time.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_model_bytes(
     encoder: *mut gsenc_encoder,
@@ -166,34 +170,35 @@ pub unsafe extern "C" fn gsenc_encoder_model_bytes(
     size: *mut usize,
 ) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_encoder_model_bytes")?;
-        // SAFETY: NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") }?;
-        if size.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_encoder_model_bytes: size is NULL");
-        }
-        let Some((model, _)) = enc.queue.last(&field) else {
-            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
-        };
-        let bytes = write_model_as(&model, enc.settings.series.payload)?;
-        // SAFETY: non-null out pointer.
-        unsafe { *size = bytes.len() };
-        if buffer.is_null() {
-            return Ok(());
-        }
-        if capacity < bytes.len() {
-            return fail(gsenc_status::InvalidArgument, format!("gsenc_encoder_model_bytes: a buffer of {capacity} bytes, the model takes {}", bytes.len()));
-        }
-        // SAFETY: the caller's `capacity` writable bytes at `buffer`, at
-        // least `bytes.len()`; a fresh Vec does not overlap them.
-        unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), buffer, bytes.len()) };
-        Ok(())
+        with_encoder(encoder, "gsenc_encoder_model_bytes", |enc| {
+            // SAFETY: NUL-terminated string or NULL (refused).
+            let field = unsafe { c_str(field, "field") }?;
+            if size.is_null() {
+                return fail(gsenc_status::NullPointer, "gsenc_encoder_model_bytes: size is NULL");
+            }
+            let Some((model, _)) = enc.queue.last(&field) else {
+                return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
+            };
+            let bytes = write_model_as(&model, enc.settings.series.payload)?;
+            // SAFETY: non-null out pointer.
+            unsafe { *size = bytes.len() };
+            if buffer.is_null() {
+                return Ok(());
+            }
+            if capacity < bytes.len() {
+                return fail(gsenc_status::InvalidArgument, format!("gsenc_encoder_model_bytes: a buffer of {capacity} bytes, the model takes {}", bytes.len()));
+            }
+            // SAFETY: the caller's `capacity` writable bytes at `buffer`, at
+            // least `bytes.len()`; a fresh Vec does not overlap them.
+            unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), buffer, bytes.len()) };
+            Ok(())
+        })
     })
 }
 
 /// The last encoded step of `field` and the voxel PSNR (dB) of its model as
 /// stored, against the reference it was fitted to. Does not wait for queued
-/// steps. Not thread-safe on one encoder.
+/// steps. Calls on one encoder run one at a time.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_last_step(
     encoder: *mut gsenc_encoder,
@@ -202,20 +207,21 @@ pub unsafe extern "C" fn gsenc_encoder_last_step(
     psnr: *mut f64,
 ) -> gsenc_status {
     guard(|| {
-        let enc = encoder_mut(encoder, "gsenc_encoder_last_step")?;
-        // SAFETY: NUL-terminated string or NULL (refused).
-        let field = unsafe { c_str(field, "field") }?;
-        if step.is_null() || psnr.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_encoder_last_step: step or psnr is NULL");
-        }
-        let Some((model, p)) = enc.queue.last(&field) else {
-            return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
-        };
-        // SAFETY: non-null out pointers.
-        unsafe {
-            *step = model.meta.step;
-            *psnr = p;
-        }
-        Ok(())
+        with_encoder(encoder, "gsenc_encoder_last_step", |enc| {
+            // SAFETY: NUL-terminated string or NULL (refused).
+            let field = unsafe { c_str(field, "field") }?;
+            if step.is_null() || psnr.is_null() {
+                return fail(gsenc_status::NullPointer, "gsenc_encoder_last_step: step or psnr is NULL");
+            }
+            let Some((model, p)) = enc.queue.last(&field) else {
+                return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
+            };
+            // SAFETY: non-null out pointers.
+            unsafe {
+                *step = model.meta.step;
+                *psnr = p;
+            }
+            Ok(())
+        })
     })
 }

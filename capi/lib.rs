@@ -31,6 +31,8 @@ pub mod status;
 
 #[cfg(all(test, feature = "hdf5"))]
 mod hdf5_tests;
+#[cfg(test)]
+mod thread_tests;
 
 pub use ffi::{GSENC_DTYPE_FLOAT32, GSENC_DTYPE_FLOAT64};
 

@@ -58,10 +58,13 @@ pub const GSENC_WARM_TAKEN_REPAIRED: i32 = 2;
 /// A fresh seeding from the step's own data.
 pub const GSENC_WARM_TAKEN_FRESH: i32 = 3;
 
-fn model_ref<'a>(model: *const gsenc_model, what: &str) -> Result<&'a Model, Failure> {
-    crate::handles::check(model, Kind::Model, what)?;
-    // SAFETY: a live handle from gsenc_model_read.
-    Ok(unsafe { &(*model).model })
+/// Runs `f` on the live model `model`, which is not freed meanwhile (other
+/// calls may read it too).
+fn with_model<R>(model: *const gsenc_model, what: &str, f: impl FnOnce(&Model) -> Result<R, Failure>) -> Result<R, Failure> {
+    crate::handles::hold(model, Kind::Model, what, false, || {
+        // SAFETY: a live handle from gsenc_model_read, held.
+        f(unsafe { &(*model).model })
+    })
 }
 
 /// Reads the model file at `path` into `*out` (NULL on failure). The
@@ -117,16 +120,16 @@ fn new_handle(model: Model) -> *mut gsenc_model {
 
 /// Frees a model. NULL, and a handle destroyed already, are ignored;
 /// other calls with it afterwards fail with `GSENC_STATUS_INVALID_ARGUMENT`.
-/// Not concurrently with other calls on it.
+/// Calls on it in flight on other threads are waited for first.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
-    if !model.is_null() && crate::handles::release(model, Kind::Model) {
+    crate::handles::release(model, Kind::Model, || {
         let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
             // SAFETY: made by Box::into_raw in gsenc_model_read, live until
-            // now (released above, so never freed twice).
+            // now (released, so never freed twice, and no call holds it).
             drop(unsafe { Box::from_raw(model) });
         }));
-    }
+    });
 }
 
 /// The model's field name: copied into `buf` (at most `len` bytes, always
@@ -136,13 +139,14 @@ pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_field(model: *const gsenc_model, buf: *mut c_char, len: usize, length: *mut usize) -> gsenc_status {
     guard(|| {
-        let m = model_ref(model, "gsenc_model_field")?;
-        if length.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_model_field: length is NULL");
-        }
-        // SAFETY: `buf` is NULL or the caller's `len` bytes; `length` non-null.
-        unsafe { *length = crate::status::copy_c_string(&m.meta.field, buf, len) };
-        Ok(())
+        with_model(model, "gsenc_model_field", |m| {
+            if length.is_null() {
+                return fail(gsenc_status::NullPointer, "gsenc_model_field: length is NULL");
+            }
+            // SAFETY: `buf` is NULL or the caller's `len` bytes; `length` non-null.
+            unsafe { *length = crate::status::copy_c_string(&m.meta.field, buf, len) };
+            Ok(())
+        })
     })
 }
 
@@ -151,34 +155,35 @@ pub unsafe extern "C" fn gsenc_model_field(model: *const gsenc_model, buf: *mut 
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *mut gsenc_model_info) -> gsenc_status {
     guard(|| {
-        let m = model_ref(model, "gsenc_model_info_get")?;
-        // SAFETY: NULL or the caller's gsenc_model_info, to be filled.
-        unsafe { check_sized(info.cast_const(), "gsenc_model_info_get: info") }?;
-        let want = std::mem::size_of::<gsenc_model_info>();
-        let f = &m.meta.frame;
-        let value = gsenc_model_info {
-            struct_size: want,
-            count: m.len() as u64,
-            dims: f.dims.map(|d| d as u64),
-            origin: f.bmin,
-            spacing: 1.0 / f.gamma,
-            step: m.meta.step,
-            time: m.meta.time.unwrap_or(f64::NAN),
-            rank: m.meta.rank,
-            iterations: m.meta.iterations,
-            warm_started: m.meta.schedule.starts_with("warm-") as i32,
-            encode_psnr: m.meta.encode_psnr.unwrap_or(f64::NAN),
-            fell_back: m.meta.fell_back.is_some() as i32,
-            warm_taken: m.meta.warm.map_or(GSENC_WARM_TAKEN_NONE, |w| match w.taken {
-                WarmTaken::Kept => GSENC_WARM_TAKEN_KEPT,
-                WarmTaken::Repaired => GSENC_WARM_TAKEN_REPAIRED,
-                WarmTaken::Fresh => GSENC_WARM_TAKEN_FRESH,
-            }),
-            warm_moved: m.meta.warm.map_or(0, |w| w.moved),
-        };
-        // SAFETY: as above.
-        unsafe { info.write(value) };
-        Ok(())
+        with_model(model, "gsenc_model_info_get", |m| {
+            // SAFETY: NULL or the caller's gsenc_model_info, to be filled.
+            unsafe { check_sized(info.cast_const(), "gsenc_model_info_get: info") }?;
+            let want = std::mem::size_of::<gsenc_model_info>();
+            let f = &m.meta.frame;
+            let value = gsenc_model_info {
+                struct_size: want,
+                count: m.len() as u64,
+                dims: f.dims.map(|d| d as u64),
+                origin: f.bmin,
+                spacing: 1.0 / f.gamma,
+                step: m.meta.step,
+                time: m.meta.time.unwrap_or(f64::NAN),
+                rank: m.meta.rank,
+                iterations: m.meta.iterations,
+                warm_started: m.meta.schedule.starts_with("warm-") as i32,
+                encode_psnr: m.meta.encode_psnr.unwrap_or(f64::NAN),
+                fell_back: m.meta.fell_back.is_some() as i32,
+                warm_taken: m.meta.warm.map_or(GSENC_WARM_TAKEN_NONE, |w| match w.taken {
+                    WarmTaken::Kept => GSENC_WARM_TAKEN_KEPT,
+                    WarmTaken::Repaired => GSENC_WARM_TAKEN_REPAIRED,
+                    WarmTaken::Fresh => GSENC_WARM_TAKEN_FRESH,
+                }),
+                warm_moved: m.meta.warm.map_or(0, |w| w.moved),
+            };
+            // SAFETY: as above.
+            unsafe { info.write(value) };
+            Ok(())
+        })
     })
 }
 
@@ -191,33 +196,34 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *const u64, out: *mut f32, out_len: u64) -> gsenc_status {
     guard(|| {
-        let m = model_ref(model, "gsenc_model_decode")?;
-        let dims = if dims.is_null() {
-            m.meta.frame.dims
-        } else {
-            // SAFETY: three u64 at `dims`.
-            extents(unsafe { [*dims, *dims.add(1), *dims.add(2)] })?
-        };
-        let n: usize = dims.iter().product();
-        if out.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_model_decode: out is NULL");
-        }
-        if out_len != n as u64 {
-            return fail(gsenc_status::InvalidArgument, format!("gsenc_model_decode: out holds {out_len} floats, {dims:?} needs {n}"));
-        }
-        // SAFETY: the caller's buffer holds out_len floats.
-        let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
-        let mut at = 0;
-        let range = m.meta.range;
-        let mut backend = BackendChoice::default().open()?;
-        m.decode_streaming(backend.as_mut(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
-            for (o, &v) in out[at..at + slab.len()].iter_mut().zip(slab) {
-                *o = range.denormalize(v) as f32;
+        with_model(model, "gsenc_model_decode", |m| {
+            let dims = if dims.is_null() {
+                m.meta.frame.dims
+            } else {
+                // SAFETY: three u64 at `dims`.
+                extents(unsafe { [*dims, *dims.add(1), *dims.add(2)] })?
+            };
+            let n: usize = dims.iter().product();
+            if out.is_null() {
+                return fail(gsenc_status::NullPointer, "gsenc_model_decode: out is NULL");
             }
-            at += slab.len();
+            if out_len != n as u64 {
+                return fail(gsenc_status::InvalidArgument, format!("gsenc_model_decode: out holds {out_len} floats, {dims:?} needs {n}"));
+            }
+            // SAFETY: the caller's buffer holds out_len floats.
+            let out = unsafe { std::slice::from_raw_parts_mut(out, n) };
+            let mut at = 0;
+            let range = m.meta.range;
+            let mut backend = BackendChoice::default().open()?;
+            m.decode_streaming(backend.as_mut(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
+                for (o, &v) in out[at..at + slab.len()].iter_mut().zip(slab) {
+                    *o = range.denormalize(v) as f32;
+                }
+                at += slab.len();
+                Ok(())
+            })?;
             Ok(())
-        })?;
-        Ok(())
+        })
     })
 }
 
@@ -230,24 +236,25 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
     guard(|| {
-        let m = model_ref(model, "gsenc_model_evaluate")?;
-        if points.is_null() || out.is_null() {
-            return fail(gsenc_status::NullPointer, "gsenc_model_evaluate: points or out is NULL");
-        }
-        // No array of the caller's holds more than isize::MAX bytes.
-        let n = usize::try_from(count).ok().filter(|&n| n.checked_mul(24).is_some_and(|b| b <= isize::MAX as usize));
-        let Some(n) = n else {
-            return fail(gsenc_status::InvalidArgument, format!("gsenc_model_evaluate: count {count} is more points than an array can hold"));
-        };
-        // SAFETY: the caller's arrays hold 3 count doubles (read in place
-        // as count [f64; 3], of the same layout) and count floats.
-        let (pts, out) = unsafe { (std::slice::from_raw_parts(points.cast::<[f64; 3]>(), n), std::slice::from_raw_parts_mut(out, n)) };
-        // Into the caller's array, in runs: nothing sized by count is
-        // copied. A point that is not finite is InvalidData, by index.
-        m.evaluate_into(&mut CpuBackend::new(), pts, out)?;
-        for o in out.iter_mut() {
-            *o = m.meta.range.denormalize(*o) as f32;
-        }
-        Ok(())
+        with_model(model, "gsenc_model_evaluate", |m| {
+            if points.is_null() || out.is_null() {
+                return fail(gsenc_status::NullPointer, "gsenc_model_evaluate: points or out is NULL");
+            }
+            // No array of the caller's holds more than isize::MAX bytes.
+            let n = usize::try_from(count).ok().filter(|&n| n.checked_mul(24).is_some_and(|b| b <= isize::MAX as usize));
+            let Some(n) = n else {
+                return fail(gsenc_status::InvalidArgument, format!("gsenc_model_evaluate: count {count} is more points than an array can hold"));
+            };
+            // SAFETY: the caller's arrays hold 3 count doubles (read in place
+            // as count [f64; 3], of the same layout) and count floats.
+            let (pts, out) = unsafe { (std::slice::from_raw_parts(points.cast::<[f64; 3]>(), n), std::slice::from_raw_parts_mut(out, n)) };
+            // Into the caller's array, in runs: nothing sized by count is
+            // copied. A point that is not finite is InvalidData, by index.
+            m.evaluate_into(&mut CpuBackend::new(), pts, out)?;
+            for o in out.iter_mut() {
+                *o = m.meta.range.denormalize(*o) as f32;
+            }
+            Ok(())
+        })
     })
 }

@@ -3,8 +3,10 @@
  *
  * Every function returns a gsenc_status (destroy functions return nothing);
  * on failure gsenc_last_error() gives the calling thread's message. No
- * function aborts the process or prints. Handles are opaque: an encoder is
- * used by one thread at a time, a model by any number of threads.
+ * function aborts the process or prints. Handles are opaque. Calls on one
+ * encoder from several threads run one at a time (each waits for the one
+ * in flight); a model is read by any number of threads at once. A destroy
+ * waits for the calls in flight on its handle; calls after it fail.
  * Structs passed in start with struct_size = sizeof(struct); set it first.
  */
 
@@ -695,7 +697,8 @@ gsenc_status gsenc_encoder_create_mpi(const gsenc_config *config,
  encoder and everything it holds. Failures of the drained jobs are not
  reported: call `gsenc_wait` first to see them. NULL, and a handle
  destroyed already, are ignored; other calls with it afterwards fail with
- `GSENC_STATUS_INVALID_ARGUMENT`. Not concurrently with other calls on it.
+ `GSENC_STATUS_INVALID_ARGUMENT`. A call on it in flight on another thread
+ is waited for first.
  Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
  duplicated communicator).
  */
@@ -708,7 +711,7 @@ void gsenc_encoder_destroy(gsenc_encoder *encoder);
  at once. The step is queued for the background encode (see
  `gsenc_config.when_full` for a full queue: `GSENC_STATUS_BUSY` or
  `GSENC_STATUS_SKIPPED`); `gsenc_wait` and `gsenc_poll` follow it.
- Not thread-safe on one encoder (one thread at a time); different
+ Calls on one encoder from several threads run one at a time; different
  encoders are independent.
  */
 gsenc_status gsenc_push_grid(gsenc_encoder *encoder,
@@ -721,7 +724,7 @@ gsenc_status gsenc_push_grid(gsenc_encoder *encoder,
  Hands over one field of step `step` as SPH particles (see
  `gsenc_particles`), deposited on the configured `dims` and bounds. The
  arrays and `field` are copied before the call returns.
- Not thread-safe on one encoder (one thread at a time); different
+ Calls on one encoder from several threads run one at a time; different
  encoders are independent.
  */
 gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
@@ -735,7 +738,7 @@ gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
  `gsenc_cells`), deposited on the configured `dims` and bounds
  (volume-weighted). The arrays and `field` are copied before the call
  returns.
- Not thread-safe on one encoder (one thread at a time); different
+ Calls on one encoder from several threads run one at a time; different
  encoders are independent.
  */
 gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
@@ -749,14 +752,14 @@ gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
  encoded and written. Returns the first failure not reported before
  (its message names the field and step; later steps were still encoded),
  else `GSENC_STATUS_OK`. Models bound for an HDF5 store are written here,
- on the caller's thread. Not thread-safe on one encoder.
+ on the caller's thread. Calls on one encoder run one at a time.
  */
 gsenc_status gsenc_wait(gsenc_encoder *encoder, const char *field);
 
 /*
  Fills `*job` with the state of `field`'s step `step`, without waiting.
  `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
- for an HDF5 store are written here. Not thread-safe on one encoder.
+ for an HDF5 store are written here. Calls on one encoder run one at a time.
  */
 gsenc_status gsenc_poll(gsenc_encoder *encoder, const char *field, uint64_t step, gsenc_job *job);
 
@@ -764,7 +767,7 @@ gsenc_status gsenc_poll(gsenc_encoder *encoder, const char *field, uint64_t step
  Drops every queued step and stops the running one at its next
  iteration; returns when the worker is idle. Their states become
  `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
- encoded one. The encoder stays usable. Not thread-safe on one encoder.
+ encoded one. The encoder stays usable. Calls on one encoder run one at a time.
  */
 gsenc_status gsenc_encoder_cancel(gsenc_encoder *encoder);
 
@@ -774,7 +777,7 @@ gsenc_status gsenc_encoder_cancel(gsenc_encoder *encoder);
  link; a device or a pipe is written in place), with the configured
  payload. Does not wait for
  queued steps (call `gsenc_wait` first for the newest). Strings are read
- during the call only. Not thread-safe on one encoder.
+ during the call only. Calls on one encoder run one at a time.
  */
 gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field, const char *path);
 
@@ -785,7 +788,7 @@ gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field
  `*size` is set to the bytes the model takes in any case: call with a
  NULL `buffer` to learn it; a `capacity` below it is
  `GSENC_STATUS_INVALID_ARGUMENT` with nothing written. Does not wait for
- queued steps. Not thread-safe on one encoder.
+ queued steps. Calls on one encoder run one at a time.
  */
 gsenc_status gsenc_encoder_model_bytes(gsenc_encoder *encoder,
                                        const char *field,
@@ -796,7 +799,7 @@ gsenc_status gsenc_encoder_model_bytes(gsenc_encoder *encoder,
 /*
  The last encoded step of `field` and the voxel PSNR (dB) of its model as
  stored, against the reference it was fitted to. Does not wait for queued
- steps. Not thread-safe on one encoder.
+ steps. Calls on one encoder run one at a time.
  */
 gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
                                      const char *field,
@@ -821,7 +824,7 @@ gsenc_status gsenc_model_read_buffer(const uint8_t *data, size_t size, gsenc_mod
 /*
  Frees a model. NULL, and a handle destroyed already, are ignored;
  other calls with it afterwards fail with `GSENC_STATUS_INVALID_ARGUMENT`.
- Not concurrently with other calls on it.
+ Calls on it in flight on other threads are waited for first.
  */
 void gsenc_model_destroy(gsenc_model *model);
 
