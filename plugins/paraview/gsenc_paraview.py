@@ -1,6 +1,7 @@
 """gsenc models in ParaView: a reader for ``.gsm`` model files, ``.gsi`` step
 indexes (every rank's model of a step, blended into one global field) and
-HDF5 stores (a time series: one time step per stored step).
+HDF5 stores (a time series: one time step per stored step, at the
+simulation time its models carry, else at its step number).
 
 Load it in ParaView with Tools > Manage Plugins > Load New (or put its folder
 on ``PV_PLUGIN_PATH``); then File > Open a model. The model is decoded on
@@ -19,6 +20,7 @@ are then no-ops.
 
 import ctypes
 import ctypes.util
+import math
 import os
 
 import numpy as np
@@ -54,9 +56,13 @@ class _PythonBackend:
         self.gsenc = gsenc
 
     def steps(self, path, field):
-        """(field, [steps]) of a store; (field, None) for a single model."""
+        """(field, [steps], [times]) of a store; (field, None, None) for a
+        single model. A step's time is the simulation time its models
+        carry, else its step number (as in the XDMF of `gsenc store
+        decode`); where those times do not rise with the steps, the step
+        numbers are the times."""
         if not _is_store(path):
-            return field, None
+            return field, None, None
         store = self.gsenc.open_store(path)
         fields = store.fields()
         if not fields:
@@ -64,7 +70,15 @@ class _PythonBackend:
         field = field or fields[0]
         if field not in fields:
             raise ValueError(f"{path}: no field '{field}' (fields: {', '.join(fields)})")
-        return field, store.steps(field)
+        steps = store.steps(field)
+        carried = {}
+        for e in store.entries:
+            if e["field"] == field and e.get("time") is not None and math.isfinite(e["time"]):
+                carried.setdefault(e["step"], float(e["time"]))
+        times = [carried.get(s, float(s)) for s in steps]
+        if any(later <= earlier for earlier, later in zip(times, times[1:])):
+            times = [float(s) for s in steps]
+        return field, steps, times
 
     def decode(self, path, field, step, rank, dims):
         """(values [z][y][x] float32, origin, spacing, name)."""
@@ -128,7 +142,7 @@ class _CtypesBackend:
     def steps(self, path, field):
         if _is_store(path) or path.lower().endswith(".gsi"):
             raise ValueError(f"{path}: the C ABI reads .gsm files only; install the gsenc Python package for step indexes and stores")
-        return field, None
+        return field, None, None
 
     def decode(self, path, field, step, rank, dims):
         self.steps(path, field)
@@ -179,7 +193,8 @@ class GsencReader(VTKPythonAlgorithmBase):
         self._dims = (0, 0, 0)
         self._rank = -1
         self._backend = None
-        self._steps = None
+        self._steps = None  # a store's steps of the field, and their times
+        self._times = None
 
     def _be(self):
         if self._backend is None:
@@ -221,41 +236,46 @@ class GsencReader(VTKPythonAlgorithmBase):
             self.Modified()
 
     def _time_steps(self):
+        """The times of a store's steps ([] for a single model)."""
         if self._steps is None:
             if not self._path:
                 raise ValueError("no FileName")
-            field, steps = self._be().steps(self._path, self._field)
+            field, steps, times = self._be().steps(self._path, self._field)
             self._field = field
             self._steps = [] if steps is None else list(steps)
-        return self._steps
+            self._times = [] if times is None else list(times)
+        return self._times
 
     @smproperty.doublevector(name="TimestepValues", information_only="1", si_class="vtkSITimeStepsProperty")
     def GetTimestepValues(self):
         if not self._path:
             return None  # ParaView asks before the file is set
-        return [float(s) for s in self._time_steps()] or None
+        return self._time_steps() or None
 
     def RequestInformation(self, request, inInfo, outInfo):
         info = outInfo.GetInformationObject(0)
         sddp = vtkStreamingDemandDrivenPipeline
         info.Remove(sddp.TIME_STEPS())
         info.Remove(sddp.TIME_RANGE())
-        steps = self._time_steps()
-        for s in steps:
-            info.Append(sddp.TIME_STEPS(), float(s))
-        if steps:
-            info.Set(sddp.TIME_RANGE(), [float(steps[0]), float(steps[-1])], 2)
+        times = self._time_steps()
+        for t in times:
+            info.Append(sddp.TIME_STEPS(), t)
+        if times:
+            info.Set(sddp.TIME_RANGE(), [times[0], times[-1]], 2)
         return 1
 
     def RequestData(self, request, inInfo, outInfo):
         info = outInfo.GetInformationObject(0)
         sddp = vtkStreamingDemandDrivenPipeline
-        steps = self._time_steps()
-        step = None
-        if steps:
-            t = info.Get(sddp.UPDATE_TIME_STEP()) if info.Has(sddp.UPDATE_TIME_STEP()) else steps[0]
-            # The stored step at or before the time asked for (the first before them all).
-            step = max([s for s in steps if s <= t + 1e-9] or [steps[0]])
+        times = self._time_steps()
+        step = time = None
+        if times:
+            t = info.Get(sddp.UPDATE_TIME_STEP()) if info.Has(sddp.UPDATE_TIME_STEP()) else times[0]
+            # The stored step at or before the time asked for (the first
+            # before them all); the tolerance is relative to the times.
+            eps = 1e-9 * max(1.0, abs(t))
+            i = max([i for i, s in enumerate(times) if s <= t + eps] or [0])
+            step, time = self._steps[i], times[i]
         values, centre, spacing, name = self._be().decode(self._path, self._field, step, self._rank, self._dims)
         out = vtkImageData.GetData(outInfo, 0)
         nz, ny, nx = values.shape
@@ -265,6 +285,6 @@ class GsencReader(VTKPythonAlgorithmBase):
         array = numpy_support.numpy_to_vtk(np.ascontiguousarray(values).ravel(), deep=True)
         array.SetName(name)
         out.GetPointData().SetScalars(array)
-        if step is not None:
-            out.GetInformation().Set(out.DATA_TIME_STEP(), float(step))
+        if time is not None:
+            out.GetInformation().Set(out.DATA_TIME_STEP(), time)
         return 1

@@ -94,6 +94,34 @@ def test_a_store_is_a_time_series(tmp_path, cli):
     same_image(other, tool_decode(cli, tmp_path, tmp_path / "temp_5.gsm"), "temp")
 
 
+def test_a_stores_times_are_the_simulation_times_its_models_carry(tmp_path, cli):
+    """ParaView lines the reader up with the simulation's own output by
+    time: a step's time is its models' simulation time (its step number
+    where none is carried, as in `gsenc store decode`'s XDMF)."""
+    def store(name, times):
+        paths = []
+        for (step, time), shift in zip(times, (0.0, 3.0, 6.0)):
+            model = gsenc.encode_grid(blobs((20, 16, 12), shift=shift), 60, range=(0.0, 8.0), field="rho", step=step, time=time, **QUICK)
+            paths.append(tmp_path / f"{name}_{step}.gsm")
+            model.write(paths[-1])
+        cli("store", "add", tmp_path / f"{name}.h5", *paths)
+        return tmp_path / f"{name}.h5"
+
+    timed = store("timed", [(10, 0.125), (20, 0.25), (30, None)])
+    entries = gsenc.open_store(timed).entries
+    assert [e["time"] for e in entries] == [0.125, 0.25, None]
+    r, first = reader_output(timed)
+    assert r.GetTimestepValues() == [0.125, 0.25, 30.0]
+    assert first.GetInformation().Get(first.DATA_TIME_STEP()) == 0.125
+    for time, step, shown in ((0.25, 20, 0.25), (0.2, 10, 0.125), (29.0, 20, 0.25), (30.0, 30, 30.0), (0.0, 10, 0.125)):
+        _, ours = reader_output(timed, time=time)
+        same_image(ours, tool_decode(cli, tmp_path, tmp_path / f"timed_{step}.gsm"), "rho")
+        assert ours.GetInformation().Get(ours.DATA_TIME_STEP()) == shown, (time, step)
+    # Times that do not rise with the steps: the step numbers instead.
+    r, _ = reader_output(store("restarted", [(1, 5.0), (2, 0.5), (3, 1.0)]))
+    assert r.GetTimestepValues() == [1.0, 2.0, 3.0]
+
+
 def test_bad_input_is_a_clear_error(tmp_path, gsm, monkeypatch):
     with pytest.raises(ValueError, match="Dims"):
         gsenc_paraview.GsencReader().SetDims(10, 0, 4)

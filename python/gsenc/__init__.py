@@ -58,8 +58,9 @@ def read(path, field=None, step=None, rank=None) -> Model:
 
 def open_store(path):
     """Lists an HDF5 store: ``.entries`` (dicts of field, step, rank,
-    payload, primitives, bytes), ``.fields()``, ``.steps(field)``,
-    ``.ranks(field, step)`` and ``.read(field, step, rank)``."""
+    payload, primitives, bytes, time: the simulation time or None),
+    ``.fields()``, ``.steps(field)``, ``.ranks(field, step)`` and
+    ``.read(field, step, rank)``."""
     if not HAS_HDF5:
         raise ValueError("this gsenc was built without HDF5")
     return _gsenc.open_store(str(path))

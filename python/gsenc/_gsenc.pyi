@@ -56,7 +56,10 @@ class Store:
     """An HDF5 store of models, as listed when opened."""
 
     @property
-    def entries(self) -> list[dict[str, Any]]: ...
+    def entries(self) -> list[dict[str, Any]]:
+        """Every entry: field, step, rank, payload, primitives, bytes and time
+        (the simulation time, None when the model carries none), or error
+        (why it cannot be read, such as an append cut short)."""
     @property
     def path(self) -> str: ...
     def fields(self) -> list[str]: ...

@@ -15,8 +15,17 @@ use std::path::{Path, PathBuf};
 #[pyclass(module = "gsenc", frozen)]
 pub struct Store {
     path: PathBuf,
-    /// Key and, for a readable entry, (payload name, primitives, stored bytes); else why not.
-    entries: Vec<(EntryKey, Result<(String, u64, u64), String>)>,
+    /// Key and, for a readable entry, what `entries` says of it; else why not.
+    entries: Vec<(EntryKey, Result<Listed, String>)>,
+}
+
+/// What the listing keeps of a readable entry.
+struct Listed {
+    payload: String,
+    count: u64,
+    stored_bytes: u64,
+    /// The simulation time the model carries, if any.
+    time: Option<f64>,
 }
 
 /// Opens an HDF5 store and lists its entries.
@@ -25,7 +34,13 @@ pub fn open_store(py: Python<'_>, path: PathBuf) -> PyResult<Store> {
     let entries = py
         .detach(|| -> gsenc::Result<_> {
             let store = H5Store::open_read(&path)?;
-            Ok(store.entries()?.into_iter().map(|e| (e.key, e.content.map(|i| (i.payload.name().to_string(), i.count, i.stored_bytes)).map_err(|e| e.to_string()))).collect())
+            let listed = |i: gsenc::io::store::EntryInfo| Listed {
+                payload: i.payload.name().to_string(),
+                count: i.count,
+                stored_bytes: i.stored_bytes,
+                time: i.meta.time,
+            };
+            Ok(store.entries()?.into_iter().map(|e| (e.key, e.content.map(listed).map_err(|e| e.to_string()))).collect())
         })
         .py_err()?;
     Ok(Store { path, entries })
@@ -64,8 +79,9 @@ pub fn read_entry(py: Python<'_>, path: &Path, field: Option<String>, step: Opti
 
 #[pymethods]
 impl Store {
-    /// Every entry: field, step, rank, payload, primitives, bytes (or the
-    /// error that makes it unreadable, such as an append cut short).
+    /// Every entry: field, step, rank, payload, primitives, bytes and time
+    /// (the simulation time, None when the model carries none), or the
+    /// error that makes it unreadable (an append cut short).
     #[getter]
     fn entries<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
         self.entries
@@ -76,10 +92,11 @@ impl Store {
                 d.set_item("step", k.step)?;
                 d.set_item("rank", k.rank)?;
                 match content {
-                    Ok((payload, count, bytes)) => {
-                        d.set_item("payload", payload)?;
-                        d.set_item("primitives", count)?;
-                        d.set_item("bytes", bytes)?;
+                    Ok(l) => {
+                        d.set_item("payload", &l.payload)?;
+                        d.set_item("primitives", l.count)?;
+                        d.set_item("bytes", l.stored_bytes)?;
+                        d.set_item("time", l.time)?;
                     }
                     Err(why) => d.set_item("error", why)?,
                 }
