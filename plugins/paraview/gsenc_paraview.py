@@ -54,6 +54,7 @@ class _PythonBackend:
         import gsenc
 
         self.gsenc = gsenc
+        self.listed = None  # (path, the store's listing) of the last steps()
 
     def steps(self, path, field):
         """(field, [steps], [times]) of a store; (field, None, None) for a
@@ -64,6 +65,7 @@ class _PythonBackend:
         if not _is_store(path):
             return field, None, None
         store = self.gsenc.open_store(path)
+        self.listed = (path, store)
         fields = store.fields()
         if not fields:
             raise ValueError(f"{path}: the store holds no model")
@@ -83,7 +85,10 @@ class _PythonBackend:
     def decode(self, path, field, step, rank, dims):
         """(values [z][y][x] float32, origin, spacing, name)."""
         if _is_store(path):
-            model = self.gsenc.read(path, field, step, None if rank < 0 else rank)
+            # Each time step reads its entry alone, from the listing made
+            # when the steps were listed.
+            listed = self.listed[1] if self.listed and self.listed[0] == path else self.gsenc.open_store(path)
+            model = listed.read(field, step, None if rank < 0 else rank)
         else:
             model = self.gsenc.read(path)
         dims = tuple(dims) if all(d > 0 for d in dims) else None

@@ -65,16 +65,20 @@ fn choose(entries: &[EntryKey], path: &Path, field: Option<&str>, step: Option<u
     }
 }
 
-/// `gsenc.read` of a store entry.
+/// `gsenc.read` of a store entry: the store is listed to find it.
 pub fn read_entry(py: Python<'_>, path: &Path, field: Option<String>, step: Option<u64>, rank: Option<u32>) -> PyResult<Model> {
     py.detach(|| -> PyResult<Model> {
         let store = H5Store::open_read(path).py_err()?;
         let keys: Vec<EntryKey> = store.entries().py_err()?.into_iter().map(|e| e.key).collect();
         let key = choose(&keys, path, field.as_deref(), step, rank)?;
-        let (model, payload) = store.read(&key).py_err()?;
-        let psnr = model.meta.encode_psnr;
-        Ok(in_memory(model, payload, psnr, "gsenc store entry"))
+        read_key(&store, &key)
     })
+}
+
+fn read_key(store: &H5Store, key: &EntryKey) -> PyResult<Model> {
+    let (model, payload) = store.read(key).py_err()?;
+    let psnr = model.meta.encode_psnr;
+    Ok(in_memory(model, payload, psnr, "gsenc store entry"))
 }
 
 #[pymethods]
@@ -124,10 +128,13 @@ impl Store {
         self.entries.iter().filter(|(k, _)| k.field == field && k.step == step).map(|(k, _)| k.rank).collect()
     }
 
-    /// Reads one entry (see `gsenc.read`).
+    /// Reads one entry (see `gsenc.read`), chosen from this listing: only
+    /// that entry is read, however many the store holds.
     #[pyo3(signature = (field=None, step=None, rank=None))]
     fn read(&self, py: Python<'_>, field: Option<String>, step: Option<u64>, rank: Option<u32>) -> PyResult<Model> {
-        read_entry(py, &self.path, field, step, rank)
+        let keys: Vec<EntryKey> = self.entries.iter().map(|(k, _)| k.clone()).collect();
+        let key = choose(&keys, &self.path, field.as_deref(), step, rank)?;
+        py.detach(|| read_key(&H5Store::open_read(&self.path).py_err()?, &key))
     }
 
     #[getter]

@@ -16,11 +16,17 @@
 //! `GCOL 01 00 00 00` is not expected elsewhere (it is a float32 of 5.4e7
 //! next to the smallest subnormal); a false match that does not parse
 //! would refuse a sound file, one that parses changes nothing.
+//!
+//! The search reads the whole file (about 8 GB/s from the page cache, the
+//! disk's speed from disk). A file found sound is remembered while it does
+//! not change (`settled`), so that a process that opens one store again
+//! and again (the ParaView reader at each time step) searches it once.
 
 use crate::error::{Error, Result};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
+use std::time::SystemTime;
 
 /// The header that opens a collection, version 1.
 const HEADER: &[u8; 8] = b"GCOL\x01\x00\x00\x00";
@@ -32,7 +38,15 @@ const CHUNK: usize = 1 << 22;
 pub fn check(path: &Path) -> Result<()> {
     let io = |e| Error::io(path, e);
     let mut f = File::open(path).map_err(io)?;
-    let len = f.metadata().map_err(io)?.len();
+    let meta = f.metadata().map_err(io)?;
+    let id = settled::Identity::of(&meta);
+    if id.is_some_and(|id| settled::known(&id)) {
+        return Ok(());
+    }
+    let started = SystemTime::now();
+    #[cfg(test)]
+    tests::SEARCHED.lock().unwrap().push(path.to_path_buf());
+    let len = meta.len();
     let lengths = size_of_lengths(&mut f).map_err(io)?;
     for at in headers(&mut f).map_err(io)? {
         if let Err(why) = parse(&mut f, at, len, lengths).map_err(io)? {
@@ -42,7 +56,80 @@ pub fn check(path: &Path) -> Result<()> {
             )));
         }
     }
+    // Remembered only when the file did not change while it was searched,
+    // and its last change was well before the search began.
+    let now = settled::Identity::of(&f.metadata().map_err(io)?);
+    if let Some(id) = id.filter(|id| Some(*id) == now && id.settled_before(started)) {
+        settled::remember(id);
+    }
     Ok(())
+}
+
+/// The files this process found sound and that have not changed since.
+/// A file is the same, unchanged, while its device, inode, size and
+/// modification and change times are; a change sets the change time to
+/// the file system's clock, which no program can set back. A file is
+/// remembered only when its last change came `SETTLE` before the search
+/// began, so that a change right after the search, within the same tick
+/// of a coarse file system clock, cannot leave the times as they were.
+mod settled {
+    use std::collections::VecDeque;
+    use std::sync::Mutex;
+    use std::time::{Duration, SystemTime};
+
+    const SETTLE: Duration = Duration::from_secs(2);
+    /// Files remembered at most (the oldest is forgotten first).
+    const MAX_KNOWN: usize = 64;
+
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    pub struct Identity {
+        dev: u64,
+        ino: u64,
+        len: u64,
+        modified: (i64, i64),
+        changed: (i64, i64),
+    }
+
+    impl Identity {
+        /// None where the platform does not give inodes and change times.
+        #[cfg(unix)]
+        pub fn of(m: &std::fs::Metadata) -> Option<Identity> {
+            use std::os::unix::fs::MetadataExt;
+            Some(Identity { dev: m.dev(), ino: m.ino(), len: m.size(), modified: (m.mtime(), m.mtime_nsec()), changed: (m.ctime(), m.ctime_nsec()) })
+        }
+
+        #[cfg(not(unix))]
+        pub fn of(_: &std::fs::Metadata) -> Option<Identity> {
+            None
+        }
+
+        /// Whether the file last changed `SETTLE` or more before `t`.
+        pub fn settled_before(&self, t: SystemTime) -> bool {
+            let (s, ns) = self.changed;
+            let changed = u64::try_from(s).ok().and_then(|s| SystemTime::UNIX_EPOCH.checked_add(Duration::new(s, ns.clamp(0, 999_999_999) as u32)));
+            changed.zip(t.checked_sub(SETTLE)).is_some_and(|(c, limit)| c < limit)
+        }
+    }
+
+    static KNOWN: Mutex<VecDeque<Identity>> = Mutex::new(VecDeque::new());
+
+    fn list() -> std::sync::MutexGuard<'static, VecDeque<Identity>> {
+        KNOWN.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    pub fn known(id: &Identity) -> bool {
+        list().contains(id)
+    }
+
+    pub fn remember(id: Identity) {
+        let mut known = list();
+        if !known.contains(&id) {
+            if known.len() == MAX_KNOWN {
+                known.pop_front();
+            }
+            known.push_back(id);
+        }
+    }
 }
 
 /// The superblock's size of lengths (8 unless it says otherwise).
@@ -149,6 +236,15 @@ impl Bytes<'_> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::PathBuf;
+    use std::sync::Mutex;
+
+    /// Every path `check` searched, in this test process.
+    pub(super) static SEARCHED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+    fn searches(p: &Path) -> usize {
+        SEARCHED.lock().unwrap().iter().filter(|s| s.as_path() == p).count()
+    }
 
     /// A collection of `objects` (index, data) and its free space, as HDF5
     /// lays it out, after `pad` bytes of something else.
@@ -207,5 +303,30 @@ mod tests {
         let mut bad = two;
         bad[second + 16 + 8 + 2] = 0xFF;
         assert!(check_bytes("straddle", &bad).unwrap_err().to_string().contains(&format!("collection at byte {second}")));
+    }
+
+    #[test]
+    fn a_settled_sound_file_is_searched_once_until_it_changes() {
+        let good = collection(100, &[(1, b"1.2"), (2, b"gsenc 0.1.0")], 4096);
+        let p = std::env::temp_dir().join(format!("gsenc-gcol-settled-{}", std::process::id()));
+        std::fs::write(&p, &good).unwrap();
+        // Just written: searched every time.
+        check(&p).unwrap();
+        check(&p).unwrap();
+        assert_eq!(searches(&p), 2);
+        // Settled: searched once more, then remembered.
+        std::thread::sleep(std::time::Duration::from_millis(2100));
+        check(&p).unwrap();
+        check(&p).unwrap();
+        check(&p).unwrap();
+        assert_eq!(searches(&p), 3);
+        // One byte changed in place (the size kept): searched, and refused.
+        let mut f = std::fs::OpenOptions::new().write(true).open(&p).unwrap();
+        f.seek(SeekFrom::Start(100 + 16 + 8 + 1)).unwrap();
+        std::io::Write::write_all(&mut f, &[0xF5]).unwrap();
+        drop(f);
+        assert!(matches!(check(&p), Err(Error::Format(_))));
+        assert_eq!(searches(&p), 4);
+        std::fs::remove_file(&p).unwrap();
     }
 }
