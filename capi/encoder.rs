@@ -5,8 +5,9 @@
 //!
 //! Pushed arrays are copied before the push returns, so the caller may
 //! reuse its buffers at once; a worker thread of the encoder encodes them
-//! (`gsenc::series::queue::BackgroundEncoder`). An encoder is used by one
-//! thread at a time; different encoders are independent.
+//! (`gsenc::series::queue::BackgroundEncoder`). Calls on one encoder from
+//! several threads run one at a time (`handles`); different encoders are
+//! independent.
 
 use crate::config::{gsenc_config, OutputFormat, Settings};
 use crate::ffi::time_of;

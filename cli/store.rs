@@ -12,6 +12,7 @@ use std::path::{Path, PathBuf};
 pub enum StoreCommand {
     /// Append model files to a store (created when missing), each as
     /// /<field>/<step>/rank_<r>; an entry that exists is refused.
+    /// A folder adds every .gsm file in it (a run's output folder).
     Add(StoreAddArgs),
     /// Copy one model of a store out to a model file.
     Extract(StoreExtractArgs),
@@ -20,6 +21,7 @@ pub enum StoreCommand {
 #[derive(Args)]
 pub struct StoreAddArgs {
     store: PathBuf,
+    /// Model files, and folders whose .gsm files are added (in name order).
     #[arg(required = true)]
     models: Vec<PathBuf>,
     /// Payload in the store: f32, 8bit, 8bit-u16 or packed (default: each model's own).
@@ -92,6 +94,7 @@ mod imp {
     use gsenc::io::series::{write_decoded_series, SeriesOptions};
     use gsenc::io::store::{EntryKey, Store};
     use serde_json::json;
+    use std::collections::BTreeMap;
     use std::time::Instant;
 
     pub fn store(cmd: StoreCommand) -> Result<()> {
@@ -101,30 +104,80 @@ mod imp {
         }
     }
 
+    /// The model files `args` names: files as given, and each folder's
+    /// `.gsm` files in name order.
+    fn model_paths(args: &[PathBuf]) -> Result<Vec<PathBuf>> {
+        let mut paths = Vec::new();
+        for a in args {
+            if !a.is_dir() {
+                paths.push(a.clone());
+                continue;
+            }
+            let mut found: Vec<PathBuf> = std::fs::read_dir(a)
+                .map_err(|e| Error::io(a, e))?
+                .map(|e| e.map(|e| e.path()).map_err(|e| Error::io(a, e)))
+                .collect::<Result<Vec<_>>>()?
+                .into_iter()
+                .filter(|p| p.extension().is_some_and(|x| x == "gsm") && p.is_file())
+                .collect();
+            if found.is_empty() {
+                return Err(Error::arg(format!("{}: a folder with no .gsm model file", a.display())));
+            }
+            found.sort();
+            paths.extend(found);
+        }
+        Ok(paths)
+    }
+
     fn add(a: StoreAddArgs) -> Result<()> {
         let payload = a.payload;
-        // Every model is read and checked before the store is touched.
-        let files = a.models.iter().map(|p| read_model_file(p)).collect::<Result<Vec<_>>>()?;
+        let paths = model_paths(&a.models)?;
+        // Every model is read and checked before the store is touched, and
+        // so is where it goes: no two models to one entry, none to an entry
+        // the store holds. Only the keys are kept, so that a run's folder of
+        // any size is added in the memory one model takes; each is read
+        // again to be added.
+        let mut keys: BTreeMap<EntryKey, &Path> = BTreeMap::new();
+        for p in &paths {
+            let key = EntryKey::of(&read_model_file(p)?.model.meta);
+            if let Some(other) = keys.insert(key.clone(), p) {
+                return Err(Error::arg(format!("{} and {} are both {}", other.display(), p.display(), key.path())));
+            }
+        }
         let created = !a.store.exists();
+        if !created {
+            for e in Store::open_read(&a.store)?.entries()? {
+                if let Some(p) = keys.get(&e.key) {
+                    return Err(Error::arg(format!("{}: the store holds {} already (steps are never rewritten)", p.display(), e.key.path())));
+                }
+            }
+        }
         let mut store = Store::open_append(&a.store)?;
         let mut added = Vec::new();
-        for (f, path) in files.iter().zip(&a.models) {
-            let chosen = payload.unwrap_or(f.payload);
-            let mut model = f.model.clone();
-            if chosen != f.payload && chosen != Payload::Float32 {
-                model.meta.encode_psnr = None; // no longer the PSNR of what is stored
-            }
-            if let Err(e) = store.append(&model, chosen) {
-                // What was added stays (and is named); a store this command
-                // created and could add nothing to (a full disk) is removed.
-                drop(store);
-                if added.is_empty() && created {
-                    let _ = std::fs::remove_file(&a.store);
+        for path in &paths {
+            // Read again (a file changed since it was checked fails here).
+            let appended = read_model_file(path).and_then(|f| {
+                let chosen = payload.unwrap_or(f.payload);
+                let mut model = f.model;
+                if chosen != f.payload && chosen != Payload::Float32 {
+                    model.meta.encode_psnr = None; // no longer the PSNR of what is stored
                 }
-                eprintln!("gsenc store add: {} not added; {} of {} added before it: {added:?}", path.display(), added.len(), files.len());
-                return Err(e);
+                store.append(&model, chosen).map(|()| EntryKey::of(&model.meta).path())
+            });
+            match appended {
+                Ok(entry) => added.push(entry),
+                Err(e) => {
+                    // What was added stays (and is named); a store this
+                    // command created and could add nothing to (a full
+                    // disk) is removed.
+                    drop(store);
+                    if added.is_empty() && created {
+                        let _ = std::fs::remove_file(&a.store);
+                    }
+                    eprintln!("gsenc store add: {} not added; {} of {} added before it: {added:?}", path.display(), added.len(), paths.len());
+                    return Err(e);
+                }
             }
-            added.push(EntryKey::of(&model.meta).path());
         }
         print_result(a.json, json!({ "store": a.store.display().to_string(), "added": added }));
         Ok(())

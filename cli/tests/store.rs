@@ -74,3 +74,72 @@ fn one_process_writes_another_reads() {
     assert_eq!(gsenc::format::read_model(&std::fs::read(&got).unwrap()).unwrap(), m);
 }
 
+
+/// `store add` of a run's folder: every `.gsm` in it (not its step indexes
+/// or other files), in name order; and nothing is touched until every model
+/// is read and checked and has an entry of its own, new to the store.
+#[test]
+fn a_folder_of_models_is_added_and_the_store_is_untouched_until_every_model_is_checked() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("folder");
+    let add = |args: &[&std::path::Path]| Command::new(gsenc_bin()).args(["store", "add", "--json"]).args(args).output().unwrap();
+    let write = |folder: &std::path::Path, m: &gsenc::model::Model| {
+        std::fs::create_dir_all(folder).unwrap();
+        let f = folder.join(format!("{}_{:06}.gsm", m.meta.field, m.meta.step));
+        std::fs::write(&f, write_model_as(m, Payload::Float32).unwrap()).unwrap();
+        f
+    };
+    let run = dir.join("run");
+    let mut models = Vec::new();
+    for field in ["temp", "rho"] {
+        for step in 0..3u64 {
+            let m = model(field, step, 0, 40 + 10 * step as usize, 0.5);
+            write(&run, &m);
+            models.push(m);
+        }
+    }
+    std::fs::write(run.join("rho_000001.gsi"), "{}").unwrap(); // a step index is not a model
+    std::fs::write(run.join("notes.txt"), "run 7").unwrap();
+    let store = dir.join("s.h5");
+    let out = add(&[&store, &run]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let added: Vec<&str> = v["added"].as_array().unwrap().iter().map(|a| a.as_str().unwrap()).collect();
+    // Name order: rho's files before temp's.
+    assert_eq!(added, ["/rho/0/rank_0", "/rho/1/rank_0", "/rho/2/rank_0", "/temp/0/rank_0", "/temp/1/rank_0", "/temp/2/rank_0"]);
+    let s = Store::open_read(&store).unwrap();
+    for m in &models {
+        assert_eq!(&s.read(&EntryKey::of(&m.meta)).unwrap().0, m);
+    }
+    drop(s);
+    let before = std::fs::read(&store).unwrap();
+    let untouched = |out: &std::process::Output, says: &str| {
+        assert!(!out.status.success());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(says), "{err}");
+        assert!(std::fs::read(&store).unwrap() == before, "the store changed");
+    };
+    // A folder holding a step the store has: refused, and its new step not added.
+    let again = dir.join("again");
+    let new = write(&again, &model("rho", 9, 0, 30, 0.5));
+    write(&again, &models[4]); // rho step 1
+    untouched(&add(&[&store, &again]), "holds /rho/1/rank_0 already");
+    // Two models for one entry.
+    let twin = dir.join("twin.gsm");
+    std::fs::copy(&new, &twin).unwrap();
+    untouched(&add(&[&store, &new, &twin]), "are both /rho/9/rank_0");
+    // A corrupt model after sound ones.
+    let bad = dir.join("bad");
+    write(&bad, &model("rho", 20, 0, 30, 0.5));
+    let mut cut = std::fs::read(&new).unwrap();
+    cut.truncate(cut.len() / 2);
+    std::fs::write(bad.join("rho_000021.gsm"), cut).unwrap();
+    untouched(&add(&[&store, &bad]), "rho_000021.gsm");
+    // A folder with no model; and nothing is created for a store refused so.
+    let empty = dir.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    untouched(&add(&[&store, &empty]), "no .gsm model file");
+    let fresh = dir.join("fresh.h5");
+    assert!(!add(&[&fresh, &new, &twin]).status.success());
+    assert!(!fresh.exists());
+}
