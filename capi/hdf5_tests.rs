@@ -6,7 +6,6 @@
 mod common;
 use crate::config::{gsenc_config, gsenc_config_init, GSENC_OUTPUT_HDF5, GSENC_SCHEDULE_SHORT};
 use crate::encoder::*;
-use crate::inputs::gsenc_grid;
 use crate::jobs::*;
 use crate::status::gsenc_status;
 use common::blobs;
@@ -39,12 +38,7 @@ fn the_c_api_appends_every_step_to_an_hdf5_store() {
         let mut psnr = [0.0; 3];
         for step in 0..3u64 {
             let g = blobs(dims, 90 + step, 3);
-            let mut grid: gsenc_grid = std::mem::zeroed();
-            grid.struct_size = std::mem::size_of::<gsenc_grid>();
-            grid.dtype = crate::GSENC_DTYPE_FLOAT32;
-            grid.data = g.values.as_ptr().cast();
-            grid.extents = dims.map(|d| d as u64);
-            grid.spacing = 0.1;
+            let grid = crate::inputs::f32_grid(&g.values, dims, 0.1);
             assert_eq!(crate::inputs::gsenc_push_grid(enc, field.as_ptr(), step, 0.5 * step as f64, &grid), gsenc_status::Ok);
             assert_eq!(gsenc_wait(enc, field.as_ptr()), gsenc_status::Ok);
             let mut s = 0;

@@ -308,3 +308,16 @@ unsafe fn cell_data(enc: &gsenc_encoder, c: &gsenc_cells) -> Result<StepData, Fa
     Ok(data)
 }
 
+/// A contiguous float32 grid of `dims` over `values`, for the crate's tests.
+#[cfg(test)]
+pub(crate) fn f32_grid(values: &[f32], dims: [usize; 3], spacing: f64) -> gsenc_grid {
+    assert_eq!(values.len(), dims.iter().product::<usize>());
+    // SAFETY: a plain C struct, all zeros a valid value (NULL, 0).
+    let mut grid: gsenc_grid = unsafe { std::mem::zeroed() };
+    grid.struct_size = std::mem::size_of::<gsenc_grid>();
+    grid.dtype = crate::GSENC_DTYPE_FLOAT32;
+    grid.data = values.as_ptr().cast();
+    grid.extents = dims.map(|d| d as u64);
+    grid.spacing = spacing;
+    grid
+}

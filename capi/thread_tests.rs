@@ -9,7 +9,7 @@
 mod common;
 use crate::config::{gsenc_config, gsenc_config_init, GSENC_SCHEDULE_SHORT};
 use crate::encoder::*;
-use crate::inputs::{gsenc_grid, gsenc_push_grid};
+use crate::inputs::{f32_grid, gsenc_push_grid};
 use crate::jobs::*;
 use crate::model::*;
 use crate::status::gsenc_status;
@@ -58,15 +58,8 @@ fn encoder(budget: u64, iterations: u32) -> Handle<gsenc_encoder> {
 fn push(enc: Handle<gsenc_encoder>, field: &str, step: u64) -> gsenc_status {
     let g = blobs(DIMS, 40 + step + 7 * field.len() as u64, 3);
     let field = CString::new(field).unwrap();
-    unsafe {
-        let mut grid: gsenc_grid = std::mem::zeroed();
-        grid.struct_size = std::mem::size_of::<gsenc_grid>();
-        grid.dtype = crate::GSENC_DTYPE_FLOAT32;
-        grid.data = g.values.as_ptr().cast();
-        grid.extents = DIMS.map(|d| d as u64);
-        grid.spacing = 0.1;
-        gsenc_push_grid(enc.get(), field.as_ptr(), step, step as f64, &grid)
-    }
+    let grid = f32_grid(&g.values, DIMS, 0.1);
+    unsafe { gsenc_push_grid(enc.get(), field.as_ptr(), step, step as f64, &grid) }
 }
 
 fn model_bytes(enc: Handle<gsenc_encoder>, field: &str) -> Vec<u8> {
