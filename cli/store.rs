@@ -105,9 +105,10 @@ mod imp {
     }
 
     /// The model files `args` names: files as given, and each folder's
-    /// `.gsm` files in name order.
-    fn model_paths(args: &[PathBuf]) -> Result<Vec<PathBuf>> {
-        let mut paths = Vec::new();
+    /// `.gsm` files in name order; and the step indexes (`.gsi`) of those
+    /// folders, which a store does not hold.
+    fn model_paths(args: &[PathBuf]) -> Result<(Vec<PathBuf>, Vec<PathBuf>)> {
+        let (mut paths, mut indexes) = (Vec::new(), Vec::new());
         for a in args {
             if !a.is_dir() {
                 paths.push(a.clone());
@@ -118,20 +119,23 @@ mod imp {
                 .map(|e| e.map(|e| e.path()).map_err(|e| Error::io(a, e)))
                 .collect::<Result<Vec<_>>>()?
                 .into_iter()
-                .filter(|p| p.extension().is_some_and(|x| x == "gsm") && p.is_file())
+                .filter(|p| p.is_file())
                 .collect();
-            if found.is_empty() {
+            found.sort();
+            let with = |found: &[PathBuf], ext: &str| found.iter().filter(|p| p.extension().is_some_and(|x| x == ext)).cloned().collect::<Vec<_>>();
+            let models = with(&found, "gsm");
+            if models.is_empty() {
                 return Err(Error::arg(format!("{}: a folder with no .gsm model file", a.display())));
             }
-            found.sort();
-            paths.extend(found);
+            paths.extend(models);
+            indexes.extend(with(&found, "gsi"));
         }
-        Ok(paths)
+        Ok((paths, indexes))
     }
 
     fn add(a: StoreAddArgs) -> Result<()> {
         let payload = a.payload;
-        let paths = model_paths(&a.models)?;
+        let (paths, indexes) = model_paths(&a.models)?;
         // Every model is read and checked before the store is touched, and
         // so is where it goes: no two models to one entry, none to an entry
         // the store holds. Only the keys are kept, so that a run's folder of
@@ -179,7 +183,16 @@ mod imp {
                 }
             }
         }
-        print_result(a.json, json!({ "store": a.store.display().to_string(), "added": added }));
+        if !indexes.is_empty() {
+            // An MPI run's folder: its pieces are in the store, but the
+            // global field of a step is decoded from its step index.
+            eprintln!(
+                "gsenc store add: {} step index(es) (.gsi) not added, as a store holds models only; keep them beside the models to decode a step's global field",
+                indexes.len()
+            );
+        }
+        let skipped: Vec<String> = indexes.iter().map(|p| p.display().to_string()).collect();
+        print_result(a.json, json!({ "store": a.store.display().to_string(), "added": added, "step_indexes_not_added": skipped }));
         Ok(())
     }
 

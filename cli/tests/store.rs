@@ -107,6 +107,9 @@ fn a_folder_of_models_is_added_and_the_store_is_untouched_until_every_model_is_c
     let added: Vec<&str> = v["added"].as_array().unwrap().iter().map(|a| a.as_str().unwrap()).collect();
     // Name order: rho's files before temp's.
     assert_eq!(added, ["/rho/0/rank_0", "/rho/1/rank_0", "/rho/2/rank_0", "/temp/0/rank_0", "/temp/1/rank_0", "/temp/2/rank_0"]);
+    // The step index is named as not added, on stderr and in the output.
+    assert_eq!(v["step_indexes_not_added"], serde_json::json!([run.join("rho_000001.gsi").display().to_string()]));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("1 step index(es) (.gsi) not added"));
     let s = Store::open_read(&store).unwrap();
     for m in &models {
         assert_eq!(&s.read(&EntryKey::of(&m.meta)).unwrap().0, m);
