@@ -230,7 +230,7 @@ mod tests {
         (0..n)
             .map(|i| {
                 let f = i as f32 / n as f32;
-                let q = [c[0] + 3.0 * (6.283 * f).cos(), c[1] + 3.0 * (6.283 * f).sin(), c[2] + 4.0 * (f - 0.5)];
+                let q = [c[0] + 3.0 * (std::f32::consts::TAU * f).cos(), c[1] + 3.0 * (std::f32::consts::TAU * f).sin(), c[2] + 4.0 * (f - 0.5)];
                 isotropic(q, 1.5, 0.6, 0.4)
             })
             .collect()
