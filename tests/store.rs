@@ -367,3 +367,80 @@ fn decoded_series_matches_each_model_and_xdmf_points_at_it() {
     assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("are too large")), "{e}");
     assert_eq!(std::fs::read(&out).unwrap(), before);
 }
+
+/// The pieces of a decomposed step (an MPI run's), as `gsenc store add`
+/// stores a run's folder: rank 0 and rank 1 of a 24 x 16 x 12 lattice, a
+/// halo of 2 voxels.
+fn decomposed_step(field: &str, step: u64) -> (gsenc::format::step_index::StepIndex, Vec<gsenc::model::Model>) {
+    use gsenc::field::{IndexBox, IndexFrame};
+    let global = IndexFrame { dims: [24, 16, 12], bmin: [0.0, -1.0, 0.5], gamma: 12.0 };
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [14, 16, 12] }, IndexBox { lo: [10, 0, 0], hi: [24, 16, 12] }];
+    let pieces: Vec<_> = boxes
+        .iter()
+        .enumerate()
+        .map(|(rank, b)| {
+            let mut m = model(field, step, rank as u32, 60 + 10 * rank, 0.5);
+            m.meta.frame = global.sub_frame(b);
+            m
+        })
+        .collect();
+    let names = (0..2).map(|r| format!("{field}_{step:06}_r{r}.gsm")).collect();
+    let index = gsenc::format::step_index::StepIndex::new(field, step, pieces[0].meta.time, &pieces[0].meta.range, &global, &boxes, 2, names);
+    (index, pieces)
+}
+
+#[test]
+fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_was() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("step-index");
+    let path = dir.join("s.h5");
+    let (index, pieces) = decomposed_step("rho", 4);
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        // The index may come first: it makes the step's group.
+        s.append_step_index(&index).unwrap();
+        for m in &pieces {
+            s.append(m, Payload::Float32).unwrap();
+        }
+        // A second index of the step is refused, as a second model is.
+        let e = s.append_step_index(&index).unwrap_err();
+        assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("already holds a step index"), "{e}");
+        // And one step without an index.
+        s.append(&model("rho", 5, 0, 30, 0.5), Payload::Float32).unwrap();
+    }
+    let s = Store::open_read(&path).unwrap();
+    let (back, models) = s.read_step("rho", 4).unwrap();
+    assert_eq!(models, pieces);
+    assert_eq!((back.halo, back.dims, back.pieces.len()), (index.halo, index.dims, 2));
+    // The models are named by their entries.
+    assert_eq!(back.pieces.iter().map(|p| p.model.as_str()).collect::<Vec<_>>(), ["rank_0", "rank_1"]);
+    // The listing holds the models only, as a reader before 1.3 sees it.
+    let keys: Vec<String> = s.entries().unwrap().iter().map(|e| e.key.path()).collect();
+    assert_eq!(keys, ["/rho/4/rank_0", "/rho/4/rank_1", "/rho/5/rank_0"]);
+    assert!(s.step_index("rho", 5).unwrap().is_none());
+    assert!(s.step_index("temp", 4).unwrap().is_none());
+    assert!(matches!(s.read_step("rho", 5), Err(Error::InvalidArgument(_))));
+    drop(s);
+    // An index whose rank the store lacks, or whose box is not its model's.
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        let (mut index, pieces) = decomposed_step("temp", 4);
+        for m in &pieces {
+            s.append(m, Payload::Float32).unwrap();
+        }
+        index.pieces[0].hi[0] = 13;
+        s.append_step_index(&index).unwrap();
+    }
+    let s = Store::open_read(&path).unwrap();
+    let e = s.read_step("temp", 4).unwrap_err();
+    assert!(e.to_string().contains("covers voxels"), "{e}");
+    drop(s);
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        let (index, pieces) = decomposed_step("v", 4);
+        s.append(&pieces[1], Payload::Float32).unwrap();
+        s.append_step_index(&index).unwrap();
+    }
+    let e = Store::open_read(&path).unwrap().read_step("v", 4).unwrap_err();
+    assert!(matches!(e, Error::InvalidData(_)) && e.to_string().contains("names rank 0"), "{e}");
+}

@@ -69,7 +69,7 @@ def main():
             write_gsm_f32(m, p, "rho", 10 + i, i)
             subprocess.run([gsenc, "store", "add", store, m, "--payload", payload], check=True, capture_output=True)
         with h5py.File(store, "r") as f:
-            assert f.attrs["gsenc_store"] == "1.2"
+            assert f.attrs["gsenc_store"] == "1.3"
             entries = [(field, step, rank) for field in f for step in f[field] for rank in f[field][step]]
             assert len(entries) == 3, entries
             for field, step, rank in entries:

@@ -28,6 +28,7 @@ use crate::format::check_field_name;
 use crate::math::kernel::Primitive;
 use crate::model::{Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
+use crate::format::step_index::StepIndex;
 use hdf5::plist::file_access::{CacheDecreaseMode, CacheIncreaseMode, FlashIncreaseMode, MetadataCacheConfig};
 use hdf5::plist::file_create::FileSpaceStrategy;
 use hdf5::types::VarLenUnicode;
@@ -36,8 +37,10 @@ use std::path::{Path, PathBuf};
 
 /// Layout version of the store, in the root attribute `gsenc_store`.
 /// 1.1 adds the optional `support` dataset of an entry, 1.2 its optional
-/// `outside` attribute.
-pub const STORE_VERSION: &str = "1.2";
+/// `outside` attribute, 1.3 the optional `index` dataset of a step.
+pub const STORE_VERSION: &str = "1.3";
+/// The step index of a decomposed step, in the step's group (1.3).
+const INDEX: &str = "index";
 /// Names of the twelve parameters, in the order of the `params` rows.
 pub const PARAMETER_NAMES: [&str; 12] =
     ["mu_x", "mu_y", "mu_z", "l_x", "l_y", "l_z", "q_w", "q_x", "q_y", "q_z", "alpha", "beta"];
@@ -139,33 +142,72 @@ impl Store {
         let key = EntryKey::of(&model.meta);
         check_field_name(&key.field)?;
         payload.round_trip(model)?; // refuses unstorable parameters before touching the file
-        let err = h5(&self.path);
-        let step_name = key.step.to_string();
         let rank_name = format!("rank_{}", key.rank);
-        let field = self.file.link_exists(&key.field).then(|| self.file.group(&key.field)).transpose().map_err(&err)?;
-        let step = match &field {
-            Some(f) if f.link_exists(&step_name) => Some(f.group(&step_name).map_err(&err)?),
-            _ => None,
-        };
-        if step.as_ref().is_some_and(|s| s.link_exists(&rank_name)) {
+        let groups = self.groups(&key.field, key.step)?;
+        if groups.1.as_ref().is_some_and(|s| s.link_exists(&rank_name)) {
             return Err(Error::arg(format!("{} already holds a model; a store never rewrites a step", key.path())));
         }
         // Everything new, unlinked: nothing existing changes until the commit.
-        let entry = anonymous_group(&self.file, 0).map_err(&err)?;
-        write_entry(&entry, model, payload).map_err(&err)?;
-        let (parent, name, top) = match (field, step) {
-            (Some(_), Some(step)) => (step, rank_name, entry),
-            (field, None) => {
+        let entry = anonymous_group(&self.file, 0).map_err(h5(&self.path))?;
+        write_entry(&entry, model, payload).map_err(h5(&self.path))?;
+        self.commit(groups, &key.field, key.step, model.meta.time, &rank_name, &entry)
+    }
+
+    /// Appends the step index of a decomposed step (the `.gsi` of an MPI
+    /// run) as `/<field>/<step>/index` (1.3), so that the store gives the
+    /// step's global field ([`Store::read_step`]). Its pieces name their
+    /// models by entry (`rank_<r>`), which may be appended before or after
+    /// it. Refuses a step that has an index, as [`Store::append`] refuses
+    /// an entry that exists.
+    pub fn append_step_index(&mut self, index: &StepIndex) -> Result<()> {
+        check_field_name(&index.field)?;
+        let mut stored = index.clone();
+        for p in &mut stored.pieces {
+            p.model = format!("rank_{}", p.rank);
+        }
+        let text = stored.to_json();
+        let groups = self.groups(&index.field, index.step)?;
+        if groups.1.as_ref().is_some_and(|s| s.link_exists(INDEX)) {
+            return Err(Error::arg(format!("/{}/{} already holds a step index; a store never rewrites a step", index.field, index.step)));
+        }
+        let ds = self.file.new_dataset::<u8>().shape(text.len()).create(None).map_err(h5(&self.path))?;
+        ds.write_raw(text.as_bytes()).map_err(h5(&self.path))?;
+        self.commit(groups, &index.field, index.step, index.time, INDEX, &ds)
+    }
+
+    /// The groups of `field` and of its `step`, where they exist.
+    fn groups(&self, field: &str, step: u64) -> Result<(Option<Group>, Option<Group>)> {
+        let err = h5(&self.path);
+        let step_name = step.to_string();
+        let fg = self.file.link_exists(field).then(|| self.file.group(field)).transpose().map_err(&err)?;
+        let sg = match &fg {
+            Some(f) if f.link_exists(&step_name) => Some(f.group(&step_name).map_err(&err)?),
+            _ => None,
+        };
+        Ok((fg, sg))
+    }
+
+    /// Commits `child`, new and unlinked, as `name` in the group of `step`
+    /// of `field` (whose groups `groups` are, where they exist): a missing
+    /// step (and field) group is built unlinked around it, everything is
+    /// flushed, then one link into what exists commits it, and a second
+    /// flush writes that link.
+    fn commit(&mut self, groups: (Option<Group>, Option<Group>), field: &str, step: u64, time: Option<f64>, name: &str, child: &Location) -> Result<()> {
+        let err = h5(&self.path);
+        let step_name = step.to_string();
+        let (parent, name, top): (Group, String, Location) = match groups {
+            (Some(_), Some(step)) => (step, name.to_string(), child.clone()),
+            (field_group, None) => {
                 let new_step = anonymous_group(&self.file, RANKS_PER_STEP).map_err(&err)?;
-                scalar_attr(&new_step, "step", &key.step).map_err(&err)?;
-                scalar_attr(&new_step, "time", &model.meta.time.unwrap_or(f64::NAN)).map_err(&err)?;
-                link(&entry, &new_step, &rank_name).map_err(&err)?;
-                match field {
-                    Some(field) => (field, step_name, new_step),
+                scalar_attr(&new_step, "step", &step).map_err(&err)?;
+                scalar_attr(&new_step, "time", &time.unwrap_or(f64::NAN)).map_err(&err)?;
+                link(child, &new_step, name).map_err(&err)?;
+                match field_group {
+                    Some(f) => (f, step_name, (*new_step).clone()),
                     None => {
                         let new_field = anonymous_group(&self.file, STEPS_PER_FIELD).map_err(&err)?;
                         link(&new_step, &new_field, &step_name).map_err(&err)?;
-                        ((*self.file).clone(), key.field.clone(), new_field)
+                        ((*self.file).clone(), field.to_string(), (*new_field).clone())
                     }
                 }
             }
@@ -224,6 +266,44 @@ impl Store {
         let (params, precision) = read_params(&g, &info, &self.path, budget)?;
         let support = read_support(&g, &info, &self.path, budget)?;
         Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
+    }
+
+    /// The step index of `/<field>/<step>`, where the step has one (1.3).
+    pub fn step_index(&self, field: &str, step: u64) -> Result<Option<StepIndex>> {
+        let Some(sg) = self.groups(field, step)?.1 else { return Ok(None) };
+        if !sg.link_exists(INDEX) {
+            return Ok(None);
+        }
+        let at = format!("{}:/{field}/{step}/{INDEX}", self.path.display());
+        let bad = |what: String| Error::format(format!("{at} {what}"));
+        let ds = sg.dataset(INDEX).map_err(|e| bad(format!("is not a dataset ({e})")))?;
+        let bytes: Vec<u8> = read_all(&ds, "dataset index", super::budget::whole_read_budget(1)?, &bad)?;
+        let text = String::from_utf8(bytes).map_err(|_| bad("is not a step index (not UTF-8 text)".into()))?;
+        let index = StepIndex::from_json(&text).map_err(|e| e.in_context(&at))?;
+        if index.field != field || index.step != step {
+            return Err(bad(format!("is the index of field '{}' step {}", index.field, index.step)));
+        }
+        Ok(Some(index))
+    }
+
+    /// A decomposed step's index and its pieces, each rank's model, in rank
+    /// order, each checked to be the piece the index names (as a `.gsi`
+    /// and its model files are read).
+    pub fn read_step(&self, field: &str, step: u64) -> Result<(StepIndex, Vec<Model>)> {
+        let index = self
+            .step_index(field, step)?
+            .ok_or_else(|| Error::arg(format!("{} holds no step index of /{field}/{step} (a step of one rank's model, or its index was not added)", self.path.display())))?;
+        let sg = self.groups(field, step)?.1;
+        let mut models = Vec::with_capacity(index.pieces.len());
+        for p in &index.pieces {
+            let key = EntryKey { field: field.to_string(), step, rank: p.rank };
+            if sg.as_ref().is_none_or(|sg| !sg.link_exists(&format!("rank_{}", p.rank))) {
+                return Err(Error::data(format!("the step index of /{field}/{step} names rank {}, whose model {} the store does not hold", p.rank, key.path())));
+            }
+            models.push(self.read(&key)?.0);
+        }
+        index.check_pieces(&models)?;
+        Ok((index, models))
     }
 }
 
@@ -303,7 +383,7 @@ fn anonymous_group(file: &File, links: usize) -> hdf5::Result<Group> {
 
 /// Links `obj` into `parent` as `name`: the one change an append makes to
 /// objects that already exist.
-fn link(obj: &Group, parent: &Group, name: &str) -> hdf5::Result<()> {
+fn link(obj: &Location, parent: &Group, name: &str) -> hdf5::Result<()> {
     let cname = std::ffi::CString::new(name).map_err(|_| hdf5::Error::from("a name holds NUL"))?;
     // SAFETY: valid object and location ids, a NUL-terminated name.
     let status = hdf5::sync::sync(|| unsafe {
