@@ -11,8 +11,9 @@ use std::path::{Path, PathBuf};
 #[derive(Subcommand)]
 pub enum StoreCommand {
     /// Append model files to a store (created when missing), each as
-    /// /<field>/<step>/rank_<r>; an entry that exists is refused.
-    /// A folder adds every .gsm file in it (a run's output folder).
+    /// /<field>/<step>/rank_<r>, and step indexes (.gsi, with their models)
+    /// as /<field>/<step>/index; an entry that exists is refused. A folder
+    /// adds every .gsm and .gsi file in it (a run's output folder).
     Add(StoreAddArgs),
     /// Copy one model of a store out to a model file.
     Extract(StoreExtractArgs),
@@ -21,7 +22,7 @@ pub enum StoreCommand {
 #[derive(Args)]
 pub struct StoreAddArgs {
     store: PathBuf,
-    /// Model files, and folders whose .gsm files are added (in name order).
+    /// Model files, step indexes, and folders whose .gsm and .gsi files are added (in name order).
     #[arg(required = true)]
     models: Vec<PathBuf>,
     /// Payload in the store: f32, 8bit, 8bit-u16 or packed (default: each model's own).
@@ -90,7 +91,9 @@ mod imp {
     use crate::output::{print_result, write_output};
     use gsenc::encode::with_threads;
     use gsenc::format;
-    use gsenc::io::read_model_file;
+    use gsenc::format::step_index::StepIndex;
+    use gsenc::io::{read_model_file, read_step_index};
+    use gsenc::model::ModelMeta;
     use gsenc::io::series::{write_decoded_series, SeriesOptions};
     use gsenc::io::store::{EntryKey, Store};
     use serde_json::json;
@@ -104,14 +107,15 @@ mod imp {
         }
     }
 
-    /// The model files `args` names: files as given, and each folder's
-    /// `.gsm` files in name order; and the step indexes (`.gsi`) of those
-    /// folders, which a store does not hold.
-    fn model_paths(args: &[PathBuf]) -> Result<(Vec<PathBuf>, Vec<PathBuf>)> {
-        let (mut paths, mut indexes) = (Vec::new(), Vec::new());
+    /// What `args` names: model files, step indexes (`.gsi`) and folders
+    /// (their `.gsm` and `.gsi` files in name order); an index's models
+    /// come with it. Models in name order, then the indexes.
+    fn inputs(args: &[PathBuf]) -> Result<(Vec<PathBuf>, Vec<PathBuf>)> {
+        let is = |p: &Path, ext: &str| p.extension().is_some_and(|x| x == ext);
+        let (mut models, mut indexes) = (Vec::new(), Vec::new());
         for a in args {
             if !a.is_dir() {
-                paths.push(a.clone());
+                if is(a, "gsi") { indexes.push(a.clone()) } else { models.push(a.clone()) }
                 continue;
             }
             let mut found: Vec<PathBuf> = std::fs::read_dir(a)
@@ -122,78 +126,138 @@ mod imp {
                 .filter(|p| p.is_file())
                 .collect();
             found.sort();
-            let with = |found: &[PathBuf], ext: &str| found.iter().filter(|p| p.extension().is_some_and(|x| x == ext)).cloned().collect::<Vec<_>>();
-            let models = with(&found, "gsm");
-            if models.is_empty() {
+            if !found.iter().any(|p| is(p, "gsm")) {
                 return Err(Error::arg(format!("{}: a folder with no .gsm model file", a.display())));
             }
-            paths.extend(models);
-            indexes.extend(with(&found, "gsi"));
+            models.extend(found.iter().filter(|p| is(p, "gsm")).cloned());
+            indexes.extend(found.into_iter().filter(|p| is(p, "gsi")));
         }
-        Ok((paths, indexes))
+        Ok((models, indexes))
+    }
+
+    /// Where a model file is, to tell two names of one file apart from two files.
+    fn same_file(p: &Path) -> PathBuf {
+        std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf())
+    }
+
+    /// Everything `store add` will write, checked before the store is
+    /// touched: every model read (then let go, so that a run's folder of
+    /// any size is added in the memory one model takes) with an entry of
+    /// its own that the store does not hold, and every step index with a
+    /// step the store has no index of, whose pieces are models being added
+    /// or held, each the piece it names.
+    struct Plan {
+        models: Vec<PathBuf>,
+        indexes: Vec<(PathBuf, StepIndex)>,
+    }
+
+    fn plan(store: &Path, args: &[PathBuf]) -> Result<Plan> {
+        let (mut models, index_paths) = inputs(args)?;
+        let held = if store.exists() { Some(Store::open_read(store)?) } else { None };
+        // Every entry the store holds (also one cut short), and the
+        // metadata of those it reads.
+        let (mut held_keys, mut held_metas) = (std::collections::BTreeSet::new(), BTreeMap::new());
+        for e in held.as_ref().map(|s| s.entries()).transpose()?.into_iter().flatten() {
+            held_keys.insert(e.key.clone());
+            if let Ok(info) = e.content {
+                held_metas.insert(e.key, info.meta);
+            }
+        }
+        let mut indexes = Vec::new();
+        for p in index_paths {
+            let index = read_step_index(&p)?;
+            // The index's models, named relative to it, come with it,
+            // unless the store holds them.
+            let dir = p.parent().unwrap_or(Path::new("."));
+            let listed: std::collections::BTreeSet<PathBuf> = models.iter().map(|m| same_file(m)).collect();
+            for piece in &index.pieces {
+                let m = dir.join(&piece.model);
+                let key = EntryKey { field: index.field.clone(), step: index.step, rank: piece.rank };
+                if m.exists() && !listed.contains(&same_file(&m)) && !held_keys.contains(&key) {
+                    models.push(m);
+                }
+            }
+            indexes.push((p, index));
+        }
+        let mut metas: BTreeMap<EntryKey, (&Path, ModelMeta)> = BTreeMap::new();
+        for p in &models {
+            let meta = read_model_file(p)?.model.meta;
+            let key = EntryKey::of(&meta);
+            if held_keys.contains(&key) {
+                return Err(Error::arg(format!("{}: the store holds {} already (steps are never rewritten)", p.display(), key.path())));
+            }
+            if let Some((other, _)) = metas.insert(key.clone(), (p.as_path(), meta)) {
+                return Err(Error::arg(format!("{} and {} are both {}", other.display(), p.display(), key.path())));
+            }
+        }
+        let mut steps = BTreeMap::new();
+        for (p, index) in &indexes {
+            let step = (index.field.clone(), index.step);
+            if let Some(other) = steps.insert(step.clone(), p) {
+                return Err(Error::arg(format!("{} and {} are both the index of /{}/{}", other.display(), p.display(), step.0, step.1)));
+            }
+            if held.as_ref().map(|s| s.step_index(&index.field, index.step)).transpose()?.flatten().is_some() {
+                return Err(Error::arg(format!("{}: the store holds the index of /{}/{} already", p.display(), step.0, step.1)));
+            }
+            let mut pieces = Vec::with_capacity(index.pieces.len());
+            for piece in &index.pieces {
+                let key = EntryKey { field: index.field.clone(), step: index.step, rank: piece.rank };
+                let meta = metas.get(&key).map(|(_, m)| m).or_else(|| held_metas.get(&key));
+                pieces.push(meta.ok_or_else(|| {
+                    Error::data(format!("{}: rank {}'s model ({}) is neither added nor in the store", p.display(), piece.rank, key.path()))
+                })?);
+            }
+            index.check_piece_metas(&pieces).map_err(|e| e.in_context(&p.display().to_string()))?;
+        }
+        Ok(Plan { models, indexes })
     }
 
     fn add(a: StoreAddArgs) -> Result<()> {
         let payload = a.payload;
-        let (paths, indexes) = model_paths(&a.models)?;
-        // Every model is read and checked before the store is touched, and
-        // so is where it goes: no two models to one entry, none to an entry
-        // the store holds. Only the keys are kept, so that a run's folder of
-        // any size is added in the memory one model takes; each is read
-        // again to be added.
-        let mut keys: BTreeMap<EntryKey, &Path> = BTreeMap::new();
-        for p in &paths {
-            let key = EntryKey::of(&read_model_file(p)?.model.meta);
-            if let Some(other) = keys.insert(key.clone(), p) {
-                return Err(Error::arg(format!("{} and {} are both {}", other.display(), p.display(), key.path())));
-            }
-        }
+        let plan = plan(&a.store, &a.models)?;
         let created = !a.store.exists();
-        if !created {
-            for e in Store::open_read(&a.store)?.entries()? {
-                if let Some(p) = keys.get(&e.key) {
-                    return Err(Error::arg(format!("{}: the store holds {} already (steps are never rewritten)", p.display(), e.key.path())));
-                }
-            }
-        }
         let mut store = Store::open_append(&a.store)?;
-        let mut added = Vec::new();
-        for path in &paths {
-            // Read again (a file changed since it was checked fails here).
-            let appended = read_model_file(path).and_then(|f| {
+        let (mut added, mut indexed) = (Vec::new(), Vec::new());
+        // Each model read again (a file changed since it was checked fails
+        // here), then the indexes.
+        let models = plan.models.iter().map(|path| {
+            (path, read_model_file(path).and_then(|f| {
                 let chosen = payload.unwrap_or(f.payload);
                 let mut model = f.model;
                 if chosen != f.payload && chosen != Payload::Float32 {
                     model.meta.encode_psnr = None; // no longer the PSNR of what is stored
                 }
-                store.append(&model, chosen).map(|()| EntryKey::of(&model.meta).path())
-            });
-            match appended {
+                Ok((model, chosen))
+            }))
+        });
+        let total = plan.models.len() + plan.indexes.len();
+        for (path, read) in models {
+            let done = read.and_then(|(model, chosen)| store.append(&model, chosen).map(|()| EntryKey::of(&model.meta).path()));
+            match done {
                 Ok(entry) => added.push(entry),
-                Err(e) => {
-                    // What was added stays (and is named); a store this
-                    // command created and could add nothing to (a full
-                    // disk) is removed.
-                    drop(store);
-                    if added.is_empty() && created {
-                        let _ = std::fs::remove_file(&a.store);
-                    }
-                    eprintln!("gsenc store add: {} not added; {} of {} added before it: {added:?}", path.display(), added.len(), paths.len());
-                    return Err(e);
-                }
+                Err(e) => return Err(cut_short(store, &a.store, created, path, &added, total, e)),
             }
         }
-        if !indexes.is_empty() {
-            // An MPI run's folder: its pieces are in the store, but the
-            // global field of a step is decoded from its step index.
-            eprintln!(
-                "gsenc store add: {} step index(es) (.gsi) not added, as a store holds models only; keep them beside the models to decode a step's global field",
-                indexes.len()
-            );
+        for (path, index) in &plan.indexes {
+            match store.append_step_index(index) {
+                Ok(()) => indexed.push(format!("/{}/{}/index", index.field, index.step)),
+                Err(e) => return Err(cut_short(store, &a.store, created, path, &added, total, e)),
+            }
         }
-        let skipped: Vec<String> = indexes.iter().map(|p| p.display().to_string()).collect();
-        print_result(a.json, json!({ "store": a.store.display().to_string(), "added": added, "step_indexes_not_added": skipped }));
+        print_result(a.json, json!({ "store": a.store.display().to_string(), "added": added, "step_indexes": indexed }));
         Ok(())
+    }
+
+    /// An add that failed at `path`: what was added stays (and is named); a
+    /// store this command created and could add nothing to (a full disk)
+    /// is removed.
+    fn cut_short(store: Store, at: &Path, created: bool, path: &Path, added: &[String], total: usize, e: Error) -> Error {
+        drop(store);
+        if added.is_empty() && created {
+            let _ = std::fs::remove_file(at);
+        }
+        eprintln!("gsenc store add: {} not added; {} of {} added before it: {added:?}", path.display(), added.len(), total);
+        e
     }
 
     /// `FIELD/STEP/RANK`, also as `/FIELD/STEP/rank_RANK`.

@@ -368,33 +368,12 @@ fn decoded_series_matches_each_model_and_xdmf_points_at_it() {
     assert_eq!(std::fs::read(&out).unwrap(), before);
 }
 
-/// The pieces of a decomposed step (an MPI run's), as `gsenc store add`
-/// stores a run's folder: rank 0 and rank 1 of a 24 x 16 x 12 lattice, a
-/// halo of 2 voxels.
-fn decomposed_step(field: &str, step: u64) -> (gsenc::format::step_index::StepIndex, Vec<gsenc::model::Model>) {
-    use gsenc::field::{IndexBox, IndexFrame};
-    let global = IndexFrame { dims: [24, 16, 12], bmin: [0.0, -1.0, 0.5], gamma: 12.0 };
-    let boxes = [IndexBox { lo: [0, 0, 0], hi: [14, 16, 12] }, IndexBox { lo: [10, 0, 0], hi: [24, 16, 12] }];
-    let pieces: Vec<_> = boxes
-        .iter()
-        .enumerate()
-        .map(|(rank, b)| {
-            let mut m = model(field, step, rank as u32, 60 + 10 * rank, 0.5);
-            m.meta.frame = global.sub_frame(b);
-            m
-        })
-        .collect();
-    let names = (0..2).map(|r| format!("{field}_{step:06}_r{r}.gsm")).collect();
-    let index = gsenc::format::step_index::StepIndex::new(field, step, pieces[0].meta.time, &pieces[0].meta.range, &global, &boxes, 2, names);
-    (index, pieces)
-}
-
 #[test]
 fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_was() {
     let _serial = common::hdf5_serial();
     let dir = tmpdir("step-index");
     let path = dir.join("s.h5");
-    let (index, pieces) = decomposed_step("rho", 4);
+    let (index, pieces) = common::decomposed_step("rho", 4);
     {
         let mut s = Store::open_append(&path).unwrap();
         // The index may come first: it makes the step's group.
@@ -424,7 +403,7 @@ fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_w
     // An index whose rank the store lacks, or whose box is not its model's.
     {
         let mut s = Store::open_append(&path).unwrap();
-        let (mut index, pieces) = decomposed_step("temp", 4);
+        let (mut index, pieces) = common::decomposed_step("temp", 4);
         for m in &pieces {
             s.append(m, Payload::Float32).unwrap();
         }
@@ -437,7 +416,7 @@ fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_w
     drop(s);
     {
         let mut s = Store::open_append(&path).unwrap();
-        let (index, pieces) = decomposed_step("v", 4);
+        let (index, pieces) = common::decomposed_step("v", 4);
         s.append(&pieces[1], Payload::Float32).unwrap();
         s.append_step_index(&index).unwrap();
     }

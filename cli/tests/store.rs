@@ -98,18 +98,21 @@ fn a_folder_of_models_is_added_and_the_store_is_untouched_until_every_model_is_c
             models.push(m);
         }
     }
-    std::fs::write(run.join("rho_000001.gsi"), "{}").unwrap(); // a step index is not a model
     std::fs::write(run.join("notes.txt"), "run 7").unwrap();
     let store = dir.join("s.h5");
+    // A step index that is not one refuses the whole folder, before a store is made.
+    std::fs::write(run.join("rho_000001.gsi"), "{}").unwrap();
+    let out = add(&[&store, &run]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("not a gsenc step index"));
+    assert!(!store.exists());
+    std::fs::remove_file(run.join("rho_000001.gsi")).unwrap();
     let out = add(&[&store, &run]);
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let added: Vec<&str> = v["added"].as_array().unwrap().iter().map(|a| a.as_str().unwrap()).collect();
     // Name order: rho's files before temp's.
     assert_eq!(added, ["/rho/0/rank_0", "/rho/1/rank_0", "/rho/2/rank_0", "/temp/0/rank_0", "/temp/1/rank_0", "/temp/2/rank_0"]);
-    // The step index is named as not added, on stderr and in the output.
-    assert_eq!(v["step_indexes_not_added"], serde_json::json!([run.join("rho_000001.gsi").display().to_string()]));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("1 step index(es) (.gsi) not added"));
+    assert_eq!(v["step_indexes"], serde_json::json!([]));
     let s = Store::open_read(&store).unwrap();
     for m in &models {
         assert_eq!(&s.read(&EntryKey::of(&m.meta)).unwrap().0, m);
@@ -145,4 +148,64 @@ fn a_folder_of_models_is_added_and_the_store_is_untouched_until_every_model_is_c
     let fresh = dir.join("fresh.h5");
     assert!(!add(&[&fresh, &new, &twin]).status.success());
     assert!(!fresh.exists());
+}
+
+/// An MPI run's folder (each rank's model and rank 0's step index of each
+/// step) in one store that gives each step's pieces back through its index.
+#[test]
+fn an_mpi_runs_folder_keeps_its_step_indexes() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("mpi-folder");
+    let add = |args: &[&std::path::Path]| Command::new(gsenc_bin()).args(["store", "add", "--json"]).args(args).output().unwrap();
+    let run = dir.join("run");
+    std::fs::create_dir_all(&run).unwrap();
+    let mut steps = Vec::new();
+    for step in [4u64, 5] {
+        let (index, pieces) = common::decomposed_step("rho", step);
+        for (p, m) in index.pieces.iter().zip(&pieces) {
+            std::fs::write(run.join(&p.model), write_model_as(m, Payload::Float32).unwrap()).unwrap();
+        }
+        std::fs::write(run.join(format!("rho_{step:06}.gsi")), index.to_json()).unwrap();
+        steps.push((index, pieces));
+    }
+    let store = dir.join("s.h5");
+    // An index whose model is missing is refused before anything is written.
+    let lone = dir.join("lone");
+    std::fs::create_dir_all(&lone).unwrap();
+    std::fs::copy(run.join("rho_000004.gsi"), lone.join("rho_000004.gsi")).unwrap();
+    std::fs::copy(run.join("rho_000004_r0.gsm"), lone.join("rho_000004_r0.gsm")).unwrap();
+    let out = add(&[&store, &lone]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("rank 1's model (/rho/4/rank_1) is neither added nor in the store"), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(!store.exists());
+    // The folder: models first (name order), then the indexes.
+    let out = add(&[&store, &run]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["added"], serde_json::json!(["/rho/4/rank_0", "/rho/4/rank_1", "/rho/5/rank_0", "/rho/5/rank_1"]));
+    assert_eq!(v["step_indexes"], serde_json::json!(["/rho/4/index", "/rho/5/index"]));
+    let s = Store::open_read(&store).unwrap();
+    for (index, pieces) in &steps {
+        let (back, models) = s.read_step("rho", index.step).unwrap();
+        assert_eq!(&models, pieces);
+        assert_eq!((back.halo, back.dims, back.bmin), (index.halo, index.dims, index.bmin));
+    }
+    drop(s);
+    // An index given alone brings its models; one whose models the store
+    // holds adds the index only; one the store holds is refused.
+    let one = dir.join("one.h5");
+    let out = add(&[&one, &run.join("rho_000005.gsi")]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((&v["added"], &v["step_indexes"]), (&serde_json::json!(["/rho/5/rank_0", "/rho/5/rank_1"]), &serde_json::json!(["/rho/5/index"])));
+    let models_only = dir.join("models.h5");
+    let r4: Vec<std::path::PathBuf> = ["rho_000004_r0.gsm", "rho_000004_r1.gsm"].iter().map(|f| run.join(f)).collect();
+    assert!(add(&[&models_only, &r4[0], &r4[1]]).status.success());
+    let out = add(&[&models_only, &run.join("rho_000004.gsi")]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((&v["added"], &v["step_indexes"]), (&serde_json::json!([]), &serde_json::json!(["/rho/4/index"])));
+    assert_eq!(Store::open_read(&models_only).unwrap().read_step("rho", 4).unwrap().1, steps[0].1);
+    let out = add(&[&models_only, &run.join("rho_000004.gsi")]);
+    assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("holds the index of /rho/4 already"));
 }

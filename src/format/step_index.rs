@@ -4,7 +4,7 @@
 
 use crate::error::{Error, Result};
 use crate::field::{IndexBox, IndexFrame, Transform, ValueRange};
-use crate::model::Model;
+use crate::model::{Model, ModelMeta};
 
 /// What rank 0 writes beside each step's per-rank models, so that a reader
 /// finds every piece of the step: the rank count, each rank's model and its
@@ -154,27 +154,32 @@ impl StepIndex {
     /// Checks that `pieces` (the models of this index, in rank order) are
     /// the ones it names: field, step, rank, range and box.
     pub fn check_pieces(&self, pieces: &[Model]) -> Result<()> {
+        self.check_piece_metas(&pieces.iter().map(|m| &m.meta).collect::<Vec<_>>())
+    }
+
+    /// [`StepIndex::check_pieces`] of the pieces' metadata alone.
+    pub fn check_piece_metas(&self, pieces: &[&ModelMeta]) -> Result<()> {
         let global = self.frame();
         for (p, m) in self.pieces.iter().zip(pieces) {
             let what = || format!("the model of rank {} ({})", p.rank, p.model);
-            if m.meta.field != self.field || m.meta.step != self.step || m.meta.rank != p.rank {
+            if m.field != self.field || m.step != self.step || m.rank != p.rank {
                 return Err(Error::data(format!(
                     "{} is field '{}' step {} rank {}, the index names field '{}' step {} rank {}",
-                    what(), m.meta.field, m.meta.step, m.meta.rank, self.field, self.step, p.rank
+                    what(), m.field, m.step, m.rank, self.field, self.step, p.rank
                 )));
             }
-            if (m.meta.frame.gamma - self.gamma).abs() > 1e-12 * self.gamma || m.meta.range.transform.name() != self.range.transform {
+            if (m.frame.gamma - self.gamma).abs() > 1e-12 * self.gamma || m.range.transform.name() != self.range.transform {
                 return Err(Error::data(format!(
                     "{} has {:?} voxels a world unit and transform {}, the index {:?} and {}",
-                    what(), m.meta.frame.gamma, m.meta.range.transform.name(), self.gamma, self.range.transform
+                    what(), m.frame.gamma, m.range.transform.name(), self.gamma, self.range.transform
                 )));
             }
-            let b = global.box_of(&m.meta.frame)?;
+            let b = global.box_of(&m.frame)?;
             if b.lo != p.lo || b.hi != p.hi {
                 return Err(Error::data(format!("{} covers voxels {:?}..{:?}, the index says {:?}..{:?}", what(), b.lo, b.hi, p.lo, p.hi)));
             }
             let differs = |a: f64, b: f64| (a - b).abs() > 1e-12 * a.abs().max(b.abs()).max(1e-300);
-            if differs(m.meta.range.vmin, self.range.vmin) || differs(m.meta.range.vmax, self.range.vmax) {
+            if differs(m.range.vmin, self.range.vmin) || differs(m.range.vmax, self.range.vmax) {
                 return Err(Error::data(format!("{} has another value range than the index", what())));
             }
         }

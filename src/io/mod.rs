@@ -21,7 +21,7 @@ pub mod store;
 pub mod vti;
 
 pub use atomic::{write_atomic, AtomicFile};
-pub use models::{read_field, read_model_file, read_step, ModelFolder};
+pub use models::{read_field, read_model_file, read_step, read_step_index, ModelFolder};
 
 /// Whether `path` starts with HDF5's signature (an HDF5 store, as opposed
 /// to a model file); false when it cannot be read. Builds without the

@@ -60,12 +60,17 @@ pub fn read_model_file(path: &Path) -> Result<ModelFile> {
     })
 }
 
+/// Reads a step index file (`.gsi`), naming the file in its errors.
+pub fn read_step_index(index_path: &Path) -> Result<StepIndex> {
+    let bytes = super::read_whole(index_path)?;
+    let text = String::from_utf8(bytes).map_err(|_| Error::format(format!("{}: not a step index (not UTF-8 text)", index_path.display())))?;
+    StepIndex::from_json(&text).map_err(|e| e.in_context(&index_path.display().to_string()))
+}
+
 /// Reads a step index and every rank's model it names (rank order),
 /// checking that each is the piece the index says.
 pub fn read_step(index_path: &Path) -> Result<(StepIndex, Vec<Model>)> {
-    let bytes = super::read_whole(index_path)?;
-    let text = String::from_utf8(bytes).map_err(|_| Error::format(format!("{}: not a step index (not UTF-8 text)", index_path.display())))?;
-    let index = StepIndex::from_json(&text).map_err(|e| e.in_context(&index_path.display().to_string()))?;
+    let index = read_step_index(index_path)?;
     let dir = index_path.parent().unwrap_or(Path::new("."));
     let mut models = Vec::with_capacity(index.pieces.len());
     for p in &index.pieces {

@@ -232,6 +232,27 @@ pub fn store_model(field: &str, step: u64, rank: u32, n: usize, scale_hi: f64) -
 }
 
 
+/// The pieces of a decomposed step (an MPI run's), as `gsenc store add`
+/// stores a run's folder: rank 0 and rank 1 of a 24 x 16 x 12 lattice, a
+/// halo of 2 voxels.
+pub fn decomposed_step(field: &str, step: u64) -> (gsenc::format::step_index::StepIndex, Vec<gsenc::model::Model>) {
+    use gsenc::field::{IndexBox, IndexFrame};
+    let global = IndexFrame { dims: [24, 16, 12], bmin: [0.0, -1.0, 0.5], gamma: 12.0 };
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [14, 16, 12] }, IndexBox { lo: [10, 0, 0], hi: [24, 16, 12] }];
+    let pieces: Vec<_> = boxes
+        .iter()
+        .enumerate()
+        .map(|(rank, b)| {
+            let mut m = store_model(field, step, rank as u32, 60 + 10 * rank, 0.5);
+            m.meta.frame = global.sub_frame(b);
+            m
+        })
+        .collect();
+    let names = (0..2).map(|r| format!("{field}_{step:06}_r{r}.gsm")).collect();
+    let index = gsenc::format::step_index::StepIndex::new(field, step, pieces[0].meta.time, &pieces[0].meta.range, &global, &boxes, 2, names);
+    (index, pieces)
+}
+
 /// Held by every test that opens HDF5 files or starts processes: HDF5 opens
 /// files without close-on-exec, so a process started by one test would
 /// inherit another test's open store, and its lock.
