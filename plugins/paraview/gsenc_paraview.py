@@ -235,7 +235,9 @@ class GsencReader(VTKPythonAlgorithmBase):
 
     @smproperty.intvector(name="Rank", default_values=[-1])
     def SetRank(self, rank):
-        """A store's rank (default -1: the only one)."""
+        """A store's rank (default -1: the only one, or every rank of a
+        step blended into its global field where the store holds the step's
+        index)."""
         if int(rank) != self._rank:
             self._rank = int(rank)
             self.Modified()

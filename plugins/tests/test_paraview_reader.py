@@ -77,6 +77,19 @@ def test_a_step_index_is_the_blended_global_field(tmp_path, cli):
     same_image(ours, tool_decode(cli, tmp_path, tmp_path / "rho_000004.gsi"), "rho")
 
 
+def test_a_store_of_an_mpi_run_is_its_global_field(tmp_path, cli):
+    """A run's folder (each rank's model and the step index) added to a
+    store: the reader's step is the blended global field, as of the .gsi."""
+    encode = lambda part, origin, rank: gsenc.encode_grid(part, 80, origin=origin, range=(0.0, 8.0), field="rho", step=4, rank=rank, **QUICK)
+    run = tmp_path / "run"
+    run.mkdir()
+    write_step_index(run, blobs((32, 16, 16)), encode, vrange=(0.0, 8.0))
+    cli("store", "add", tmp_path / "run.h5", run)
+    r, ours = reader_output(tmp_path / "run.h5")
+    assert r.GetTimestepValues() == [4.0]
+    same_image(ours, tool_decode(cli, tmp_path, run / "rho_000004.gsi"), "rho")
+
+
 def test_a_store_is_a_time_series(tmp_path, cli):
     for step, shift in ((3, 0.0), (7, 4.0)):
         model = gsenc.encode_grid(blobs((20, 16, 12), shift=shift), 90, range=(0.0, 8.0), field="rho", step=step, **QUICK)

@@ -65,15 +65,7 @@ pub fn read(py: Python<'_>, path: PathBuf, field: Option<String>, step: Option<u
     }
     py.detach(|| -> gsenc::Result<Model> {
         if path.extension().is_some_and(|e| e == "gsi") {
-            let field = read_field(std::slice::from_ref(&path))?;
-            let Some(index) = field.index.as_ref() else { return Err(gsenc::Error::format("not a step index")) };
-            let mut info = gsenc::format::info::meta_info(&field.merged());
-            info.insert("format".into(), json!(format!("gsenc step index {}", index.version)));
-            info.insert("pieces".into(), json!(field.pieces().len()));
-            info.insert("halo".into(), json!(index.halo));
-            info.insert("primitives".into(), json!(field.merged().len()));
-            info.insert("encode_psnr".into(), Value::Null);
-            return Ok(Model { field, info, payload: Payload::Float32, psnr: None, unquantized: None });
+            return of_step(read_field(std::slice::from_ref(&path))?);
         }
         let file = read_model_file(&path)?;
         let bytes = std::fs::metadata(&path).map_err(|e| gsenc::Error::io(&path, e))?.len();
@@ -85,6 +77,18 @@ pub fn read(py: Python<'_>, path: PathBuf, field: Option<String>, step: Option<u
         Ok(Model { payload: file.payload, psnr, field: GlobalField::of_model(file.model), info, unquantized: None })
     })
     .py_err()
+}
+
+/// A decomposed step's global field (from a `.gsi`, or a store's index).
+pub fn of_step(field: GlobalField) -> gsenc::Result<Model> {
+    let Some(index) = field.index.as_ref() else { return Err(gsenc::Error::format("not a step index")) };
+    let mut info = gsenc::format::info::meta_info(field.merged());
+    info.insert("format".into(), json!(format!("gsenc step index {}", index.version)));
+    info.insert("pieces".into(), json!(field.pieces().len()));
+    info.insert("halo".into(), json!(index.halo));
+    info.insert("primitives".into(), json!(field.merged().len()));
+    info.insert("encode_psnr".into(), Value::Null);
+    Ok(Model { field, info, payload: Payload::Float32, psnr: None, unquantized: None })
 }
 
 /// A model in memory: its info from its metadata.

@@ -4,7 +4,8 @@
 //! by a reader left open in a notebook.
 
 use crate::errors::IntoPy;
-use crate::model::{in_memory, Model};
+use crate::model::{in_memory, of_step, Model};
+use gsenc::domain::global::GlobalField;
 use gsenc::io::store::{EntryKey, Store as H5Store};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
@@ -46,13 +47,23 @@ pub fn open_store(py: Python<'_>, path: PathBuf) -> PyResult<Store> {
     Ok(Store { path, entries })
 }
 
+/// What `read` reads: one entry, or every rank of a step.
+enum Chosen {
+    Entry(EntryKey),
+    Step(String, u64),
+}
+
 /// The entry of `path` that `field`, `step` and `rank` name; any of them may
-/// be left out where the store holds only one choice.
-fn choose(entries: &[EntryKey], path: &Path, field: Option<&str>, step: Option<u64>, rank: Option<u32>) -> PyResult<EntryKey> {
+/// be left out where the store holds only one choice. Without a rank, a
+/// step of several ranks is the step (read by its index).
+fn choose(entries: &[EntryKey], path: &Path, field: Option<&str>, step: Option<u64>, rank: Option<u32>) -> PyResult<Chosen> {
     let matching: Vec<&EntryKey> =
         entries.iter().filter(|k| field.is_none_or(|f| k.field == f) && step.is_none_or(|s| k.step == s) && rank.is_none_or(|r| k.rank == r)).collect();
     match matching.as_slice() {
-        [one] => Ok((*one).clone()),
+        [one] => Ok(Chosen::Entry((*one).clone())),
+        [first, rest @ ..] if rank.is_none() && rest.iter().all(|k| k.field == first.field && k.step == first.step) => {
+            Ok(Chosen::Step(first.field.clone(), first.step))
+        }
         [] => Err(PyValueError::new_err(format!(
             "{} holds no entry with field {field:?}, step {step:?}, rank {rank:?} (open_store lists them)",
             path.display()
@@ -70,15 +81,31 @@ pub fn read_entry(py: Python<'_>, path: &Path, field: Option<String>, step: Opti
     py.detach(|| -> PyResult<Model> {
         let store = H5Store::open_read(path).py_err()?;
         let keys: Vec<EntryKey> = store.entries().py_err()?.into_iter().map(|e| e.key).collect();
-        let key = choose(&keys, path, field.as_deref(), step, rank)?;
-        read_key(&store, &key)
+        let chosen = choose(&keys, path, field.as_deref(), step, rank)?;
+        read_chosen(&store, chosen)
     })
 }
 
-fn read_key(store: &H5Store, key: &EntryKey) -> PyResult<Model> {
-    let (model, payload) = store.read(key).py_err()?;
-    let psnr = model.meta.encode_psnr;
-    Ok(in_memory(model, payload, psnr, "gsenc store entry"))
+/// An entry's model, or a step's global field: its ranks' models blended
+/// by the step's index (layout 1.3).
+fn read_chosen(store: &H5Store, chosen: Chosen) -> PyResult<Model> {
+    match chosen {
+        Chosen::Entry(key) => {
+            let (model, payload) = store.read(&key).py_err()?;
+            let psnr = model.meta.encode_psnr;
+            Ok(in_memory(model, payload, psnr, "gsenc store entry"))
+        }
+        Chosen::Step(field, step) => {
+            if store.step_index(&field, step).py_err()?.is_none() {
+                return Err(PyValueError::new_err(format!(
+                    "{}: /{field}/{step} holds several ranks and no step index to blend them (store add the run's .gsi files): give rank",
+                    store.path().display()
+                )));
+            }
+            let (index, pieces) = store.read_step(&field, step).py_err()?;
+            of_step(GlobalField::of_step(index, pieces).py_err()?).py_err()
+        }
+    }
 }
 
 #[pymethods]
@@ -133,8 +160,8 @@ impl Store {
     #[pyo3(signature = (field=None, step=None, rank=None))]
     fn read(&self, py: Python<'_>, field: Option<String>, step: Option<u64>, rank: Option<u32>) -> PyResult<Model> {
         let keys: Vec<EntryKey> = self.entries.iter().map(|(k, _)| k.clone()).collect();
-        let key = choose(&keys, &self.path, field.as_deref(), step, rank)?;
-        py.detach(|| read_key(&H5Store::open_read(&self.path).py_err()?, &key))
+        let chosen = choose(&keys, &self.path, field.as_deref(), step, rank)?;
+        py.detach(|| read_chosen(&H5Store::open_read(&self.path).py_err()?, chosen))
     }
 
     #[getter]

@@ -94,6 +94,27 @@ def test_a_step_index_decodes_as_the_tools_blend(tmp_path, cli):
         step.write(tmp_path / "x.gsm")
 
 
+def test_a_step_of_a_store_with_its_index_is_the_blended_global_field(tmp_path, cli):
+    """An MPI run's folder added to a store (its models and step index):
+    the step read without a rank is its global field, as from the .gsi."""
+    field = blobs((32, 16, 16))
+    encode = lambda part, origin, rank: gsenc.encode_grid(part, 80, origin=origin, range=(0.0, 220.0), field="rho", step=4, rank=rank, **QUICK)
+    run = tmp_path / "run"
+    run.mkdir()
+    write_step_index(run, field, encode)
+    cli("store", "add", tmp_path / "models.h5", run / "rho_000004.gsm", run / "rho_000004_r1.gsm")
+    cli("store", "add", tmp_path / "run.h5", run)
+    from_index = gsenc.read(run / "rho_000004.gsi")
+    for step in (gsenc.read(tmp_path / "run.h5", field="rho", step=4), gsenc.open_store(tmp_path / "run.h5").read("rho", 4)):
+        assert step.info["pieces"] == 2 and step.dims == (32, 16, 16)
+        np.testing.assert_array_equal(step.decode(backend="cpu"), from_index.decode(backend="cpu"))
+        np.testing.assert_array_equal(step.decode(backend="cpu", additive=True), from_index.decode(backend="cpu", additive=True))
+    # A rank is still one piece; without an index the step asks for one.
+    assert gsenc.read(tmp_path / "run.h5", field="rho", step=4, rank=1).info["rank"] == 1
+    with pytest.raises(ValueError, match="no step index to blend them"):
+        gsenc.read(tmp_path / "models.h5", field="rho", step=4)
+
+
 def test_a_store_written_by_the_c_api_reads_as_the_tool_extracts_it(tmp_path, cli, mock_solver):
     import subprocess
 
