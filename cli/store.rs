@@ -108,8 +108,8 @@ mod imp {
     }
 
     /// What `args` names: model files, step indexes (`.gsi`) and folders
-    /// (their `.gsm` and `.gsi` files in name order); an index's models
-    /// come with it. Models in name order, then the indexes.
+    /// (their `.gsm`, then their `.gsi` files, in name order), as the model
+    /// files and the indexes.
     fn inputs(args: &[PathBuf]) -> Result<(Vec<PathBuf>, Vec<PathBuf>)> {
         let is = |p: &Path, ext: &str| p.extension().is_some_and(|x| x == ext);
         let (mut models, mut indexes) = (Vec::new(), Vec::new());
@@ -218,21 +218,18 @@ mod imp {
         let created = !a.store.exists();
         let mut store = Store::open_append(&a.store)?;
         let (mut added, mut indexed) = (Vec::new(), Vec::new());
+        let total = plan.models.len() + plan.indexes.len();
         // Each model read again (a file changed since it was checked fails
         // here), then the indexes.
-        let models = plan.models.iter().map(|path| {
-            (path, read_model_file(path).and_then(|f| {
+        for path in &plan.models {
+            let done = read_model_file(path).and_then(|f| {
                 let chosen = payload.unwrap_or(f.payload);
                 let mut model = f.model;
                 if chosen != f.payload && chosen != Payload::Float32 {
                     model.meta.encode_psnr = None; // no longer the PSNR of what is stored
                 }
-                Ok((model, chosen))
-            }))
-        });
-        let total = plan.models.len() + plan.indexes.len();
-        for (path, read) in models {
-            let done = read.and_then(|(model, chosen)| store.append(&model, chosen).map(|()| EntryKey::of(&model.meta).path()));
+                store.append(&model, chosen).map(|()| EntryKey::of(&model.meta).path())
+            });
             match done {
                 Ok(entry) => added.push(entry),
                 Err(e) => return Err(cut_short(store, &a.store, created, path, &added, total, e)),
