@@ -52,7 +52,9 @@ def read(path, field=None, step=None, rank=None) -> Model:
     """Reads a model file (``.gsm``), a step index (``.gsi``: every rank's
     model of one step, decoded as one global field blended across the
     halos), or an entry of an HDF5 store (``field``, ``step``, ``rank``; any
-    may be left out where the store holds one choice)."""
+    may be left out where the store holds one choice; without ``rank``, a
+    step of several ranks whose step index the store holds is its global
+    field, as from the ``.gsi``)."""
     return _gsenc.read(str(path), field, step, rank)
 
 

@@ -50,7 +50,8 @@ pub fn backend_choice(backend: &str) -> PyResult<BackendChoice> {
 /// Reads a model file (`.gsm`), a step index (`.gsi`: every rank's model
 /// of a step, decoded as one global field, blended across the halos), or
 /// an entry of an HDF5 store (`field`, `step`, `rank`: each may be left out
-/// when the store holds one choice).
+/// when the store holds one choice; without `rank`, a step of several
+/// ranks with its step index in the store is its global field).
 #[pyfunction]
 #[pyo3(signature = (path, field=None, step=None, rank=None))]
 pub fn read(py: Python<'_>, path: PathBuf, field: Option<String>, step: Option<u64>, rank: Option<u32>) -> PyResult<Model> {
