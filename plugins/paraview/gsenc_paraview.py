@@ -59,8 +59,8 @@ class _PythonBackend:
     def steps(self, path, field):
         """(field, [steps], [times]) of a store; (field, None, None) for a
         single model. A step's time is the simulation time its models
-        carry, else its step number (as in the XDMF of `gsenc store
-        decode`); where those times do not rise with the steps, the step
+        carry, else its step number (as in the XDMF of `gsenc
+        decode-series`); where those times do not rise with the steps, the step
         numbers are the times."""
         if not _is_store(path):
             return field, None, None

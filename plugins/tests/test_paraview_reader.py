@@ -110,7 +110,7 @@ def test_a_store_is_a_time_series(tmp_path, cli):
 def test_a_stores_times_are_the_simulation_times_its_models_carry(tmp_path, cli):
     """ParaView lines the reader up with the simulation's own output by
     time: a step's time is its models' simulation time (its step number
-    where none is carried, as in `gsenc store decode`'s XDMF)."""
+    where none is carried, as in `gsenc decode-series`'s XDMF)."""
     def store(name, times):
         paths = []
         for (step, time), shift in zip(times, (0.0, 3.0, 6.0)):
