@@ -290,6 +290,9 @@ mod imp {
         for (key, why) in &s.skipped {
             eprintln!("gsenc: skipped {}: {why}", key.path());
         }
+        for (step, why) in &s.unblended {
+            eprintln!("gsenc: step {step} decoded rank by rank, not blended by its index: {why}");
+        }
         print_result(
             a.out.json,
             json!({
@@ -297,6 +300,8 @@ mod imp {
                 "grids": s.pieces.len(),
                 "steps": s.pieces.iter().map(|p| p.key.step).collect::<std::collections::BTreeSet<_>>().len(),
                 "skipped": s.skipped.len(),
+                "global_steps": s.pieces.iter().filter(|p| p.global).count(),
+                "unblended_steps": s.unblended.len(),
                 "voxels": s.voxels,
                 "seconds": seconds,
                 "voxels_per_second": s.voxels as f64 / seconds.max(1e-9),

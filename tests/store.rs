@@ -423,3 +423,49 @@ fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_w
     let e = Store::open_read(&path).unwrap().read_step("v", 4).unwrap_err();
     assert!(matches!(e, Error::InvalidData(_)) && e.to_string().contains("names rank 0"), "{e}");
 }
+
+/// `decode-series` of a store holding a decomposed step's index: that step
+/// is one grid, its global field as the pieces blend it; a step without an
+/// index stays a grid per rank, and so does one whose index names a rank
+/// the store lacks (said in the summary).
+#[test]
+fn a_decoded_series_blends_a_step_that_has_its_index() {
+    use gsenc::domain::global::GlobalField;
+    use gsenc::field::IndexBox;
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("series-global");
+    let path = dir.join("s.h5");
+    let (index, pieces) = common::decomposed_step("rho", 4);
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        for m in &pieces {
+            s.append(m, Payload::Float32).unwrap();
+        }
+        s.append_step_index(&index).unwrap();
+        for rank in 0..2 {
+            s.append(&model("rho", 6, rank, 30, -0.5), Payload::Float32).unwrap();
+        }
+        let (index, pieces) = common::decomposed_step("rho", 8);
+        s.append(&pieces[0], Payload::Float32).unwrap();
+        s.append_step_index(&index).unwrap();
+    }
+    let s = Store::open_read(&path).unwrap();
+    let out = dir.join("series.h5");
+    let opts = SeriesOptions { field: Some("rho"), scale: 1.0, normalized: false, slab_voxels: 24 * 16 * 5 };
+    let mut cpu = CpuBackend::new();
+    let summary = write_decoded_series(&s, &out, &opts, &mut cpu).unwrap();
+    let names: Vec<String> = summary.pieces.iter().map(|p| p.path()).collect();
+    assert_eq!(names, ["/rho/4/global", "/rho/6/rank_0", "/rho/6/rank_1", "/rho/8/rank_0"]);
+    assert_eq!(summary.unblended.len(), 1);
+    assert!(summary.unblended[0].0 == 8 && summary.unblended[0].1.contains("names rank 1"), "{:?}", summary.unblended);
+    // The global grid is the blend, on the global lattice.
+    let g = GlobalField::of_step(index.clone(), pieces).unwrap();
+    let range = g.merged().meta.range;
+    let want = g.decode(&mut cpu, index.dims, IndexBox::whole(index.dims), false, &|v| range.denormalize(v) as f32).unwrap();
+    let (shape, got) = read_f32_dataset(&out, "/rho/4/global");
+    assert_eq!(shape, [12, 16, 24]);
+    assert_eq!(got, want);
+    let xdmf = std::fs::read_to_string(xdmf_path(&out)).unwrap();
+    assert!(xdmf.contains("<Grid Name=\"global\"") && xdmf.contains("series.h5:/rho/4/global</DataItem>"), "{xdmf}");
+    assert_eq!(xdmf.matches("<Grid Name=\"rank_").count(), 3);
+}

@@ -1,13 +1,16 @@
 //! A decoded time series for viewing (cargo feature `hdf5`): every model of
 //! one field of a store decoded to a float32 grid in one HDF5 file, plus an
 //! XDMF file beside it that ParaView (XDMF reader) or VisIt open as a time
-//! series, one uniform grid per rank. `docs/FORMAT.md` describes both.
+//! series, one uniform grid per rank; a decomposed step whose index the
+//! store holds is one grid, its global field (the pieces blended across
+//! their halos). `docs/FORMAT.md` describes both.
 
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::io::atomic::{write_atomic, Replacement};
+use crate::domain::global::GlobalField;
 use crate::io::store::{EntryKey, Store};
-use crate::field::IndexBox;
+use crate::field::{IndexBox, ValueRange};
 use crate::model::Model;
 use hdf5::File;
 use std::fmt::Write as _;
@@ -24,15 +27,31 @@ pub struct SeriesOptions<'a> {
     pub slab_voxels: usize,
 }
 
-/// One decoded grid of the series.
+/// One decoded grid of the series: one rank's model, or a step's global
+/// field.
 #[derive(Clone, Debug)]
 pub struct Piece {
+    /// The entry (rank 0's, for a global field).
     pub key: EntryKey,
+    /// The step's pieces blended by its index, `/<field>/<step>/global`.
+    pub global: bool,
     pub time: Option<f64>,
     pub dims: [usize; 3],
     /// World position of voxel (0, 0, 0)'s centre, and voxel size, x first.
     pub origin: [f64; 3],
     pub spacing: [f64; 3],
+}
+
+impl Piece {
+    /// The grid's name in its step: `rank_<r>`, or `global`.
+    pub fn name(&self) -> String {
+        if self.global { "global".into() } else { format!("rank_{}", self.key.rank) }
+    }
+
+    /// Its dataset in the decoded file: `/<field>/<step>/<name>`.
+    pub fn path(&self) -> String {
+        format!("/{}/{}/{}", self.key.field, self.key.step, self.name())
+    }
 }
 
 /// What [`write_decoded_series`] wrote.
@@ -42,6 +61,9 @@ pub struct SeriesSummary {
     pub pieces: Vec<Piece>,
     /// Entries that could not be read (an append cut short), with why.
     pub skipped: Vec<(EntryKey, String)>,
+    /// Steps with an index that could not be blended (a rank cut short),
+    /// decoded rank by rank instead, with why.
+    pub unblended: Vec<(u64, String)>,
     pub voxels: usize,
     pub xdmf: PathBuf,
 }
@@ -52,8 +74,9 @@ pub fn xdmf_path(h5: &Path) -> PathBuf {
 }
 
 /// Decodes every readable model of one field of `store` into `out_h5`
-/// (`/<field>/<step>/rank_<r>`, float32, z slowest) and writes the XDMF
-/// beside it. Both files appear whole or not at all.
+/// (`/<field>/<step>/rank_<r>`, float32, z slowest; a step with its index,
+/// `/<field>/<step>/global`) and writes the XDMF beside it. Both files
+/// appear whole or not at all.
 pub fn write_decoded_series(
     store: &Store,
     out_h5: &Path,
@@ -74,13 +97,39 @@ pub fn write_decoded_series(
         (None, many) => return Err(Error::arg(format!("the store holds several fields {many:?}; choose one"))),
     };
     let mut pieces = Vec::new();
-    let mut skipped = Vec::new();
+    let (mut skipped, mut unblended) = (Vec::new(), Vec::new());
     let mut voxels = 0;
     let out = Replacement::new(out_h5)?;
     let h5err = |e: hdf5::Error| Error::Hdf5 { path: out_h5.display().to_string(), message: e.to_string() };
     let written = (|| -> Result<()> {
         let file = File::create(&out.tmp).map_err(h5err)?;
+        // The step of the entry before, and whether it was blended whole.
+        let mut last: Option<(u64, bool)> = None;
         for e in entries.iter().filter(|e| e.key.field == field) {
+            let step = e.key.step;
+            match last {
+                Some((s, true)) if s == step => continue,
+                Some((s, false)) if s == step => {}
+                // A step's first entry: its global field, where it has an index.
+                _ => {
+                    let global = store.step_index(&field, step).and_then(|index| match index {
+                        Some(_) => store.read_step(&field, step).and_then(|(index, models)| GlobalField::of_step(index, models)).map(Some),
+                        None => Ok(None),
+                    });
+                    last = Some((step, false));
+                    match global {
+                        Ok(Some(g)) => {
+                            let piece = decode_global(&file, &g, &e.key, opts, backend)?;
+                            voxels += piece.dims.iter().product::<usize>();
+                            pieces.push(piece);
+                            last = Some((step, true));
+                            continue;
+                        }
+                        Ok(None) => {}
+                        Err(why) => unblended.push((step, why.to_string())),
+                    }
+                }
+            }
             if let Err(why) = &e.content {
                 skipped.push((e.key.clone(), why.to_string()));
                 continue;
@@ -106,26 +155,43 @@ pub fn write_decoded_series(
     let h5_name = out_h5.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let xdmf = xdmf_path(out_h5);
     write_atomic(&xdmf, xdmf_text(&field, &h5_name, &pieces).as_bytes())?;
-    Ok(SeriesSummary { field, pieces, skipped, voxels, xdmf })
+    Ok(SeriesSummary { field, pieces, skipped, unblended, voxels, xdmf })
 }
 
 fn decode_piece(out: &File, model: &Model, key: &EntryKey, opts: &SeriesOptions, backend: &mut dyn Backend) -> Result<Piece> {
+    write_grid(out, model, key, false, opts, &mut |dims, sink| model.decode_streaming(backend, dims, IndexBox::whole(dims), opts.slab_voxels, sink))
+}
+
+/// A step's global field, its pieces blended, on its global lattice.
+fn decode_global(out: &File, global: &GlobalField, key: &EntryKey, opts: &SeriesOptions, backend: &mut dyn Backend) -> Result<Piece> {
+    write_grid(out, global.merged(), key, true, opts, &mut |dims, sink| {
+        global.decode_streaming(backend, dims, IndexBox::whole(dims), false, opts.slab_voxels, sink)
+    })
+}
+
+/// Decodes the lattice of `model`'s box (its dims times the scale) by
+/// `decode` into the grid's dataset ([`Piece::path`]), in slabs.
+fn write_grid(
+    out: &File,
+    model: &Model,
+    key: &EntryKey,
+    global: bool,
+    opts: &SeriesOptions,
+    decode: &mut dyn FnMut([usize; 3], &mut dyn FnMut(&[f32]) -> Result<()>) -> Result<()>,
+) -> Result<Piece> {
     let f = &model.meta.frame;
     let dims = f.dims.map(|d| ((d as f64 * opts.scale).round() as usize).max(1));
     // A lattice the decode refuses is refused before HDF5 is asked for it.
     model.lattice_dims(Some(dims))?;
     let spacing = [0, 1, 2].map(|a| f.dims[a] as f64 / dims[a] as f64 / f.gamma);
     let origin = [0, 1, 2].map(|a| f.bmin[a] + 0.5 * spacing[a]);
+    let piece = Piece { key: key.clone(), global, time: model.meta.time, dims, origin, spacing };
     let h5err = |e: hdf5::Error| Error::Hdf5 { path: out.filename(), message: e.to_string() };
-    let ds = out
-        .new_dataset::<f32>()
-        .shape((dims[2], dims[1], dims[0]))
-        .create(key.path().as_str())
-        .map_err(h5err)?;
-    let range = model.meta.range;
+    let ds = out.new_dataset::<f32>().shape((dims[2], dims[1], dims[0])).create(piece.path().as_str()).map_err(h5err)?;
+    let range: ValueRange = model.meta.range;
     let mut z = 0;
     let mut values = Vec::new();
-    model.decode_streaming(backend, dims, IndexBox::whole(dims), opts.slab_voxels, &mut |slab| {
+    decode(dims, &mut |slab| {
         let layers = slab.len() / (dims[0] * dims[1]);
         values.clear();
         values.extend(slab.iter().map(|&v| if opts.normalized { v } else { range.denormalize(v) as f32 }));
@@ -139,7 +205,7 @@ fn decode_piece(out: &File, model: &Model, key: &EntryKey, opts: &SeriesOptions,
     attr("origin", &origin).map_err(h5err)?;
     attr("spacing", &spacing).map_err(h5err)?;
     attr("time", &[model.meta.time.unwrap_or(f64::NAN)]).map_err(h5err)?;
-    Ok(Piece { key: key.clone(), time: model.meta.time, dims, origin, spacing })
+    Ok(piece)
 }
 
 fn xml_escape(s: &str) -> String {
@@ -162,7 +228,7 @@ pub fn xdmf_text(field: &str, h5_name: &str, pieces: &[Piece]) -> String {
         let _ = writeln!(s, "    <Time Value=\"{time:e}\"/>");
         for p in &pieces[i..j] {
             let [nx, ny, nz] = p.dims;
-            let _ = writeln!(s, "    <Grid Name=\"rank_{}\" GridType=\"Uniform\">", p.key.rank);
+            let _ = writeln!(s, "    <Grid Name=\"{}\" GridType=\"Uniform\">", p.name());
             let _ = writeln!(s, "     <Topology TopologyType=\"3DCoRectMesh\" Dimensions=\"{nz} {ny} {nx}\"/>");
             s.push_str("     <Geometry GeometryType=\"ORIGIN_DXDYDZ\">\n");
             let _ = writeln!(
@@ -181,7 +247,7 @@ pub fn xdmf_text(field: &str, h5_name: &str, pieces: &[Piece]) -> String {
                 s,
                 "      <DataItem Dimensions=\"{nz} {ny} {nx}\" NumberType=\"Float\" Precision=\"4\" Format=\"HDF\">{}:{}</DataItem>",
                 xml_escape(h5_name),
-                xml_escape(&p.key.path())
+                xml_escape(&p.path())
             );
             s.push_str("     </Attribute>\n    </Grid>\n");
         }
