@@ -344,11 +344,23 @@ mod imp {
                 Err(why) => json!({ "entry": e.key.path(), "error": why.to_string() }),
             })
             .collect();
+        // The steps that hold a step index (1.3): their ranks blend into one field.
+        let mut steps: Vec<(&str, u64)> = entries.iter().map(|e| (e.key.field.as_str(), e.key.step)).collect();
+        steps.dedup();
+        let mut indexed = Vec::new();
+        for (field, step) in steps {
+            if let Some(index) = store.step_index(field, step)? {
+                indexed.push(json!({ "step": format!("/{field}/{step}"), "ranks": index.ranks, "halo": index.halo, "dims": index.dims }));
+            }
+        }
         if json_out {
-            println!("{}", json!({ "format": "gsenc HDF5 store", "bytes": bytes, "entries": list }));
+            println!("{}", json!({ "format": "gsenc HDF5 store", "bytes": bytes, "entries": list, "step_indexes": indexed }));
             return Ok(());
         }
         println!("{}: gsenc HDF5 store, {} entries, {bytes} bytes", path.display(), entries.len());
+        for i in &indexed {
+            println!("  {:<32} step index: {} ranks, halo {}, global dims {}", i["step"].as_str().unwrap_or(""), i["ranks"], i["halo"], i["dims"]);
+        }
         for e in &entries {
             match &e.content {
                 Ok(i) => println!(

@@ -184,6 +184,13 @@ fn an_mpi_runs_folder_keeps_its_step_indexes() {
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["added"], serde_json::json!(["/rho/4/rank_0", "/rho/4/rank_1", "/rho/5/rank_0", "/rho/5/rank_1"]));
     assert_eq!(v["step_indexes"], serde_json::json!(["/rho/4/index", "/rho/5/index"]));
+    let info = Command::new(gsenc_bin()).args(["info", "--json"]).arg(&store).output().unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    assert_eq!(v["step_indexes"], serde_json::json!([
+        { "step": "/rho/4", "ranks": 2, "halo": 2, "dims": [24, 16, 12] },
+        { "step": "/rho/5", "ranks": 2, "halo": 2, "dims": [24, 16, 12] }
+    ]));
+    assert_eq!(v["entries"].as_array().unwrap().len(), 4);
     let s = Store::open_read(&store).unwrap();
     for (index, pieces) in &steps {
         let (back, models) = s.read_step("rho", index.step).unwrap();
