@@ -15,7 +15,8 @@ pub enum StoreCommand {
     /// as /<field>/<step>/index; an entry that exists is refused. A folder
     /// adds every .gsm and .gsi file in it (a run's output folder).
     Add(StoreAddArgs),
-    /// Copy one model of a store out to a model file.
+    /// Copy one model of a store out to a model file, or a step with its
+    /// step index (FIELD/STEP) to a folder: FIELD_STEP.gsi and its ranks' models.
     Extract(StoreExtractArgs),
 }
 
@@ -35,9 +36,9 @@ pub struct StoreAddArgs {
 #[derive(Args)]
 pub struct StoreExtractArgs {
     store: PathBuf,
-    /// FIELD/STEP/RANK of the model.
+    /// FIELD/STEP/RANK of the model, or FIELD/STEP of a step with its index.
     entry: String,
-    /// Output model file (`-`: standard output).
+    /// Output model file (`-`: standard output); for a step, a folder (made when missing).
     #[arg(short, long)]
     output: PathBuf,
     /// Payload of the output (default: the one it is stored with).
@@ -258,21 +259,46 @@ mod imp {
     }
 
     /// `FIELD/STEP/RANK`, also as `/FIELD/STEP/rank_RANK`.
-    fn parse_entry(s: &str) -> Result<EntryKey> {
-        let bad = || Error::arg(format!("entry '{s}' is not FIELD/STEP/RANK"));
-        let mut it = s.trim_start_matches('/').rsplitn(3, '/');
-        let rank = it.next().ok_or_else(bad)?;
-        let rank = rank.strip_prefix("rank_").unwrap_or(rank).parse().map_err(|_| bad())?;
-        let step = it.next().ok_or_else(bad)?.parse().map_err(|_| bad())?;
-        let field = it.next().ok_or_else(bad)?.to_owned();
-        Ok(EntryKey { field, step, rank })
+    /// `FIELD/STEP/RANK` (also `/FIELD/STEP/rank_RANK`): an entry;
+    /// `FIELD/STEP`: a step. Field names hold no '/'.
+    fn parse_entry(s: &str) -> Result<(String, u64, Option<u32>)> {
+        let bad = || Error::arg(format!("entry '{s}' is not FIELD/STEP/RANK (a model) or FIELD/STEP (a step with its index)"));
+        let parts: Vec<&str> = s.trim_start_matches('/').split('/').collect();
+        let (field, step, rank) = match parts[..] {
+            [f, s] => (f, s, None),
+            [f, s, r] => (f, s, Some(r)),
+            _ => return Err(bad()),
+        };
+        let rank = rank.map(|r| r.strip_prefix("rank_").unwrap_or(r).parse().map_err(|_| bad())).transpose()?;
+        Ok((field.to_owned(), step.parse().map_err(|_| bad())?, rank))
     }
 
     fn extract(a: StoreExtractArgs) -> Result<()> {
         let store = Store::open_read(&a.store)?;
-        let (model, stored) = store.read(&parse_entry(&a.entry)?)?;
+        let (field, step, rank) = parse_entry(&a.entry)?;
+        let Some(rank) = rank else { return extract_step(&store, &field, step, &a) };
+        let (model, stored) = store.read(&EntryKey { field, step, rank })?;
         let payload = a.payload.unwrap_or(stored);
         write_output(&a.output, &format::write_model_as(&model, payload)?)
+    }
+
+    /// A step with its index, out to the folder `a.output` as the MPI
+    /// encoder writes it: each rank's model file and the step index that
+    /// names them, which `gsenc decode` reads as the global field.
+    fn extract_step(store: &Store, field: &str, step: u64, a: &StoreExtractArgs) -> Result<()> {
+        if a.output == Path::new("-") {
+            return Err(Error::arg("a step is extracted to a folder (its index and each rank's model), not to standard output"));
+        }
+        let (mut index, models) = store.read_step(field, step)?;
+        std::fs::create_dir_all(&a.output).map_err(|e| Error::io(&a.output, e))?;
+        for (piece, model) in index.pieces.iter_mut().zip(&models) {
+            piece.model = format::model_file_name(field, step, piece.rank);
+            let stored = store.info(&EntryKey::of(&model.meta))?.payload;
+            let bytes = format::write_model_as(model, a.payload.unwrap_or(stored))?;
+            gsenc::io::write_atomic(a.output.join(&piece.model), &bytes)?;
+        }
+        // The index last: it names only models already written.
+        gsenc::io::write_atomic(a.output.join(format::step_index_file_name(field, step)), index.to_json().as_bytes())
     }
 
     pub fn decode_series(a: DecodeSeriesArgs) -> Result<()> {

@@ -198,6 +198,24 @@ fn an_mpi_runs_folder_keeps_its_step_indexes() {
         assert_eq!((back.halo, back.dims, back.bmin), (index.halo, index.dims, index.bmin));
     }
     drop(s);
+    // A step extracted to a folder decodes as the run's own .gsi does.
+    let out = dir.join("out");
+    let extract = |entry: &str, to: &std::path::Path| Command::new(gsenc_bin()).args(["store", "extract"]).arg(&store).arg(entry).arg("-o").arg(to).output().unwrap();
+    let done = extract("rho/4", &out);
+    assert!(done.status.success(), "{}", String::from_utf8_lossy(&done.stderr));
+    let mut files: Vec<String> = std::fs::read_dir(&out).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    files.sort();
+    assert_eq!(files, ["rho_000004.gsi", "rho_000004.gsm", "rho_000004_r1.gsm"]);
+    let decode = |gsi: std::path::PathBuf, raw: &str| {
+        let d = Command::new(gsenc_bin()).args(["decode", "--backend", "cpu"]).arg(&gsi).arg("-o").arg(dir.join(raw)).output().unwrap();
+        assert!(d.status.success(), "{}", String::from_utf8_lossy(&d.stderr));
+        std::fs::read(dir.join(raw)).unwrap()
+    };
+    assert_eq!(decode(out.join("rho_000004.gsi"), "a.raw"), decode(run.join("rho_000004.gsi"), "b.raw"));
+    let refused = extract("rho/4", std::path::Path::new("-"));
+    assert!(!refused.status.success() && String::from_utf8_lossy(&refused.stderr).contains("to a folder"));
+    let refused = extract("rho/9", &dir.join("none"));
+    assert!(!refused.status.success() && String::from_utf8_lossy(&refused.stderr).contains("holds no step index of /rho/9"));
     // An index given alone brings its models; one whose models the store
     // holds adds the index only; one the store holds is refused.
     let one = dir.join("one.h5");

@@ -257,15 +257,21 @@ impl Store {
 
     /// Reads one model and the payload it was stored with.
     pub fn read(&self, key: &EntryKey) -> Result<(Model, Payload)> {
-        let g = self
-            .file
-            .group(&key.path())
-            .map_err(|_| Error::arg(format!("{} holds no model {}", self.path.display(), key.path())))?;
+        let g = self.entry_group(key)?;
         let budget = super::budget::whole_read_budget(1)?;
         let info = read_info(&g, key, &self.path, budget)?;
         let (params, precision) = read_params(&g, &info, &self.path, budget)?;
         let support = read_support(&g, &info, &self.path, budget)?;
         Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
+    }
+
+    /// One entry's metadata and payload, without its parameters.
+    pub fn info(&self, key: &EntryKey) -> Result<EntryInfo> {
+        read_info(&self.entry_group(key)?, key, &self.path, super::budget::whole_read_budget(1)?)
+    }
+
+    fn entry_group(&self, key: &EntryKey) -> Result<Group> {
+        self.file.group(&key.path()).map_err(|_| Error::arg(format!("{} holds no model {}", self.path.display(), key.path())))
     }
 
     /// The step index of `/<field>/<step>`, where the step has one (1.3).
