@@ -257,9 +257,19 @@ fn a_corrupted_global_heap_is_refused_before_hdf5_reads_it() {
 #[test]
 fn stores_with_random_bytes_changed_give_errors_not_crashes() {
     let _serial = common::hdf5_serial();
-    let (dir, sound) = sound_store("corrupt", &[("rho", 0, Payload::ALL[0]), ("rho", 1, Payload::ALL[1]), ("temp", 0, Payload::ALL[0])]);
+    let (dir, _) = sound_store("corrupt", &[("rho", 0, Payload::ALL[0]), ("rho", 1, Payload::ALL[1]), ("temp", 0, Payload::ALL[0])]);
+    // And a decomposed step with its index (layout 1.3), read through it.
+    {
+        let mut s = Store::open_append(dir.join("s.h5")).unwrap();
+        let (index, pieces) = common::decomposed_step("rho", 4);
+        for m in &pieces {
+            s.append(m, Payload::Float32).unwrap();
+        }
+        s.append_step_index(&index).unwrap();
+    }
+    let sound = std::fs::read(dir.join("s.h5")).unwrap();
     let mut rng = gsenc::math::rng::Rng::new(17);
-    let (mut refused, mut read) = (0, 0);
+    let (mut refused, mut read, mut steps) = (0, 0, 0);
     for _ in 0..1500 {
         let mut bad = sound.clone();
         for _ in 0..1 + rng.below(3) {
@@ -275,11 +285,12 @@ fn stores_with_random_bytes_changed_give_errors_not_crashes() {
                 for e in s.entries().unwrap_or_default() {
                     read += s.read(&e.key).is_ok() as usize;
                 }
+                steps += s.read_step("rho", 4).is_ok() as usize;
             }
         }
     }
-    eprintln!("1500 corrupted stores: {refused} refused at open, {read} entries read");
-    assert!(refused > 0 && read > 0, "the corruptions should both be refused and leave entries readable");
+    eprintln!("1500 corrupted stores: {refused} refused at open, {read} entries read, {steps} indexed steps read");
+    assert!(refused > 0 && read > 0 && steps > 0, "the corruptions should both be refused and leave entries readable");
 }
 
 /// h5dump, from HDF5's own tools, reads the store without gsenc.
@@ -400,6 +411,15 @@ fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_w
     assert!(s.step_index("temp", 4).unwrap().is_none());
     assert!(matches!(s.read_step("rho", 5), Err(Error::InvalidArgument(_))));
     drop(s);
+    // A changed byte of the index fails its checksum (the halo 2 made 3
+    // would read, and blend the step otherwise).
+    let mut bytes = std::fs::read(&path).unwrap();
+    let at = bytes.windows(10).position(|w| w == b"\"halo\": 2,").expect("the index is stored as its text");
+    bytes[at + 8] = b'3';
+    let changed = dir.join("changed.h5");
+    std::fs::write(&changed, &bytes).unwrap();
+    let e = Store::open_read(&changed).unwrap().read_step("rho", 4).unwrap_err();
+    assert!(matches!(e, Error::Format(_)) && e.to_string().contains("dataset index"), "{e}");
     // An index whose rank the store lacks, or whose box is not its model's.
     {
         let mut s = Store::open_append(&path).unwrap();

@@ -170,7 +170,9 @@ impl Store {
         if groups.1.as_ref().is_some_and(|s| s.link_exists(INDEX)) {
             return Err(Error::arg(format!("/{}/{} already holds a step index; a store never rewrites a step", index.field, index.step)));
         }
-        let ds = self.file.new_dataset::<u8>().shape(text.len()).create(None).map_err(h5(&self.path))?;
+        // With HDF5's Fletcher-32 checksum: a changed byte of an index would
+        // otherwise blend the step otherwise, unseen.
+        let ds = self.file.new_dataset::<u8>().shape(text.len()).chunk(text.len()).fletcher32().create(None).map_err(h5(&self.path))?;
         ds.write_raw(text.as_bytes()).map_err(h5(&self.path))?;
         self.commit(groups, &index.field, index.step, index.time, INDEX, &ds)
     }
