@@ -165,16 +165,17 @@ mod imp {
             }
         }
         let mut indexes = Vec::new();
+        // The model files listed so far, each once (by where it is).
+        let mut listed: std::collections::BTreeSet<PathBuf> = models.iter().map(|m| same_file(m)).collect();
         for p in index_paths {
             let index = read_step_index(&p)?;
             // The index's models, named relative to it, come with it,
             // unless the store holds them.
             let dir = p.parent().unwrap_or(Path::new("."));
-            let listed: std::collections::BTreeSet<PathBuf> = models.iter().map(|m| same_file(m)).collect();
             for piece in &index.pieces {
                 let m = dir.join(&piece.model);
                 let key = EntryKey { field: index.field.clone(), step: index.step, rank: piece.rank };
-                if m.exists() && !listed.contains(&same_file(&m)) && !held_keys.contains(&key) {
+                if m.exists() && !held_keys.contains(&key) && listed.insert(same_file(&m)) {
                     models.push(m);
                 }
             }
@@ -289,12 +290,14 @@ mod imp {
         if a.output == Path::new("-") {
             return Err(Error::arg("a step is extracted to a folder (its index and each rank's model), not to standard output"));
         }
-        let (mut index, models) = store.read_step(field, step)?;
+        let mut index = store
+            .step_index(field, step)?
+            .ok_or_else(|| Error::arg(format!("{} holds no step index of /{field}/{step}", a.store.display())))?;
+        let pieces = store.pieces_of(&index)?;
         std::fs::create_dir_all(&a.output).map_err(|e| Error::io(&a.output, e))?;
-        for (piece, model) in index.pieces.iter_mut().zip(&models) {
+        for (piece, (model, stored)) in index.pieces.iter_mut().zip(&pieces) {
             piece.model = format::model_file_name(field, step, piece.rank);
-            let stored = store.info(&EntryKey::of(&model.meta))?.payload;
-            let bytes = format::write_model_as(model, a.payload.unwrap_or(stored))?;
+            let bytes = format::write_model_as(model, a.payload.unwrap_or(*stored))?;
             gsenc::io::write_atomic(a.output.join(&piece.model), &bytes)?;
         }
         // The index last: it names only models already written.

@@ -96,13 +96,13 @@ fn read_chosen(store: &H5Store, chosen: Chosen) -> PyResult<Model> {
             Ok(in_memory(model, payload, psnr, "gsenc store entry"))
         }
         Chosen::Step(field, step) => {
-            if store.step_index(&field, step).py_err()?.is_none() {
+            let Some(index) = store.step_index(&field, step).py_err()? else {
                 return Err(PyValueError::new_err(format!(
                     "{}: /{field}/{step} holds several ranks and no step index to blend them (store add the run's .gsi files): give rank",
                     store.path().display()
                 )));
-            }
-            let (index, pieces) = store.read_step(&field, step).py_err()?;
+            };
+            let pieces = store.pieces_of(&index).py_err()?.into_iter().map(|(m, _)| m).collect();
             of_step(GlobalField::of_step(index, pieces).py_err()?).py_err()
         }
     }

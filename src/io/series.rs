@@ -9,7 +9,7 @@ use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::io::atomic::{write_atomic, Replacement};
 use crate::domain::global::GlobalField;
-use crate::io::store::{EntryKey, Store};
+use crate::io::store::{Entry, EntryKey, Store};
 use crate::field::{IndexBox, ValueRange};
 use crate::model::Model;
 use hdf5::File;
@@ -103,47 +103,44 @@ pub fn write_decoded_series(
     let h5err = |e: hdf5::Error| Error::Hdf5 { path: out_h5.display().to_string(), message: e.to_string() };
     let written = (|| -> Result<()> {
         let file = File::create(&out.tmp).map_err(h5err)?;
-        // The step of the entry before, and whether it was blended whole.
-        let mut last: Option<(u64, bool)> = None;
-        for e in entries.iter().filter(|e| e.key.field == field) {
-            let step = e.key.step;
-            match last {
-                Some((s, true)) if s == step => continue,
-                Some((s, false)) if s == step => {}
-                // A step's first entry: its global field, where it has an index.
-                _ => {
-                    let global = store.step_index(&field, step).and_then(|index| match index {
-                        Some(_) => store.read_step(&field, step).and_then(|(index, models)| GlobalField::of_step(index, models)).map(Some),
-                        None => Ok(None),
-                    });
-                    last = Some((step, false));
-                    match global {
-                        Ok(Some(g)) => {
-                            let piece = decode_global(&file, &g, &e.key, opts, backend)?;
-                            voxels += piece.dims.iter().product::<usize>();
-                            pieces.push(piece);
-                            last = Some((step, true));
-                            continue;
-                        }
-                        Ok(None) => {}
-                        Err(why) => unblended.push((step, why.to_string())),
-                    }
+        let of_field: Vec<&Entry> = entries.iter().filter(|e| e.key.field == field).collect();
+        // Entries are sorted: each run of one step's ranks, in turn.
+        for step_entries in of_field.chunk_by(|a, b| a.key.step == b.key.step) {
+            let first = &step_entries[0].key;
+            // The step's global field, where it has an index.
+            let global = store.step_index(&field, first.step).and_then(|index| match index {
+                Some(index) => {
+                    let models = store.pieces_of(&index)?.into_iter().map(|(m, _)| m).collect();
+                    GlobalField::of_step(index, models).map(Some)
                 }
+                None => Ok(None),
+            });
+            match global {
+                Ok(Some(g)) => {
+                    let piece = decode_global(&file, &g, first, opts, backend)?;
+                    voxels += piece.dims.iter().product::<usize>();
+                    pieces.push(piece);
+                    continue;
+                }
+                Ok(None) => {}
+                Err(why) => unblended.push((first.step, why.to_string())),
             }
-            if let Err(why) = &e.content {
-                skipped.push((e.key.clone(), why.to_string()));
-                continue;
-            }
-            let model = match store.read(&e.key) {
-                Ok((m, _)) => m,
-                Err(why) => {
+            for e in step_entries {
+                if let Err(why) = &e.content {
                     skipped.push((e.key.clone(), why.to_string()));
                     continue;
                 }
-            };
-            let piece = decode_piece(&file, &model, &e.key, opts, backend)?;
-            voxels += piece.dims.iter().product::<usize>();
-            pieces.push(piece);
+                let model = match store.read(&e.key) {
+                    Ok((m, _)) => m,
+                    Err(why) => {
+                        skipped.push((e.key.clone(), why.to_string()));
+                        continue;
+                    }
+                };
+                let piece = decode_piece(&file, &model, &e.key, opts, backend)?;
+                voxels += piece.dims.iter().product::<usize>();
+                pieces.push(piece);
+            }
         }
         file.close().map_err(h5err)
     })();

@@ -267,11 +267,6 @@ impl Store {
         Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
     }
 
-    /// One entry's metadata and payload, without its parameters.
-    pub fn info(&self, key: &EntryKey) -> Result<EntryInfo> {
-        read_info(&self.entry_group(key)?, key, &self.path, super::budget::whole_read_budget(1)?)
-    }
-
     fn entry_group(&self, key: &EntryKey) -> Result<Group> {
         self.file.group(&key.path()).map_err(|_| Error::arg(format!("{} holds no model {}", self.path.display(), key.path())))
     }
@@ -301,17 +296,26 @@ impl Store {
         let index = self
             .step_index(field, step)?
             .ok_or_else(|| Error::arg(format!("{} holds no step index of /{field}/{step} (a step of one rank's model, or its index was not added)", self.path.display())))?;
+        let models = self.pieces_of(&index)?.into_iter().map(|(m, _)| m).collect();
+        Ok((index, models))
+    }
+
+    /// The pieces `index` (this store's index of its step) names, each
+    /// rank's model with its payload, in rank order, each checked to be the
+    /// piece the index names.
+    pub fn pieces_of(&self, index: &StepIndex) -> Result<Vec<(Model, Payload)>> {
+        let (field, step) = (&index.field, index.step);
         let sg = self.groups(field, step)?.1;
-        let mut models = Vec::with_capacity(index.pieces.len());
+        let mut pieces = Vec::with_capacity(index.pieces.len());
         for p in &index.pieces {
-            let key = EntryKey { field: field.to_string(), step, rank: p.rank };
+            let key = EntryKey { field: field.clone(), step, rank: p.rank };
             if sg.as_ref().is_none_or(|sg| !sg.link_exists(&format!("rank_{}", p.rank))) {
                 return Err(Error::data(format!("the step index of /{field}/{step} names rank {}, whose model {} the store does not hold", p.rank, key.path())));
             }
-            models.push(self.read(&key)?.0);
+            pieces.push(self.read(&key)?);
         }
-        index.check_pieces(&models)?;
-        Ok((index, models))
+        index.check_piece_metas(&pieces.iter().map(|(m, _)| &m.meta).collect::<Vec<_>>())?;
+        Ok(pieces)
     }
 }
 
