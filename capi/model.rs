@@ -229,10 +229,12 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 
 /// Evaluates the model at `count` world points (`points`: x, y, z per
 /// point, interleaved) into `out` (`count` floats, data units, with the
-/// model's support), both owned by the caller. On the CPU: a few points do
-/// not pay for opening a GPU. Runs in runs of 65,536 points, so that it
-/// holds about a megabyte besides the caller's arrays however many points
-/// there are. Thread-safe, also on one model.
+/// model's support), both owned by the caller. A point's value is the same
+/// bits whatever other points the call holds, in whatever order, and on
+/// any thread count. On the CPU: a few points do not pay for opening a
+/// GPU. Runs in runs of 65,536 points, so that it holds about a megabyte
+/// besides the caller's arrays however many points there are. Thread-safe,
+/// also on one model.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
     guard(|| {

@@ -858,10 +858,12 @@ gsenc_status gsenc_model_decode(const gsenc_model *model,
 /*
  Evaluates the model at `count` world points (`points`: x, y, z per
  point, interleaved) into `out` (`count` floats, data units, with the
- model's support), both owned by the caller. On the CPU: a few points do
- not pay for opening a GPU. Runs in runs of 65,536 points, so that it
- holds about a megabyte besides the caller's arrays however many points
- there are. Thread-safe, also on one model.
+ model's support), both owned by the caller. A point's value is the same
+ bits whatever other points the call holds, in whatever order, and on
+ any thread count. On the CPU: a few points do not pay for opening a
+ GPU. Runs in runs of 65,536 points, so that it holds about a megabyte
+ besides the caller's arrays however many points there are. Thread-safe,
+ also on one model.
  */
 gsenc_status gsenc_model_evaluate(const gsenc_model *model,
                                   const double *points,

@@ -105,28 +105,55 @@ fn bad_boxes_and_sink_errors_are_reported() {
     assert!(e.to_string().contains("disk full"));
 }
 
-/// Evaluating at points runs in runs of `EVALUATE_RUN` points: over several
-/// runs (and points outside the box), the values are the backend's one call
-/// over all the points to within float rounding (the backend bins the
-/// points it is given, and the sums of a point follow its bin), every point
-/// written, and at voxel centres they are the decode's.
+/// A point's value is its own, to the bit: evaluated over several runs of
+/// `EVALUATE_RUN` points (and points outside the box), alone, in reverse
+/// order, and on one thread or three, each point gets the same bits. The
+/// values are the mixture summed directly over every primitive
+/// (`Frame::kernel`, an independent computation) to within float rounding,
+/// and at voxel centres they are the decode's.
 #[test]
-fn evaluating_in_runs_gives_the_one_call_and_the_decode() {
-    use gsenc::backend::Backend;
+fn a_point_evaluates_to_the_same_bits_whatever_is_asked_beside_it() {
+    use gsenc::math::kernel::Frame;
     use gsenc::model::EVALUATE_RUN;
     let m = model();
     let mut rng = Rng::new(3);
     let n = 2 * EVALUATE_RUN + 123;
     let points: Vec<[f64; 3]> = (0..n).map(|_| [rng.range(-3.0, 27.0), rng.range(-3.0, 23.0), rng.range(-3.0, 19.0)]).collect();
-    let got = m.evaluate(&mut CpuBackend::new(), &points).unwrap();
+    let on = |threads: usize, points: &[[f64; 3]]| {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+        pool.install(|| m.evaluate(&mut CpuBackend::new(), points).unwrap())
+    };
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    let got = on(3, &points);
+    assert_eq!(bits(&on(1, &points)), bits(&got), "one thread and three differ");
+    let reversed: Vec<[f64; 3]> = points.iter().rev().copied().collect();
+    let mut back = on(2, &reversed);
+    back.reverse();
+    assert_eq!(bits(&back), bits(&got), "the points in reverse order differ");
+    // Each alone (every 257th point: a few hundred calls of one point).
+    for i in (0..n).step_by(257) {
+        let alone = m.evaluate(&mut CpuBackend::new(), &points[i..=i]).unwrap();
+        assert_eq!(alone[0].to_bits(), got[i].to_bits(), "point {i} alone: {} among the others: {}", alone[0], got[i]);
+    }
+    // The mixture summed directly over every primitive.
     let f = &m.meta.frame;
-    let index: Vec<[f32; 3]> = points.iter().map(|p| std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32)).collect();
-    let (mut rho, mut num) = (vec![0.0; n], vec![0.0; n]);
-    CpuBackend::new().evaluate_points(&m.params, &index, &mut rho, &mut num).unwrap();
-    let once: Vec<f32> = (0..n).map(|i| m.value_at(index[i], rho[i], num[i])).collect();
-    assert_close(&got, &once);
-    let differ = got.iter().zip(&once).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
-    assert!(differ < n / 100, "{differ} of {n} points differ from one call in their last bits");
+    let frames: Vec<Frame> = m.params.iter().map(Frame::new).collect();
+    let direct: Vec<f32> = points
+        .iter()
+        .map(|p| {
+            let u: [f32; 3] = std::array::from_fn(|a| ((p[a] - f.bmin[a]) * f.gamma - 0.5) as f32);
+            let (mut rho, mut num) = (0f32, 0f32);
+            for fr in &frames {
+                if let Some((k, _)) = fr.kernel(u) {
+                    rho += fr.w * k;
+                    num += fr.w * k * fr.s;
+                }
+            }
+            m.value_at(u, rho, num)
+        })
+        .collect();
+    assert_close(&got, &direct);
+    assert!(got.iter().filter(|&&v| v > 0.1).count() > n / 10, "the test model must not evaluate to zero");
 
     let dims = m.meta.frame.dims;
     let decoded = m.decode(&mut CpuBackend::new(), Some(dims)).unwrap().values;

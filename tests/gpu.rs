@@ -101,6 +101,28 @@ fn forward_values_match_the_cpu_backend() {
     }
 }
 
+/// `evaluate_each` (what `Model::evaluate` asks) on the GPU backend gives
+/// the CPU backend's bits, each point's own: the whole batch, and a point
+/// alone, the same bits.
+#[test]
+fn evaluating_each_point_gives_the_cpu_backends_bits() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(21);
+    let params = random_model(&mut rng, 300, 40.0);
+    let b = random_batch(&mut rng, 2000, 40.0);
+    let each = |be: &mut dyn Backend, pos: &[[f32; 3]]| {
+        let (mut rho, mut n) = (vec![0.0f32; pos.len()], vec![0.0f32; pos.len()]);
+        be.evaluate_each(&params, pos, &mut rho, &mut n).unwrap();
+        rho.iter().chain(&n).map(|v| v.to_bits()).collect::<Vec<u32>>()
+    };
+    let cpu = each(&mut CpuBackend::new(), &b.pos);
+    assert_eq!(each(&mut g, &b.pos), cpu);
+    assert!(cpu.iter().any(|&v| f32::from_bits(v) > 0.0));
+    for i in (0..b.len()).step_by(97) {
+        assert_eq!(each(&mut g, &b.pos[i..=i]), [cpu[i], cpu[b.len() + i]], "point {i} alone");
+    }
+}
+
 #[test]
 fn every_gradient_matches_the_cpu_backend() {
     let Some(mut g) = gpu() else { return };

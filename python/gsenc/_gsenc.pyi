@@ -31,7 +31,7 @@ class Model:
     ) -> npt.NDArray[np.float32]:
         """float32 [z][y][x] on a lattice of dims (x, y, z) over the model's box, or its part box; data units unless normalized."""
     def evaluate(self, points: npt.ArrayLike, normalized: bool = False, additive: bool = False, threads: Optional[int] = None) -> npt.NDArray[np.float32]:
-        """The value at world points ((n, 3): x, y, z); a step's pieces blended unless additive."""
+        """The value at world points ((n, 3): x, y, z); a step's pieces blended unless additive. A point's value is the same bits whatever is asked beside it."""
     def write(self, path: _Path, payload: Optional[str] = None) -> int:
         """Writes the model ("f32", "8bit", "8bit-u16" or "packed"); returns the bytes written."""
     def geometry(self, dims: Optional[_Dims] = None) -> Tuple[Tuple[float, float, float], Tuple[float, float, float]]:

@@ -58,6 +58,20 @@ def test_evaluate_matches_the_decode_at_voxel_centres(model_file):
     np.testing.assert_allclose(model.evaluate(points[:100], normalized=True), model.decode(normalized=True).ravel()[:100], rtol=1e-5, atol=1e-6)
 
 
+def test_a_points_value_is_the_same_bits_whatever_is_asked_beside_it(model_file):
+    model = gsenc.read(model_file)
+    rng = np.random.default_rng(4)
+    (ox, oy, oz), (sx, sy, sz) = model.geometry()
+    nx, ny, nz = model.dims
+    lo, hi = np.array([ox, oy, oz]) - [sx, sy, sz], np.array([ox + nx * sx, oy + ny * sy, oz + nz * sz])
+    points = lo + (hi - lo) * rng.random((5000, 3))
+    values = model.evaluate(points, threads=2)
+    assert np.abs(values).max() > 50, "the field is not empty"
+    np.testing.assert_array_equal(model.evaluate(points[::-1], threads=1)[::-1], values)
+    for i in range(0, len(points), 397):
+        np.testing.assert_array_equal(model.evaluate(points[i : i + 1]), values[i : i + 1], err_msg=f"point {i} alone")
+
+
 def test_primitives_are_the_models_parameters(model_file):
     model = gsenc.read(model_file)
     p, flat = model.primitives, model.params()

@@ -165,8 +165,23 @@ pub trait Backend: Send {
     /// a point and a candidate primitive (for throughput figures).
     fn kernel_evaluations(&self) -> u64;
 
-    /// Mixture density `rho` and numerator `n` at each point.
+    /// Mixture density `rho` and numerator `n` at each point. The same bits
+    /// for the same points, in the same order, whatever the thread count;
+    /// but a point's sums follow the bricks the batch is sorted into, so
+    /// its last bits may change with the other points of the call.
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()>;
+
+    /// [`Self::evaluate_points`] where each point's `rho` and `n` depend on
+    /// that point and the primitives alone: not on the other points of the
+    /// call, their number or order, nor the thread count (the CPU backend's
+    /// `PointPass::forward_pointwise`). For [`crate::model::Model::evaluate`],
+    /// whose answer at a point must not change with the points asked beside
+    /// it. Device backends answer with the CPU backend's code, the default,
+    /// so that every backend gives the same bits; the points asked of a
+    /// model are few beside an encode's.
+    fn evaluate_each(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
+        cpu::CpuBackend::new().evaluate_each(params, pos, rho, n)
+    }
 
     /// The point terms L_val and L_cov over `batch`, and the gradient of their
     /// weighted sum with respect to every parameter, written into `grad` (one

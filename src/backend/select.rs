@@ -249,6 +249,11 @@ impl Backend for Fallback {
         self.run(|b| b.evaluate_points(params, pos, rho, n))
     }
 
+    /// On the CPU whatever the choice (the trait's default for devices).
+    fn evaluate_each(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
+        self.cpu.evaluate_each(params, pos, rho, n)
+    }
+
     fn point_loss_grad(&mut self, params: &[Primitive], batch: &PointBatch, weights: &LossWeights, grad: &mut [Primitive]) -> Result<PointLoss> {
         self.run(|b| b.point_loss_grad(params, batch, weights, grad))
     }

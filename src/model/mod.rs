@@ -214,8 +214,11 @@ impl Model {
     }
 
     /// The decoded value (normalised) at world points, each finite: what a
-    /// decode gives at a voxel centre, anywhere in space. The answer is
-    /// reserved fallibly (an error, not an abort, when it cannot fit).
+    /// decode gives at a voxel centre, anywhere in space. A point's value
+    /// depends on the model and that point alone, to the bit: not on the
+    /// other points of the call, their number or order, nor the thread
+    /// count ([`Backend::evaluate_each`]). The answer is reserved fallibly
+    /// (an error, not an abort, when it cannot fit).
     pub fn evaluate(&self, backend: &mut dyn Backend, points: &[[f64; 3]]) -> Result<Vec<f32>> {
         let mut out = Vec::new();
         out.try_reserve_exact(points.len()).map_err(|_| Error::arg(format!("cannot allocate the values of {} points", points.len())))?;
@@ -226,7 +229,8 @@ impl Model {
 
     /// [`Model::evaluate`] into `out` (one value a point), in runs of
     /// [`EVALUATE_RUN`] points, so that what it holds besides the caller's
-    /// arrays is bounded however many points there are.
+    /// arrays is bounded however many points there are (the runs change no
+    /// value: each point's is its own).
     pub fn evaluate_into(&self, backend: &mut dyn Backend, points: &[[f64; 3]], out: &mut [f32]) -> Result<()> {
         if out.len() != points.len() {
             return Err(Error::arg(format!("{} points, room for {} values", points.len(), out.len())));
@@ -241,7 +245,7 @@ impl Model {
             index.clear();
             index.extend(points.iter().map(|&p| f.world_to_index(p).map(|u| u as f32)));
             let n = points.len();
-            backend.evaluate_points(&self.params, &index, &mut rho[..n], &mut num[..n])?;
+            backend.evaluate_each(&self.params, &index, &mut rho[..n], &mut num[..n])?;
             for (i, o) in out.iter_mut().enumerate() {
                 *o = self.value_at(index[i], rho[i], num[i]);
             }

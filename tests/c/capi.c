@@ -270,6 +270,21 @@ int main(void) {
         CHECK(fabsf(at[p] - d) <= 1e-4f * fmaxf(1.0f, fabsf(d)), "evaluate %g vs decode %g at cell %d", at[p], d, p);
     }
     CHECK(at[1] > 4.0f && at[0] < 2.0f, "the blob is where it was: %g inside, %g outside", at[1], at[0]);
+    /* A point's value is its own: every voxel centre in one call, then
+       some alone, the same bits (and the decode's to float rounding). */
+    static double centres[3 * NX * NY * NZ];
+    static float every[NX * NY * NZ];
+    for (int v = 0; v < NX * NY * NZ; v++) {
+        int ijk[3] = {v % NX, v / NX % NY, v / (NX * NY)};
+        for (int c = 0; c < 3; c++) centres[3 * v + c] = grid.origin[c] + (ijk[c] + 0.5) * grid.spacing;
+    }
+    EXPECT(gsenc_model_evaluate(model, centres, NX * NY * NZ, every), GSENC_STATUS_OK);
+    for (int v = 0; v < NX * NY * NZ; v += 37) {
+        float one;
+        EXPECT(gsenc_model_evaluate(model, centres + 3 * v, 1, &one), GSENC_STATUS_OK);
+        CHECK(memcmp(&one, &every[v], sizeof one) == 0, "voxel %d alone %.9g, among the others %.9g", v, one, every[v]);
+        CHECK(fabsf(one - decoded[v]) <= 1e-4f * fmaxf(1.0f, fabsf(decoded[v])), "evaluate %g vs decode %g at voxel %d", one, decoded[v], v);
+    }
     pts[0] = NAN;
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_DATA);
     EXPECT(gsenc_model_evaluate(NULL, pts, 4, at), GSENC_STATUS_NULL_POINTER);

@@ -1,6 +1,8 @@
-//! The forward pass alone (`Backend::evaluate_points`): each work chunk's
-//! points evaluated over their brick's candidates, loaded into lanes once a
-//! brick. The same lane code as the training pass's forward (`lanes.rs`).
+//! The forward pass alone (`Backend::evaluate_points`, and
+//! `Backend::evaluate_each` with each point's sums its own): each work
+//! chunk's points evaluated over their brick's candidates, loaded into
+//! lanes once a brick. The same lane code as the training pass's forward
+//! (`lanes.rs`).
 
 use super::binning::PointBins;
 use super::lanes::BrickSoa;
@@ -13,20 +15,27 @@ use crate::math::kernel::Primitive;
 use rayon::prelude::*;
 use std::borrow::Cow;
 
-simd_dispatch!(fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) => eval_chunk);
+simd_dispatch!(fn eval_chunk_dispatch(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], range: (usize, usize), pointwise: bool) -> (Vec<(u32, f32, f32)>, u64) => eval_chunk);
 
-/// `(point, rho, n)` for the points of bricks `b0..b1`, and the kernel count.
+/// `(point, rho, n)` for the points of bricks `b0..b1`, and the kernel
+/// count; `pointwise`: each point's sums its own
+/// (`BrickSoa::forward_pointwise`).
 #[inline(always)]
-fn eval_chunk(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], (b0, b1): (usize, usize)) -> (Vec<(u32, f32, f32)>, u64) {
+fn eval_chunk(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], (b0, b1): (usize, usize), pointwise: bool) -> (Vec<(u32, f32, f32)>, u64) {
     let mut soa = BrickSoa::default();
     let mut out = vec![];
     let mut evals = 0;
     for b in b0..b1 {
         let cands = &bins.cand[bins.cand_start[b] as usize..bins.cand_start[b + 1] as usize];
-        soa.load(&prep.hot, &prep.boxes, cands, false);
+        if pointwise {
+            soa.load_pointwise(&prep.hot, &prep.boxes, cands);
+        } else {
+            soa.load(&prep.hot, &prep.boxes, cands, false);
+        }
         let (s, e) = bins.bricks.ranges[b];
         for &pi in &bins.bricks.order[s as usize..e as usize] {
-            let (r, nn) = soa.forward(pos[pi as usize], &mut evals);
+            let x = pos[pi as usize];
+            let (r, nn) = if pointwise { soa.forward_pointwise(x, &mut evals) } else { soa.forward(x, &mut evals) };
             out.push((pi, r, nn));
         }
     }
@@ -34,8 +43,9 @@ fn eval_chunk(prep: &Prepared, bins: &PointBins, pos: &[[f32; 3]], (b0, b1): (us
 }
 
 impl CpuBackend {
-    /// [`crate::backend::Backend::evaluate_points`].
-    pub(super) fn forward_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
+    /// [`crate::backend::Backend::evaluate_points`], or with `pointwise`
+    /// [`crate::backend::Backend::evaluate_each`].
+    pub(super) fn forward_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32], pointwise: bool) -> Result<()> {
         check_len("rho", rho.len(), pos.len())?;
         check_len("n", n.len(), pos.len())?;
         if pos.is_empty() {
@@ -47,7 +57,7 @@ impl CpuBackend {
         let prep = &self.prep;
         let results: Vec<(Vec<(u32, f32, f32)>, u64)> = ranges
             .par_iter()
-            .map(|&range| eval_chunk_dispatch(prep, &bins, pos, range))
+            .map(|&range| eval_chunk_dispatch(prep, &bins, pos, range, pointwise))
             .collect();
         for (part, evals) in results {
             self.evaluations += evals;

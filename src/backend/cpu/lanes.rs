@@ -47,9 +47,10 @@ const EMPTY_BLOCK: Block = Block {
 /// Kernels and scaled local coordinates of a block's lanes at `x`, computed
 /// in local arrays only, so that the loop vectorises; adds `w K` to `rho`
 /// and `w K s` to `num` in the same loop (apart, the compiler turned those
-/// sums into scalar code).
+/// sums into scalar code), with `w` the lanes' weights: the block's own,
+/// or those times a 0-or-1 mask (`PointPass::forward_pointwise`).
 #[inline(always)]
-fn block_kernels(blk: &Block, x: [f32; 3], rho: &mut Lane, num: &mut Lane) -> (Lane, [Lane; 3]) {
+fn block_kernels(blk: &Block, w: &Lane, x: [f32; 3], rho: &mut Lane, num: &mut Lane) -> (Lane, [Lane; 3]) {
     let mut k = [0.0f32; LANES];
     let mut y = [[0.0f32; LANES]; 3];
     let a = &blk.a;
@@ -63,7 +64,7 @@ fn block_kernels(blk: &Block, x: [f32; 3], rho: &mut Lane, num: &mut Lane) -> (L
         let d2 = u0 * u0 + u1 * u1 + u2 * u2;
         let e = crate::math::kernel::exp_neg_half(d2);
         k[l] = if d2 < CUTOFF_D2 { e } else { 0.0 };
-        let wk = blk.w[l] * k[l];
+        let wk = w[l] * k[l];
         rho[l] += wk;
         num[l] += wk * blk.s[l];
         y[0][l] = u0;
@@ -97,6 +98,17 @@ fn block_pair_terms(blk: &Block, ev: &BlockEval, g_rho: f32, g_n: f32) -> [Lane;
     t
 }
 
+/// A point's `(rho, n)` from its lane partial sums, added in lane order.
+#[inline(always)]
+fn lane_total(rho: &Lane, num: &Lane) -> (f32, f32) {
+    let (mut r, mut n) = (0.0f32, 0.0f32);
+    for l in 0..LANES {
+        r += rho[l];
+        n += num[l];
+    }
+    (r, n)
+}
+
 /// Kernel values and scaled local coordinates of one block at the current point.
 #[derive(Clone, Copy, Default)]
 struct BlockEval {
@@ -114,19 +126,46 @@ pub(super) struct BrickCands {
     /// coordinate (lo x, y, z, hi x, y, z), so that one loop tests a point
     /// against many blocks at once.
     bounds: [Vec<f32>; 6],
+    /// Each block's lanes' own boxes (lo x, y, z, hi x, y, z; padding lanes
+    /// hold none, so no point), for [`PointPass::forward_pointwise`].
+    lane_boxes: Vec<[Lane; 6]>,
 }
 
 impl BrickCands {
+    /// Candidate `j` of the list in block `j / LANES`, lane `j % LANES`.
     fn load(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32]) {
-        let nb = cands.len().div_ceil(LANES);
+        self.fill(hot, boxes, cands.len().div_ceil(LANES), cands.iter().enumerate().map(|(j, &g)| (j / LANES, j % LANES, g)));
+    }
+
+    /// Primitive `g` in lane `g % LANES`, in that lane's next free block:
+    /// each lane holds its primitives in list order, whatever the others
+    /// hold. Blocks: the most candidates any lane gets.
+    fn load_pointwise(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32]) {
+        let mut next = [0usize; LANES];
+        for &g in cands {
+            next[g as usize % LANES] += 1;
+        }
+        let nb = next.iter().copied().max().unwrap_or(0);
+        next = [0; LANES];
+        self.fill(hot, boxes, nb, cands.iter().map(|&g| {
+            let l = g as usize % LANES;
+            next[l] += 1;
+            (next[l] - 1, l, g)
+        }));
+    }
+
+    /// `nb` blocks, primitive `g` in block `b`, lane `l` for each `(b, l, g)`
+    /// of `slots`; the other lanes inert.
+    fn fill(&mut self, hot: &[Hot], boxes: &[[f32; 6]], nb: usize, slots: impl Iterator<Item = (usize, usize, u32)>) {
         self.blocks.clear();
         self.blocks.resize(nb, EMPTY_BLOCK);
         for (c, v) in self.bounds.iter_mut().enumerate() {
             v.clear();
             v.resize(nb, if c < 3 { f32::INFINITY } else { f32::NEG_INFINITY });
         }
-        for (j, &g) in cands.iter().enumerate() {
-            let (b, l) = (j / LANES, j % LANES);
+        self.lane_boxes.clear();
+        self.lane_boxes.resize(nb, [[f32::INFINITY; LANES], [f32::INFINITY; LANES], [f32::INFINITY; LANES], [f32::NEG_INFINITY; LANES], [f32::NEG_INFINITY; LANES], [f32::NEG_INFINITY; LANES]]);
+        for (b, l, g) in slots {
             let h = &hot[g as usize];
             let bx = &boxes[g as usize];
             let blk = &mut self.blocks[b];
@@ -134,6 +173,9 @@ impl BrickCands {
                 blk.mu[c][l] = h.mu[c];
                 self.bounds[c][b] = self.bounds[c][b].min(bx[c]);
                 self.bounds[c + 3][b] = self.bounds[c + 3][b].max(bx[c + 3]);
+            }
+            for (c, v) in self.lane_boxes[b].iter_mut().enumerate() {
+                v[l] = bx[c];
             }
             for r in 0..9 {
                 blk.a[r][l] = h.a[r];
@@ -172,16 +214,12 @@ impl PointPass {
         }
     }
 
-    /// Kernels of every candidate at `x`; returns `(rho, n)` and adds the
-    /// number of lanes evaluated (blocks not skipped, times `LANES`) to
-    /// `evals`. Lane partial sums are added in a fixed order, so the result
-    /// depends only on the candidates.
+    /// Lists the blocks whose box holds `x` (`inside[..n_inside]`),
+    /// without a branch: a branch per block would be mispredicted about a
+    /// third of the time, and each miss would throw away the overlap of
+    /// consecutive blocks' exp chains.
     #[inline(always)]
-    pub(super) fn forward(&mut self, cands: &BrickCands, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
-        // First the blocks whose box holds the point, listed without a
-        // branch; then their kernels, in block order. A branch per block
-        // would be mispredicted about a third of the time, and each miss
-        // would throw away the overlap of consecutive blocks' exp chains.
+    fn list_inside(&mut self, cands: &BrickCands, x: [f32; 3]) {
         let [lx, ly, lz, hx, hy, hz] = &cands.bounds;
         let holds = &mut self.holds[..cands.blocks.len()];
         for (b, h) in holds.iter_mut().enumerate() {
@@ -194,21 +232,58 @@ impl PointPass {
             n_in += h as usize;
         }
         self.n_inside = n_in;
+    }
+
+    /// Kernels of every candidate at `x`; returns `(rho, n)` and adds the
+    /// number of lanes evaluated (blocks not skipped, times `LANES`) to
+    /// `evals`. Lane partial sums are added in a fixed order, so the result
+    /// depends only on the candidates.
+    #[inline(always)]
+    pub(super) fn forward(&mut self, cands: &BrickCands, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
+        // First the blocks whose box holds the point, then their kernels,
+        // in block order.
+        self.list_inside(cands, x);
         let mut rho = [0.0f32; LANES];
         let mut num = [0.0f32; LANES];
-        for &b in &self.inside[..n_in] {
+        for &b in &self.inside[..self.n_inside] {
             let (blk, ev) = (&cands.blocks[b as usize], &mut self.eval[b as usize]);
-            let (k, y) = block_kernels(blk, x, &mut rho, &mut num);
+            let (k, y) = block_kernels(blk, &blk.w, x, &mut rho, &mut num);
             ev.k = k;
             ev.y = y;
         }
-        *evals += (n_in * LANES) as u64;
-        let (mut r, mut n) = (0.0f32, 0.0f32);
-        for l in 0..LANES {
-            r += rho[l];
-            n += num[l];
+        *evals += (self.n_inside * LANES) as u64;
+        lane_total(&rho, &num)
+    }
+
+    /// [`Self::forward`] over candidates loaded by
+    /// [`BrickCands::load_pointwise`], each lane's term counted only where
+    /// its own box holds `x`: the result depends on `x` and the primitives
+    /// alone, not on the brick's other candidates
+    /// (`Backend::evaluate_each`). Lane `l`'s sum is then the sum, in
+    /// primitive order, over every primitive `g` with `g % LANES == l`
+    /// whose box holds `x`: the brick lists every such primitive (the brick
+    /// range of a box and the brick of a point come from the same monotone
+    /// float operations), in primitive order; one it does not list adds
+    /// nothing, and neither does a listed one whose box misses `x`, nor a
+    /// skipped block. The lanes are then added in a fixed order.
+    #[inline(always)]
+    pub(super) fn forward_pointwise(&mut self, cands: &BrickCands, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
+        self.list_inside(cands, x);
+        let mut rho = [0.0f32; LANES];
+        let mut num = [0.0f32; LANES];
+        for &b in &self.inside[..self.n_inside] {
+            let (blk, bx) = (&cands.blocks[b as usize], &cands.lane_boxes[b as usize]);
+            // Each lane's weight where its box holds `x`, else 0: a product
+            // by 1 is exact, so a lane that counts adds `forward`'s bits.
+            let mut w = [0.0f32; LANES];
+            for l in 0..LANES {
+                let holds = (x[0] >= bx[0][l]) & (x[1] >= bx[1][l]) & (x[2] >= bx[2][l]) & (x[0] <= bx[3][l]) & (x[1] <= bx[4][l]) & (x[2] <= bx[5][l]);
+                w[l] = blk.w[l] * (holds as u32 as f32);
+            }
+            block_kernels(blk, &w, x, &mut rho, &mut num);
         }
-        (r, n)
+        *evals += (self.n_inside * LANES) as u64;
+        lane_total(&rho, &num)
     }
 
     /// Adds the current point's pair terms to the pass's sums.
@@ -271,6 +346,20 @@ impl BrickSoa {
         self.pass.forward(&self.cands, x, evals)
     }
 
+    /// This brick's candidates for [`Self::forward_pointwise`]
+    /// ([`BrickCands::load_pointwise`]); no gradient sums.
+    pub(super) fn load_pointwise(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32]) {
+        self.cands.load_pointwise(hot, boxes, cands);
+        self.pass.reset(self.cands.blocks.len(), false);
+    }
+
+    /// [`PointPass::forward_pointwise`] over this brick's candidates, loaded
+    /// by [`Self::load_pointwise`].
+    #[inline(always)]
+    pub(super) fn forward_pointwise(&mut self, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
+        self.pass.forward_pointwise(&self.cands, x, evals)
+    }
+
     /// [`PointPass::backward`] over this brick's candidates.
     #[inline(always)]
     pub(super) fn backward(&mut self, g_rho: f32, g_n: f32) {
@@ -289,6 +378,77 @@ mod tests {
     use super::super::Prepared;
     use super::*;
     use crate::math::rng::Rng;
+
+    /// `forward_pointwise` depends on the point and the primitives alone:
+    /// a brick that lists every primitive, one that lists only those whose
+    /// box holds the point (in other blocks), and one that lists them after
+    /// a few others that miss it, all in primitive order, give the same
+    /// bits; and that is the mixture summed over every primitive by
+    /// `Frame::kernel`, to within float rounding. The lane sums of
+    /// `forward` do differ in their last bits between such lists for some
+    /// point (what `forward_pointwise` exists to avoid).
+    #[test]
+    fn pointwise_a_point_gets_the_same_bits_from_any_list() {
+        let mut rng = Rng::new(5);
+        let n = 61;
+        let params = random_prims(&mut rng, n);
+        let mut prep = Prepared::default();
+        prep.update(&params);
+        let holds = |g: usize, x: [f32; 3]| (0..3).all(|a| x[a] >= prep.boxes[g][a] && x[a] <= prep.boxes[g][a + 3]);
+        let mut lane_sums_differ = false;
+        for _ in 0..200 {
+            let x = [0, 1, 2].map(|_| rng.range(0.0, 6.0) as f32);
+            let every: Vec<u32> = (0..n as u32).collect();
+            let holding: Vec<u32> = every.iter().copied().filter(|&g| holds(g as usize, x)).collect();
+            // Three far primitives first shift every holding one's lane.
+            let far: Vec<u32> = every.iter().copied().filter(|&g| !holds(g as usize, x)).take(3).collect();
+            let mut shifted: Vec<u32> = far.iter().chain(&holding).copied().collect();
+            shifted.sort_unstable();
+            let mut soa = BrickSoa::default();
+            let mut run = |cands: &[u32], pointwise: bool| {
+                let (r, n) = if pointwise {
+                    soa.load_pointwise(&prep.hot, &prep.boxes, cands);
+                    soa.forward_pointwise(x, &mut 0)
+                } else {
+                    soa.load(&prep.hot, &prep.boxes, cands, false);
+                    soa.forward(x, &mut 0)
+                };
+                (r.to_bits(), n.to_bits())
+            };
+            let want = run(&every, true);
+            assert_eq!(run(&holding, true), want, "at {x:?}: the holding primitives alone");
+            assert_eq!(run(&shifted, true), want, "at {x:?}: after three that miss");
+            lane_sums_differ |= run(&holding, false) != run(&every, false) || run(&shifted, false) != run(&every, false);
+            let (mut r2, mut n2) = (0.0f32, 0.0f32);
+            for f in &prep.frames {
+                if let Some((k, _)) = f.kernel(x) {
+                    r2 += f.w * k;
+                    n2 += f.w * k * f.s;
+                }
+            }
+            let (r, nn) = (f32::from_bits(want.0), f32::from_bits(want.1));
+            assert!((r - r2).abs() <= 1e-5 * (1.0 + r2) && (nn - n2).abs() <= 1e-5 * (1.0 + n2.abs()), "{r} {r2} {nn} {n2}");
+        }
+        assert!(lane_sums_differ, "no point shows the lane sums' dependence on the list: the test proves nothing");
+
+        // A primitive whose box misses the point adds nothing, even where
+        // its kernel does not vanish (as at a box's edge, by rounding): a
+        // box shrunk off the point's side counts as that primitive not
+        // being there.
+        let x = prep.frames[0].mu;
+        let mut boxes = prep.boxes.clone();
+        boxes[0][0] = x[0] + 1e-3;
+        let every: Vec<u32> = (0..n as u32).collect();
+        let mut soa = BrickSoa::default();
+        soa.load_pointwise(&prep.hot, &boxes, &every);
+        let (with, _) = soa.forward_pointwise(x, &mut 0);
+        soa.load_pointwise(&prep.hot, &boxes, &every[1..]);
+        let (without, _) = soa.forward_pointwise(x, &mut 0);
+        soa.load_pointwise(&prep.hot, &prep.boxes, &every);
+        let (whole, _) = soa.forward_pointwise(x, &mut 0);
+        assert_eq!(with.to_bits(), without.to_bits());
+        assert!(whole >= with + 0.5 * prep.frames[0].w, "the first primitive's own weight at its centre: {whole} vs {with}");
+    }
 
     /// The lane code is a transcription of `Frame::kernel` and
     /// `GradAcc::add_pair`; it must agree with them.

@@ -1,6 +1,7 @@
 //! The CPU backend: spatial bricks, rayon, no locks or atomics on the hot path.
 //!
-//! Training (`point_loss_grad`, `evaluate_points`):
+//! Training (`point_loss_grad`, `evaluate_points`; `evaluate_each` the same
+//! with each primitive in lane `g % 8`, so that a point's sums are its own):
 //! 1. points are counting-sorted into cubic bricks (`brick` voxels a side);
 //! 2. each primitive is listed in every occupied brick that its tight 5-sigma
 //!    box overlaps (a CSR built by a stable counting sort, so every list is in
@@ -182,7 +183,11 @@ impl Backend for CpuBackend {
         self.evaluations
     }
     fn evaluate_points(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
-        self.forward_points(params, pos, rho, n)
+        self.forward_points(params, pos, rho, n, false)
+    }
+
+    fn evaluate_each(&mut self, params: &[Primitive], pos: &[[f32; 3]], rho: &mut [f32], n: &mut [f32]) -> Result<()> {
+        self.forward_points(params, pos, rho, n, true)
     }
 
     fn point_loss_grad(&mut self, params: &[Primitive], batch: &PointBatch, weights: &LossWeights, grad: &mut [Primitive]) -> Result<PointLoss> {
