@@ -127,14 +127,15 @@ pub(super) struct BrickCands {
     /// against many blocks at once.
     bounds: [Vec<f32>; 6],
     /// Each block's lanes' own boxes (lo x, y, z, hi x, y, z; padding lanes
-    /// hold none, so no point), for [`PointPass::forward_pointwise`].
+    /// hold none, so no point), for [`PointPass::forward_pointwise`]; empty
+    /// after [`Self::load`].
     lane_boxes: Vec<[Lane; 6]>,
 }
 
 impl BrickCands {
     /// Candidate `j` of the list in block `j / LANES`, lane `j % LANES`.
     fn load(&mut self, hot: &[Hot], boxes: &[[f32; 6]], cands: &[u32]) {
-        self.fill(hot, boxes, cands.len().div_ceil(LANES), cands.iter().enumerate().map(|(j, &g)| (j / LANES, j % LANES, g)));
+        self.fill(hot, boxes, cands.len().div_ceil(LANES), cands.iter().enumerate().map(|(j, &g)| (j / LANES, j % LANES, g)), false);
     }
 
     /// Primitive `g` in lane `g % LANES`, in that lane's next free block:
@@ -147,16 +148,18 @@ impl BrickCands {
         }
         let nb = next.iter().copied().max().unwrap_or(0);
         next = [0; LANES];
-        self.fill(hot, boxes, nb, cands.iter().map(|&g| {
+        let slots = cands.iter().map(|&g| {
             let l = g as usize % LANES;
             next[l] += 1;
             (next[l] - 1, l, g)
-        }));
+        });
+        self.fill(hot, boxes, nb, slots, true);
     }
 
     /// `nb` blocks, primitive `g` in block `b`, lane `l` for each `(b, l, g)`
-    /// of `slots`; the other lanes inert.
-    fn fill(&mut self, hot: &[Hot], boxes: &[[f32; 6]], nb: usize, slots: impl Iterator<Item = (usize, usize, u32)>) {
+    /// of `slots`; the other lanes inert. The lanes' own boxes only when
+    /// `lane_boxes` (training never reads them).
+    fn fill(&mut self, hot: &[Hot], boxes: &[[f32; 6]], nb: usize, slots: impl Iterator<Item = (usize, usize, u32)>, lane_boxes: bool) {
         self.blocks.clear();
         self.blocks.resize(nb, EMPTY_BLOCK);
         for (c, v) in self.bounds.iter_mut().enumerate() {
@@ -164,7 +167,9 @@ impl BrickCands {
             v.resize(nb, if c < 3 { f32::INFINITY } else { f32::NEG_INFINITY });
         }
         self.lane_boxes.clear();
-        self.lane_boxes.resize(nb, [[f32::INFINITY; LANES], [f32::INFINITY; LANES], [f32::INFINITY; LANES], [f32::NEG_INFINITY; LANES], [f32::NEG_INFINITY; LANES], [f32::NEG_INFINITY; LANES]]);
+        if lane_boxes {
+            self.lane_boxes.resize(nb, [[f32::INFINITY; LANES], [f32::INFINITY; LANES], [f32::INFINITY; LANES], [f32::NEG_INFINITY; LANES], [f32::NEG_INFINITY; LANES], [f32::NEG_INFINITY; LANES]]);
+        }
         for (b, l, g) in slots {
             let h = &hot[g as usize];
             let bx = &boxes[g as usize];
@@ -174,8 +179,10 @@ impl BrickCands {
                 self.bounds[c][b] = self.bounds[c][b].min(bx[c]);
                 self.bounds[c + 3][b] = self.bounds[c + 3][b].max(bx[c + 3]);
             }
-            for (c, v) in self.lane_boxes[b].iter_mut().enumerate() {
-                v[l] = bx[c];
+            if lane_boxes {
+                for (c, v) in self.lane_boxes[b].iter_mut().enumerate() {
+                    v[l] = bx[c];
+                }
             }
             for r in 0..9 {
                 blk.a[r][l] = h.a[r];
