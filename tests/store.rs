@@ -250,6 +250,41 @@ fn a_corrupted_global_heap_is_refused_before_hdf5_reads_it() {
     }
 }
 
+/// A string attribute whose bytes are not UTF-8 (a damaged or foreign
+/// store) is refused by name: the field of an entry, and the root's layout
+/// version. Before, the reader made a `String` of them unchecked, which
+/// broke what every `str` operation relies on (formatting the entry's
+/// metadata panicked).
+#[test]
+fn a_string_attribute_that_is_not_utf8_is_refused() {
+    let _serial = common::hdf5_serial();
+    let (dir, sound) = sound_store("utf8", &[("fieldzq", 0, Payload::Float32)]);
+    let heap = sound.windows(8).position(|w| w == b"GCOL\x01\x00\x00\x00").expect("a store keeps its strings in a global heap");
+    let read = |bytes: &[u8]| {
+        let p = dir.join("c.h5");
+        std::fs::write(&p, bytes).unwrap();
+        let s = Store::open_read(&p)?;
+        let key = s.entries()?.into_iter().next().expect("the entry").key;
+        s.read(&key).map(|(m, _)| format!("{:?}", m.meta))
+    };
+    assert!(read(&sound).unwrap().contains("fieldzq"));
+    // The attribute's copy of the name, in the heap (the link's is elsewhere).
+    let at = heap + sound[heap..].windows(7).position(|w| w == b"fieldzq").expect("the field attribute in the heap");
+    let mut bad = sound.clone();
+    bad[at + 5] = 0xff;
+    match read(&bad) {
+        Err(gsenc::Error::Format(m)) => assert!(m.contains("attribute field is not UTF-8 text"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+    let at = heap + sound[heap..].windows(3).position(|w| w == b"1.3").expect("the layout version in the heap");
+    let mut bad = sound.clone();
+    bad[at + 1] = 0xc0;
+    match read(&bad) {
+        Err(gsenc::Error::Format(m)) => assert!(m.contains("gsenc_store attribute is not UTF-8 text"), "{m}"),
+        other => panic!("{other:?}"),
+    }
+}
+
 /// Stores with random bytes changed (1,500 of them, seeded) open, list and
 /// read each entry or fail with an error: none crashes the reader or hangs
 /// it. Before the global heap was checked, 5 in 3,000 such stores killed

@@ -356,12 +356,20 @@ fn create_empty(path: &Path) -> Result<()> {
     out.commit()
 }
 
+/// The text of a string attribute as read, or `None` when its bytes are
+/// not UTF-8 (a damaged or foreign file): `VarLenUnicode::as_str` does not
+/// check them, and a `String` that is not UTF-8 breaks what every `str`
+/// operation relies on (formatting one panicked; anything may happen).
+fn utf8(v: &VarLenUnicode) -> Option<String> {
+    std::str::from_utf8(v.as_bytes()).ok().map(str::to_owned)
+}
+
 fn check_root(file: &File, path: &Path) -> Result<()> {
     let version: String = file
         .attr("gsenc_store")
         .and_then(|a| a.read_scalar::<VarLenUnicode>())
-        .map(|v| v.as_str().to_owned())
-        .map_err(|_| Error::format(format!("'{}' is an HDF5 file but not a gsenc store (no gsenc_store attribute)", path.display())))?;
+        .map_err(|_| Error::format(format!("'{}' is an HDF5 file but not a gsenc store (no gsenc_store attribute)", path.display())))
+        .and_then(|v| utf8(&v).ok_or_else(|| Error::format(format!("'{}': its gsenc_store attribute is not UTF-8 text", path.display()))))?;
     let major = version.split('.').next().and_then(|m| m.parse::<u32>().ok());
     match major {
         Some(1) => Ok(()),
@@ -521,7 +529,8 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path, budget: u64) -> Result<Entr
     let u64a = |name: &str| scalar(name)?.read_scalar::<u64>().map_err(|e| bad(format!("attribute {name}: {e}")));
     let u32a = |name: &str| scalar(name)?.read_scalar::<u32>().map_err(|e| bad(format!("attribute {name}: {e}")));
     let stra = |name: &str| {
-        scalar(name)?.read_scalar::<VarLenUnicode>().map(|s| s.as_str().to_owned()).map_err(|e| bad(format!("attribute {name}: {e}")))
+        let v = scalar(name)?.read_scalar::<VarLenUnicode>().map_err(|e| bad(format!("attribute {name}: {e}")))?;
+        utf8(&v).ok_or_else(|| bad(format!("attribute {name} is not UTF-8 text")))
     };
     let f64s = |name: &str, len: usize| -> Result<Vec<f64>> {
         let v: Vec<f64> = read_all(&*scalar(name)?, &format!("attribute {name}"), budget, &bad)?;
