@@ -57,6 +57,26 @@ def write_gsm_f32(path, params, field, step, rank):
     open(path, "wb").write(b)
 
 
+def entry_crc(g):
+    """An f32 entry's checksum, following docs/FORMAT.md "The entry
+    checksum": the model file's first header fields (payload code, count,
+    frame, range, step, schedule, seeds, field, time, rank, encode PSNR),
+    then why it fell back (none), a warm start (none: 0xff), the support
+    (none here), and the parameters primitive by primitive, float32."""
+    a = g.attrs
+    assert a["payload"] == "f32" and a["transform"] == "linear" and "support" not in g
+    assert "fell_back" not in a and "warm_start" not in a
+    h = struct.pack("<IQ", 0, int(a["count"])) + struct.pack("<3I", *(int(d) for d in a["dims"]))
+    h += struct.pack("<3d", *a["bmin"]) + struct.pack("<dddI", a["gamma"], a["vmin"], a["vmax"], 0)
+    h += struct.pack("<QIIQQ", int(a["step"]), int(a["iterations"]), int(a["points"]), int(a["seed_init"]), int(a["seed_sample"]))
+    for name in ("schedule", "field"):
+        text = a[name].encode()
+        h += struct.pack("<H", len(text)) + text
+    h += struct.pack("<dId", a["time"], int(a["rank"]), a["encode_psnr"])
+    h += struct.pack("<Q", 0) + b"\xff"
+    return zlib.crc32(h + np.ascontiguousarray(g["params"][()].T).astype("<f4").tobytes())
+
+
 def main():
     rng = np.random.default_rng(7)
     failures = 0
@@ -69,7 +89,7 @@ def main():
             write_gsm_f32(m, p, "rho", 10 + i, i)
             subprocess.run([gsenc, "store", "add", store, m, "--payload", payload], check=True, capture_output=True)
         with h5py.File(store, "r") as f:
-            assert f.attrs["gsenc_store"] == "1.3"
+            assert f.attrs["gsenc_store"] == "1.4"
             entries = [(field, step, rank) for field in f for step in f[field] for rank in f[field][step]]
             assert len(entries) == 3, entries
             for field, step, rank in entries:
@@ -84,8 +104,13 @@ def main():
                 failures += not ok
                 print(f"h5py {field}/{step}/{rank} {g.attrs['payload']}: max relative difference {err:.2e}",
                       "ok" if ok else "FAILED")
+                if g.attrs["payload"] == "f32":
+                    ours, stored = entry_crc(g), int(g.attrs["crc32"])
+                    failures += ours != stored
+                    print(f"h5py {field}/{step}/{rank} checksum: {ours:08x} computed, {stored:08x} stored",
+                          "ok" if ours == stored else "FAILED")
         failures += check_support(d)
-    print(f"h5py: {4 - failures} passed, {failures} failed")
+    print(f"h5py: {5 - failures} passed, {failures} failed")
     sys.exit(1 if failures else 0)
 
 

@@ -165,7 +165,7 @@ fn check_storable(params: &[Primitive], payload: Payload) -> Result<()> {
     Ok(())
 }
 
-fn put_str(out: &mut Vec<u8>, s: &str) -> Result<()> {
+pub(crate) fn put_str(out: &mut Vec<u8>, s: &str) -> Result<()> {
     let len = u16::try_from(s.len()).map_err(|_| Error::arg(format!("name of {} bytes is too long", s.len())))?;
     out.extend_from_slice(&len.to_le_bytes());
     out.extend_from_slice(s.as_bytes());
@@ -186,14 +186,13 @@ pub fn write_model(model: &Model) -> Result<Vec<u8>> {
     write_model_as(model, Payload::Float32)
 }
 
-/// Serialises a model with the given payload. Fails on non-finite parameters
-/// (and, for float16 centres, on centres beyond its range).
-pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
-    check_storable(&model.params, payload)?;
-    let m = &model.meta;
-    let mut h = Vec::with_capacity(256);
+/// The first fields of a model file's header, as laid out from its
+/// version 1.0 on: the payload's code, the count, then `m`'s frame, range,
+/// step, schedule, seeds, field, time, rank and encode PSNR. The store's
+/// entry checksum lays the metadata out the same way (`io::store`).
+pub(crate) fn put_header_start(h: &mut Vec<u8>, m: &ModelMeta, payload: Payload, count: usize) -> Result<()> {
     h.extend_from_slice(&payload.code().to_le_bytes());
-    h.extend_from_slice(&(model.params.len() as u64).to_le_bytes());
+    h.extend_from_slice(&(count as u64).to_le_bytes());
     for d in m.frame.dims {
         let d = u32::try_from(d).map_err(|_| Error::arg("dims exceed u32"))?;
         h.extend_from_slice(&d.to_le_bytes());
@@ -210,11 +209,21 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
     h.extend_from_slice(&m.points.to_le_bytes());
     h.extend_from_slice(&m.seed_init.to_le_bytes());
     h.extend_from_slice(&m.seed_sample.to_le_bytes());
-    put_str(&mut h, &m.schedule)?;
-    put_str(&mut h, &m.field)?;
+    put_str(h, &m.schedule)?;
+    put_str(h, &m.field)?;
     h.extend_from_slice(&m.time.unwrap_or(f64::NAN).to_le_bytes());
     h.extend_from_slice(&m.rank.to_le_bytes());
     h.extend_from_slice(&m.encode_psnr.unwrap_or(f64::NAN).to_le_bytes());
+    Ok(())
+}
+
+/// Serialises a model with the given payload. Fails on non-finite parameters
+/// (and, for float16 centres, on centres beyond its range).
+pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
+    check_storable(&model.params, payload)?;
+    let m = &model.meta;
+    let mut h = Vec::with_capacity(256);
+    put_header_start(&mut h, m, payload, model.params.len())?;
     let mut minor = match &model.support {
         None => MINOR_WITHOUT_SUPPORT,
         Some(support) => {

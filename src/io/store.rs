@@ -20,7 +20,7 @@
 
 use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
-use crate::format::model_file::{packed_payload, read_packed_payload};
+use crate::format::model_file::{packed_payload, put_header_start, read_packed_payload};
 use crate::format::packed::Precision;
 use crate::format::Payload;
 use crate::io::atomic::Replacement;
@@ -37,8 +37,11 @@ use std::path::{Path, PathBuf};
 
 /// Layout version of the store, in the root attribute `gsenc_store`.
 /// 1.1 adds the optional `support` dataset of an entry, 1.2 its optional
-/// `outside` attribute, 1.3 the optional `index` dataset of a step.
-pub const STORE_VERSION: &str = "1.3";
+/// `outside` attribute, 1.3 the optional `index` dataset of a step, 1.4 an
+/// entry's `crc32` attribute ([`entry_crc`]).
+pub const STORE_VERSION: &str = "1.4";
+/// An entry's checksum attribute (1.4).
+const CRC: &str = "crc32";
 /// The step index of a decomposed step, in the step's group (1.3).
 const INDEX: &str = "index";
 /// Names of the twelve parameters, in the order of the `params` rows.
@@ -264,6 +267,15 @@ impl Store {
         let info = read_info(&g, key, &self.path, budget)?;
         let (params, precision) = read_params(&g, &info, &self.path, budget)?;
         let support = read_support(&g, &info, &self.path, budget)?;
+        // 1.4: the entry as read against its checksum (older entries have none).
+        if let Ok(a) = g.attr(CRC) {
+            let at = format!("{}:{}", self.path.display(), key.path());
+            let want = a.read_scalar::<u32>().map_err(|e| Error::format(format!("{at} attribute {CRC}: {e}")))?;
+            let got = entry_crc(&info.meta, info.payload, &params, support.as_ref())?;
+            if got != want {
+                return Err(Error::format(format!("{at} fails its checksum (its {CRC} is {want:08x}, its content gives {got:08x}): it changed after it was written")));
+            }
+        }
         Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
     }
 
@@ -445,13 +457,54 @@ fn maps_attrs(ds: &Dataset, maps: &[Affine]) -> hdf5::Result<()> {
     array_attr(ds, "hi", &maps.iter().map(|m| m.hi).collect::<Vec<_>>())
 }
 
+/// An entry's checksum (1.4, attribute `crc32`): CRC-32 (IEEE, as zlib)
+/// of its payload's code, count and metadata laid out as a model file's
+/// header starts (`put_header_start`), then the metadata the header keeps
+/// further on (why the encode fell back to the CPU, as a u64 length and
+/// UTF-8 bytes; a warm start's code and moved count, or 0xff), the
+/// support's bits and its outside (offset, gain), and last the float32
+/// bits of every parameter as a reader gets them, little-endian, primitive
+/// by primitive. So whatever a reader makes of the entry is checked, and
+/// nothing in it depends on a compressor's version.
+fn entry_crc(m: &ModelMeta, payload: Payload, params: &[Primitive], support: Option<&Support>) -> Result<u32> {
+    let mut h = Vec::with_capacity(256);
+    put_header_start(&mut h, m, payload, params.len())?;
+    let fell_back = m.fell_back.as_deref().unwrap_or("");
+    h.extend_from_slice(&(fell_back.len() as u64).to_le_bytes());
+    h.extend_from_slice(fell_back.as_bytes());
+    match m.warm {
+        Some(w) => {
+            h.push(w.taken.code());
+            h.extend_from_slice(&w.moved.to_le_bytes());
+        }
+        None => h.push(u8::MAX),
+    }
+    let mut crc = crc32fast::Hasher::new();
+    crc.update(&h);
+    if let Some(s) = support {
+        crc.update(s.bits());
+        crc.update(&s.outside().offset.to_le_bytes());
+        crc.update(&s.outside().gain.to_le_bytes());
+    }
+    for p in params {
+        for v in p {
+            crc.update(&v.to_le_bytes());
+        }
+    }
+    Ok(crc.finalize())
+}
+
 fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
     let m = &model.meta;
     let n = model.params.len();
-    match payload {
+    let lib = |e: Error| hdf5::Error::from(e.to_string());
+    // The parameters a reader gets back, for the checksum: from what is
+    // written, as `read_params` makes them.
+    let read_back: Vec<Primitive> = match payload {
         Payload::Float32 => {
             let rows: Vec<f32> = (0..12).flat_map(|k| model.params.iter().map(move |p| p[k])).collect();
             rows_dataset(g, "params", 12, &rows, false)?;
+            model.params.clone()
         }
         Payload::Bits8(coding) => {
             let q = Quantized::of(&model.params, coding);
@@ -463,13 +516,16 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
                 Centres::Fixed16 { maps, codes } => maps_attrs(&rows_dataset(g, "centres", 3, codes, true)?, maps)?,
             }
             maps_attrs(&rows_dataset(g, "codes", 9, &q.codes, true)?, &q.maps)?;
+            q.dequantize().map_err(lib)?
         }
         Payload::Packed => {
             // The model file's packed payload as it is (already entropy-coded).
-            let bytes = packed_payload(model).map_err(|e| hdf5::Error::from(e.to_string()))?;
+            let bytes = packed_payload(model).map_err(lib)?;
             g.new_dataset::<u8>().shape(bytes.len()).create("packed")?.write_raw(&bytes)?;
+            read_packed_payload(&bytes, n).and_then(|p| p.params()).map_err(lib)?
         }
-    }
+    };
+    scalar_attr(g, CRC, &entry_crc(m, payload, &read_back, model.support.as_ref()).map_err(lib)?)?;
     scalar_str_attr(g, "payload", payload.name())?;
     scalar_attr(g, "count", &(n as u64))?;
     scalar_str_attr(g, "field", &m.field)?;
