@@ -165,7 +165,7 @@ fn check_storable(params: &[Primitive], payload: Payload) -> Result<()> {
     Ok(())
 }
 
-pub(crate) fn put_str(out: &mut Vec<u8>, s: &str) -> Result<()> {
+fn put_str(out: &mut Vec<u8>, s: &str) -> Result<()> {
     let len = u16::try_from(s.len()).map_err(|_| Error::arg(format!("name of {} bytes is too long", s.len())))?;
     out.extend_from_slice(&len.to_le_bytes());
     out.extend_from_slice(s.as_bytes());

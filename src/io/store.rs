@@ -467,6 +467,10 @@ fn maps_attrs(ds: &Dataset, maps: &[Affine]) -> hdf5::Result<()> {
 /// by primitive. So whatever a reader makes of the entry is checked, and
 /// nothing in it depends on a compressor's version.
 fn entry_crc(m: &ModelMeta, payload: Payload, params: &[Primitive], support: Option<&Support>) -> Result<u32> {
+    // The metadata as a reader gets it: a NaN time or PSNR (of whatever
+    // bits) reads as unknown, which the header writes as the one NaN.
+    let known = |v: Option<f64>| v.filter(|v| !v.is_nan());
+    let m = &ModelMeta { time: known(m.time), encode_psnr: known(m.encode_psnr), ..m.clone() };
     let mut h = Vec::with_capacity(256);
     put_header_start(&mut h, m, payload, params.len())?;
     let fell_back = m.fell_back.as_deref().unwrap_or("");
@@ -486,10 +490,12 @@ fn entry_crc(m: &ModelMeta, payload: Payload, params: &[Primitive], support: Opt
         crc.update(&s.outside().offset.to_le_bytes());
         crc.update(&s.outside().gain.to_le_bytes());
     }
+    let mut bytes = [0u8; 48];
     for p in params {
-        for v in p {
-            crc.update(&v.to_le_bytes());
+        for (b, v) in bytes.chunks_exact_mut(4).zip(p) {
+            b.copy_from_slice(&v.to_le_bytes());
         }
+        crc.update(&bytes);
     }
     Ok(crc.finalize())
 }
