@@ -18,6 +18,10 @@ pub enum StoreCommand {
     /// Copy one model of a store out to a model file, or a step with its
     /// step index (FIELD/STEP) to a folder: FIELD_STEP.gsi and its ranks' models.
     Extract(StoreExtractArgs),
+    /// Read every entry and step index of a store and check it (an
+    /// entry's checksum, layout 1.4; an index's, and its pieces): each
+    /// one's verdict, then exit 4 when any failed.
+    Verify(StoreVerifyArgs),
 }
 
 #[derive(Args)]
@@ -44,6 +48,13 @@ pub struct StoreExtractArgs {
     /// Payload of the output (default: the one it is stored with).
     #[arg(long, value_parser = one_of(&Payload::ALL, Payload::name))]
     payload: Option<Payload>,
+}
+
+#[derive(Args)]
+pub struct StoreVerifyArgs {
+    store: PathBuf,
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Args)]
@@ -96,7 +107,7 @@ mod imp {
     use gsenc::io::{read_model_file, read_step_index};
     use gsenc::model::ModelMeta;
     use gsenc::io::series::{write_decoded_series, SeriesOptions};
-    use gsenc::io::store::{EntryKey, Store};
+    use gsenc::io::store::{EntryKey, Store, Verified};
     use serde_json::json;
     use std::collections::BTreeMap;
     use std::time::Instant;
@@ -105,7 +116,40 @@ mod imp {
         match cmd {
             StoreCommand::Add(a) => add(a),
             StoreCommand::Extract(a) => extract(a),
+            StoreCommand::Verify(a) => verify(a),
         }
+    }
+
+    /// `store verify`: [`Store::verify`]'s verdicts, as lines or JSON, and a
+    /// Format error (exit 4) naming how many failed.
+    fn verify(a: StoreVerifyArgs) -> Result<()> {
+        let checked = Store::open_read(&a.store)?.verify()?;
+        let verdict = |r: &Result<Verified>| match r {
+            Ok(Verified::Checksum) => "ok (checksum)".to_owned(),
+            Ok(Verified::NoChecksum) => "read, unchecked (no checksum: written before store layout 1.4)".to_owned(),
+            Ok(Verified::StepIndex) => "ok (step index and the pieces it names)".to_owned(),
+            Err(e) => format!("FAILED: {e}"),
+        };
+        let failed = checked.iter().filter(|(_, r)| r.is_err()).count();
+        if a.json {
+            let items: Vec<serde_json::Value> = checked
+                .iter()
+                .map(|(what, r)| match r {
+                    Ok(v) => json!({ "item": what, "ok": true, "checksum": *v != Verified::NoChecksum }),
+                    Err(e) => json!({ "item": what, "ok": false, "error": e.to_string() }),
+                })
+                .collect();
+            println!("{}", json!({ "store": a.store, "items": items, "failed": failed }));
+        } else {
+            for (what, r) in &checked {
+                println!("  {what:<32} {}", verdict(r));
+            }
+            println!("{}: {} items, {failed} failed", a.store.display(), checked.len());
+        }
+        if failed > 0 {
+            return Err(Error::format(format!("{}: {failed} of {} items failed verification", a.store.display(), checked.len())));
+        }
+        Ok(())
     }
 
     /// What `args` names: model files, step indexes (`.gsi`) and folders

@@ -234,3 +234,49 @@ fn an_mpi_runs_folder_keeps_its_step_indexes() {
     let out = add(&[&models_only, &run.join("rho_000004.gsi")]);
     assert!(!out.status.success() && String::from_utf8_lossy(&out.stderr).contains("holds the index of /rho/4 already"));
 }
+
+/// `store verify`: every entry and step index of a sound store checked
+/// (exit 0); then one float32 value of one entry changed in the file's
+/// bytes: that entry fails its checksum by name (exit 4), the others and
+/// the step index still pass.
+#[test]
+fn verify_names_the_entry_that_changed() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("verify");
+    let path = dir.join("s.h5");
+    let changed = model("temp", 3, 0, 50, 0.5);
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        s.append(&model("rho", 0, 0, 40, 0.5), Payload::Packed).unwrap();
+        s.append(&changed, Payload::Float32).unwrap();
+        let (index, pieces) = common::decomposed_step("rho", 4);
+        for m in &pieces {
+            s.append(m, Payload::Float32).unwrap();
+        }
+        s.append_step_index(&index).unwrap();
+    }
+    let verify = || {
+        let out = Command::new(gsenc_bin()).args(["store", "verify", "--json"]).arg(&path).output().unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        (out.status.code(), v)
+    };
+    let (code, v) = verify();
+    assert_eq!(code, Some(0), "{v}");
+    let items = v["items"].as_array().unwrap();
+    assert!(items.len() >= 4 && items.iter().all(|i| i["ok"] == true), "{v}");
+    assert!(items.iter().any(|i| i["item"] == "/rho/4/index"), "{v}");
+    // The entry's first row (mu_x of every primitive) as it lies in the file.
+    let row: Vec<u8> = changed.params.iter().flat_map(|p| p[0].to_le_bytes()).collect();
+    let mut bytes = std::fs::read(&path).unwrap();
+    let at = bytes.windows(row.len()).position(|w| w == row).expect("the float32 rows lie in the file as written");
+    bytes[at + 4 * 17] ^= 1;
+    std::fs::write(&path, &bytes).unwrap();
+    let (code, v) = verify();
+    assert_eq!(code, Some(4), "{v}");
+    assert_eq!(v["failed"], 1, "{v}");
+    for i in v["items"].as_array().unwrap() {
+        let bad = i["item"] == "/temp/3/rank_0";
+        assert_eq!(i["ok"], !bad, "{i}");
+        assert!(!bad || i["error"].as_str().unwrap().contains("fails its checksum"), "{i}");
+    }
+}
