@@ -6,7 +6,7 @@
 use crate::errors::IntoPy;
 use crate::model::{in_memory, of_step, Model};
 use gsenc::domain::global::GlobalField;
-use gsenc::io::store::{EntryKey, Store as H5Store};
+use gsenc::io::store::{EntryKey, Store as H5Store, Verified};
 use pyo3::exceptions::PyValueError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
@@ -162,6 +162,28 @@ impl Store {
         let keys: Vec<EntryKey> = self.entries.iter().map(|(k, _)| k.clone()).collect();
         let chosen = choose(&keys, &self.path, field.as_deref(), step, rank)?;
         py.detach(|| read_chosen(&H5Store::open_read(&self.path).py_err()?, chosen))
+    }
+
+    /// Reads and checks every entry and step index of the store as it is
+    /// now (`gsenc store verify`): a list of dicts, each with `item` (its
+    /// path in the store), `ok`, and `checksum` (whether its checksum was
+    /// checked: False for an entry written before store layout 1.4) or
+    /// `error` (why it failed).
+    fn verify<'py>(&self, py: Python<'py>) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let checked = py.detach(|| H5Store::open_read(&self.path)?.verify()).py_err()?;
+        checked
+            .into_iter()
+            .map(|(item, verdict)| {
+                let d = PyDict::new(py);
+                d.set_item("item", item)?;
+                d.set_item("ok", verdict.is_ok())?;
+                match verdict {
+                    Ok(v) => d.set_item("checksum", v != Verified::NoChecksum)?,
+                    Err(e) => d.set_item("error", e.to_string())?,
+                }
+                Ok(d)
+            })
+            .collect()
     }
 
     #[getter]

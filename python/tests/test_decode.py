@@ -123,6 +123,10 @@ def test_a_step_of_a_store_with_its_index_is_the_blended_global_field(tmp_path, 
         assert step.info["pieces"] == 2 and step.dims == (32, 16, 16)
         np.testing.assert_array_equal(step.decode(backend="cpu"), from_index.decode(backend="cpu"))
         np.testing.assert_array_equal(step.decode(backend="cpu", additive=True), from_index.decode(backend="cpu", additive=True))
+    # Every entry and the step index check out (gsenc store verify's verdicts).
+    checked = gsenc.open_store(tmp_path / "run.h5").verify()
+    assert [c["item"] for c in checked] == ["/rho/4/rank_0", "/rho/4/rank_1", "/rho/4/index"]
+    assert all(c["ok"] and c["checksum"] and "error" not in c for c in checked), checked
     # A rank is still one piece; without an index the step asks for one.
     assert gsenc.read(tmp_path / "run.h5", field="rho", step=4, rank=1).info["rank"] == 1
     with pytest.raises(ValueError, match="no step index to blend them"):
