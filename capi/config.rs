@@ -146,7 +146,8 @@ pub struct gsenc_config {
     /// `GSENC_OUTPUT_*`: a folder of model files (default) or an HDF5
     /// store (needs a gsenc built with HDF5; written on the caller's thread
     /// in `gsenc_wait`, `gsenc_poll` and destroy, since HDF5 is not
-    /// thread-safe and the host may use it too).
+    /// thread-safe and the host may use it too; for an MPI encoder, by rank
+    /// 0 for every rank, at each push, `gsenc_wait` and destroy).
     pub output_format: i32,
     /// Encoders made by `gsenc_encoder_create_mpi`: voxels each rank's
     /// piece reaches past its own region (default 8), so that neighbouring

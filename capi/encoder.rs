@@ -49,7 +49,7 @@ impl ModelSink for KeepInMemory {
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: *mut *mut gsenc_encoder) -> gsenc_status {
     // SAFETY: per this function's contract.
-    guard(|| unsafe { create_into(config, out, "gsenc_encoder_create", gsenc_encoder::new) })
+    guard(|| unsafe { create_into(config, out, "gsenc_encoder_create", |s| gsenc_encoder::new(s, true)) })
 }
 
 /// Creates an encoder by `make` from `*config` into `*out` (NULL on
@@ -82,8 +82,8 @@ unsafe fn create_into(
 /// communicator whose Fortran handle is `comm` (`MPI_Comm_c2f(comm)` in C;
 /// `integer :: comm` in Fortran), so that this header needs no `mpi.h`.
 /// **Collective** over `comm`, as are every push and
-/// `gsenc_encoder_destroy` of the encoder it makes; `gsenc_wait`,
-/// `gsenc_poll` and the other calls are local. MPI must be initialised at
+/// `gsenc_encoder_destroy` of the encoder it makes (and `gsenc_wait` when
+/// it writes an HDF5 store); `gsenc_poll` and the other calls are local. MPI must be initialised at
 /// `MPI_THREAD_FUNNELED` or above, and collective calls must come from the
 /// thread that initialised it (the encoder's own threads never call MPI).
 /// The communicator is duplicated here and the duplicate freed at destroy;
@@ -97,7 +97,16 @@ unsafe fn create_into(
 /// piece needs, and the rank encodes `config.budget` Gaussians over it.
 /// Models go to `output_dir` as `FIELD_STEP.gsm` (rank 0) and
 /// `FIELD_STEP_rRANK.gsm`, with rank 0's step index `FIELD_STEP.gsi`;
-/// `gsenc decode FIELD_STEP.gsi` gives the global field. Ranks pushing
+/// `gsenc decode FIELD_STEP.gsi` gives the global field. With
+/// `GSENC_OUTPUT_HDF5` they go to one store, `output_dir` its file, which
+/// rank 0 alone opens and writes: each rank's models as
+/// `/<field>/<step>/rank_<r>` and each step's index as
+/// `/<field>/<step>/index`. Every collective call (a push, `gsenc_wait`,
+/// destroy) sends rank 0 the models each rank finished since the last one
+/// and writes them there; a failed write is that step's failure on the
+/// rank that encoded it (reported by its next `gsenc_wait`, or by
+/// `gsenc_poll`). `gsenc_poll` writes nothing on an MPI encoder: a step
+/// it calls done may reach the store at the next collective call. Ranks pushing
 /// different fields, steps or forms get `GSENC_STATUS_MPI` together.
 /// `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
 #[no_mangle]
@@ -109,17 +118,21 @@ pub unsafe extern "C" fn gsenc_encoder_create_mpi(config: *const gsenc_config, c
 #[cfg(feature = "mpi")]
 fn create_mpi(mut settings: Settings, comm: i32) -> Result<gsenc_encoder, Failure> {
     use gsenc::domain::mpi::{Decomposition, DecompositionConfig};
-    if settings.output.is_some() && settings.output_format == OutputFormat::Hdf5 {
-        return fail(
-            gsenc_status::InvalidArgument,
-            "an MPI encoder writes a folder of per-rank model files and step indexes; HDF5 output is for serial encoders",
-        );
-    }
     let cfg = DecompositionConfig { dims: settings.dims, bounds: settings.bounds, halo: settings.halo, range: settings.series.range };
     let ranks = Decomposition::from_fortran(comm, cfg)?;
     settings.series.rank = ranks.rank() as u32;
     settings.backend = settings.backend.for_node_rank(ranks.node_rank());
-    let mut enc = gsenc_encoder::new(settings)?;
+    // Every rank writes the same way (a store makes some calls collective),
+    // only rank 0 opens an HDF5 store, and every rank fails if one did.
+    let writes = settings.output.as_ref().map_or(0, |_| 1 + settings.output_format as u64);
+    ranks.agree_same(writes, "outputs (none, a folder, an HDF5 store)")?;
+    let made = gsenc_encoder::new(settings, ranks.rank() == 0);
+    let agreed = ranks.agree_all(made.as_ref().map(|_| ()).map_err(|_| gsenc::Error::Mpi(String::new())), "to create its encoder");
+    let mut enc = match (made, agreed) {
+        (Err(mine), _) => return Err(mine),
+        (Ok(_), Err(other)) => return Err(other.into()),
+        (Ok(enc), Ok(())) => enc,
+    };
     enc.ranks = Some(ranks);
     Ok(enc)
 }
@@ -146,7 +159,7 @@ pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
             // until now (released, so never freed twice, and no call holds it).
             let mut enc = unsafe { Box::from_raw(encoder) };
             let _ = enc.queue.wait(None);
-            enc.flush();
+            enc.flush(true);
             drop(enc); // the queue's drop joins its idle worker
         }));
     });
@@ -162,7 +175,9 @@ pub(crate) fn with_encoder<R>(encoder: *mut gsenc_encoder, what: &str, f: impl F
 }
 
 impl gsenc_encoder {
-    fn new(settings: Settings) -> Result<gsenc_encoder, Failure> {
+    /// An encoder of `settings`; `opens_store`: whether this process opens
+    /// the HDF5 store, when that is the output (rank 0 of an MPI run).
+    fn new(settings: Settings, opens_store: bool) -> Result<gsenc_encoder, Failure> {
         let sink: Box<dyn ModelSink> = match (&settings.output, settings.output_format) {
             (None, _) => Box::new(KeepInMemory),
             (Some(dir), OutputFormat::Folder) => Box::new(ModelFolder { dir: dir.clone(), payload: settings.series.payload }),
@@ -181,9 +196,11 @@ impl gsenc_encoder {
         };
         #[cfg(feature = "hdf5")]
         let store = match (&settings.output, settings.output_format) {
-            (Some(path), OutputFormat::Hdf5) => Some(gsenc::io::store::Store::open_append(path)?),
+            (Some(path), OutputFormat::Hdf5) if opens_store => Some(gsenc::io::store::Store::open_append(path)?),
             _ => None,
         };
+        #[cfg(not(feature = "hdf5"))]
+        let _ = opens_store;
         #[cfg(not(feature = "hdf5"))]
         if settings.output.is_some() && settings.output_format == OutputFormat::Hdf5 {
             return fail(
@@ -227,7 +244,10 @@ impl gsenc_encoder {
     /// encoder the failure is also this rank's part of the ranks' push
     /// (`Decomposition::refuse`), so that every rank's push of the step
     /// fails together instead of the others waiting for this one.
+    /// An MPI encoder writing a store first stores what the ranks finished
+    /// (`flush`, collective like the push).
     pub(crate) fn push_made(&mut self, field: &str, step: u64, time: f64, kind: DataKind, made: Result<StepData, Failure>) -> Result<(), Failure> {
+        self.flush(true);
         let failure = match made {
             Ok(data) => return self.push(field.to_owned(), step, time, data),
             Err(f) => f,
@@ -241,15 +261,25 @@ impl gsenc_encoder {
     }
 
     /// Queues a job: on this encoder alone, or across the ranks (then rank 0
-    /// also writes the step's index beside the models).
+    /// also writes the step's index: beside the models, or into the store).
     fn push_job(&mut self, job: Job) -> Result<Pushed, Failure> {
         #[cfg(feature = "mpi")]
         if let Some(ranks) = self.ranks.as_mut() {
             let (field, step) = (job.field.clone(), job.step);
             let done = ranks.push(&self.queue, job, &|rank| gsenc::format::model_file_name(&field, step, rank))?;
-            if let (Some(index), Some(dir)) = (done.index, self.settings.output.as_ref()) {
-                if done.pushed == Pushed::Queued {
-                    gsenc::io::write_atomic(dir.join(gsenc::format::step_index_file_name(&field, step)), index.to_json().as_bytes())?;
+            if let (Some(index), Some(out), Pushed::Queued) = (done.index, self.settings.output.as_ref(), done.pushed) {
+                match self.settings.output_format {
+                    OutputFormat::Folder => {
+                        gsenc::io::write_atomic(out.join(gsenc::format::step_index_file_name(&field, step)), index.to_json().as_bytes())?
+                    }
+                    #[cfg(feature = "hdf5")]
+                    OutputFormat::Hdf5 => {
+                        if let Some(store) = self.store.as_mut() {
+                            store.append_step_index(&index)?;
+                        }
+                    }
+                    #[cfg(not(feature = "hdf5"))]
+                    OutputFormat::Hdf5 => {}
                 }
             }
             return Ok(done.pushed);
@@ -258,20 +288,59 @@ impl gsenc_encoder {
     }
 
     /// Appends the models the worker left for the caller's thread (HDF5).
-    pub(crate) fn flush(&mut self) {
+    /// An MPI encoder does so only at its collective calls (`collective`),
+    /// every rank's models through rank 0; otherwise it leaves them.
+    pub(crate) fn flush(&mut self, collective: bool) {
+        #[cfg(feature = "mpi")]
+        if self.ranks.is_some() {
+            if collective {
+                self.flush_ranks();
+            }
+            return;
+        }
+        let _ = collective;
         #[cfg(feature = "hdf5")]
         if let Some(store) = self.store.as_mut() {
+            let payload = self.settings.series.payload;
             for m in self.queue.take_finished() {
-                let r = store.append(&m, self.settings.series.payload).map(|()| {
-                    format!("{}:{}", store.path().display(), gsenc::io::store::EntryKey::of(&m.meta).path())
-                });
-                self.queue.set_stored(&m.meta.field, m.meta.step, r);
+                self.queue.set_stored(&m.meta.field, m.meta.step, append(store, &m, payload));
             }
+        }
+    }
+
+    /// Every rank's finished models stored by rank 0 (`to_root`); each
+    /// rank records what became of its own. Collective; nothing to do but
+    /// for an HDF5 store.
+    #[cfg(feature = "mpi")]
+    fn flush_ranks(&mut self) {
+        if self.settings.output.is_none() || self.settings.output_format != OutputFormat::Hdf5 {
+            return;
+        }
+        let Some(ranks) = self.ranks.as_mut() else { return };
+        let mine = self.queue.take_finished();
+        #[cfg(feature = "hdf5")]
+        let stored = {
+            let payload = self.settings.series.payload;
+            let mut put = self.store.as_mut().map(|store| move |m: &Model| append(store, m, payload));
+            ranks.store_on_root(&mine, put.as_mut().map(|p| p as gsenc::domain::to_root::StoreOne))
+        };
+        #[cfg(not(feature = "hdf5"))]
+        let stored = ranks.store_on_root(&mine, None);
+        match stored {
+            Ok(verdicts) => mine.iter().zip(verdicts).for_each(|(m, v)| self.queue.set_stored(&m.meta.field, m.meta.step, v)),
+            Err(e) => mine.iter().for_each(|m| self.queue.set_stored(&m.meta.field, m.meta.step, Err(e.in_context("storing through rank 0")))),
         }
     }
 
     pub(crate) fn placement(&self) -> Placement {
         Placement { dims: self.settings.dims, bounds: self.settings.bounds }
     }
+}
+
+/// Appends `m` to `store`: where it went (`FILE:/field/step/rank_r`).
+#[cfg(feature = "hdf5")]
+fn append(store: &mut gsenc::io::store::Store, m: &Model, payload: gsenc::format::Payload) -> gsenc::Result<String> {
+    store.append(m, payload)?;
+    Ok(format!("{}:{}", store.path().display(), gsenc::io::store::EntryKey::of(&m.meta).path()))
 }
 

@@ -373,8 +373,10 @@ contains
     !> Creates one rank's encoder of a domain-decomposed run over `comm`
     !> (an MPI communicator as the integer of `use mpi`, or `comm%MPI_VAL`
     !> of `use mpi_f08`). Collective, as are every push and
-    !> gsenc_encoder_destroy of this encoder. Rank 0 writes each step's
-    !> index FIELD_STEP.gsi into `output_dir`.
+    !> gsenc_encoder_destroy of this encoder (and gsenc_wait when it writes
+    !> an HDF5 store). Rank 0 writes each step's index FIELD_STEP.gsi into
+    !> `output_dir`, or, with GSENC_OUTPUT_HDF5, every rank's models and
+    !> each step's index into the store `output_dir`.
     integer(c_int) function gsenc_encoder_create_mpi(config, comm, encoder, output_dir) result(status)
         type(gsenc_config), intent(in) :: config
         integer, intent(in) :: comm

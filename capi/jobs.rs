@@ -14,18 +14,25 @@ use std::os::raw::c_char;
 /// encoded and written. Returns the first failure not reported before
 /// (its message names the field and step; later steps were still encoded),
 /// else `GSENC_STATUS_OK`. Models bound for an HDF5 store are written here,
-/// on the caller's thread. Calls on one encoder run one at a time.
+/// on the caller's thread. Collective for an MPI encoder writing an HDF5
+/// store (rank 0 writes every rank's models; a rank's failed write is its
+/// step's failure). Calls on one encoder run one at a time.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_wait(encoder: *mut gsenc_encoder, field: *const c_char) -> gsenc_status {
     guard(|| {
         with_encoder(encoder, "gsenc_wait", |enc| {
             // SAFETY: NULL or a NUL-terminated string.
-            let field = if field.is_null() { None } else { Some(unsafe { c_str(field, "field") }?) };
-            if let Some(f) = &field {
-                gsenc::format::check_field_name(f)?;
-            }
-            let waited = enc.queue.wait(field.as_deref());
-            enc.flush();
+            let field = if field.is_null() { Ok(None) } else { unsafe { c_str(field, "field") }.map(Some) };
+            let field = field.and_then(|f| {
+                if let Some(name) = &f {
+                    gsenc::format::check_field_name(name)?;
+                }
+                Ok(f)
+            });
+            let waited = field.as_ref().map_or(Ok(()), |f| enc.queue.wait(f.as_deref()));
+            // Collective for an MPI encoder writing a store: on a bad field too.
+            enc.flush(true);
+            let field = field?;
             waited?;
             // A store write that failed in the flush is a failure of this wait too.
             enc.queue.wait(field.as_deref())?;
@@ -37,7 +44,8 @@ pub unsafe extern "C" fn gsenc_wait(encoder: *mut gsenc_encoder, field: *const c
 /// Job states (`gsenc_job.state`).
 pub const GSENC_JOB_QUEUED: i32 = 0;
 pub const GSENC_JOB_RUNNING: i32 = 1;
-/// Encoded, and written when an output is configured.
+/// Encoded, and written when an output is configured (for an MPI encoder
+/// writing an HDF5 store: written at its next collective call).
 pub const GSENC_JOB_DONE: i32 = 2;
 pub const GSENC_JOB_FAILED: i32 = 3;
 /// Dropped by the `GSENC_QUEUE_SKIP` policy.
@@ -75,7 +83,7 @@ pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c
             let field = unsafe { c_str(field, "field") }?;
             // SAFETY: NULL or the caller's gsenc_job.
             unsafe { check_sized(job.cast_const(), "gsenc_poll: job") }?;
-            enc.flush();
+            enc.flush(false);
             let Some(state) = enc.queue.poll(&field, step) else {
                 return fail(gsenc_status::CallOrder, format!("field '{field}' step {step} was never pushed"));
             };
@@ -127,7 +135,7 @@ pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gs
     guard(|| {
         with_encoder(encoder, "gsenc_encoder_cancel", |enc| {
             enc.queue.cancel();
-            enc.flush();
+            enc.flush(false);
             Ok(())
         })
     })

@@ -168,7 +168,8 @@
 #define GSENC_JOB_RUNNING 1
 
 /*
- Encoded, and written when an output is configured.
+ Encoded, and written when an output is configured (for an MPI encoder
+ writing an HDF5 store: written at its next collective call).
  */
 #define GSENC_JOB_DONE 2
 
@@ -396,7 +397,8 @@ typedef struct {
    `GSENC_OUTPUT_*`: a folder of model files (default) or an HDF5
    store (needs a gsenc built with HDF5; written on the caller's thread
    in `gsenc_wait`, `gsenc_poll` and destroy, since HDF5 is not
-   thread-safe and the host may use it too).
+   thread-safe and the host may use it too; for an MPI encoder, by rank
+   0 for every rank, at each push, `gsenc_wait` and destroy).
    */
   int32_t output_format;
   /*
@@ -668,8 +670,8 @@ gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **ou
  communicator whose Fortran handle is `comm` (`MPI_Comm_c2f(comm)` in C;
  `integer :: comm` in Fortran), so that this header needs no `mpi.h`.
  **Collective** over `comm`, as are every push and
- `gsenc_encoder_destroy` of the encoder it makes; `gsenc_wait`,
- `gsenc_poll` and the other calls are local. MPI must be initialised at
+ `gsenc_encoder_destroy` of the encoder it makes (and `gsenc_wait` when
+ it writes an HDF5 store); `gsenc_poll` and the other calls are local. MPI must be initialised at
  `MPI_THREAD_FUNNELED` or above, and collective calls must come from the
  thread that initialised it (the encoder's own threads never call MPI).
  The communicator is duplicated here and the duplicate freed at destroy;
@@ -683,7 +685,16 @@ gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **ou
  piece needs, and the rank encodes `config.budget` Gaussians over it.
  Models go to `output_dir` as `FIELD_STEP.gsm` (rank 0) and
  `FIELD_STEP_rRANK.gsm`, with rank 0's step index `FIELD_STEP.gsi`;
- `gsenc decode FIELD_STEP.gsi` gives the global field. Ranks pushing
+ `gsenc decode FIELD_STEP.gsi` gives the global field. With
+ `GSENC_OUTPUT_HDF5` they go to one store, `output_dir` its file, which
+ rank 0 alone opens and writes: each rank's models as
+ `/<field>/<step>/rank_<r>` and each step's index as
+ `/<field>/<step>/index`. Every collective call (a push, `gsenc_wait`,
+ destroy) sends rank 0 the models each rank finished since the last one
+ and writes them there; a failed write is that step's failure on the
+ rank that encoded it (reported by its next `gsenc_wait`, or by
+ `gsenc_poll`). `gsenc_poll` writes nothing on an MPI encoder: a step
+ it calls done may reach the store at the next collective call. Ranks pushing
  different fields, steps or forms get `GSENC_STATUS_MPI` together.
  `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
  */
@@ -752,7 +763,9 @@ gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
  encoded and written. Returns the first failure not reported before
  (its message names the field and step; later steps were still encoded),
  else `GSENC_STATUS_OK`. Models bound for an HDF5 store are written here,
- on the caller's thread. Calls on one encoder run one at a time.
+ on the caller's thread. Collective for an MPI encoder writing an HDF5
+ store (rank 0 writes every rank's models; a rank's failed write is its
+ step's failure). Calls on one encoder run one at a time.
  */
 gsenc_status gsenc_wait(gsenc_encoder *encoder, const char *field);
 

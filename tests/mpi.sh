@@ -1,29 +1,61 @@
 #!/usr/bin/env bash
 # The MPI layer under mpirun -n 1, 2 and 4 (oversubscribed on small machines):
 # the C API (tests/c/capi_mpi.c), the Fortran module (tests/fortran/mpi_test.f90),
-# the step index decoded by the CLI, and the domain-decomposed mock solver
+# the step index decoded by the CLI, the store rank 0 wrote for every rank
+# against the folder's models, and the domain-decomposed mock solver
 # (examples/mpi_mock_solver.rs) against its single-rank run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 run() { mpirun --oversubscribe -n "$@"; }
 
-cargo build --release --locked --features mpi --lib --bin gsenc --example mpi_mock_solver
+cargo build --release --locked --features mpi,hdf5 --lib --bin gsenc --example mpi_mock_solver
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 lib=target/release/libgsenc.a
+hdf5_libs=$(pkg-config --libs hdf5)
 
-mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi.c "$lib" -lpthread -ldl -lm -o "$out/capi_mpi"
+mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi.c "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/capi_mpi"
 mpif90 -std=f2008 -J "$out" -c capi/gsenc.f90 -o "$out/gsenc_mod.o"
-mpif90 -I"$out" tests/fortran/mpi_test.f90 "$out/gsenc_mod.o" "$lib" -lpthread -ldl -lm -o "$out/mpi_test"
+mpif90 -I"$out" tests/fortran/mpi_test.f90 "$out/gsenc_mod.o" "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/mpi_test"
 for n in 1 2 4; do
     mkdir -p "$out/c$n" "$out/f$n"
     run "$n" "$out/capi_mpi" "$out/c$n"
     run "$n" "$out/mpi_test" "$out/f$n"
 done
 
-# The CLI decodes a step index whole or one rank's piece; a missing piece is named.
 gsenc=target/release/gsenc
+# The store rank 0 wrote holds every rank's models, checked, each the same
+# as that rank's model file of the folder run (the same pushes; packed at the
+# precision each rank's encode measured: compared as the float32 files of
+# their decoded parameters, exact), and each step's index, which gives the
+# same global field as the folder's.
+for n in 1 2 4; do
+    "$gsenc" store verify "$out/c$n/run.h5" --json > "$out/verify.json"
+    python3 - "$out/verify.json" "$n" <<'PY'
+import json, sys
+items = json.load(open(sys.argv[1]))["items"]
+n = int(sys.argv[2])
+want = {f"/rho/{s}/rank_{r}" for s in (1, 2) for r in range(n)} | {"/rho/1/index", "/rho/2/index"}
+seen = {i["item"] for i in items}
+assert seen == want, (sorted(seen), sorted(want))
+assert all(i["ok"] for i in items), items
+PY
+    mkdir "$out/x$n"
+    "$gsenc" store extract "$out/c$n/run.h5" rho/2 -o "$out/x$n/" --payload f32 >/dev/null
+    for r in $(seq 0 $((n - 1))); do
+        m=rho_000002.gsm
+        [ "$r" = 0 ] || m=rho_000002_r$r.gsm
+        "$gsenc" convert "$out/c$n/$m" --payload f32 -o "$out/folder.gsm" >/dev/null
+        cmp "$out/x$n/$m" "$out/folder.gsm" || { echo "rank $r's model in the store of $n ranks differs from its file" >&2; exit 1; }
+    done
+    "$gsenc" decode "$out/x$n/rho_000002.gsi" -o "$out/store.raw" >/dev/null
+    "$gsenc" decode "$out/c$n/rho_000002.gsi" -o "$out/folder.raw" >/dev/null
+    cmp "$out/store.raw" "$out/folder.raw"
+done
+echo "cli-mpi-store: 3 passed"
+
+# The CLI decodes a step index whole or one rank's piece; a missing piece is named.
 "$gsenc" decode "$out/c4/rho_000002.gsi" -o "$out/whole.raw" --json | grep -q '"dims":\[24,24,24\]'
 "$gsenc" decode "$out/c4/rho_000002.gsi" --piece 3 -o "$out/piece.raw" --json | grep -q '"box_max":\[24,24,24\]'
 rm "$out/c4/rho_000002_r2.gsm"
@@ -42,7 +74,7 @@ grep -q "the index names field 'rho' step 2 rank 2" "$out/err" || { cat "$out/er
 echo "cli-mpi: 4 passed"
 
 # MPI at MPI_THREAD_SINGLE, and after MPI_Finalize: clear errors, no handle.
-mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi_levels.c "$lib" -lpthread -ldl -lm -o "$out/capi_mpi_levels"
+mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi_levels.c "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/capi_mpi_levels"
 run 1 "$out/capi_mpi_levels"
 
 # The mock solver: grid, particles and cells on 1, 2 and 4 ranks with the same

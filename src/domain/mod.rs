@@ -4,10 +4,12 @@
 //! global field (the halo blend, or the additive merge); [`global`] is what a
 //! decode reads (a model, pieces, or a step); `mpi` (feature
 //! `mpi`) is the only code that calls MPI: per-rank encoders over the
-//! simulation's communicator, above the background queue.
+//! simulation's communicator, above the background queue, and [`to_root`]
+//! (its exchange: feature `mpi`) brings every rank's models to rank 0 for one store.
 
 pub mod global;
 pub mod halo;
 #[cfg(feature = "mpi")]
 pub mod mpi;
 pub mod pieces;
+pub mod to_root;

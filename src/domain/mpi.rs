@@ -172,7 +172,40 @@ impl Decomposition {
         self.size
     }
 
-    fn check_thread(&self) -> Result<()> {
+    /// The decomposition's own duplicate of the caller's communicator.
+    pub(super) fn comm(&self) -> &SimpleCommunicator {
+        &self.comm
+    }
+
+    /// Every rank's `local` outcome of the same collective step (`what`,
+    /// in words: "opening the store"): the first failing rank gets its own
+    /// error, the others an `Mpi` error naming it. Collective.
+    pub fn agree_all<T>(&self, local: Result<T>, what: &str) -> Result<T> {
+        self.check_thread()?;
+        let mine = [if local.is_err() { self.rank as u64 } else { u64::MAX }];
+        let mut first = [0u64];
+        self.comm.all_reduce_into(&mine[..], &mut first[..], SystemOperation::min());
+        match (local, first[0]) {
+            (Err(e), _) => Err(e),
+            (Ok(_), r) if r != u64::MAX => Err(Error::Mpi(format!("rank {r} failed {what} (its own error says why)"))),
+            (Ok(v), _) => Ok(v),
+        }
+    }
+
+    /// Whether every rank gave the same `value` of a setting (`what`, in
+    /// words); an `Mpi` error on every rank when not. Collective.
+    pub fn agree_same(&self, value: u64, what: &str) -> Result<()> {
+        self.check_thread()?;
+        let mine = [value, !value];
+        let mut all = [0u64; 2];
+        self.comm.all_reduce_into(&mine[..], &mut all[..], SystemOperation::max());
+        match all == mine {
+            true => Ok(()),
+            false => Err(Error::Mpi(format!("the ranks gave different {what}; every rank must give the same"))),
+        }
+    }
+
+    pub(super) fn check_thread(&self) -> Result<()> {
         check_environment()?;
         if self.funneled {
             let mut main = 0;

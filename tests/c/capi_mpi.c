@@ -2,7 +2,11 @@
  * errors before MPI_Init, a collective create over MPI_Comm_c2f, each rank
  * pushing its slab of a grid and its particles for two steps, the step index
  * and every rank's model written, misuse and a rank short of memory reported
- * on every rank, and the caller's communicator untouched after destroy. */
+ * on every rank, the caller's communicator untouched after destroy, and the
+ * same grid steps written into one HDF5 store by rank 0 (OUTPUT_DIR/run.h5,
+ * which tests/mpi.sh compares with the folder's models), a store rank 0
+ * cannot open failing every rank's create, as do ranks asking for different
+ * outputs, and a write that fails on rank 0 reported by every rank's wait. */
 #define _POSIX_C_SOURCE 200112L /* setenv */
 #include "gsenc.h"
 #include <math.h>
@@ -53,6 +57,9 @@ int main(int argc, char **argv) {
     cfg.dims[0] = cfg.dims[1] = cfg.dims[2] = N;
     cfg.halo = 4;
     cfg.output_dir = argv[1];
+    /* Packed: each model packed at the precision its encode measured, which
+     * rank 0 must receive with the model to store it the same. */
+    cfg.payload = GSENC_PAYLOAD_PACKED;
     CHECK(cfg.halo == 4, "halo is a config field");
 
     /* Before MPI_Init: a clear error, no handle. */
@@ -70,11 +77,6 @@ int main(int argc, char **argv) {
     MPI_Comm comm;
     MPI_Comm_dup(MPI_COMM_WORLD, &comm);
     EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), NULL), GSENC_STATUS_NULL_POINTER);
-    /* MPI encoders write folders; an HDF5 store is refused on every rank. */
-    gsenc_config h5 = cfg;
-    h5.output_format = GSENC_OUTPUT_HDF5;
-    EXPECT(gsenc_encoder_create_mpi(&h5, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_INVALID_ARGUMENT);
-    CHECK(enc == NULL && strstr(last_error(), "HDF5") != NULL, "HDF5 output of an MPI encoder: %s", last_error());
     EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
 
     /* Slabs along x: rank r owns x cells [r*N/size, (r+1)*N/size). */
@@ -190,6 +192,62 @@ int main(int argc, char **argv) {
         EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
     }
     gsenc_encoder_destroy(enc);
+
+    /* One HDF5 store for every rank, written by rank 0 (tests/mpi.sh reads it). */
+    {
+        char store[1024];
+        snprintf(store, sizeof store, "%s/run.h5", argv[1]);
+        gsenc_config h5 = cfg;
+        h5.output_format = GSENC_OUTPUT_HDF5;
+        h5.output_dir = "/nonexistent-gsenc-dir/run.h5";
+        gsenc_status s = gsenc_encoder_create_mpi(&h5, MPI_Comm_c2f(comm), &enc);
+        if (rank == 0)
+            CHECK(s == GSENC_STATUS_IO && enc == NULL, "rank 0 cannot create the store: %s: %s", gsenc_status_string(s), last_error());
+        else
+            CHECK(s == GSENC_STATUS_MPI && enc == NULL && strstr(last_error(), "rank 0 failed") != NULL, "the others hear of it: %s: %s", gsenc_status_string(s), last_error());
+        h5.output_dir = store;
+        /* Ranks that would write different ways (a store makes wait collective) are refused on every rank. */
+        if (size > 1) {
+            gsenc_config mixed = rank == 0 ? h5 : cfg;
+            EXPECT(gsenc_encoder_create_mpi(&mixed, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_MPI);
+            CHECK(enc == NULL && strstr(last_error(), "different outputs") != NULL, "mixed outputs: %s", last_error());
+        }
+        for (int pass = 0; pass < 2; pass++) {
+            /* The second pass pushes step 1 into the same store: rank 0
+             * cannot write the step's index (its push fails) nor any rank's
+             * model (every rank's wait fails, naming the entry). */
+            EXPECT(gsenc_encoder_create_mpi(&h5, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
+            for (int step = 1; step <= 2 - pass; step++) {
+                for (int k = 0; k < N; k++)
+                    for (int j = 0; j < N; j++)
+                        for (int i = 0; i < nx; i++)
+                            slab[i + nx * (j + N * k)] = blob((x0 + i + 0.5) / N, (j + 0.5) / N, (k + 0.5) / N, step);
+                gsenc_grid g = {sizeof g, GSENC_DTYPE_FLOAT32, slab, {(uint64_t)nx, N, N}, {0, 0, 0}, {(double)x0 / N, 0, 0}, 1.0 / N};
+                s = gsenc_push_grid(enc, "rho", (uint64_t)step, step * 0.1, &g);
+                if (pass == 1 && rank == 0)
+                    CHECK(s == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "already holds a step index") != NULL, "rank 0 pushing a stored step: %s: %s", gsenc_status_string(s), last_error());
+                else
+                    CHECK(s == GSENC_STATUS_OK, "store push of step %d: %s: %s", step, gsenc_status_string(s), last_error());
+            }
+            s = gsenc_wait(enc, NULL);
+            if (pass == 0) {
+                CHECK(s == GSENC_STATUS_OK, "store wait: %s: %s", gsenc_status_string(s), last_error());
+                gsenc_job job;
+                job.struct_size = sizeof job;
+                EXPECT(gsenc_poll(enc, "rho", 2, &job), GSENC_STATUS_OK);
+                CHECK(job.state == GSENC_JOB_DONE && job.psnr > 20, "step 2 stored: state %d psnr %g", job.state, job.psnr);
+            } else {
+                char entry[64];
+                snprintf(entry, sizeof entry, "/rho/1/rank_%d already holds a model", rank);
+                CHECK(s == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), entry) != NULL, "a write that failed on rank 0: %s: %s", gsenc_status_string(s), last_error());
+                gsenc_job job;
+                job.struct_size = sizeof job;
+                EXPECT(gsenc_poll(enc, "rho", 1, &job), GSENC_STATUS_OK);
+                CHECK(job.state == GSENC_JOB_FAILED && job.error == GSENC_STATUS_INVALID_ARGUMENT, "its step failed: state %d error %d", job.state, job.error);
+            }
+            gsenc_encoder_destroy(enc);
+        }
+    }
 
     /* The caller's communicator still works, and is the caller's to free. */
     int one = 1, sum = 0;
