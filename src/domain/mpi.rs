@@ -178,7 +178,7 @@ impl Decomposition {
     }
 
     /// Every rank's `local` outcome of the same collective step (`what`,
-    /// in words: "opening the store"): the first failing rank gets its own
+    /// in words: "to create its encoder"): the first failing rank gets its own
     /// error, the others an `Mpi` error naming it. Collective.
     pub fn agree_all<T>(&self, local: Result<T>, what: &str) -> Result<T> {
         self.check_thread()?;

@@ -1,8 +1,8 @@
-//! An MPI run's models stored by rank 0 (cargo feature `mpi`): one store
-//! file for every rank's models, written during the run.
+//! An MPI run's models stored by rank 0: one store file for every rank's
+//! models, written during the run (the exchange: cargo feature `mpi`).
 //!
-//! One process writes the store: the HDF5 that codes link (Debian's among
-//! them) is serial, and the store's crash safety (an entry built unlinked,
+//! One process writes the store: the HDF5 most codes link (Debian's among
+//! them) is the serial build, and the store's crash safety (an entry built unlinked,
 //! then committed by one link) assumes a single writer. At a collective
 //! call each rank sends rank 0 the models its worker finished since the
 //! last one, one message a model, as a float32 model file (exact) followed
