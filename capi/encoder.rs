@@ -127,7 +127,7 @@ fn create_mpi(mut settings: Settings, comm: i32) -> Result<gsenc_encoder, Failur
     let writes = settings.output.as_ref().map_or(0, |_| 1 + settings.output_format as u64);
     ranks.agree_same(writes, "outputs (none, a folder, an HDF5 store)")?;
     let made = gsenc_encoder::new(settings, ranks.rank() == 0);
-    let agreed = ranks.agree_all(made.as_ref().map(|_| ()).map_err(|_| gsenc::Error::Mpi(String::new())), "to create its encoder");
+    let agreed = ranks.agree_all(made.is_ok(), "to create its encoder");
     let mut enc = match (made, agreed) {
         (Err(mine), _) => return Err(mine),
         (Ok(_), Err(other)) => return Err(other.into()),
@@ -245,9 +245,13 @@ impl gsenc_encoder {
     /// (`Decomposition::refuse`), so that every rank's push of the step
     /// fails together instead of the others waiting for this one.
     /// An MPI encoder writing a store first stores what the ranks finished
-    /// (`flush`, collective like the push).
+    /// (`flush_ranks`, collective like the push); a serial encoder writes
+    /// nothing here.
     pub(crate) fn push_made(&mut self, field: &str, step: u64, time: f64, kind: DataKind, made: Result<StepData, Failure>) -> Result<(), Failure> {
-        self.flush(true);
+        #[cfg(feature = "mpi")]
+        if self.ranks.is_some() {
+            self.flush_ranks();
+        }
         let failure = match made {
             Ok(data) => return self.push(field.to_owned(), step, time, data),
             Err(f) => f,

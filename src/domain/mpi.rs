@@ -177,18 +177,18 @@ impl Decomposition {
         &self.comm
     }
 
-    /// Every rank's `local` outcome of the same collective step (`what`,
-    /// in words: "to create its encoder"): the first failing rank gets its own
-    /// error, the others an `Mpi` error naming it. Collective.
-    pub fn agree_all<T>(&self, local: Result<T>, what: &str) -> Result<T> {
+    /// Whether every rank's step of the same collective call (`what`, in
+    /// words: "to create its encoder") went well (`ok`): an `Mpi` error
+    /// naming the first rank that failed otherwise (a failing rank reports
+    /// its own error instead). Collective.
+    pub fn agree_all(&self, ok: bool, what: &str) -> Result<()> {
         self.check_thread()?;
-        let mine = [if local.is_err() { self.rank as u64 } else { u64::MAX }];
+        let mine = [if ok { u64::MAX } else { self.rank as u64 }];
         let mut first = [0u64];
         self.comm.all_reduce_into(&mine[..], &mut first[..], SystemOperation::min());
-        match (local, first[0]) {
-            (Err(e), _) => Err(e),
-            (Ok(_), r) if r != u64::MAX => Err(Error::Mpi(format!("rank {r} failed {what} (its own error says why)"))),
-            (Ok(v), _) => Ok(v),
+        match first[0] {
+            u64::MAX => Ok(()),
+            r => Err(Error::Mpi(format!("rank {r} failed {what} (its own error says why)"))),
         }
     }
 
