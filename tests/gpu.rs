@@ -8,7 +8,7 @@
 
 mod common;
 use common::*;
-use gsenc::backend::gpu::device::{adapters, DeviceRequest};
+use gsenc::backend::gpu::device::{adapters, instances_made, DeviceRequest};
 use gsenc::backend::gpu::GpuBackend;
 use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch, PointLoss};
 use gsenc::encode::config::EncodeConfig;
@@ -45,6 +45,21 @@ fn gpu() -> Option<GpuBackend> {
     let mut b = GpuBackend::new(&req).unwrap_or_else(|e| panic!("{e}"));
     b.garbage = true;
     Some(b)
+}
+
+/// Every enumeration and every device of the process go through one wgpu
+/// instance: NVIDIA's driver stops listing its GPU in a process that has
+/// made 30 (the H200, 2026-12-04), which a simulation opening an encoder
+/// per output step reached after 15.
+#[test]
+fn devices_opened_and_dropped_share_one_instance() {
+    let Some(g) = gpu() else { return };
+    drop(g);
+    for round in 0..40 {
+        assert!(!adapters().is_empty(), "round {round}: the adapter is gone");
+    }
+    drop(gpu().expect("the adapter seen above"));
+    assert_eq!(instances_made(), 1, "wgpu instances made by this process");
 }
 
 /// The same parameters bit for bit.

@@ -10,7 +10,8 @@
 pub use crate::backend::select::AdapterSummary;
 use crate::error::{Error, Result};
 use parking_lot::Mutex;
-use std::sync::Arc;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, OnceLock};
 
 /// Which adapter to open.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -22,8 +23,26 @@ pub struct DeviceRequest {
     pub name: Option<String>,
 }
 
-fn instance() -> wgpu::Instance {
-    wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+/// The process's one wgpu instance, made on first use and kept for the
+/// process's life: every enumeration and every device goes through it.
+/// NVIDIA's Vulkan driver (580, on the H200) stops listing its GPU in a
+/// process that has made 30 instances, however many it dropped, so a
+/// simulation that opened an encoder per output step lost its GPU after 15
+/// (docs/BENCHMARKS.md "The GPU tests on the H200, 2026-12-04").
+fn instance() -> &'static wgpu::Instance {
+    static INSTANCE: OnceLock<wgpu::Instance> = OnceLock::new();
+    INSTANCE.get_or_init(|| {
+        INSTANCES_MADE.fetch_add(1, Ordering::Relaxed);
+        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+    })
+}
+
+static INSTANCES_MADE: AtomicUsize = AtomicUsize::new(0);
+
+/// How many wgpu instances this process has made: one at most, after the
+/// first enumeration or device.
+pub fn instances_made() -> usize {
+    INSTANCES_MADE.load(Ordering::Relaxed)
 }
 
 fn is_software(info: &wgpu::AdapterInfo) -> bool {
