@@ -148,10 +148,7 @@ pub fn keys(value: Value) -> Map<String, Value> {
 
 /// The process's peak resident memory (Linux `VmHWM`), when known.
 pub fn peak_rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    gsenc::memory::process_status("VmHWM:")
 }
 
 /// The keys particle and cell commands add: what the deposit saw and cost.

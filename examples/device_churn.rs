@@ -13,16 +13,10 @@ use gsenc::backend::gpu::device::{adapters, instances_made, DeviceRequest};
 use gsenc::backend::gpu::GpuBackend;
 use gsenc::backend::Backend;
 use gsenc::math::kernel::isotropic;
+use gsenc::memory::process_status;
 
 fn proc_count(dir: &str) -> usize {
     std::fs::read_dir(dir).map_or(0, |d| d.count())
-}
-
-fn vm_kib() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("VmSize:")).and_then(|l| l.split_whitespace().nth(1)?.parse().ok()))
-        .unwrap_or(0)
 }
 
 fn main() {
@@ -50,7 +44,7 @@ fn main() {
             instances_made(),
             proc_count("/proc/self/fd"),
             proc_count("/proc/self/task"),
-            vm_kib() / 1024,
+            process_status("VmSize:").unwrap_or(0) >> 20,
             outcome.as_ref().err().map_or(String::new(), |e| format!(", failed: {e}"))
         );
         if seen == 0 || outcome.is_err() {

@@ -259,10 +259,7 @@ fn cut_and_inside_rmse(decoded: &[f32], reference: &Grid, frame: &IndexFrame) ->
 
 /// Peak resident memory of this process (kB), from /proc.
 fn peak_rss_kb() -> u64 {
-    std::fs::read_to_string("/proc/self/status")
-        .ok()
-        .and_then(|s| s.lines().find(|l| l.starts_with("VmHWM:")).and_then(|l| l.split_whitespace().nth(1)?.parse().ok()))
-        .unwrap_or(0)
+    gsenc::memory::process_status("VmHWM:").unwrap_or(0) / 1024
 }
 
 fn main() {

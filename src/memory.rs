@@ -75,6 +75,23 @@ fn parse_size(text: &str) -> Option<u64> {
     digits.parse::<u64>().ok()?.checked_mul(1 << shift)
 }
 
+/// One of this process's memory figures in bytes, as Linux's
+/// `/proc/self/status` gives it: `"VmHWM:"` (peak resident), `"VmRSS:"`,
+/// `"VmSize:"` (virtual); `None` elsewhere or where it cannot be read. For
+/// reports (the CLI's `peak_rss_bytes`, the examples); nothing is refused
+/// on its account.
+pub fn process_status(key: &str) -> Option<u64> {
+    #[cfg(target_os = "linux")]
+    {
+        kib_value(&std::fs::read_to_string("/proc/self/status").ok()?, key)
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = key;
+        None
+    }
+}
+
 /// The value in bytes of a `key: N kB` line (`/proc/meminfo`, `/proc/self/status`).
 #[cfg(target_os = "linux")]
 fn kib_value(text: &str, key: &str) -> Option<u64> {
@@ -145,6 +162,23 @@ mod tests {
         let total: u64 = meminfo.lines().find(|l| l.starts_with("MemTotal:")).unwrap().split_whitespace().nth(1).unwrap().parse().unwrap();
         let available = available().unwrap().expect("Linux says how much memory is available");
         assert!(available > 0 && available <= total * 1024, "{available} of {total} KiB");
+    }
+
+    /// The process's own figures: a 64 MiB buffer it has written shows in
+    /// its resident size, its peak and its virtual size (each read anew, so
+    /// they are not compared with each other), and a key that is not there
+    /// gives nothing.
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn process_figures_are_read_in_bytes() {
+        let held = std::hint::black_box(vec![1u8; 64 << 20]);
+        let want = held.len() as u64;
+        for key in ["VmRSS:", "VmHWM:", "VmSize:"] {
+            let got = process_status(key).unwrap_or_else(|| panic!("Linux gives {key}"));
+            assert!(got >= want, "{key} {got} bytes while holding {want}");
+        }
+        assert_eq!(process_status("VmNoSuchKey:"), None);
+        drop(held);
     }
 
     /// A cgroup's inactive file cache is read by its exact key.
