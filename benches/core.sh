@@ -1,5 +1,7 @@
 #!/usr/bin/env bash
-# Benchmarks of the encoder core. Rerun with:
+# Benchmarks of the encoder core on the CPU backend (named, so that a
+# machine with a GPU, where auto would take it, times the CPU too; the GPU's
+# rows are benches/gpu.sh's). Rerun with:
 #   bash benches/core.sh [REPEATS] [ROWS...]
 # REPEATS (default 3) runs of each row; the 256^3 row runs once unless
 # REPEATS_LARGE is set. ROWS selects rows by name (default: all). THREADS
@@ -41,7 +43,7 @@ run() { # name repeats args...  (the model file is ROW${tag}.gsm)
     [ -z "${ITERS:-}" ] || [ -n "${tag:-}" ] || cap=(--iters "$ITERS")
     for i in $(seq 1 "$n"); do
         echo "[$name] run $i/$n" >&2
-        "$bin" encode grid "$@" ${THREADS:+--threads "$THREADS"} "${cap[@]}" -o "$out/$name${tag:-}.gsm" --json --quiet \
+        "$bin" encode grid "$@" --backend cpu ${THREADS:+--threads "$THREADS"} "${cap[@]}" -o "$out/$name${tag:-}.gsm" --json --quiet \
             | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; print(json.dumps(d))" >> "$out/core.jsonl"
     done
 }

@@ -22,7 +22,9 @@ for t in $counts; do
     python3 -c "
 import json, sys
 for line in open('$out/core.jsonl'):
-    d = json.loads(line); d['threads'] = $t; print(json.dumps(d))" >> "$out/scaling.jsonl"
+    d = json.loads(line); d['threads'] = $t; print(json.dumps(d))
+    if d['backend'] != 'cpu':
+        sys.exit(f\"{d['row']}: encoded by {d['backend']}, not the CPU backend\")" >> "$out/scaling.jsonl"
     for r in "${rows[@]}"; do
         if [ -f "$out/scaling/$r.gsm" ]; then
             cmp -s "$out/$r.gsm" "$out/scaling/$r.gsm" || { echo "$r: the model at $t threads differs from the one at the first thread count" >&2; exit 1; }

@@ -39,7 +39,7 @@ for r in "${rows[@]}"; do
         *) echo "unknown row $r" >&2; exit 2 ;;
     esac
     echo "[$r] one thread, task profile" >&2
-    GSENC_TASK_PROFILE="$out/$r.tsv" "$bin" encode grid "${args[@]}" --threads 1 -o "$out/$r.gsm" --quiet > /dev/null
+    GSENC_TASK_PROFILE="$out/$r.tsv" "$bin" encode grid "${args[@]}" --backend cpu --threads 1 -o "$out/$r.gsm" --quiet > /dev/null
     profiles+=("$out/$r.tsv")
 done
 python3 benches/scaling_model.py "${profiles[@]}"
