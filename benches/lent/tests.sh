@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The GPU tests on a lent GPU machine, and why some may fail there: on the
 # H200 of 2026-12-04 the last 3 of 18 tests in one process found no adapter
-# (docs/BENCHMARKS.md "The GPU tests on the H200"). From the kit of
+# (docs/BENCHMARKS.md "A lent H200, 2026-12-04"). From the kit of
 # benches/lent/prepare.sh:
 #   device run: command "bash benches/lent/tests.sh", carry [".lent"], timeout_s 300
 # 1. examples/device_churn: rounds that list the adapters, open and drop the

@@ -28,7 +28,7 @@ pub struct DeviceRequest {
 /// NVIDIA's Vulkan driver (580, on the H200) stops listing its GPU in a
 /// process that has made 30 instances, however many it dropped, so a
 /// simulation that opened an encoder per output step lost its GPU after 15
-/// (docs/BENCHMARKS.md "The GPU tests on the H200, 2026-12-04").
+/// (docs/BENCHMARKS.md "A lent H200, 2026-12-04").
 fn instance() -> &'static wgpu::Instance {
     static INSTANCE: OnceLock<wgpu::Instance> = OnceLock::new();
     INSTANCE.get_or_init(|| {
