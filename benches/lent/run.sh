@@ -9,7 +9,8 @@
 #      1024^3 on the GPU and the in-situ run on the GPU (benches/gpu.sh);
 #   2. the CPU backend at 1, 2, 4, 8 and 16 threads (benches/scaling.sh,
 #      SCALING_ITERS iterations a row, default 500: the time an iteration
-#      takes is what compares);
+#      takes is what compares), then which CPUs share a core with CPU 0
+#      (benches/siblings.sh, about 25 s);
 #   3. the scaling model's prediction for the same machine
 #      (benches/scaling_model.sh), to set beside stage 2;
 #   4. the GPU tests (tests/gpu.rs, one test thread, GSENC_REQUIRE_GPU=1);
@@ -66,10 +67,10 @@ echo "hardware GPUs: $(hardware)"
 
 # Seconds kept for the stages after the GPU rows (the H200 machine's times
 # of 2026-12-04: scaling 105 s at 500 iterations, the tests 15 s, in situ
-# on the CPU 75 s; the model about 80 s, estimated from its one-thread
-# iteration times; the split sweep up to 60 s; the last stage runs only if
-# they took less).
-reserve=${RESERVE:-330}
+# on the CPU 75 s; estimated: the core probe 25 s, the model 80 s from its
+# one-thread iteration times; the split sweep up to 60 s; the last stage
+# runs only if they took less).
+reserve=${RESERVE:-355}
 stage "1. GPU rows (benches/gpu.sh)"
 gpu_time=$(( $(left) - reserve ))
 if [ "$gpu_time" -gt 60 ]; then
@@ -85,6 +86,10 @@ iters=${SCALING_ITERS:-500}
 if [ "$(left)" -gt 60 ]; then
     ITERS=$iters timeout $(( $(left) - 20 )) bash benches/scaling.sh > bench-out/scaling-table.md || echo "benches/scaling.sh: exit $?"
     cat bench-out/scaling-table.md
+fi
+if [ "$(left)" -gt 150 ]; then
+    ITERS=50 timeout 60 bash benches/siblings.sh > bench-out/siblings.md || echo "benches/siblings.sh: exit $?"
+    cat bench-out/siblings.md
 fi
 pack
 
