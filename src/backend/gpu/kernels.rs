@@ -64,10 +64,25 @@ pub fn bin_split(len: usize, chunk: usize) -> Result<u32> {
 /// workgroup each, so that a few dense bricks still fill the GPU. Each
 /// point's sums do not depend on the piece it falls in.
 pub const FORWARD_PIECE: usize = 8;
-/// Threads that reduce one primitive's slots (reduce.wgsl: each finds the
-/// slot of every team-th brick of its range, the first adds them in brick
-/// order); a power of two up to 128. The sums do not depend on it.
+/// The most threads that reduce one primitive's slots by default
+/// (reduce.wgsl: each finds the slot of every team-th brick of its range,
+/// the first adds them in brick order); a team is a power of two up to
+/// 128. The sums do not depend on it.
 pub const REDUCE_TEAM: u32 = 8;
+/// The reduction's threads that the default team aims at: a team of
+/// `REDUCE_THREADS / primitives` (down to a power of two, 1 to
+/// `REDUCE_TEAM`). On the H200 (2026-12-04, `benches/gpu_split.sh`) a team
+/// of 8 reduced hydrogen's 4,096 primitives in half the time of 1, while 1
+/// beat 8 at 32,000 (0.074 against 0.108 ms an iteration) and at 200,000
+/// (0.219 against 0.586 ms): once the primitives alone fill the GPU, a
+/// team's extra threads mostly idle.
+pub const REDUCE_THREADS: usize = 32_768;
+
+/// The default reduction team for `primitives` (see [`REDUCE_THREADS`]).
+pub fn reduce_team_for(primitives: usize) -> u32 {
+    let team = (REDUCE_THREADS / primitives.max(1)).clamp(1, REDUCE_TEAM as usize);
+    1 << team.ilog2()
+}
 /// Workgroups of the backward pass per brick: slice `s` of a brick takes
 /// its candidates' chunks `s`, `s + BACKWARD_SLICES`, ... (128 candidates a
 /// chunk, a thread each); each pair's sums are one thread's whatever the
@@ -174,4 +189,25 @@ pub fn dispatch(
 /// Workgroups for one thread per item of the per-primitive kernels.
 pub fn groups_for(items: usize) -> u32 {
     (items as u32).div_ceil(THREADS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The default team: 8 for hydrogen's 4,096 primitives and fewer, one
+    /// thread a primitive at 32,000 and 200,000 (the rows the H200 timed),
+    /// a power of two between, and the reduction's threads never more than
+    /// `REDUCE_THREADS` once a primitive has a thread of its own.
+    #[test]
+    fn the_default_team_follows_the_primitive_count() {
+        for (n, want) in [(0, 8), (1, 8), (4096, 8), (4097, 4), (6000, 4), (10_000, 2), (16_384, 2), (16_385, 1), (32_000, 1), (200_000, 1)] {
+            assert_eq!(reduce_team_for(n), want, "{n} primitives");
+        }
+        for n in 1..70_000 {
+            let t = reduce_team_for(n);
+            assert!(t.is_power_of_two() && (1..=REDUCE_TEAM).contains(&t), "{n}: team {t}");
+            assert!(t == 1 || n * t as usize <= REDUCE_THREADS, "{n}: team {t} makes {} threads", n * t as usize);
+        }
+    }
 }

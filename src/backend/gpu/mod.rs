@@ -75,8 +75,9 @@ pub struct GpuBackend {
     /// vary them).
     forward_piece: usize,
     backward_slices: u32,
-    /// Threads that reduce one primitive (`kernels::REDUCE_TEAM`).
-    reduce_team: u32,
+    /// Threads that reduce one primitive; `None`: by the primitive count
+    /// (`kernels::reduce_team_for`).
+    reduce_team: Option<u32>,
     evaluations: u64,
     /// What resident training holds on the device once the steps in
     /// flight are finished, after a `load`.
@@ -183,7 +184,7 @@ impl GpuBackend {
             bin_chunk: kernels::BIN_CHUNK,
             forward_piece: kernels::FORWARD_PIECE,
             backward_slices: kernels::BACKWARD_SLICES,
-            reduce_team: kernels::REDUCE_TEAM,
+            reduce_team: None,
             evaluations: 0,
             loaded: None,
             in_flight: VecDeque::new(),
@@ -239,10 +240,11 @@ impl GpuBackend {
     }
 
     /// Reduces each primitive's slots with a team of `threads` (rounded up
-    /// to a power of two, at most 128; default `kernels::REDUCE_TEAM`); the
-    /// results do not depend on it, and tests vary it.
+    /// to a power of two, at most 128; by default the team depends on the
+    /// primitive count, `kernels::reduce_team_for`); the results do not
+    /// depend on it, and tests vary it.
     pub fn set_reduce_team(&mut self, threads: u32) {
-        self.reduce_team = threads.clamp(1, 128).next_power_of_two();
+        self.reduce_team = Some(threads.clamp(1, 128).next_power_of_two());
     }
 
     /// The adapter this backend runs on.

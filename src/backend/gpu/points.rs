@@ -122,7 +122,8 @@ impl GpuBackend {
             Cow::Owned(b) => std::mem::take(&mut b.occupied),
             Cow::Borrowed(b) => b.occupied.clone(),
         };
-        let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, self.reduce_team, 0];
+        let team = self.reduce_team.unwrap_or_else(|| reduce_team_for(n));
+        let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, team, 0];
         let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied };
         self.write_points(&upload)?;
         let nb = bricks.ranges.len();
