@@ -2,12 +2,12 @@
 # How the GPU backend's point passes are cut into workgroups, swept on a
 # GPU: each row encoded with every split of its list (GSENC_GPU_SPLIT =
 # points a forward workgroup, backward workgroups a brick, primitives a bin
-# workgroup, threads a primitive's reduction; the first is the default), a
+# workgroup, threads a primitive's reduction; the first is the default,
+# whose team follows the primitive count: kernels::reduce_team_for), a
 # short run each, and a table of the kernels' device time per iteration.
 # Hydrogen and RM 128^3, whose point passes weigh most, sweep the reduction
 # teams and the first two (SPLITS); RM 256^3 at 200K, whose binning weighs
-# most, the third and the reduction with one thread a primitive
-# (BIN_SPLITS). Every split must give the model
+# most, the third and the reduction with a team of 8 (BIN_SPLITS). Every split must give the model
 # of the first, byte for byte (the script fails otherwise): only the time
 # may differ. Rerun with:
 #   bash benches/gpu_split.sh                                   # a machine with a GPU
@@ -33,8 +33,8 @@ else
 fi
 log=bench-out/gpu-split.jsonl
 : > "$log"
-work_splits=(${SPLITS:-8,8,4096 8,8,4096,1 8,8,4096,32 4,8,4096 16,8,4096 32,8,4096 8,4,4096 8,16,4096})
-bin_splits=(${BIN_SPLITS:-8,8,4096 8,8,4096,1 8,8,1024 8,8,16384})
+work_splits=(${SPLITS:-8,8,4096 8,8,4096,1 8,8,4096,8 8,8,4096,32 4,8,4096 16,8,4096 32,8,4096 8,4,4096 8,16,4096})
+bin_splits=(${BIN_SPLITS:-8,8,4096 8,8,4096,8 8,8,1024 8,8,16384})
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)
 h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
 want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
