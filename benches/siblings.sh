@@ -29,10 +29,9 @@ encode() { # CPU OUTPUT: the loop seconds of one pinned encode, into OUTPUT
         --schedule matched --iters "${ITERS:-100}" --threads 1 --backend cpu -o "$out/cpu$1.gsm" --json --quiet \
         | python3 -c 'import json, sys; print(json.load(sys.stdin)["seconds"])' > "$2"
 }
-median() { sort -g | awk '{v[NR] = $1} END {print v[int((NR + 1) / 2)]}'; }
 cpus=$(nproc)
 for r in 1 2 3; do encode 0 "$out/alone$r"; done
-alone=$(cat "$out"/alone? | median)
+alone=$(python3 -c 'import statistics, sys; print(statistics.median(float(open(f).read()) for f in sys.argv[1:]))' "$out"/alone?)
 echo "| CPU beside CPU 0 | CPU 0's time / alone | that CPU's time / alone | |"
 echo "|---|---|---|---|"
 for k in $(seq 1 $((cpus - 1))); do
