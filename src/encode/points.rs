@@ -16,7 +16,7 @@
 use crate::backend::PointBatch;
 use crate::encode::config::PointRule;
 use crate::error::Result;
-use crate::field::Grid;
+use crate::field::{prefetch, Grid};
 use crate::input::samples::SampleSet;
 use crate::math::loss::{v_eval, MASK_REF};
 use crate::math::rng::{normal_from, Rng};
@@ -89,12 +89,22 @@ impl Guide {
         self.total * (j as f64 / self.buckets as f64)
     }
 
+    /// The bucket [`Guide::find`] tries first for `u`.
+    fn guess(&self, u: f64) -> usize {
+        ((u / self.total * self.buckets as f64) as usize).min(self.buckets - 1)
+    }
+
+    /// Asks the cache for the bucket bounds `find` reads first for `u`.
+    fn prefetch(&self, u: f64) {
+        prefetch(&self.first, self.guess(u));
+    }
+
     /// `cumulative.partition_point(|&s| s <= u)`, for `u >= 0`.
     fn find(&self, cumulative: &[f64], u: f64) -> usize {
         let m = self.buckets;
         // A first guess of the bucket, then the bucket whose bounds hold
         // `u` exactly as `build` computed them.
-        let mut j = ((u / self.total * m as f64) as usize).min(m - 1);
+        let mut j = self.guess(u);
         while j > 0 && self.bound(j) > u {
             j -= 1;
         }
@@ -227,8 +237,8 @@ impl PointSampler {
             } else if i < ends[2] {
                 [d.u[0], d.u[1], d.u[2]]
             } else if i < ends[3] {
-                let s = samples.get(d.pick as usize);
-                [0, 1, 2].map(|a| s.q[a] as f64 + SAMPLE_NOISE_SIGMA * normal_from(d.u[2 * a], d.u[2 * a + 1]))
+                let q = samples.position(d.pick as usize);
+                [0, 1, 2].map(|a| q[a] as f64 + SAMPLE_NOISE_SIGMA * normal_from(d.u[2 * a], d.u[2 * a + 1]))
             } else {
                 // The first mapped voxel whose running sum passes the draw.
                 let map = self.errors.as_ref().expect("an error stratum only with a map");
@@ -247,18 +257,50 @@ impl PointSampler {
         // At a voxel centre the trilinear value is the voxel's own, bit for
         // bit (every weight but its own is zero and the values are
         // finite), so gsenc's points read that one value rather than eight.
+        // What placing point `i` reads at random (a pool's entry, a
+        // sample's position), asked of the cache ahead of the point.
+        let prefetch_unplaced = |i: usize| {
+            let Some(d) = draws.get(i) else { return };
+            if i < ends[0] {
+                prefetch(&self.high, d.pick as usize);
+            } else if i < ends[1] {
+                prefetch(&self.mid, d.pick as usize);
+            } else if i >= ends[2] && i < ends[3] {
+                samples.prefetch_position(d.pick as usize);
+            } else if let Some(map) = self.errors.as_ref().filter(|_| i >= ends[3]) {
+                map.guide.prefetch(d.u[0] * map.guide.total);
+            }
+        };
         // Runs of points, each placed first and then read: apart, the two
         // loops keep many independent cache misses in flight (one loop that
-        // placed and read each point in turn was slower by a third).
+        // placed and read each point in turn was slower by a third), and
+        // each asks the cache for what it reads `AHEAD` points early.
         const RUN: usize = 512;
+        const AHEAD: usize = 16;
         let (mut pos, mut vref) = (vec![[0f32; 3]; p], vec![0f32; p]);
         profile::even("draw: points", p.div_ceil(RUN), || {
             pos.par_chunks_mut(RUN).zip(vref.par_chunks_mut(RUN)).enumerate().for_each(|(r, (xs, vs))| {
+                let first = r * RUN;
+                (first..first + AHEAD.min(xs.len())).for_each(prefetch_unplaced);
                 for (k, x) in xs.iter_mut().enumerate() {
-                    let d = &draws[r * RUN + k];
-                    *x = place(unplaced(r * RUN + k, d), d.jitter);
+                    if k + AHEAD < RUN {
+                        prefetch_unplaced(first + k + AHEAD);
+                    }
+                    let d = &draws[first + k];
+                    *x = place(unplaced(first + k, d), d.jitter);
                 }
-                for (v, &x) in vs.iter_mut().zip(xs.iter()) {
+                let ask = |x: [f32; 3]| {
+                    if on_lattice {
+                        prefetch(&reference.values, lattice_index(reference, x));
+                    } else {
+                        reference.prefetch_trilinear(x);
+                    }
+                };
+                xs.iter().take(AHEAD).for_each(|&x| ask(x));
+                for (k, (v, &x)) in vs.iter_mut().zip(xs.iter()).enumerate() {
+                    if let Some(&ahead) = xs.get(k + AHEAD) {
+                        ask(ahead);
+                    }
                     *v = if on_lattice { reference.values[lattice_index(reference, x)] } else { reference.trilinear(x) };
                 }
             })

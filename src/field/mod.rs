@@ -4,9 +4,11 @@
 
 mod frame;
 mod grid;
+mod prefetch;
 mod range;
 
 pub use frame::{Bounds, IndexBox, IndexFrame};
 pub(crate) use frame::LATTICE_TOLERANCE;
 pub use grid::Grid;
+pub use prefetch::prefetch;
 pub use range::{check_finite, check_finite_serial, Normalized, Transform, ValueRange};

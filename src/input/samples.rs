@@ -17,6 +17,14 @@ pub struct Sample {
 pub trait SampleSet: Sync {
     fn len(&self) -> usize;
     fn get(&self, i: usize) -> Sample;
+    /// Sample `i`'s position: `get(i).q`, which a set may find without
+    /// reading the rest of the sample (training draws need only this).
+    fn position(&self, i: usize) -> [f32; 3] {
+        self.get(i).q
+    }
+    /// Asks the cache for what [`SampleSet::position`] reads of sample `i`
+    /// (nothing by default; a grid's positions read no memory).
+    fn prefetch_position(&self, _i: usize) {}
     fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -37,6 +45,10 @@ impl SampleSet for Grid {
     fn get(&self, i: usize) -> Sample {
         let c = self.coords(i);
         Sample { q: [c[0] as f32, c[1] as f32, c[2] as f32], h: 0.5, v: self.values[i], m: 1.0 }
+    }
+    #[inline]
+    fn position(&self, i: usize) -> [f32; 3] {
+        self.centre(i)
     }
     fn uniform_importance(&self) -> bool {
         true
@@ -67,6 +79,12 @@ impl SampleSet for SampleArrays {
     }
     fn get(&self, i: usize) -> Sample {
         Sample { q: self.q[i], h: self.h[i], v: self.v[i], m: self.m[i] }
+    }
+    fn position(&self, i: usize) -> [f32; 3] {
+        self.q[i]
+    }
+    fn prefetch_position(&self, i: usize) {
+        crate::field::prefetch(&self.q, i);
     }
     fn uniform_importance(&self) -> bool {
         self.m.windows(2).all(|w| w[0] == w[1])
