@@ -675,3 +675,43 @@ fn an_auto_warm_step_matches_the_cpu_backend() {
     assert_eq!((again.warm, again.iterations), (on_gpu.warm, on_gpu.iterations));
     assert!(same_bits(&on_gpu.params, &again.params));
 }
+
+/// Steady training makes no device objects: once a run's buffers have
+/// grown to its batches, a resident step (two in flight, so both read-back
+/// slots) rewrites the buffers of the steps before it and binds them
+/// through the bind groups it kept, instead of making a uniform buffer and
+/// a bind group per dispatch, each a driver allocation. And the steps give
+/// the bits of a backend that made everything afresh.
+#[test]
+fn steady_resident_steps_make_no_buffers_or_bind_groups() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(31);
+    let params = random_model(&mut rng, 150, 24.0);
+    let batches: Vec<PointBatch> = (0..3).map(|k| random_batch(&mut rng, 1400 - 200 * k, 24.0)).collect();
+    let w = LossWeights::default();
+    let adam = Adam::new(params.len());
+    let run = |g: &mut GpuBackend, steps: usize| -> (Vec<Primitive>, Vec<(u64, u64)>) {
+        let mut made = vec![];
+        g.resident().unwrap().load(&params, &adam).unwrap();
+        for t in 0..steps {
+            let r = g.resident().unwrap();
+            r.submit(&batches[t % 3], &w, 5e-3, true).unwrap();
+            if t > 0 {
+                r.finish().unwrap();
+            }
+            made.push(g.objects_made());
+        }
+        let r = g.resident().unwrap();
+        r.finish().unwrap();
+        let (mut p, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+        r.store(&mut p, &mut a).unwrap();
+        (p, made)
+    };
+    let (first, _) = run(&mut g, 9);
+    let (again, made) = run(&mut g, 9);
+    assert!(made.windows(2).all(|m| m[0] == m[1]), "objects made (buffers, bind groups) step by step: {made:?}");
+    assert!(made[0].1 > 0, "no bind group counted: {made:?}");
+    let mut fresh = gpu().unwrap();
+    let (fresh_p, _) = run(&mut fresh, 9);
+    assert!(same_bits(&first, &again) && same_bits(&first, &fresh_p));
+}

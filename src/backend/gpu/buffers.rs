@@ -9,13 +9,14 @@
 use super::device::Gpu;
 use super::points::IN_FLIGHT;
 use crate::error::{Error, Result};
-use wgpu::util::DeviceExt;
 
 /// A storage buffer kept at least as large as the largest request so far.
 pub struct Slot {
     label: &'static str,
     usage: wgpu::BufferUsages,
     buf: Option<wgpu::Buffer>,
+    /// Buffers this slot has made.
+    made: u64,
 }
 
 impl Slot {
@@ -23,8 +24,13 @@ impl Slot {
         Slot::with_usage(label, wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST | wgpu::BufferUsages::COPY_SRC)
     }
 
+    /// A uniform buffer, rewritten call after call (`Slot::upload`).
+    pub fn uniform(label: &'static str) -> Slot {
+        Slot::with_usage(label, wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST)
+    }
+
     fn with_usage(label: &'static str, usage: wgpu::BufferUsages) -> Slot {
-        Slot { label, usage, buf: None }
+        Slot { label, usage, buf: None, made: 0 }
     }
 
     /// The buffer, grown (by half again) to hold `bytes`, and filled with
@@ -44,6 +50,7 @@ impl Slot {
         if self.buf.as_ref().is_none_or(|b| b.size() < bytes) {
             let grown = self.buf.as_ref().map_or(0, |b| b.size() + b.size() / 2);
             let size = bytes.max(grown).min(limit).next_multiple_of(16).min(limit);
+            self.made += 1;
             self.buf = Some(gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),
                 size,
@@ -66,15 +73,6 @@ impl Slot {
         }
         Ok(buf)
     }
-}
-
-/// A uniform buffer holding `value`.
-pub fn uniform<T: bytemuck::Pod>(gpu: &Gpu, value: &T) -> wgpu::Buffer {
-    gpu.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
-        label: Some("gsenc params"),
-        contents: bytemuck::bytes_of(value),
-        usage: wgpu::BufferUsages::UNIFORM,
-    })
 }
 
 /// Regions of device buffers copied into one mappable buffer at the end of
@@ -178,6 +176,25 @@ pub(super) struct Buffers {
     /// One per call that may be in flight at once (`points::IN_FLIGHT`);
     /// a call made while nothing is in flight uses the first.
     pub(super) readback: [Readback; IN_FLIGHT],
+    /// A point call's two uniform blocks (its own and its coarse level's),
+    /// one pair per read-back slot: rewritten call after call, so that the
+    /// call binds the same buffers as the one before and its bind groups
+    /// are kept (`kernels::BindGroups`).
+    pub(super) uniforms: [[Slot; 2]; IN_FLIGHT],
+}
+
+impl Buffers {
+    /// Buffers made so far by every slot: a bind group made before names
+    /// only buffers made before it (`kernels::BindGroups`).
+    pub(super) fn made(&self) -> u64 {
+        let slots = [
+            &self.params, &self.hot, &self.ranges, &self.identity, &self.identity_bounds, &self.cells, &self.counts, &self.starts,
+            &self.lists, &self.brick_points, &self.pieces, &self.points, &self.occupied, &self.rho_n, &self.terms, &self.partial,
+            &self.grad, &self.moments, &self.reg_terms, &self.loss, &self.coarse_cells, &self.coarse_counts, &self.coarse_starts,
+            &self.coarse_lists, &self.slab, &self.poison,
+        ];
+        slots.into_iter().chain(self.uniforms.iter().flatten()).map(|s| s.made).sum()
+    }
 }
 
 impl Default for Buffers {
@@ -210,6 +227,7 @@ impl Default for Buffers {
             slab: Slot::storage("slab values"),
             poison: Slot::storage("poison"),
             readback: Default::default(),
+            uniforms: std::array::from_fn(|_| [Slot::uniform("params"), Slot::uniform("coarse params")]),
         }
     }
 }

@@ -3,7 +3,6 @@
 //! every lattice point of the brick (decode.wgsl). Mirrors cpu/mod.rs
 //! `decode_lattice`.
 
-use super::buffers::uniform;
 use super::kernels::*;
 use super::{count_u32, floats, seq, words, GpuBackend};
 use crate::backend::{check_len, Lattice};
@@ -57,6 +56,7 @@ impl GpuBackend {
             let gpu = &self.gpu;
             let k = &self.kernels;
             let timer = &mut self.timer;
+            let binds = &mut self.binds;
             let b = &mut self.bufs;
             b.coarse_counts.ensure(gpu, 4 * split as u64, g)?;
             b.coarse_starts.ensure(gpu, 4 * (split as u64 + 1), g)?;
@@ -67,8 +67,10 @@ impl GpuBackend {
             b.cells.ensure(gpu, 32, g)?;
             b.slab.ensure(gpu, 4 * (layer * layers) as u64, g)?;
             timer.begin(0);
+            let [us1, us2] = &mut b.uniforms[0];
+            let (u1, u2) = (us1.upload(gpu, bytemuck::bytes_of(&slab_p), g)?.clone(), us2.upload(gpu, bytemuck::bytes_of(&brick_p), g)?.clone());
+            binds.keep_while(b.made());
             let read = gpu.scoped("a decode slab", || {
-                let (u1, u2) = (uniform(gpu, &slab_p), uniform(gpu, &brick_p));
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
                 let (ident, ident_bounds, cells) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?, b.cells.ensure(gpu, 0, false)?);
@@ -76,17 +78,17 @@ impl GpuBackend {
                 let (counts, starts, lists) = (b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
                 let slab = b.slab.ensure(gpu, 0, false)?;
                 if !frames_done {
-                    dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u1, params, hot, ranges]), groups_for(n as usize));
+                    dispatch(gpu, &mut enc, timer, binds, &k.frames, &seq(&[&u1, params, hot, ranges]), groups_for(n as usize));
                 }
                 // The slab's primitives, from all of them.
-                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), split);
-                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, sc, ss]), 1);
-                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], split);
+                dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), split);
+                dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u1, sc, ss]), 1);
+                dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], split);
                 // Each brick's, from the slab's.
-                dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u2, ranges, sl, ss, cells, counts]), ncells);
-                dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u2, counts, starts]), 1);
-                dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u2), (1, ranges), (2, sl), (3, ss), (4, cells), (6, starts), (7, lists)], ncells);
-                dispatch(gpu, &mut enc, timer, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
+                dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u2, ranges, sl, ss, cells, counts]), ncells);
+                dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u2, counts, starts]), 1);
+                dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u2), (1, ranges), (2, sl), (3, ss), (4, cells), (6, starts), (7, lists)], ncells);
+                dispatch(gpu, &mut enc, timer, binds, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
                 let times = timer.resolve(&mut enc).unwrap_or((slab, 0));
                 b.readback[0].record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;
                 b.readback[0].submit(gpu, enc);

@@ -6,6 +6,7 @@ use super::device::Gpu;
 use super::timer::Timer;
 use crate::error::Result;
 use crate::math::loss::{LossWeights, PointNorm};
+use std::collections::HashMap;
 
 const MATH: &str = include_str!("shaders/math.wgsl");
 
@@ -156,15 +157,63 @@ impl Kernels {
     }
 }
 
+/// The bind groups of the dispatches so far, kept for dispatches that bind
+/// the same buffers to the same kernel: a training step binds the buffers
+/// of the step before it, and each bind group is a descriptor set that the
+/// driver allocates and writes. Forgotten when the backend's buffers have
+/// grown since ([`BindGroups::keep_while`]: a kept group would hold a
+/// replaced buffer's memory), and past `BindGroups::MOST` of them.
+#[derive(Default)]
+pub struct BindGroups {
+    kept: HashMap<(&'static str, Vec<(u32, wgpu::Buffer)>), wgpu::BindGroup>,
+    /// `Buffers::made()` when `kept` was last emptied.
+    made: u64,
+    /// Bind groups made (rather than found kept) so far.
+    pub created: u64,
+}
+
+impl BindGroups {
+    const MOST: usize = 256;
+
+    /// Forgets every kept bind group unless `buffers_made` (the backend's
+    /// `Buffers::made()`, read before recording a call) is what it was.
+    pub fn keep_while(&mut self, buffers_made: u64) {
+        if buffers_made != self.made || self.kept.len() >= Self::MOST {
+            self.kept.clear();
+            self.made = buffers_made;
+        }
+    }
+
+    /// The bind group of `buffers` for `kernel`: a kept one, or a new one.
+    fn get(&mut self, gpu: &Gpu, kernel: &Kernel, buffers: &[(u32, &wgpu::Buffer)]) -> wgpu::BindGroup {
+        let key = (kernel.label, buffers.iter().map(|&(binding, b)| (binding, b.clone())).collect::<Vec<_>>());
+        if let Some(group) = self.kept.get(&key) {
+            return group.clone();
+        }
+        let entries: Vec<wgpu::BindGroupEntry> =
+            buffers.iter().map(|&(binding, b)| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }).collect();
+        let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &kernel.pipeline.get_bind_group_layout(0),
+            entries: &entries,
+        });
+        self.created += 1;
+        self.kept.insert(key, group.clone());
+        group
+    }
+}
+
 /// Records one dispatch of `pipeline` with each `(binding, buffer)` bound
 /// in group 0 (the bindings its entry point uses, no more), over `groups`
 /// workgroups (split over two axes past WebGPU's 65535 a side; the kernels
-/// rebuild the linear index).
+/// rebuild the linear index). The bind group comes from `binds` when an
+/// earlier dispatch made it.
 /// The pass is timed by `timer` (under the kernel's label) when it can.
 pub fn dispatch(
     gpu: &Gpu,
     enc: &mut wgpu::CommandEncoder,
     timer: &mut Timer,
+    binds: &mut BindGroups,
     kernel: &Kernel,
     buffers: &[(u32, &wgpu::Buffer)],
     groups: u32,
@@ -172,13 +221,7 @@ pub fn dispatch(
     if groups == 0 {
         return;
     }
-    let entries: Vec<wgpu::BindGroupEntry> =
-        buffers.iter().map(|&(binding, b)| wgpu::BindGroupEntry { binding, resource: b.as_entire_binding() }).collect();
-    let group = gpu.device.create_bind_group(&wgpu::BindGroupDescriptor {
-        label: None,
-        layout: &kernel.pipeline.get_bind_group_layout(0),
-        entries: &entries,
-    });
+    let group = binds.get(gpu, kernel, buffers);
     let mut pass = enc.begin_compute_pass(&wgpu::ComputePassDescriptor { label: Some(kernel.label), timestamp_writes: timer.writes(kernel.label) });
     pass.set_pipeline(&kernel.pipeline);
     pass.set_bind_group(0, &group, &[]);

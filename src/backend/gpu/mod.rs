@@ -41,7 +41,7 @@ mod timer;
 
 use self::buffers::Buffers;
 use self::device::{DeviceRequest, Gpu};
-use self::kernels::Kernels;
+use self::kernels::{BindGroups, Kernels};
 use self::points::Pass;
 use self::timer::Timer;
 use super::bricks::PointBricks;
@@ -57,6 +57,7 @@ pub struct GpuBackend {
     kernels: Kernels,
     timer: Timer,
     bufs: Buffers,
+    binds: BindGroups,
     /// Edge of a training brick in voxels (as the CPU backend's).
     pub brick: f32,
     /// Fill every buffer with garbage before each call (tests).
@@ -176,6 +177,7 @@ impl GpuBackend {
             kernels,
             timer,
             bufs: Buffers::default(),
+            binds: BindGroups::default(),
             brick: 16.0,
             garbage: false,
             capacity: 1 << 16,
@@ -250,6 +252,14 @@ impl GpuBackend {
     /// The adapter this backend runs on.
     pub fn adapter(&self) -> &device::AdapterSummary {
         &self.gpu.adapter
+    }
+
+    /// Device buffers and bind groups this backend has made so far: once
+    /// its buffers have grown to a run's batches, a training step makes
+    /// neither (it rewrites its buffers and binds those of the step
+    /// before).
+    pub fn objects_made(&self) -> (u64, u64) {
+        (self.bufs.made(), self.binds.created)
     }
 
     /// Hands a submission's timestamps (its last read-back region, read

@@ -4,7 +4,6 @@
 //! and (resident) the Adam step. Mirrors cpu/mod.rs `bin_points`, `grad_chunk`
 //! and `eval_chunk`.
 
-use super::buffers::uniform;
 use super::kernels::*;
 use super::{bytes, count_u32, seq, words, GpuBackend};
 use crate::backend::bricks::PointBricks;
@@ -276,6 +275,7 @@ impl GpuBackend {
         let gpu = &self.gpu;
         let k = &self.kernels;
         let timer = &mut self.timer;
+        let binds = &mut self.binds;
         timer.begin(slot);
         let b = &mut self.bufs;
         b.coarse_counts.ensure(gpu, 4 * coarse_entries, g)?;
@@ -289,8 +289,10 @@ impl GpuBackend {
             b.partial.ensure(gpu, 48 * self.capacity as u64, g)?;
             b.grad.ensure(gpu, 48 * n as u64, g)?;
         }
+        let [us, us1] = &mut b.uniforms[slot];
+        let (u, u1) = (us.upload(gpu, bytemuck::bytes_of(&p), g)?.clone(), us1.upload(gpu, bytemuck::bytes_of(&coarse_p), g)?.clone());
+        binds.keep_while(b.made());
         gpu.scoped("a point pass", || {
-            let (u, u1) = (uniform(gpu, &p), uniform(gpu, &coarse_p));
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
             let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
@@ -301,37 +303,37 @@ impl GpuBackend {
             let pieces = b.pieces.ensure(gpu, 0, false)?;
             let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
             let nb = nbricks as u32;
-            dispatch(gpu, &mut enc, timer, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
+            dispatch(gpu, &mut enc, timer, binds, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
             // Each coarse cell's primitives, from all of them.
-            dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), coarse_groups);
-            dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u1, counts1, starts1]), 1);
-            dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], coarse_groups);
+            dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), coarse_groups);
+            dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u1, counts1, starts1]), 1);
+            dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], coarse_groups);
             // Each brick's, from its coarse cell's.
-            dispatch(gpu, &mut enc, timer, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
-            dispatch(gpu, &mut enc, timer, &k.scan, &seq(&[&u, counts, starts]), 1);
-            dispatch(gpu, &mut enc, timer, &k.fill, &[(0, &u), (1, ranges), (2, lists1), (3, starts1), (4, cells), (6, starts), (7, lists)], nb);
-            dispatch(gpu, &mut enc, timer, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
+            dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
+            dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u, counts, starts]), 1);
+            dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u), (1, ranges), (2, lists1), (3, starts1), (4, cells), (6, starts), (7, lists)], nb);
+            dispatch(gpu, &mut enc, timer, binds, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
             let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
             if pass == Pass::Evaluate {
                 read[0].1 = 8 * npts as u64;
             } else {
                 let (partial, occ, grad) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?);
                 let backward_groups = count_u32("backward workgroups", nbricks * p.split[1].max(1) as usize)?;
-                dispatch(gpu, &mut enc, timer, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
+                dispatch(gpu, &mut enc, timer, binds, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
                 // A team of `p.split[2]` threads a primitive.
                 let reduce_groups = groups_for(count_u32("reduce threads", n * p.split[2] as usize)? as usize);
-                dispatch(gpu, &mut enc, timer, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), reduce_groups);
+                dispatch(gpu, &mut enc, timer, binds, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), reduce_groups);
                 if pass == Pass::Gradient {
                     read = vec![(grad, 48 * n as u64), (loss, 8)];
                 } else {
                     let moments = b.moments.ensure(gpu, 0, false)?;
                     let poison = b.poison.ensure(gpu, 0, false)?;
-                    dispatch(gpu, &mut enc, timer, &k.adam, &seq(&[&u, grad, params, moments, reg_terms, starts, starts1, poison]), groups_for(n));
+                    dispatch(gpu, &mut enc, timer, binds, &k.adam, &seq(&[&u, grad, params, moments, reg_terms, starts, starts1, poison]), groups_for(n));
                     // Poisons the steps after this one if its lists overflowed.
-                    dispatch(gpu, &mut enc, timer, &k.mark, &[(0, &u), (5, starts), (6, starts1), (7, poison)], 1);
+                    dispatch(gpu, &mut enc, timer, binds, &k.mark, &[(0, &u), (5, starts), (6, starts1), (7, poison)], 1);
                 }
                 if pass != (Pass::Resident { report: false }) {
-                    dispatch(gpu, &mut enc, timer, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);
+                    dispatch(gpu, &mut enc, timer, binds, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);
                     read[1].1 = 16;
                 }
             }
