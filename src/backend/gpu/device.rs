@@ -33,8 +33,36 @@ fn instance() -> &'static wgpu::Instance {
     static INSTANCE: OnceLock<wgpu::Instance> = OnceLock::new();
     INSTANCE.get_or_init(|| {
         INSTANCES_MADE.fetch_add(1, Ordering::Relaxed);
-        wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env())
+        #[allow(unused_mut)]
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+        #[cfg(feature = "gpu-noop")]
+        {
+            desc.backends |= wgpu::Backends::NOOP;
+            // Limits of a large GPU (wgpu's "maximally permissive" default
+            // overflows its own validation).
+            let mut noop = wgpu::NoopBackendOptions::enabled();
+            noop.limits = Some(wgpu::Limits {
+                max_storage_buffers_per_shader_stage: 16,
+                max_storage_buffer_binding_size: (1 << 31) - 4,
+                max_buffer_size: 1 << 34,
+                max_compute_workgroup_storage_size: 1 << 15,
+                max_compute_invocations_per_workgroup: 1024,
+                max_compute_workgroup_size_x: 1024,
+                ..wgpu::Limits::default()
+            });
+            desc.backend_options.noop = noop;
+        }
+        wgpu::Instance::new(desc)
     })
+}
+
+/// The backends enumerated: wgpu's no-op device too in a build with the
+/// `gpu-noop` feature (a software adapter, chosen only by its name).
+fn backends() -> wgpu::Backends {
+    let all = wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12;
+    #[cfg(feature = "gpu-noop")]
+    let all = all | wgpu::Backends::NOOP;
+    all
 }
 
 static INSTANCES_MADE: AtomicUsize = AtomicUsize::new(0);
@@ -51,7 +79,7 @@ fn is_software(info: &wgpu::AdapterInfo) -> bool {
 
 /// Every compute-capable adapter, hardware ones first numbered in wgpu's order.
 fn enumerate() -> Vec<(AdapterSummary, wgpu::Adapter)> {
-    let all = pollster::block_on(instance().enumerate_adapters(wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12));
+    let all = pollster::block_on(instance().enumerate_adapters(backends()));
     let mut next = 0;
     all.into_iter()
         .map(|a| {
