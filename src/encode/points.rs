@@ -271,10 +271,11 @@ impl PointSampler {
                 map.guide.prefetch(d.u[0] * map.guide.total);
             }
         };
-        // Runs of points, each placed first and then read: apart, the two
+        // Runs of points, each placed first and then read: apart, the
         // loops keep many independent cache misses in flight (one loop that
-        // placed and read each point in turn was slower by a third), and
-        // each asks the cache for what it reads `AHEAD` points early.
+        // placed and read each point in turn was slower by a third); the
+        // placing asks the cache for what it reads `AHEAD` points early,
+        // and the reading for all of a run's values before it reads any.
         const RUN: usize = 512;
         const AHEAD: usize = 16;
         let (mut pos, mut vref) = (vec![[0f32; 3]; p], vec![0f32; p]);
@@ -289,19 +290,26 @@ impl PointSampler {
                     let d = &draws[first + k];
                     *x = place(unplaced(first + k, d), d.jitter);
                 }
-                let ask = |x: [f32; 3]| {
-                    if on_lattice {
-                        prefetch(&reference.values, lattice_index(reference, x));
-                    } else {
-                        reference.prefetch_trilinear(x);
+                // Where each point reads, asked of the cache as it is
+                // found, then the reads.
+                if on_lattice {
+                    let mut at = [0usize; RUN];
+                    for (a, &x) in at.iter_mut().zip(xs.iter()) {
+                        *a = lattice_index(reference, x);
+                        prefetch(&reference.values, *a);
                     }
-                };
-                xs.iter().take(AHEAD).for_each(|&x| ask(x));
-                for (k, (v, &x)) in vs.iter_mut().zip(xs.iter()).enumerate() {
-                    if let Some(&ahead) = xs.get(k + AHEAD) {
-                        ask(ahead);
+                    for (v, &a) in vs.iter_mut().zip(at.iter()) {
+                        *v = reference.values[a];
                     }
-                    *v = if on_lattice { reference.values[lattice_index(reference, x)] } else { reference.trilinear(x) };
+                } else {
+                    let mut corners = [([0usize; 3], [0f32; 3]); RUN];
+                    for (c, &x) in corners.iter_mut().zip(xs.iter()) {
+                        *c = reference.corner(x);
+                        reference.prefetch_corner(c.0);
+                    }
+                    for (v, &(i0, t)) in vs.iter_mut().zip(corners.iter()) {
+                        *v = reference.interpolate(i0, t);
+                    }
                 }
             })
         });

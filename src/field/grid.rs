@@ -69,7 +69,7 @@ impl Grid {
     /// The voxel below `u` (clamped to the domain) and `u`'s fractions
     /// past it, as [`Grid::trilinear`] weighs its corners.
     #[inline]
-    fn corner(&self, u: [f32; 3]) -> ([usize; 3], [f32; 3]) {
+    pub fn corner(&self, u: [f32; 3]) -> ([usize; 3], [f32; 3]) {
         let mut i0 = [0usize; 3];
         let mut t = [0f32; 3];
         for a in 0..3 {
@@ -89,12 +89,12 @@ impl Grid {
         (i0, t)
     }
 
-    /// Asks the cache for the values [`Grid::trilinear`] reads at `u`: the
-    /// lines of its corner voxel's row and of the rows above it in y and z
-    /// (a row's neighbour in x is on the same line but at a line's end).
+    /// Asks the cache for the values [`Grid::interpolate`] reads at the
+    /// corner voxel `i0`: the lines of its row and of the rows above it in
+    /// y and z (a row's neighbour in x is on the same line but at a line's
+    /// end).
     #[inline]
-    pub fn prefetch_trilinear(&self, u: [f32; 3]) {
-        let (i0, _) = self.corner(u);
+    pub fn prefetch_corner(&self, i0: [usize; 3]) {
         let at = self.index(i0[0], i0[1], i0[2]);
         let (row, plane) = (self.dims[0], self.dims[0] * self.dims[1]);
         for off in [0, row, plane, row + plane] {
@@ -106,6 +106,13 @@ impl Grid {
     #[inline]
     pub fn trilinear(&self, u: [f32; 3]) -> f32 {
         let (i0, t) = self.corner(u);
+        self.interpolate(i0, t)
+    }
+
+    /// [`Grid::trilinear`] at the corner voxel and fractions that
+    /// [`Grid::corner`] found.
+    #[inline]
+    pub fn interpolate(&self, i0: [usize; 3], t: [f32; 3]) -> f32 {
         let step = |a: usize| if i0[a] + 1 < self.dims[a] { 1 } else { 0 };
         let (sx, sy, sz) = (step(0), step(1), step(2));
         let v = |di: usize, dj: usize, dk: usize| self.values[self.index(i0[0] + di, i0[1] + dj, i0[2] + dk)];
