@@ -123,9 +123,11 @@ impl ValueRange {
 /// the background queue: a push must not wake a rayon pool (the host's, or
 /// the global one the encoder's threads compete with).
 pub fn check_finite_serial(values: &[f32]) -> Result<()> {
-    // Whole chunks first: `all` over a chunk vectorises; the position is
-    // looked up only on failure.
-    if values.chunks(4096).all(|c| c.iter().all(|v| v.is_finite())) {
+    // Whole chunks first, each folded without an early exit so that the
+    // test vectorises (`all`, which stops at the first failure, does not:
+    // 0.63 against 0.32 ms for a 128^3 field here); the position is looked
+    // up only on failure.
+    if values.chunks(4096).all(|c| c.iter().fold(true, |ok, v| ok & v.is_finite())) {
         return Ok(());
     }
     let pos = values.iter().position(|v| !v.is_finite()).expect("a non-finite value was seen");
@@ -146,6 +148,29 @@ fn not_finite(values: &[f32], pos: usize) -> Error {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Both checks find the first non-finite value wherever it lies (the
+    /// first or last of a chunk, the last of a short tail), and pass
+    /// finite values, subnormals and the extremes among them.
+    #[test]
+    fn the_finite_checks_find_the_first_bad_value() {
+        let mut v: Vec<f32> = (0..10_000).map(|i| i as f32 * 0.5 - 100.0).collect();
+        v[17] = f32::MIN_POSITIVE / 4.0;
+        (v[18], v[19]) = (f32::MAX, f32::MIN);
+        assert!(check_finite_serial(&v).is_ok() && check_finite(&v).is_ok());
+        for bad in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY] {
+            for at in [0, 1, 4095, 4096, 8191, 9999] {
+                let mut w = v.clone();
+                w[at] = bad;
+                if at + 5 < w.len() {
+                    w[at + 5] = bad;
+                }
+                for e in [check_finite_serial(&w).unwrap_err(), check_finite(&w).unwrap_err()] {
+                    assert!(e.to_string().contains(&format!("at index {at} ")), "{bad} at {at}: {e}");
+                }
+            }
+        }
+    }
 
     #[test]
     fn normalize_clamps_and_counts() {
