@@ -20,6 +20,22 @@ use gsenc::io::ModelFolder;
 use gsenc::model::Model;
 use gsenc::series::queue::{BackgroundEncoder, CallerStores, Job, ModelSink, Pushed, QueueConfig};
 
+/// A step's data as a push copied it. `finite`: the copy already found
+/// every value finite (a grid, checked row by row while each row was in
+/// cache: `ffi::copy_grid`), so that the queue does not read the whole copy
+/// back from memory to check it again.
+pub(crate) struct Copied {
+    pub(crate) data: StepData,
+    pub(crate) finite: bool,
+}
+
+impl Copied {
+    /// Data whose values the queue checks (particles, cells).
+    pub(crate) fn unchecked(data: StepData) -> Copied {
+        Copied { data, finite: false }
+    }
+}
+
 /// Opaque encoder; create with `gsenc_encoder_create`, free with
 /// `gsenc_encoder_destroy`.
 pub struct gsenc_encoder {
@@ -228,11 +244,11 @@ impl gsenc_encoder {
         })
     }
 
-    pub(crate) fn push(&mut self, field: String, step: u64, time: f64, data: StepData) -> Result<(), Failure> {
+    pub(crate) fn push(&mut self, field: String, step: u64, time: f64, copied: Copied) -> Result<(), Failure> {
         let queue_bytes = self.settings.queue_bytes;
         let full = || format!("field '{field}' step {step}: the queue is full (queue_bytes {queue_bytes})");
-        let job = Job { field: field.clone(), step, time: time_of(time), data, range: None };
-        match self.push_job(job)? {
+        let job = Job { field: field.clone(), step, time: time_of(time), data: copied.data, range: None };
+        match self.push_job(job, copied.finite)? {
             Pushed::Queued => Ok(()),
             Pushed::Skipped => fail(gsenc_status::Skipped, format!("{}; the step was skipped", full())),
             Pushed::Busy => fail(gsenc_status::Busy, format!("{}; nothing was queued, push it again later", full())),
@@ -247,7 +263,7 @@ impl gsenc_encoder {
     /// An MPI encoder writing a store first stores what the ranks finished
     /// (`flush_ranks`, collective like the push); a serial encoder writes
     /// nothing here.
-    pub(crate) fn push_made(&mut self, field: &str, step: u64, time: f64, kind: DataKind, made: Result<StepData, Failure>) -> Result<(), Failure> {
+    pub(crate) fn push_made(&mut self, field: &str, step: u64, time: f64, kind: DataKind, made: Result<Copied, Failure>) -> Result<(), Failure> {
         #[cfg(feature = "mpi")]
         if self.ranks.is_some() {
             self.flush_ranks();
@@ -266,7 +282,8 @@ impl gsenc_encoder {
 
     /// Queues a job: on this encoder alone, or across the ranks (then rank 0
     /// also writes the step's index: beside the models, or into the store).
-    fn push_job(&mut self, job: Job) -> Result<Pushed, Failure> {
+    /// `finite`: the copy already found every value finite (`Copied`).
+    fn push_job(&mut self, job: Job, finite: bool) -> Result<Pushed, Failure> {
         #[cfg(feature = "mpi")]
         if let Some(ranks) = self.ranks.as_mut() {
             let (field, step) = (job.field.clone(), job.step);
@@ -288,7 +305,7 @@ impl gsenc_encoder {
             }
             return Ok(done.pushed);
         }
-        Ok(self.queue.push(job)?)
+        Ok(if finite { self.queue.push_finite(job)? } else { self.queue.push(job)? })
     }
 
     /// Appends the models the worker left for the caller's thread (HDF5).

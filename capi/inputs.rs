@@ -3,7 +3,7 @@
 //! hexahedra), and the pushes that copy one field of a step out of them
 //! into the encoder's queue.
 
-use crate::encoder::{gsenc_encoder, with_encoder};
+use crate::encoder::{gsenc_encoder, with_encoder, Copied};
 use crate::ffi::{c_str, copy_grid, extents, item_count, read_scalars, read_sized, read_tuples, DType};
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::domain::halo::Kind as DataKind;
@@ -138,7 +138,7 @@ unsafe fn push_step(
     step: u64,
     time: f64,
     kind: DataKind,
-    make: impl FnOnce(&gsenc_encoder) -> Result<StepData, Failure>,
+    make: impl FnOnce(&gsenc_encoder) -> Result<Copied, Failure>,
 ) -> gsenc_status {
     guard(|| {
         with_encoder(encoder, what, |enc| {
@@ -155,7 +155,7 @@ unsafe fn push_step(
 ///
 /// # Safety
 /// `grid` is NULL or the caller's gsenc_grid, whose array holds every element its extents and strides name.
-unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<StepData, Failure> {
+unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Copied, Failure> {
     // SAFETY: NULL or the caller's gsenc_grid.
     let g = unsafe { read_sized(grid, "gsenc_push_grid: grid") }?;
     let dtype = DType::from_c(g.dtype)?;
@@ -175,13 +175,24 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Step
         return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
     }
     let voxels = dims.iter().product::<usize>();
-    gsenc::memory::check_fits("gsenc_push_grid: the field's copy", 4 * voxels as u64)?;
+    // A recycled buffer takes no memory; a new one must fit (asking the
+    // system takes 0.2 ms, which the usual push, into a recycled buffer,
+    // is spared).
+    let buffer = match enc.queue.recycled_buffer(voxels) {
+        Some(b) => b,
+        None => {
+            gsenc::memory::check_fits("gsenc_push_grid: the field's copy", 4 * voxels as u64)?;
+            Vec::with_capacity(voxels)
+        }
+    };
     // SAFETY: the caller's array holds every element its extents and strides name.
-    let buffer = enc.queue.recycled_buffer(voxels);
-    // SAFETY: as above.
-    let values = unsafe { copy_grid(dtype, g.data, dims, strides, buffer) };
+    let (values, finite) = unsafe { copy_grid(dtype, g.data, dims, strides, buffer) };
+    if !finite {
+        // Which value, in the words of the queue's own check.
+        gsenc::field::check_finite_serial(&values)?;
+    }
     let frame = IndexFrame { dims, bmin: g.origin, gamma: 1.0 / g.spacing };
-    Ok(StepData::Grid { grid: Grid::new(dims, values)?, frame })
+    Ok(Copied { data: StepData::Grid { grid: Grid::new(dims, values)?, frame }, finite: true })
 }
 
 /// Hands over one field of step `step` as SPH particles (see
@@ -198,7 +209,7 @@ pub unsafe extern "C" fn gsenc_push_particles(
     particles: *const gsenc_particles,
 ) -> gsenc_status {
     // SAFETY (both): `field` and `particles` per this function's contract.
-    unsafe { push_step(encoder, "gsenc_push_particles", field, step, time, DataKind::Particles, |enc| particle_data(enc, particles)) }
+    unsafe { push_step(encoder, "gsenc_push_particles", field, step, time, DataKind::Particles, |enc| particle_data(enc, particles).map(Copied::unchecked)) }
 }
 
 /// The checked copy of a caller's particles.
@@ -254,7 +265,7 @@ pub unsafe extern "C" fn gsenc_push_cells(
         _ => DataKind::CellBoxes,
     };
     // SAFETY (both): `field` and the arrays of `cells` per this function's contract.
-    unsafe { push_step(encoder, "gsenc_push_cells", field, step, time, kind, |enc| cell_data(enc, &c?)) }
+    unsafe { push_step(encoder, "gsenc_push_cells", field, step, time, kind, |enc| cell_data(enc, &c?).map(Copied::unchecked)) }
 }
 
 /// The checked copy of a caller's cells.

@@ -211,11 +211,29 @@ impl BackgroundEncoder {
         self.push_checked(job, true)
     }
 
+    /// `push` of a job whose values the caller has found finite already:
+    /// the C API checks a grid row by row as it copies it, while each row
+    /// is in cache, where a check of the whole copy afterwards read it back
+    /// from memory (1 ms of a 3.5 ms push of 128^3 on the 2-core VM). The
+    /// rest of [`BackgroundEncoder::check`] still refuses what it refuses;
+    /// the caller answers for the values (use `push` for data it has not
+    /// checked).
+    pub fn push_finite(&self, job: Job) -> Result<Pushed> {
+        check_field_name(&job.field)?;
+        self.check_order(&job)?;
+        self.push_checked(job, true)
+    }
+
     /// What `push` refuses before it queues anything: a bad field name,
     /// non-finite values, a step that does not follow the field's last.
     pub fn check(&self, job: &Job) -> Result<()> {
         check_field_name(&job.field)?;
         job.data.check_finite()?;
+        self.check_order(job)
+    }
+
+    /// A step that does not follow the field's last is refused.
+    fn check_order(&self, job: &Job) -> Result<()> {
         if let Some(&last) = self.shared.state.lock().last_pushed.get(&job.field) {
             if job.step <= last {
                 return Err(Error::arg(format!(
@@ -342,14 +360,12 @@ impl BackgroundEncoder {
     }
 
     /// An empty buffer with room for `len` values, recycled from a finished
-    /// grid job when one is large enough (a fresh 8 MB allocation costs the
+    /// grid job, when one is large enough (a fresh 8 MB allocation costs the
     /// push its page faults, a third of a 128^3 push).
-    pub fn recycled_buffer(&self, len: usize) -> Vec<f32> {
+    pub fn recycled_buffer(&self, len: usize) -> Option<Vec<f32>> {
         let mut st = self.shared.state.lock();
-        match st.recycled.iter().position(|b| b.capacity() >= len) {
-            Some(i) => st.recycled.swap_remove(i),
-            None => Vec::with_capacity(len),
-        }
+        let i = st.recycled.iter().position(|b| b.capacity() >= len)?;
+        Some(st.recycled.swap_remove(i))
     }
 
     /// Bytes of pushed data the queue holds now.
