@@ -182,7 +182,7 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Copi
         Some(b) => b,
         None => {
             gsenc::memory::check_fits("gsenc_push_grid: the field's copy", 4 * voxels as u64)?;
-            Vec::with_capacity(voxels)
+            gsenc::memory::with_pages(voxels)
         }
     };
     // SAFETY: the caller's array holds every element its extents and strides name.
