@@ -23,12 +23,7 @@ rows=("$@")
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out
 mkdir -p "$out"
-if [ -n "${GSENC_BIN:-}" ]; then
-    bin=$GSENC_BIN
-else
-    cargo build --release --locked --bin gsenc >&2
-    bin=${CARGO_TARGET_DIR:-target}/release/gsenc
-fi
+gsenc_bin
 rm -f "$out/core.jsonl"
 
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)

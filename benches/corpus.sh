@@ -1,8 +1,13 @@
-# Sourced by the benchmark scripts: where the benchmark corpus lies.
+# Sourced by the benchmark scripts: where the benchmark corpus lies, and the
+# gsenc tool they run.
 # GSENC_DATA names its folder (default ../shared/data, beside the checkout);
 # `corpus FILE...` stops the script with a clear message when the corpus or
 # one of its files is absent. The repository's own data/ holds only small
 # subsets of it (data/README.md), for the README's encode and the tests.
+# `gsenc_bin [CARGO BUILD ARGS...]` sets `bin`: GSENC_BIN, a gsenc built
+# elsewhere (for a machine without a Rust toolchain; nothing is built then),
+# or else this checkout's, built with those arguments (default `--bin
+# gsenc`) into CARGO_TARGET_DIR (default target).
 data=${GSENC_DATA:-../shared/data}
 corpus() {
     local f
@@ -32,3 +37,13 @@ halo=(particles --positions "$data/dm_halo_particles.positions.float32"
       --values "$data/dm_halo_particles.density.float32" --log10 --dims 128)
 enzo=(cells --centers "$data/enzo_amr_cells.centers.float32" --sizes "$data/enzo_amr_cells.sizes.float32"
       --values "$data/enzo_amr_cells.density.float32" --log10 --dims 128)
+
+gsenc_bin() {
+    if [ -n "${GSENC_BIN:-}" ]; then
+        bin=$GSENC_BIN
+        return
+    fi
+    [ "$#" -gt 0 ] || set -- --bin gsenc
+    cargo build --release --locked "$@" >&2
+    bin=${CARGO_TARGET_DIR:-target}/release/gsenc
+}

@@ -34,12 +34,7 @@ cd "$(dirname "$0")/.."
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out
 mkdir -p "$out"
-if [ -n "${GSENC_BIN:-}" ]; then
-    bin=$GSENC_BIN
-else
-    cargo build --release --locked --bin gsenc >&2
-    bin=target/release/gsenc
-fi
+gsenc_bin
 log="$out/gpu.jsonl"
 rm -f "$log"
 keep() { [ -z "${OUT:-}" ] || cp "$@" "$OUT"/ 2>/dev/null || true; }

@@ -25,13 +25,8 @@ cd "$(dirname "$0")/.."
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out
 mkdir -p "$out"
-if [ -n "${GSENC_BIN:-}" ]; then
-    bin=$GSENC_BIN
-else
-    # A target folder of its own: the feature changes wgpu's build.
-    CARGO_TARGET_DIR=target/noop cargo build --release --locked -p gsenc-cli --features gsenc/gpu-noop >&2
-    bin=target/noop/release/gsenc
-fi
+# A target folder of its own: the feature changes wgpu's build.
+CARGO_TARGET_DIR=target/noop gsenc_bin -p gsenc-cli --features gsenc/gpu-noop
 log="$out/gpu_host.jsonl"
 rm -f "$log"
 threads=()

@@ -25,12 +25,7 @@ corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out/gpu-split
 mkdir -p "$out"
 rm -f "$out"/*.gsm
-if [ -n "${GSENC_BIN:-}" ]; then
-    bin=$GSENC_BIN
-else
-    cargo build --release --locked --bin gsenc >&2
-    bin=target/release/gsenc
-fi
+gsenc_bin
 log=bench-out/gpu-split.jsonl
 : > "$log"
 work_splits=(${SPLITS:-8,8,4096 8,8,4096,1 8,8,4096,8 8,8,4096,32 4,8,4096 16,8,4096 32,8,4096 8,4,4096 8,16,4096})

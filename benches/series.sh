@@ -33,8 +33,7 @@ modes=${3:-off auto dense coarse paper}
 . benches/corpus.sh
 out=bench-out
 mkdir -p "$out"
-[ -n "${GSENC_BIN:-}" ] || cargo build --release --locked --bin gsenc >&2
-bin=${GSENC_BIN:-target/release/gsenc}
+gsenc_bin
 if [ "${SERIES:-dambreak}" = static ]; then
     corpus dm_halo_particles.positions.float32 dm_halo_particles.smoothing_length.float32 dm_halo_particles.mass.float32 dm_halo_particles.density.float32
     mkdir -p "$out/static"

@@ -16,12 +16,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 . benches/corpus.sh
 corpus hydrogen_atom.float32
-if [ -n "${GSENC_BIN:-}" ]; then
-    bin=$GSENC_BIN
-else
-    cargo build --release --locked --bin gsenc >&2
-    bin=${CARGO_TARGET_DIR:-target}/release/gsenc
-fi
+gsenc_bin
 out=bench-out/siblings
 mkdir -p "$out"
 encode() { # CPU OUTPUT: the loop seconds of one pinned encode, into OUTPUT

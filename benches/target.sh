@@ -21,11 +21,7 @@ targets=(${TARGETS:-35 40 45})
 out=bench-out/target
 mkdir -p "$out"
 # GSENC_BIN: a gsenc built elsewhere (default: this checkout's, built here).
-bin=${GSENC_BIN:-}
-if [ -z "$bin" ]; then
-    cargo build --release --locked --bin gsenc >&2
-    bin=target/release/gsenc
-fi
+gsenc_bin
 log=$out/target.jsonl
 
 tag() { python3 -c "import json,sys; d=json.load(sys.stdin); d.update(json.loads(sys.argv[1])); print(json.dumps(d))" "$1"; }
