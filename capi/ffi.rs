@@ -147,8 +147,7 @@ pub(crate) unsafe fn copy_grid(dtype: DType, ptr: *const c_void, dims: [usize; 3
                 ),
                 _ => values.extend((0..dims[0] as i64).map(|i| unsafe { dtype.read(ptr, (row + i * strides[0]) as isize) } as f32)),
             }
-            // Without an early exit, so that it vectorises.
-            finite &= values[start..].iter().fold(true, |ok, v| ok & v.is_finite());
+            finite &= gsenc::field::all_finite(&values[start..]);
         }
     }
     (values, finite)

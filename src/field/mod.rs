@@ -11,4 +11,4 @@ pub use frame::{Bounds, IndexBox, IndexFrame};
 pub(crate) use frame::LATTICE_TOLERANCE;
 pub use grid::Grid;
 pub use prefetch::prefetch;
-pub use range::{check_finite, check_finite_serial, Normalized, Transform, ValueRange};
+pub use range::{all_finite, check_finite, check_finite_serial, Normalized, Transform, ValueRange};

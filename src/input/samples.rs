@@ -43,8 +43,7 @@ impl SampleSet for Grid {
     }
     #[inline]
     fn get(&self, i: usize) -> Sample {
-        let c = self.coords(i);
-        Sample { q: [c[0] as f32, c[1] as f32, c[2] as f32], h: 0.5, v: self.values[i], m: 1.0 }
+        Sample { q: self.centre(i), h: 0.5, v: self.values[i], m: 1.0 }
     }
     #[inline]
     fn position(&self, i: usize) -> [f32; 3] {
