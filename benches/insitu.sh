@@ -8,7 +8,11 @@
 #   (defaults 3 runs, 12 steps, 1800 Jacobi sweeps a step (about 4 s here),
 #   4000 Gaussians, 200 iterations for step 0, 60 for warm steps)
 # INSITU_BIN names a prebuilt mock solver (the cc line below, run elsewhere)
-# for a machine without a Rust toolchain.
+# for a machine without a Rust toolchain. INSITU_CPUS runs the whole process
+# on those CPUs (taskset), as an MPI rank bound to them runs: INSITU_CPUS=0
+# puts the solver and the encoder on one core, where the encoder's priority
+# (GSENC_ENCODER_PRIORITY=normal|low|idle, read by the library) decides
+# who waits; GSENC_ENCODER_CPUS places the encoder's threads within them.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 runs=${1:-3} steps=${2:-12} sweeps=${3:-1800} budget=${4:-4000} iters=${5:-200} warm=${6:-60}
@@ -21,13 +25,15 @@ else
     cc -std=c99 -O2 -Iinclude -Iexamples_c benches/insitu.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/insitu"
 fi
 : > "$out/runs.jsonl"
+run=()
+[ -z "${INSITU_CPUS:-}" ] || run=(taskset -c "$INSITU_CPUS")
 for r in $(seq "$runs"); do
     for mode in 0 1; do
         rm -rf "$out/models" && mkdir -p "$out/models"
-        "$out/insitu" "$out/models" "$steps" "$mode" "$sweeps" "$budget" "$iters" "$warm" 1 | tee -a "$out/runs.jsonl" >&2
+        "${run[@]}" "$out/insitu" "$out/models" "$steps" "$mode" "$sweeps" "$budget" "$iters" "$warm" 1 | tee -a "$out/runs.jsonl" >&2
     done
     rm -rf "$out/models" && mkdir -p "$out/models"
-    "$out/insitu" "$out/models" "$steps" 1 0 "$budget" "$iters" "$warm" 1 | sed 's/^{/{"encoder_bound":1,/' | tee -a "$out/runs.jsonl" >&2
+    "${run[@]}" "$out/insitu" "$out/models" "$steps" 1 0 "$budget" "$iters" "$warm" 1 | sed 's/^{/{"encoder_bound":1,/' | tee -a "$out/runs.jsonl" >&2
 done
 python3 - "$out/runs.jsonl" <<'PY'
 import json, statistics, sys

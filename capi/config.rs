@@ -9,6 +9,7 @@ use gsenc::field::{Bounds, Transform, ValueRange};
 use gsenc::format::quantize::CentreCoding;
 use gsenc::format::Payload;
 use gsenc::render::{ColorMap, View, ViewKind, DEFAULT_OPACITY};
+use gsenc::series::placement::{parse_cpu_list, Priority, ThreadPlacement};
 use gsenc::series::queue::WhenFull;
 use gsenc::series::{SeriesConfig, SeriesRange};
 use std::os::raw::c_char;
@@ -69,6 +70,14 @@ pub const GSENC_OUTPUT_HDF5: i32 = 1;
 pub const GSENC_PREVIEW_NONE: i32 = 0;
 pub const GSENC_PREVIEW_SLICE: i32 = 1;
 pub const GSENC_PREVIEW_VOLUME: i32 = 2;
+/// How eagerly the encoder's threads take a CPU the solver wants
+/// (`gsenc_config.encoder_priority`): as the solver's threads, at nice 19,
+/// or only when no other thread wants it (Linux's `SCHED_IDLE`: an encoder
+/// that shares a busy solver's only core then waits for the solver's idle
+/// time, and its queue's `when_full` decides what a push does meanwhile).
+pub const GSENC_PRIORITY_NORMAL: i32 = 0;
+pub const GSENC_PRIORITY_LOW: i32 = 1;
+pub const GSENC_PRIORITY_IDLE: i32 = 2;
 
 /// `gsenc_config.output_format`, checked.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -179,6 +188,18 @@ pub struct gsenc_config {
     /// when they miss the target. 0 (default): `budget` exactly. Read the
     /// budget chosen and the PSNR reached with `gsenc_model_info`.
     pub target_psnr: f64,
+    /// The CPUs the encoder's threads run on, as `taskset` writes a list
+    /// (`"8-15"`, `"2,3,6-7"`); each must be one the creating thread may
+    /// run on. NULL (default): the creating thread's own set, which under
+    /// an MPI binding may be the solver's one core (create then logs a
+    /// warning). The environment's `GSENC_ENCODER_CPUS` overrides it.
+    /// Copied at create. Linux only: elsewhere anything but NULL is
+    /// `GSENC_STATUS_INVALID_ARGUMENT`.
+    pub encoder_cpus: *const c_char,
+    /// `GSENC_PRIORITY_*` of the encoder's threads (default normal); the
+    /// environment's `GSENC_ENCODER_PRIORITY` (`normal`, `low`, `idle`)
+    /// overrides it. Linux only, as `encoder_cpus`.
+    pub encoder_priority: i32,
 }
 
 /// The bytes of `gsenc_config` this version reads.
@@ -223,6 +244,8 @@ impl gsenc_config {
             preview_width: 512,
             preview_height: 512,
             target_psnr: 0.0,
+            encoder_cpus: std::ptr::null(),
+            encoder_priority: GSENC_PRIORITY_NORMAL,
         }
     }
 }
@@ -267,6 +290,8 @@ pub(crate) struct Settings {
     pub output: Option<std::path::PathBuf>,
     /// The picture drawn of every step, if any (`output` is then set).
     pub preview: Option<View>,
+    /// Where the encoder's threads run (before the environment's say).
+    pub placement: ThreadPlacement,
 }
 
 impl Settings {
@@ -390,6 +415,17 @@ impl Settings {
             }
             p => return Err(bad(format!("unknown preview {p} (GSENC_PREVIEW_NONE, _SLICE, _VOLUME)"))),
         };
+        let cpus = match c.encoder_cpus.is_null() {
+            true => None,
+            // SAFETY: a non-null `encoder_cpus` is a NUL-terminated string.
+            false => Some(parse_cpu_list(&unsafe { c_str(c.encoder_cpus, "encoder_cpus") }?).map_err(|e| bad(format!("encoder_cpus is not a CPU list: {e}")))?),
+        };
+        let priority = match c.encoder_priority {
+            GSENC_PRIORITY_NORMAL => Priority::Normal,
+            GSENC_PRIORITY_LOW => Priority::Low,
+            GSENC_PRIORITY_IDLE => Priority::Idle,
+            p => return Err(bad(format!("unknown encoder_priority {p} (GSENC_PRIORITY_NORMAL, _LOW, _IDLE)"))),
+        };
         let mut series = SeriesConfig::new(encode, warm, range);
         series.validation_points = 0; // no per-iteration log in situ: gsenc_poll reports progress
         series.warm_iterations = (c.warm_iterations > 0).then_some(c.warm_iterations as usize);
@@ -408,6 +444,7 @@ impl Settings {
             backend: BackendChoice { kind, gpu_index, brick: None },
             output,
             preview,
+            placement: ThreadPlacement { cpus, priority },
         })
     }
 }

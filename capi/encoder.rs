@@ -231,6 +231,7 @@ impl gsenc_encoder {
                 when_full: settings.when_full,
                 threads: settings.threads,
                 backend: settings.backend,
+                placement: settings.placement.clone(),
             },
             sink,
         )?;

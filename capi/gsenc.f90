@@ -50,6 +50,7 @@ module gsenc
     integer(c_int32_t), parameter, public :: GSENC_SUPPORT_STORED = 0, GSENC_SUPPORT_NONE = 1
     integer(c_int32_t), parameter, public :: GSENC_BACKEND_AUTO = 0, GSENC_BACKEND_CPU = 1, GSENC_BACKEND_GPU = 2
     integer(c_int32_t), parameter, public :: GSENC_PREVIEW_NONE = 0, GSENC_PREVIEW_SLICE = 1, GSENC_PREVIEW_VOLUME = 2
+    integer(c_int32_t), parameter, public :: GSENC_PRIORITY_NORMAL = 0, GSENC_PRIORITY_LOW = 1, GSENC_PRIORITY_IDLE = 2
     integer(c_int32_t), parameter, public :: GSENC_JOB_QUEUED = 0, GSENC_JOB_RUNNING = 1, GSENC_JOB_DONE = 2, &
         GSENC_JOB_FAILED = 3, GSENC_JOB_SKIPPED = 4, GSENC_JOB_CANCELLED = 5
 
@@ -82,6 +83,10 @@ module gsenc
         real(c_double) :: preview_at = 0, preview_azimuth = 0, preview_elevation = 0
         integer(c_int32_t) :: preview_width = 0, preview_height = 0
         real(c_double) :: target_psnr = 0
+        ! The encoder's CPUs as a C string (c_loc of a character array ending
+        ! in c_null_char), or GSENC_ENCODER_CPUS in the environment.
+        type(c_ptr) :: encoder_cpus = c_null_ptr
+        integer(c_int32_t) :: encoder_priority = 0
     end type
 
     ! gsenc_job: where one pushed step is (gsenc_poll).

@@ -70,7 +70,7 @@ mod tests {
     /// (x86_64 and aarch64 Linux, LP64).
     #[test]
     fn abi_is_pinned() {
-        assert_eq!(size_of::<gsenc_config>(), 240);
+        assert_eq!(size_of::<gsenc_config>(), 256);
         let c = [
             (offset_of!(gsenc_config, struct_size), 0),
             (offset_of!(gsenc_config, budget), 8),
@@ -108,6 +108,8 @@ mod tests {
             (offset_of!(gsenc_config, preview_width), 224),
             (offset_of!(gsenc_config, preview_height), 228),
             (offset_of!(gsenc_config, target_psnr), 232),
+            (offset_of!(gsenc_config, encoder_cpus), 240),
+            (offset_of!(gsenc_config, encoder_priority), 248),
         ];
         for (i, (got, want)) in c.iter().enumerate() {
             assert_eq!(got, want, "gsenc_config field {i}");

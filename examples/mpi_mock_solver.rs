@@ -281,7 +281,7 @@ fn main() {
     let mut ranks = Decomposition::new(&world, cfg).unwrap();
     // Each rank of a node takes its own GPU when there are several.
     let backend = gsenc::backend::select::BackendChoice::default().for_node_rank(ranks.node_rank());
-    let queue_cfg = QueueConfig { series, max_bytes: 1 << 30, when_full: WhenFull::Block, threads: 1, backend };
+    let queue_cfg = QueueConfig { series, max_bytes: 1 << 30, when_full: WhenFull::Block, threads: 1, backend, placement: Default::default() };
     let queue = BackgroundEncoder::new(queue_cfg, Box::new(ModelFolder { dir: a.out.clone(), payload: Payload::Float32 })).unwrap();
 
     // Misuse, before the series: every rank must get an error, and go on.

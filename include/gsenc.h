@@ -147,6 +147,19 @@
 #define GSENC_PREVIEW_VOLUME 2
 
 /*
+ How eagerly the encoder's threads take a CPU the solver wants
+ (`gsenc_config.encoder_priority`): as the solver's threads, at nice 19,
+ or only when no other thread wants it (Linux's `SCHED_IDLE`: an encoder
+ that shares a busy solver's only core then waits for the solver's idle
+ time, and its queue's `when_full` decides what a push does meanwhile).
+ */
+#define GSENC_PRIORITY_NORMAL 0
+
+#define GSENC_PRIORITY_LOW 1
+
+#define GSENC_PRIORITY_IDLE 2
+
+/*
  Element types of pushed arrays.
  */
 #define GSENC_DTYPE_FLOAT32 0
@@ -447,6 +460,22 @@ typedef struct {
    budget chosen and the PSNR reached with `gsenc_model_info`.
    */
   double target_psnr;
+  /*
+   The CPUs the encoder's threads run on, as `taskset` writes a list
+   (`"8-15"`, `"2,3,6-7"`); each must be one the creating thread may
+   run on. NULL (default): the creating thread's own set, which under
+   an MPI binding may be the solver's one core (create then logs a
+   warning). The environment's `GSENC_ENCODER_CPUS` overrides it.
+   Copied at create. Linux only: elsewhere anything but NULL is
+   `GSENC_STATUS_INVALID_ARGUMENT`.
+   */
+  const char *encoder_cpus;
+  /*
+   `GSENC_PRIORITY_*` of the encoder's threads (default normal); the
+   environment's `GSENC_ENCODER_PRIORITY` (`normal`, `low`, `idle`)
+   overrides it. Linux only, as `encoder_cpus`.
+   */
+  int32_t encoder_priority;
 } gsenc_config;
 
 /*

@@ -48,6 +48,7 @@ fn queue_config(max_jobs: usize, when_full: WhenFull) -> QueueConfig {
         when_full,
         threads: 1,
         backend: gsenc::backend::select::BackendChoice::cpu(),
+        placement: Default::default(),
     }
 }
 
@@ -298,4 +299,59 @@ fn another_ranks_full_queue_counts_as_full() {
         let expect: &[u64] = if want == Pushed::Queued { &[0, 1] } else { &[1] };
         assert_eq!(steps_stored(&stored), expect, "{policy:?}");
     }
+}
+
+/// A model, and the CPUs and the scheduling policy of the thread that
+/// stored it.
+#[cfg(target_os = "linux")]
+type Seen = (Model, Option<Vec<usize>>, i32);
+
+/// Stores models in memory with where they were stored (on one of the
+/// pool's threads).
+#[cfg(target_os = "linux")]
+struct WhereSink {
+    seen: Arc<Mutex<Vec<Seen>>>,
+}
+
+#[cfg(target_os = "linux")]
+impl ModelSink for WhereSink {
+    fn store(&mut self, model: &Model) -> gsenc::Result<Option<String>> {
+        // SAFETY: a plain query of the calling thread.
+        let policy = unsafe { libc::sched_getscheduler(0) };
+        self.seen.lock().unwrap().push((model.clone(), gsenc::series::placement::allowed_cpus(), policy));
+        Ok(None)
+    }
+}
+
+/// An encoder placed on one CPU at idle priority runs its pool's threads
+/// there and so (read back from the kernel by the thread that stores each
+/// model), and encodes the same models as one placed by default; CPUs the
+/// process may not use are refused before any thread starts.
+#[cfg(target_os = "linux")]
+#[test]
+fn the_encoders_threads_run_where_and_as_placed() {
+    use gsenc::series::placement::{allowed_cpus, Priority, ThreadPlacement};
+    let allowed = allowed_cpus().unwrap();
+    let one = *allowed.last().unwrap();
+    let run = |placement: ThreadPlacement| {
+        let seen = Arc::new(Mutex::new(vec![]));
+        let q = BackgroundEncoder::new(QueueConfig { placement, ..queue_config(4, WhenFull::Block) }, Box::new(WhereSink { seen: seen.clone() })).unwrap();
+        for k in 0..2 {
+            q.push(job("rho", k)).unwrap();
+        }
+        q.wait(None).unwrap();
+        drop(q);
+        Arc::try_unwrap(seen).ok().unwrap().into_inner().unwrap()
+    };
+    let placed = run(ThreadPlacement { cpus: Some(vec![one]), priority: Priority::Idle });
+    let plain = run(ThreadPlacement::default());
+    assert_eq!(placed.len(), 2);
+    for ((pm, pcpus, ppolicy), (m, cpus, policy)) in placed.iter().zip(&plain) {
+        assert_eq!((pcpus.as_deref(), *ppolicy), (Some(&[one][..]), libc::SCHED_IDLE));
+        assert_eq!((cpus.as_deref(), *policy), (Some(&allowed[..]), libc::SCHED_OTHER));
+        assert_eq!(pm.params, m.params, "step {}: the placement changed the model", m.meta.step);
+    }
+    let outside = ThreadPlacement { cpus: Some(vec![allowed.last().unwrap() + 1]), priority: Priority::Normal };
+    let e = BackgroundEncoder::new(QueueConfig { placement: outside, ..queue_config(4, WhenFull::Block) }, Box::new(gsenc::series::queue::CallerStores)).err().unwrap();
+    assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("may not run on"), "{e}");
 }

@@ -23,7 +23,9 @@
 #      on 2026-11-29, unexplained; never measured there with the CPU);
 #   7. the in-situ run on the GPU again, its encoder waiting for results by
 #      polling and sleeping (GSENC_GPU_WAIT=sleep) instead of blocking in the
-#      driver, which may spin on a core.
+#      driver, which may spin on a core;
+#   8. the same with the solver on CPU 0 and the encoder placed on the CPU
+#      that shares least with it by stage 2 (GSENC_ENCODER_CPUS).
 # Results land in bench-out/ as they do here. After each stage the text
 # results are packed into $OUT/lent.tgz, beside the log $OUT/lent.log (the
 # device tool brings back at most 8 files, and whatever is under $OUT when
@@ -127,6 +129,21 @@ pack
 stage "7. in situ on the GPU, waiting by sleeping (GSENC_GPU_WAIT=sleep)"
 if [ "$(left)" -gt 60 ]; then
     GSENC_BACKEND=gpu GSENC_GPU_WAIT=sleep insitu gpu-sleep-insitu 1 8 600
+fi
+pack
+stage "8. in situ on the GPU, the encoder placed away from the solver (GSENC_ENCODER_CPUS)"
+# The solver on CPU 0 and the encoder's thread on the CPU that slowed CPU 0
+# least in stage 2 (benches/siblings.sh), so that no hyperthread sibling,
+# as the VM may show one as a core, is shared: whether the solver's
+# slowdown of stages 1 and 7 is its neighbour's doing.
+apart=$(python3 -c '
+import sys
+rows = [l.split("|")[1:4] for l in open(sys.argv[1]) if l.startswith("| ") and l.split("|")[1].strip().isdigit()]
+print(min(rows, key=lambda r: max(float(r[1]), float(r[2])))[0].strip() if rows else "")
+' bench-out/siblings.md 2>/dev/null || true)
+if [ -n "$apart" ] && [ "$(left)" -gt 60 ]; then
+    echo "encoder on CPU $apart, solver on CPU 0"
+    INSITU_CPUS=0,$apart GSENC_ENCODER_CPUS=$apart GSENC_BACKEND=gpu GSENC_GPU_WAIT=sleep insitu gpu-apart-insitu 1 8 600
 fi
 pack
 stage "done"

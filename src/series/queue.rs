@@ -24,6 +24,7 @@ use crate::field::ValueRange;
 use crate::format::check_field_name;
 use crate::input::StepData;
 use crate::model::Model;
+use crate::series::placement::ThreadPlacement;
 use crate::series::{SeriesConfig, SeriesEncoder};
 use crossbeam_channel::{unbounded, Receiver, Sender};
 use parking_lot::{Condvar, Mutex};
@@ -55,6 +56,10 @@ pub struct QueueConfig {
     pub threads: usize,
     /// Which backend the worker encodes with.
     pub backend: BackendChoice,
+    /// The CPUs and priority of the worker and its pool's threads
+    /// (`placement.rs`); `GSENC_ENCODER_CPUS` and `GSENC_ENCODER_PRIORITY`
+    /// override it.
+    pub placement: ThreadPlacement,
 }
 
 /// One field of one step.
@@ -181,21 +186,41 @@ impl BackgroundEncoder {
         let mut series_cfg = cfg.series.clone();
         series_cfg.encode.cancel = Some(cancel.clone());
         let series = SeriesEncoder::new(series_cfg)?;
+        let placement = cfg.placement.clone().with_env()?;
+        placement.check()?;
+        if let Some(warning) = placement.shared_cpu_warning() {
+            tracing::warn!("{warning}");
+        }
         let backend = cfg.backend.open()?;
         let threads = if backend.on_device() { 1 } else { cfg.threads };
-        tracing::info!(backend = %backend.name(), threads, "background encoder starts");
+        tracing::info!(backend = %backend.name(), threads, ?placement, "background encoder starts");
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("gsenc-encode-{i}"))
             .build()
             .map_err(|e| Error::arg(format!("cannot start {} encode threads: {e}", cfg.threads)))?;
+        // Every thread of the pool places itself (a broadcast runs on each
+        // once), and so does the worker before it takes a job.
+        pool.broadcast(|_| placement.apply()).into_iter().collect::<Result<()>>()?;
         let shared = Arc::new(Shared { state: Mutex::new(State::default()), changed: Condvar::new(), cancel });
         let (tx, rx) = unbounded();
+        let (placed_tx, placed) = crossbeam_channel::bounded(1);
         let worker = Worker { shared: shared.clone(), series, pool, sink, backend };
         let handle = std::thread::Builder::new()
             .name("gsenc-queue".into())
-            .spawn(move || worker.run(rx))
+            .spawn(move || {
+                let r = placement.apply();
+                let ok = r.is_ok();
+                let _ = placed_tx.send(r);
+                if ok {
+                    worker.run(rx)
+                }
+            })
             .map_err(|e| Error::arg(format!("cannot start the encode thread: {e}")))?;
+        if let Err(e) = placed.recv().unwrap_or_else(|_| Err(Error::arg("the encode thread stopped as it started"))) {
+            let _ = handle.join();
+            return Err(e);
+        }
         Ok(BackgroundEncoder { shared, cfg, jobs: Some(tx), worker: Some(handle) })
     }
 

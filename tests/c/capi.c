@@ -40,7 +40,7 @@ int main(void) {
     char path[512];
 
     /* The ABI as this C compiler lays it out: the values capi/lib.rs pins. */
-    CHECK(sizeof(gsenc_config) == 240 && offsetof(gsenc_config, target_psnr) == 232 && offsetof(gsenc_config, preview) == 192 && offsetof(gsenc_config, preview_at) == 200
+    CHECK(sizeof(gsenc_config) == 256 && offsetof(gsenc_config, target_psnr) == 232 && offsetof(gsenc_config, encoder_cpus) == 240 && offsetof(gsenc_config, encoder_priority) == 248 && offsetof(gsenc_config, preview) == 192 && offsetof(gsenc_config, preview_at) == 200
               && offsetof(gsenc_config, preview_elevation) == 216 && offsetof(gsenc_config, preview_height) == 228 && offsetof(gsenc_config, halo) == 180 && offsetof(gsenc_config, backend) == 184 && offsetof(gsenc_config, gpu_index) == 188 && offsetof(gsenc_config, output_dir) == 152 && offsetof(gsenc_config, warm_iterations) == 160
               && offsetof(gsenc_config, when_full) == 164 && offsetof(gsenc_config, queue_bytes) == 168 && offsetof(gsenc_config, output_format) == 176 && offsetof(gsenc_config, dims) == 56
               && offsetof(gsenc_config, payload) == 120 && offsetof(gsenc_config, rank) == 144
@@ -64,7 +64,8 @@ int main(void) {
     EXPECT(gsenc_config_init(&cfg), GSENC_STATUS_OK);
     CHECK(cfg.budget == 32000 && cfg.warm_start == GSENC_WARM_AUTO && cfg.seed_sample == 1 && cfg.support == GSENC_SUPPORT_STORED
               && cfg.backend == GSENC_BACKEND_AUTO && cfg.gpu_index == -1 && cfg.preview == GSENC_PREVIEW_NONE && cfg.preview_axis == 2
-              && cfg.preview_at == 0.5 && cfg.preview_width == 512 && cfg.preview_height == 512 && cfg.target_psnr == 0.0, "defaults");
+              && cfg.preview_at == 0.5 && cfg.preview_width == 512 && cfg.preview_height == 512 && cfg.target_psnr == 0.0
+              && cfg.encoder_cpus == NULL && cfg.encoder_priority == GSENC_PRIORITY_NORMAL, "defaults");
     EXPECT(gsenc_config_init(NULL), GSENC_STATUS_NULL_POINTER);
 
     cfg.budget = 120;
@@ -169,6 +170,21 @@ int main(void) {
         EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
         CHECK(enc == NULL && strstr(last_error(), "target_psnr") != NULL, "bad target %g: %s", bad_targets[i], last_error());
     }
+    /* The encoder's CPUs and priority: a list that is not one, or names
+     * a CPU this process may not run on, and an unknown priority are
+     * refused at create, each naming its field. */
+    const char *bad_cpus[] = {"", "3-1", "x", "1,,2", "65535"};
+    for (size_t i = 0; i < sizeof bad_cpus / sizeof bad_cpus[0]; i++) {
+        bad = cfg;
+        bad.encoder_cpus = bad_cpus[i];
+        enc = (gsenc_encoder *)1;
+        EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(enc == NULL && strstr(last_error(), "CPU") != NULL, "bad CPU list '%s': %s", bad_cpus[i], last_error());
+    }
+    bad = cfg;
+    bad.encoder_priority = 7;
+    EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "encoder_priority") != NULL, "bad priority: %s", last_error());
     bad = cfg;
     bad.budget = 0;
     EXPECT(gsenc_encoder_create(&bad, &enc), GSENC_STATUS_INVALID_ARGUMENT);

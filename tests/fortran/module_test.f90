@@ -29,9 +29,10 @@ program module_test
     call expect(int(gsenc_version()), 100 * 0 + 1 * 100 + 0, 'gsenc_version is 0.1.0')
     cfg = gsenc_config_default()
     call expect(int(cfg%budget), 32000, 'default budget')
-    call expect(int(c_sizeof(cfg)), 240, 'gsenc_config is the size C sees')
+    call expect(int(c_sizeof(cfg)), 256, 'gsenc_config is the size C sees')
     call expect(int(cfg%preview_width), 512, 'default preview width')
     call expect(int(cfg%support), GSENC_SUPPORT_STORED, 'default support')
+    call expect(int(cfg%encoder_priority), GSENC_PRIORITY_NORMAL, 'default encoder priority')
     cfg%budget = 100
     cfg%iterations = 60
     cfg%warm_iterations = 30
