@@ -1,11 +1,13 @@
 //! The C ABI of gsenc (`libgsenc`, header `include/gsenc.h`): a thin layer
 //! over the library's Rust API. Every function is `extern "C"`, returns a
 //! `gsenc_status` (or nothing, for destroy), never unwinds into C (each body
-//! runs in `status::guard`) and never prints; the message of a failure is
-//! the calling thread's `gsenc_last_error`.
+//! runs in `status::guard`) and prints nothing unless `GSENC_LOG` asks
+//! (`log`); the message of a failure is the calling thread's
+//! `gsenc_last_error`.
 //!
 //! One file per concept of the C surface:
 //! - `status`: codes, the thread's last error, the panic guard;
+//! - `log`: gsenc's events on the standard error, when `GSENC_LOG` asks;
 //! - `handles`: the live handles, so misused ones are refused;
 //! - `ffi`: what every entry point shares (sized structs, strings, strided
 //!   copies of the caller's arrays);
@@ -24,6 +26,7 @@ pub mod config;
 pub mod encoder;
 mod ffi;
 mod handles;
+mod log;
 pub mod inputs;
 pub mod jobs;
 pub mod model;

@@ -1,6 +1,7 @@
 //! Status codes, the thread-local last-error message, and the guard every C
 //! entry point runs its body in: it turns errors and panics into a status,
-//! so nothing unwinds into C and nothing is printed.
+//! so nothing unwinds into C and nothing is printed (unless `GSENC_LOG`
+//! asks: `log.rs`, started here at the first call).
 
 use gsenc::error::Error;
 use std::cell::RefCell;
@@ -84,6 +85,7 @@ pub(crate) fn fail<T>(status: gsenc_status, msg: impl Into<String>) -> Result<T,
 /// Runs `body`, records its error (or panic) as the thread's last error and
 /// returns its status. Success leaves the last error as it was.
 pub(crate) fn guard(body: impl FnOnce() -> Result<(), Failure>) -> gsenc_status {
+    crate::log::init();
     let outcome = catch_unwind(AssertUnwindSafe(body)).unwrap_or_else(|panic| {
         let what = panic
             .downcast_ref::<&str>()

@@ -462,11 +462,14 @@ typedef struct {
   double target_psnr;
   /*
    The CPUs the encoder's threads run on, as `taskset` writes a list
-   (`"8-15"`, `"2,3,6-7"`); each must be one the creating thread may
-   run on. NULL (default): the creating thread's own set, which under
-   an MPI binding may be the solver's one core (create then logs a
-   warning). The environment's `GSENC_ENCODER_CPUS` overrides it.
-   Copied at create. Linux only: elsewhere anything but NULL is
+   (`"8-15"`, `"2,3,6-7"`), or by position in the creating thread's own
+   set (`"@1"`: its second CPU, the same setting for every rank of a
+   job whose ranks are bound to CPUs of their own); each must be one
+   the creating thread may run on. NULL (default): the creating
+   thread's own set, which under an MPI binding may be the solver's one
+   core (create then logs a warning, shown with `GSENC_LOG=warn`). The
+   environment's `GSENC_ENCODER_CPUS` overrides it. Copied at create.
+   Linux only: elsewhere anything but NULL is
    `GSENC_STATUS_INVALID_ARGUMENT`.
    */
   const char *encoder_cpus;

@@ -189,8 +189,17 @@ pub fn allowed_cpus() -> Option<Vec<usize>> {
 }
 
 /// A CPU list as `taskset` and cpusets write it (`0-3,8,10-11`): ascending,
-/// without repeats.
+/// without repeats. An entry that starts with `@` names positions in the
+/// calling thread's own set, from 0 (`@1` its second CPU, `@1-3` its second
+/// to fourth), so that one setting serves every rank of a job whose ranks
+/// are each bound to CPUs of their own (`GSENC_ENCODER_CPUS=@1` under
+/// `srun -c 2`: each encoder on its rank's second CPU).
 pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>> {
+    parse_cpu_list_in(s, allowed_cpus().as_deref())
+}
+
+/// [`parse_cpu_list`] with `own` as the calling thread's set.
+fn parse_cpu_list_in(s: &str, own: Option<&[usize]>) -> Result<Vec<usize>> {
     let number = |t: &str| -> Result<usize> {
         let t = t.trim();
         let n: usize = t.parse().map_err(|_| Error::arg(format!("'{t}' is not a CPU number")))?;
@@ -201,18 +210,35 @@ pub fn parse_cpu_list(s: &str) -> Result<Vec<usize>> {
     };
     let mut cpus = vec![];
     for part in s.split(',') {
-        if part.trim().is_empty() {
-            return Err(Error::arg(format!("'{s}' has an empty entry (a list is like 0-3,8,10-11)")));
+        let part = part.trim();
+        if part.is_empty() {
+            return Err(Error::arg(format!("'{s}' has an empty entry (a list is like 0-3,8,10-11, or @1 for this thread's second CPU)")));
         }
-        match part.split_once('-') {
-            Some((a, b)) => {
-                let (a, b) = (number(a)?, number(b)?);
-                if a > b {
-                    return Err(Error::arg(format!("range {a}-{b} runs backwards")));
-                }
-                cpus.extend(a..=b);
+        let (relative, range) = match part.strip_prefix('@') {
+            Some(r) => (true, r),
+            None => (false, part),
+        };
+        let (a, b) = match range.split_once('-') {
+            Some((a, b)) => (number(a)?, number(b)?),
+            None => (number(range)?, number(range)?),
+        };
+        if a > b {
+            return Err(Error::arg(format!("range {a}-{b} runs backwards")));
+        }
+        if relative {
+            let Some(own) = own else {
+                return Err(Error::arg(format!("'{part}' names CPUs by position in this thread's set, which this system does not tell")));
+            };
+            if b >= own.len() {
+                return Err(Error::arg(format!(
+                    "'{part}' names position {b} of this thread's CPUs, which are {} ({}; positions from 0)",
+                    own.len(),
+                    format_cpu_list(own)
+                )));
             }
-            None => cpus.push(number(part)?),
+            cpus.extend_from_slice(&own[a..=b]);
+        } else {
+            cpus.extend(a..=b);
         }
     }
     cpus.sort_unstable();
@@ -251,6 +277,24 @@ mod tests {
             assert_eq!(parse_cpu_list(&format_cpu_list(&cpus)).unwrap_or_default(), cpus);
         }
         assert_eq!(format_cpu_list(&[0, 1, 2, 3, 8, 10, 11]), "0-3,8,10-11");
+    }
+
+    /// `@` entries are positions in the calling thread's own set.
+    #[test]
+    fn at_entries_are_positions_in_the_threads_own_set() {
+        let own = [4, 5, 9, 12];
+        assert_eq!(parse_cpu_list_in("@1", Some(&own)).unwrap(), vec![5]);
+        assert_eq!(parse_cpu_list_in("@1-2, 0", Some(&own)).unwrap(), vec![0, 5, 9]);
+        assert_eq!(parse_cpu_list_in("@0-3", Some(&own)).unwrap(), own.to_vec());
+        let e = parse_cpu_list_in("@4", Some(&own)).unwrap_err().to_string();
+        assert!(e.contains("position 4") && e.contains("4-5,9,12"), "{e}");
+        for bad in ["@", "@-1", "@2-1", "@x", "1@"] {
+            assert!(parse_cpu_list_in(bad, Some(&own)).is_err(), "'{bad}' was read");
+        }
+        assert!(parse_cpu_list_in("@0", None).is_err());
+        assert_eq!(parse_cpu_list_in("3", None).unwrap(), vec![3]);
+        #[cfg(target_os = "linux")]
+        assert_eq!(parse_cpu_list("@0").unwrap(), vec![allowed_cpus().unwrap()[0]]);
     }
 
     /// The variables override the configuration, each only where set, and

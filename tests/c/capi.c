@@ -173,7 +173,7 @@ int main(void) {
     /* The encoder's CPUs and priority: a list that is not one, or names
      * a CPU this process may not run on, and an unknown priority are
      * refused at create, each naming its field. */
-    const char *bad_cpus[] = {"", "3-1", "x", "1,,2", "65535"};
+    const char *bad_cpus[] = {"", "3-1", "x", "1,,2", "65535", "@99"};
     for (size_t i = 0; i < sizeof bad_cpus / sizeof bad_cpus[0]; i++) {
         bad = cfg;
         bad.encoder_cpus = bad_cpus[i];
