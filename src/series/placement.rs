@@ -16,7 +16,8 @@
 use crate::error::{Error, Result};
 
 /// The variable that names the encoder's CPUs, as a list (`8-15`,
-/// `2,3,6-7`); it overrides the configuration's.
+/// `2,3,6-7`, or `@1` for the second of the creating thread's own:
+/// [`parse_cpu_list`]); it overrides the configuration's.
 pub const CPUS_VARIABLE: &str = "GSENC_ENCODER_CPUS";
 /// The variable that sets the encoder's priority (`normal`, `low`, `idle`);
 /// it overrides the configuration's.
