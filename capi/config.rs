@@ -125,7 +125,9 @@ pub struct gsenc_config {
     /// `GSENC_PAYLOAD_*` of written models (default float32).
     pub payload: i32,
     /// Threads of the encoder's own pool, beside the solver's (default 1;
-    /// give it the cores the solver leaves free); 0 uses every core. More
+    /// give it the cores the solver leaves free); 0: one per CPU the encoder
+    /// may use (those `encoder_cpus` names, else every CPU the creating
+    /// thread may run on). More
     /// than 8 a core (at least 64) is refused (`GSENC_STATUS_INVALID_ARGUMENT`):
     /// the model does not depend on the count, and such a number is a mistake.
     pub threads: u32,
@@ -390,10 +392,8 @@ impl Settings {
         let Some(queue_bytes) = queue_bytes else {
             return Err(bad(format!("queue_bytes {} must be positive", c.queue_bytes)));
         };
-        let threads = match c.threads {
-            0 => std::thread::available_parallelism().map_or(1, |n| n.get()),
-            t => t as usize,
-        };
+        // 0 is resolved by the queue, which knows the placement.
+        let threads = c.threads as usize;
         let output = match c.output_dir.is_null() {
             true => None,
             // SAFETY: a non-null `output_dir` is a NUL-terminated string.

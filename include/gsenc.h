@@ -364,7 +364,9 @@ typedef struct {
   int32_t payload;
   /*
    Threads of the encoder's own pool, beside the solver's (default 1;
-   give it the cores the solver leaves free); 0 uses every core. More
+   give it the cores the solver leaves free); 0: one per CPU the encoder
+   may use (those `encoder_cpus` names, else every CPU the creating
+   thread may run on). More
    than 8 a core (at least 64) is refused (`GSENC_STATUS_INVALID_ARGUMENT`):
    the model does not depend on the count, and such a number is a mistake.
    */

@@ -255,8 +255,6 @@ fn bad_pushes_are_refused_at_once() {
     assert!(matches!(q.push(job("a/b", 0)), Err(Error::InvalidArgument(_))));
     assert!(q.poll("rho", 0).is_none());
     let mut cfg = queue_config(8, WhenFull::Block);
-    cfg.threads = 0;
-    assert!(BackgroundEncoder::new(cfg.clone(), Box::new(gsenc::series::queue::CallerStores)).is_err());
     cfg.threads = 100_000;
     let e = BackgroundEncoder::new(cfg, Box::new(gsenc::series::queue::CallerStores)).err().expect("100,000 threads refused");
     assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("threads 100000")), "{e}");
@@ -301,10 +299,10 @@ fn another_ranks_full_queue_counts_as_full() {
     }
 }
 
-/// A model, and the CPUs and the scheduling policy of the thread that
-/// stored it.
+/// A model, the CPUs and the scheduling policy of the thread that stored
+/// it, and the threads of its pool.
 #[cfg(target_os = "linux")]
-type Seen = (Model, Option<Vec<usize>>, i32);
+type Seen = (Model, Option<Vec<usize>>, i32, usize);
 
 /// Stores models in memory with where they were stored (on one of the
 /// pool's threads).
@@ -318,24 +316,25 @@ impl ModelSink for WhereSink {
     fn store(&mut self, model: &Model) -> gsenc::Result<Option<String>> {
         // SAFETY: a plain query of the calling thread.
         let policy = unsafe { libc::sched_getscheduler(0) };
-        self.seen.lock().unwrap().push((model.clone(), gsenc::series::placement::allowed_cpus(), policy));
+        self.seen.lock().unwrap().push((model.clone(), gsenc::series::placement::allowed_cpus(), policy, rayon::current_num_threads()));
         Ok(None)
     }
 }
 
 /// An encoder placed on one CPU at idle priority runs its pool's threads
 /// there and so (read back from the kernel by the thread that stores each
-/// model), and encodes the same models as one placed by default; CPUs the
-/// process may not use are refused before any thread starts.
+/// model), one thread for its one CPU when asked for 0 (one per CPU), and
+/// encodes the same models as one placed by default; CPUs the process may
+/// not use are refused before any thread starts.
 #[cfg(target_os = "linux")]
 #[test]
 fn the_encoders_threads_run_where_and_as_placed() {
     use gsenc::series::placement::{allowed_cpus, Priority, ThreadPlacement};
     let allowed = allowed_cpus().unwrap();
     let one = *allowed.last().unwrap();
-    let run = |placement: ThreadPlacement| {
+    let run = |placement: ThreadPlacement, threads: usize| {
         let seen = Arc::new(Mutex::new(vec![]));
-        let q = BackgroundEncoder::new(QueueConfig { placement, ..queue_config(4, WhenFull::Block) }, Box::new(WhereSink { seen: seen.clone() })).unwrap();
+        let q = BackgroundEncoder::new(QueueConfig { placement, threads, ..queue_config(4, WhenFull::Block) }, Box::new(WhereSink { seen: seen.clone() })).unwrap();
         for k in 0..2 {
             q.push(job("rho", k)).unwrap();
         }
@@ -343,12 +342,12 @@ fn the_encoders_threads_run_where_and_as_placed() {
         drop(q);
         Arc::try_unwrap(seen).ok().unwrap().into_inner().unwrap()
     };
-    let placed = run(ThreadPlacement { cpus: Some(vec![one]), priority: Priority::Idle });
-    let plain = run(ThreadPlacement::default());
+    let placed = run(ThreadPlacement { cpus: Some(vec![one]), priority: Priority::Idle }, 0);
+    let plain = run(ThreadPlacement::default(), 0);
     assert_eq!(placed.len(), 2);
-    for ((pm, pcpus, ppolicy), (m, cpus, policy)) in placed.iter().zip(&plain) {
-        assert_eq!((pcpus.as_deref(), *ppolicy), (Some(&[one][..]), libc::SCHED_IDLE));
-        assert_eq!((cpus.as_deref(), *policy), (Some(&allowed[..]), libc::SCHED_OTHER));
+    for ((pm, pcpus, ppolicy, pthreads), (m, cpus, policy, threads)) in placed.iter().zip(&plain) {
+        assert_eq!((pcpus.as_deref(), *ppolicy, *pthreads), (Some(&[one][..]), libc::SCHED_IDLE, 1));
+        assert_eq!((cpus.as_deref(), *policy, *threads), (Some(&allowed[..]), libc::SCHED_OTHER, allowed.len()));
         assert_eq!(pm.params, m.params, "step {}: the placement changed the model", m.meta.step);
     }
     let outside = ThreadPlacement { cpus: Some(vec![allowed.last().unwrap() + 1]), priority: Priority::Normal };

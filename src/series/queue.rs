@@ -52,7 +52,9 @@ pub struct QueueConfig {
     /// queue is empty, so that no step can never be encoded.
     pub max_bytes: usize,
     pub when_full: WhenFull,
-    /// Threads of the encode's own pool (one when the backend is a GPU).
+    /// Threads of the encode's own pool (one when the backend is a GPU);
+    /// 0: one per CPU of the placement, or, where it names none, per CPU
+    /// the creating thread may run on.
     pub threads: usize,
     /// Which backend the worker encodes with.
     pub backend: BackendChoice,
@@ -178,7 +180,13 @@ pub struct BackgroundEncoder {
 impl BackgroundEncoder {
     /// Starts the worker and its pool of `cfg.threads` threads.
     pub fn new(cfg: QueueConfig, sink: Box<dyn ModelSink>) -> Result<BackgroundEncoder> {
-        crate::encode::check_threads(cfg.threads)?;
+        let placement = cfg.placement.clone().with_env()?;
+        placement.check()?;
+        let threads = match cfg.threads {
+            0 => placement.cpus.as_ref().map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), Vec::len),
+            t => t,
+        };
+        crate::encode::check_threads(threads)?;
         if cfg.max_bytes == 0 {
             return Err(Error::arg("the queue's memory budget must be positive"));
         }
@@ -186,19 +194,17 @@ impl BackgroundEncoder {
         let mut series_cfg = cfg.series.clone();
         series_cfg.encode.cancel = Some(cancel.clone());
         let series = SeriesEncoder::new(series_cfg)?;
-        let placement = cfg.placement.clone().with_env()?;
-        placement.check()?;
         if let Some(warning) = placement.shared_cpu_warning() {
             tracing::warn!("{warning}");
         }
         let backend = cfg.backend.open()?;
-        let threads = if backend.on_device() { 1 } else { cfg.threads };
+        let threads = if backend.on_device() { 1 } else { threads };
         tracing::info!(backend = %backend.name(), threads, ?placement, "background encoder starts");
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .thread_name(|i| format!("gsenc-encode-{i}"))
             .build()
-            .map_err(|e| Error::arg(format!("cannot start {} encode threads: {e}", cfg.threads)))?;
+            .map_err(|e| Error::arg(format!("cannot start {threads} encode threads: {e}")))?;
         // Every thread of the pool places itself (a broadcast runs on each
         // once), and so does the worker before it takes a job.
         pool.broadcast(|_| placement.apply()).into_iter().collect::<Result<()>>()?;
