@@ -101,11 +101,6 @@ impl CpuBackend {
         PointBins { bricks, cand_start, cand }
     }
 
-    /// Contiguous ranges of bricks of similar cost, in order.
-    pub(super) fn work_ranges(bins: &PointBins) -> Vec<(usize, usize)> {
-        Self::work_chunks(bins, 0).into_iter().map(|w| w.bricks).collect()
-    }
-
     /// Cuts the occupied bricks into about `WORK_CHUNKS` contiguous ranges
     /// of similar cost (points x (candidates + 1)); a brick above `split_shares`
     /// ranges' cost (unless 0) is a chunk of its own whose points run in

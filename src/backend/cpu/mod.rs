@@ -19,8 +19,8 @@
 //!
 //! The files read in that order: `binning.rs` (steps 1 to 3: the bricks,
 //! the lists, the cut into chunks), `backward.rs` (what a chunk runs, and
-//! step 4: `point_loss_grad`), `forward.rs` (the same chunks forward only:
-//! `evaluate_points`), `decode.rs`; `lanes.rs` holds the 8-lane kernel
+//! step 4: `point_loss_grad`), `forward.rs` (the same chunks forward only,
+//! a dense brick's points in runs: `evaluate_points`), `decode.rs`; `lanes.rs` holds the 8-lane kernel
 //! loops they share and `simd.rs` which build of them runs. This file
 //! holds the backend, what it derives from the parameters once a call, and
 //! the trait's entry points.
@@ -209,7 +209,8 @@ mod tests {
     /// mean cost, which start first on their own, and bricks above
     /// `SPLIT_SHARES` chunks' shares, whose points run in runs: the gradient
     /// and the loss are the same bits on 1 and 3 threads, and on 3 threads
-    /// again, and the gradient of whole bricks up to the order of the sums.
+    /// again, and the gradient of whole bricks up to the order of the sums;
+    /// the forward passes give whole bricks' bits.
     #[test]
     fn heavy_chunks_and_split_bricks_give_the_same_bits_on_any_thread_count() {
         let mut rng = Rng::new(8);
@@ -262,6 +263,28 @@ mod tests {
         let diff: f64 = a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>().sqrt();
         let norm: f64 = b.iter().map(|y| (*y as f64).powi(2)).sum::<f64>().sqrt();
         assert!(diff <= 1e-5 * norm, "split bricks' gradient off by {diff} of {norm}");
+
+        // The forward pass cuts the same bricks into runs of points, and
+        // a point's sums are its brick's whatever run it falls in: the
+        // same bits as whole bricks, on any thread count, both forwards.
+        let eval = |threads: usize, split_shares: u64, pointwise: bool| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let mut b = CpuBackend { brick: 2.0, split_shares, ..CpuBackend::default() };
+                let (mut rho, mut n) = (vec![f32::NAN; batch.pos.len()], vec![f32::NAN; batch.pos.len()]);
+                if pointwise {
+                    b.evaluate_each(&params, &batch.pos, &mut rho, &mut n).unwrap();
+                } else {
+                    b.evaluate_points(&params, &batch.pos, &mut rho, &mut n).unwrap();
+                }
+                rho.iter().chain(&n).map(|x| x.to_bits()).collect::<Vec<_>>()
+            })
+        };
+        for pointwise in [false, true] {
+            let whole = eval(1, 0, pointwise);
+            assert!(whole.iter().all(|&x| !f32::from_bits(x).is_nan()) && whole.iter().any(|&x| f32::from_bits(x) != 0.0));
+            assert!(eval(3, SPLIT_SHARES, pointwise) == whole && eval(1, SPLIT_SHARES, pointwise) == whole, "pointwise {pointwise}");
+        }
     }
 
     /// Primitives scattered over [0, 6)^3 with random rotations and sizes.
