@@ -194,6 +194,7 @@ impl gsenc_encoder {
     /// An encoder of `settings`; `opens_store`: whether this process opens
     /// the HDF5 store, when that is the output (rank 0 of an MPI run).
     fn new(settings: Settings, opens_store: bool) -> Result<gsenc_encoder, Failure> {
+        crate::log::set_rank(settings.series.rank);
         let sink: Box<dyn ModelSink> = match (&settings.output, settings.output_format) {
             (None, _) => Box::new(KeepInMemory),
             (Some(dir), OutputFormat::Folder) => Box::new(ModelFolder { dir: dir.clone(), payload: settings.series.payload }),

@@ -1,7 +1,8 @@
 /* gsenc's log for C hosts (capi/log.rs): an encoder created by a thread
  * bound to one CPU, as a rank bound to one core is, logs a warning on the
- * standard error when GSENC_LOG asks for warnings, and prints nothing when
- * it is not set (a library on every rank of a job must not print on each).
+ * standard error, after its rank, when GSENC_LOG asks for warnings, and
+ * prints nothing when it is not set (a library on every rank of a job must
+ * not print on each).
  * Linux only (thread affinity). Run as `log on` and `log off`, one process
  * each (the log is set up once a process); built and run by
  * tests/run-all.sh; prints "c-log (MODE): N passed, M failed". */
@@ -40,6 +41,7 @@ static void *create_bound(void *path) {
     cfg.struct_size = sizeof cfg;
     gsenc_config_init(&cfg);
     cfg.budget = 10;
+    cfg.rank = 3;
     cfg.backend = GSENC_BACKEND_CPU;
     gsenc_encoder *enc = NULL;
     created = gsenc_encoder_create(&cfg, &enc) == GSENC_STATUS_OK;
@@ -67,8 +69,9 @@ int main(int argc, char **argv) {
     remove(path);
     CHECK(created, "the encoder was not created");
     if (on)
-        CHECK(strstr(captured, "may run on CPU") != NULL && strstr(captured, "GSENC_ENCODER_CPUS") != NULL && strstr(captured, "WARN") != NULL,
-              "no warning of the shared CPU on the standard error: '%s'", captured);
+        CHECK(strncmp(captured, "gsenc[rank 3] ", 14) == 0 && strstr(captured, "may run on CPU") != NULL && strstr(captured, "GSENC_ENCODER_CPUS") != NULL
+                  && strstr(captured, "WARN") != NULL,
+              "no warning of the shared CPU, after its rank, on the standard error: '%s'", captured);
     else
         CHECK(captured[0] == 0, "printed without GSENC_LOG: '%s'", captured);
     printf("c-log (%s): %d passed, %d failed\n", on ? "on" : "off", passed, failed);
