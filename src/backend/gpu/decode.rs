@@ -80,14 +80,11 @@ impl GpuBackend {
                 if !frames_done {
                     dispatch(gpu, &mut enc, timer, binds, &k.frames, &seq(&[&u1, params, hot, ranges]), groups_for(n as usize));
                 }
-                // The slab's primitives, from all of them.
-                dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells, sc]), split);
-                dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u1, sc, ss]), 1);
-                dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells), (6, ss), (7, sl)], split);
-                // Each brick's, from the slab's.
-                dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u2, ranges, sl, ss, cells, counts]), ncells);
-                dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u2, counts, starts]), 1);
-                dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u2), (1, ranges), (2, sl), (3, ss), (4, cells), (6, starts), (7, lists)], ncells);
+                // The slab's primitives, from all of them; each brick's,
+                // from the slab's.
+                let slab_level = ListLevel { uniform: &u1, cells, counts: sc, starts: ss, lists: sl, groups: split };
+                let brick_level = ListLevel { uniform: &u2, cells, counts, starts, lists, groups: ncells };
+                bin_two_levels(gpu, &mut enc, timer, binds, k, (ranges, ident, ident_bounds), &slab_level, &brick_level);
                 dispatch(gpu, &mut enc, timer, binds, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
                 let times = timer.resolve(&mut enc).unwrap_or((slab, 0));
                 b.readback[0].record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;

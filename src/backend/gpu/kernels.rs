@@ -3,6 +3,7 @@
 //! with `math.wgsl` (the shared math) prepended.
 
 use super::device::Gpu;
+use super::seq;
 use super::timer::Timer;
 use crate::error::Result;
 use crate::math::loss::{LossWeights, PointNorm};
@@ -227,6 +228,43 @@ pub fn dispatch(
     pass.set_bind_group(0, &group, &[]);
     let x = groups.min(MAX_GROUPS);
     pass.dispatch_workgroups(x, groups.div_ceil(x), 1);
+}
+
+/// One level of the two-level lists of `bin.wgsl`: the uniform that names
+/// the level, its cells, the counts, starts and lists that the count, scan
+/// and fill kernels write there, and the workgroups of its count and fill.
+pub struct ListLevel<'a> {
+    pub uniform: &'a wgpu::Buffer,
+    pub cells: &'a wgpu::Buffer,
+    pub counts: &'a wgpu::Buffer,
+    pub starts: &'a wgpu::Buffer,
+    pub lists: &'a wgpu::Buffer,
+    pub groups: u32,
+}
+
+/// Records the two-level binning that the point passes and the decode
+/// share: each `outer` cell's primitives from all of them (their `ranges`,
+/// through `ident` and `ident_bounds`), then each `inner` cell's from its
+/// outer cell's list; count, scan and fill at each level.
+#[allow(clippy::too_many_arguments)]
+pub fn bin_two_levels(
+    gpu: &Gpu,
+    enc: &mut wgpu::CommandEncoder,
+    timer: &mut Timer,
+    binds: &mut BindGroups,
+    k: &Kernels,
+    (ranges, ident, ident_bounds): (&wgpu::Buffer, &wgpu::Buffer, &wgpu::Buffer),
+    outer: &ListLevel,
+    inner: &ListLevel,
+) {
+    let o = outer;
+    dispatch(gpu, enc, timer, binds, &k.count, &seq(&[o.uniform, ranges, ident, ident_bounds, o.cells, o.counts]), o.groups);
+    dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[o.uniform, o.counts, o.starts]), 1);
+    dispatch(gpu, enc, timer, binds, &k.fill, &[(0, o.uniform), (1, ranges), (2, ident), (3, ident_bounds), (4, o.cells), (6, o.starts), (7, o.lists)], o.groups);
+    let i = inner;
+    dispatch(gpu, enc, timer, binds, &k.count, &seq(&[i.uniform, ranges, o.lists, o.starts, i.cells, i.counts]), i.groups);
+    dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[i.uniform, i.counts, i.starts]), 1);
+    dispatch(gpu, enc, timer, binds, &k.fill, &[(0, i.uniform), (1, ranges), (2, o.lists), (3, o.starts), (4, i.cells), (6, i.starts), (7, i.lists)], i.groups);
 }
 
 /// Workgroups for one thread per item of the per-primitive kernels.

@@ -304,14 +304,11 @@ impl GpuBackend {
             let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
             let nb = nbricks as u32;
             dispatch(gpu, &mut enc, timer, binds, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
-            // Each coarse cell's primitives, from all of them.
-            dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u1, ranges, ident, ident_bounds, cells1, counts1]), coarse_groups);
-            dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u1, counts1, starts1]), 1);
-            dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u1), (1, ranges), (2, ident), (3, ident_bounds), (4, cells1), (6, starts1), (7, lists1)], coarse_groups);
-            // Each brick's, from its coarse cell's.
-            dispatch(gpu, &mut enc, timer, binds, &k.count, &seq(&[&u, ranges, lists1, starts1, cells, counts]), nb);
-            dispatch(gpu, &mut enc, timer, binds, &k.scan, &seq(&[&u, counts, starts]), 1);
-            dispatch(gpu, &mut enc, timer, binds, &k.fill, &[(0, &u), (1, ranges), (2, lists1), (3, starts1), (4, cells), (6, starts), (7, lists)], nb);
+            // Each coarse cell's primitives, from all of them; each brick's,
+            // from its coarse cell's.
+            let coarse = ListLevel { uniform: &u1, cells: cells1, counts: counts1, starts: starts1, lists: lists1, groups: coarse_groups };
+            let bricks = ListLevel { uniform: &u, cells, counts, starts, lists, groups: nb };
+            bin_two_levels(gpu, &mut enc, timer, binds, k, (ranges, ident, ident_bounds), &coarse, &bricks);
             dispatch(gpu, &mut enc, timer, binds, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
             let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
             if pass == Pass::Evaluate {
