@@ -77,6 +77,7 @@ stage env GSENC_CAPI_TMP="$out" "$out/capi"
 # The log for C hosts: a warning when GSENC_LOG asks, nothing when unset.
 cc -std=c99 -Wall -Werror -Iinclude tests/c/log.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/log"
 GSENC_CAPI_TMP="$out" "$out/log" on
+GSENC_CAPI_TMP="$out" "$out/log" bad
 GSENC_CAPI_TMP="$out" "$out/log" off
 # ...and under valgrind memcheck: no invalid reads or writes, no leaks. With
 # no Vulkan driver (VK_ICD_FILENAMES names none): memcheck is for gsenc, and

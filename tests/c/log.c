@@ -3,7 +3,8 @@
  * standard error, after its rank, when GSENC_LOG asks for warnings, and
  * prints nothing when it is not set (a library on every rank of a job must
  * not print on each).
- * Linux only (thread affinity). Run as `log on` and `log off`, one process
+ * A GSENC_LOG that is not a filter logs warnings and says so. Linux only
+ * (thread affinity). Run as `log on`, `log bad` and `log off`, one process
  * each (the log is set up once a process); built and run by
  * tests/run-all.sh; prints "c-log (MODE): N passed, M failed". */
 #define _GNU_SOURCE /* sched_setaffinity, CPU_SET */
@@ -57,8 +58,10 @@ static void *create_bound(void *path) {
 }
 
 int main(int argc, char **argv) {
-    int on = argc > 1 && strcmp(argv[1], "on") == 0;
+    const char *mode = argc > 1 ? argv[1] : "off";
+    int on = strcmp(mode, "on") == 0, bad = strcmp(mode, "bad") == 0;
     if (on) setenv("GSENC_LOG", "warn", 1);
+    else if (bad) setenv("GSENC_LOG", "gsenc=loud", 1); /* not a filter: warnings, and says so */
     else unsetenv("GSENC_LOG");
     const char *dir = getenv("GSENC_CAPI_TMP") ? getenv("GSENC_CAPI_TMP") : "/tmp";
     char path[512];
@@ -68,12 +71,14 @@ int main(int argc, char **argv) {
     pthread_join(t, NULL);
     remove(path);
     CHECK(created, "the encoder was not created");
-    if (on)
-        CHECK(strncmp(captured, "gsenc[rank 3] ", 14) == 0 && strstr(captured, "may run on CPU") != NULL && strstr(captured, "GSENC_ENCODER_CPUS") != NULL
+    if (on || bad)
+        CHECK((on ? strncmp(captured, "gsenc[rank 3] ", 14) == 0 : strstr(captured, "\ngsenc[rank 3] ") != NULL) && strstr(captured, "may run on CPU") != NULL && strstr(captured, "GSENC_ENCODER_CPUS") != NULL
                   && strstr(captured, "WARN") != NULL,
               "no warning of the shared CPU, after its rank, on the standard error: '%s'", captured);
-    else
+    if (bad)
+        CHECK(strstr(captured, "GSENC_LOG=\"gsenc=loud\" is not a filter") != NULL, "no word of the bad filter: '%s'", captured);
+    if (!on && !bad)
         CHECK(captured[0] == 0, "printed without GSENC_LOG: '%s'", captured);
-    printf("c-log (%s): %d passed, %d failed\n", on ? "on" : "off", passed, failed);
+    printf("c-log (%s): %d passed, %d failed\n", mode, passed, failed);
     return failed != 0;
 }
