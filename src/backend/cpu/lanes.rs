@@ -44,14 +44,12 @@ const EMPTY_BLOCK: Block = Block {
     s: [0.0; LANES],
 };
 
-/// Kernels and scaled local coordinates of a block's lanes at `x`, computed
-/// in local arrays only, so that the loop vectorises; adds `w K` to `rho`
-/// and `w K s` to `num` in the same loop (apart, the compiler turned those
-/// sums into scalar code), with `w` the lanes' weights: the block's own,
-/// or those times a 0-or-1 mask (`PointPass::forward_pointwise`).
+/// Scaled local coordinates `y` of a block's lanes at `x` and their squared
+/// norms `d2`, in local arrays only, so that the loop vectorises. A lane
+/// with `d2 >= CUTOFF_D2` has a kernel of exactly zero there.
 #[inline(always)]
-fn block_kernels(blk: &Block, w: &Lane, x: [f32; 3], rho: &mut Lane, num: &mut Lane) -> (Lane, [Lane; 3]) {
-    let mut k = [0.0f32; LANES];
+fn block_coords(blk: &Block, x: [f32; 3]) -> (Lane, [Lane; 3]) {
+    let mut d2 = [0.0f32; LANES];
     let mut y = [[0.0f32; LANES]; 3];
     let a = &blk.a;
     for l in 0..LANES {
@@ -61,17 +59,40 @@ fn block_kernels(blk: &Block, w: &Lane, x: [f32; 3], rho: &mut Lane, num: &mut L
         let u0 = a[0][l] * dx + a[1][l] * dy + a[2][l] * dz;
         let u1 = a[3][l] * dx + a[4][l] * dy + a[5][l] * dz;
         let u2 = a[6][l] * dx + a[7][l] * dy + a[8][l] * dz;
-        let d2 = u0 * u0 + u1 * u1 + u2 * u2;
-        let e = crate::math::kernel::exp_neg_half(d2);
-        k[l] = if d2 < CUTOFF_D2 { e } else { 0.0 };
-        let wk = w[l] * k[l];
-        rho[l] += wk;
-        num[l] += wk * blk.s[l];
+        d2[l] = u0 * u0 + u1 * u1 + u2 * u2;
         y[0][l] = u0;
         y[1][l] = u1;
         y[2][l] = u2;
     }
-    (k, y)
+    (d2, y)
+}
+
+/// The kernels of a block's lanes from their `d2` ([`block_coords`]); adds
+/// `w K` to `rho` and `w K s` to `num` in the same loop (apart, the
+/// compiler turned those sums into scalar code), with `w` the lanes'
+/// weights: the block's own, or those times a 0-or-1 mask
+/// (`PointPass::forward_pointwise`).
+#[inline(always)]
+fn block_kernels(blk: &Block, w: &Lane, d2: &Lane, rho: &mut Lane, num: &mut Lane) -> Lane {
+    let mut k = [0.0f32; LANES];
+    for l in 0..LANES {
+        let e = crate::math::kernel::exp_neg_half(d2[l]);
+        k[l] = if d2[l] < CUTOFF_D2 { e } else { 0.0 };
+        let wk = w[l] * k[l];
+        rho[l] += wk;
+        num[l] += wk * blk.s[l];
+    }
+    k
+}
+
+/// Whether any lane is within the cutoff; branch-free, so it vectorises.
+#[inline(always)]
+fn any_within(d2: &Lane) -> bool {
+    let mut m = 0u32;
+    for &v in d2 {
+        m |= (v < CUTOFF_D2) as u32;
+    }
+    m != 0
 }
 
 /// The 11 `GradAcc` pair terms (and K) of a block's lanes for one point, in
@@ -109,10 +130,12 @@ fn lane_total(rho: &Lane, num: &Lane) -> (f32, f32) {
     (r, n)
 }
 
-/// Kernel values and scaled local coordinates of one block at the current point.
+/// Kernel values, squared norms and scaled local coordinates of one block
+/// at the current point.
 #[derive(Clone, Copy, Default)]
 struct BlockEval {
     k: Lane,
+    d2: Lane,
     y: [Lane; 3],
 }
 
@@ -204,6 +227,11 @@ pub(super) struct PointPass {
     /// `inside[..n_inside]`.
     inside: Vec<u32>,
     n_inside: usize,
+    /// Of those, the blocks with a lane within the cutoff at the current
+    /// point, in block order: `live[..n_live]`. The others' kernels are all
+    /// zero there, so their pair terms are zeros, which change no sum.
+    live: Vec<u32>,
+    n_live: usize,
     /// Whether each block's box holds the current point.
     holds: Vec<u8>,
 }
@@ -213,8 +241,10 @@ impl PointPass {
     pub(super) fn reset(&mut self, nb: usize, with_grad: bool) {
         self.eval.resize(nb, BlockEval::default());
         self.inside.resize(nb, 0);
+        self.live.resize(nb, 0);
         self.holds.resize(nb, 0);
         self.n_inside = 0;
+        self.n_live = 0;
         if with_grad {
             self.acc.clear();
             self.acc.resize(nb, [[0.0; LANES]; 12]);
@@ -241,24 +271,40 @@ impl PointPass {
         self.n_inside = n_in;
     }
 
-    /// Kernels of every candidate at `x`; returns `(rho, n)` and adds the
-    /// number of lanes evaluated (blocks not skipped, times `LANES`) to
-    /// `evals`. Lane partial sums are added in a fixed order, so the result
-    /// depends only on the candidates.
+    /// Lists the blocks whose box holds `x` ([`Self::list_inside`]), then
+    /// computes their lanes' coordinates and lists those with a lane within
+    /// the cutoff (`live[..n_live]`, without a branch, as `list_inside`):
+    /// the others' kernels are all zero at `x`, so their terms are zeros,
+    /// and adding zeros changes no sum (an accumulator starts at +0, and
+    /// `a + ±0` is `a`). Adds the lanes whose coordinates were computed
+    /// (blocks not skipped by their box, times `LANES`) to `evals`.
+    #[inline(always)]
+    fn list_live(&mut self, cands: &BrickCands, x: [f32; 3], evals: &mut u64) {
+        self.list_inside(cands, x);
+        let mut n_live = 0;
+        for &b in &self.inside[..self.n_inside] {
+            let ev = &mut self.eval[b as usize];
+            (ev.d2, ev.y) = block_coords(&cands.blocks[b as usize], x);
+            self.live[n_live] = b;
+            n_live += any_within(&ev.d2) as usize;
+        }
+        self.n_live = n_live;
+        *evals += (self.n_inside * LANES) as u64;
+    }
+
+    /// Kernels of every candidate at `x`, computed for the live blocks
+    /// ([`Self::list_live`]) in block order; returns `(rho, n)`. Lane
+    /// partial sums are added in a fixed order, so the result depends only
+    /// on the candidates.
     #[inline(always)]
     pub(super) fn forward(&mut self, cands: &BrickCands, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
-        // First the blocks whose box holds the point, then their kernels,
-        // in block order.
-        self.list_inside(cands, x);
+        self.list_live(cands, x, evals);
         let mut rho = [0.0f32; LANES];
         let mut num = [0.0f32; LANES];
-        for &b in &self.inside[..self.n_inside] {
+        for &b in &self.live[..self.n_live] {
             let (blk, ev) = (&cands.blocks[b as usize], &mut self.eval[b as usize]);
-            let (k, y) = block_kernels(blk, &blk.w, x, &mut rho, &mut num);
-            ev.k = k;
-            ev.y = y;
+            ev.k = block_kernels(blk, &blk.w, &ev.d2, &mut rho, &mut num);
         }
-        *evals += (self.n_inside * LANES) as u64;
         lane_total(&rho, &num)
     }
 
@@ -275,11 +321,11 @@ impl PointPass {
     /// skipped block. The lanes are then added in a fixed order.
     #[inline(always)]
     pub(super) fn forward_pointwise(&mut self, cands: &BrickCands, x: [f32; 3], evals: &mut u64) -> (f32, f32) {
-        self.list_inside(cands, x);
+        self.list_live(cands, x, evals);
         let mut rho = [0.0f32; LANES];
         let mut num = [0.0f32; LANES];
-        for &b in &self.inside[..self.n_inside] {
-            let (blk, bx) = (&cands.blocks[b as usize], &cands.lane_boxes[b as usize]);
+        for &b in &self.live[..self.n_live] {
+            let (blk, bx, ev) = (&cands.blocks[b as usize], &cands.lane_boxes[b as usize], &self.eval[b as usize]);
             // Each lane's weight where its box holds `x`, else 0: a product
             // by 1 is exact, so a lane that counts adds `forward`'s bits.
             let mut w = [0.0f32; LANES];
@@ -287,16 +333,18 @@ impl PointPass {
                 let holds = (x[0] >= bx[0][l]) & (x[1] >= bx[1][l]) & (x[2] >= bx[2][l]) & (x[0] <= bx[3][l]) & (x[1] <= bx[4][l]) & (x[2] <= bx[5][l]);
                 w[l] = blk.w[l] * (holds as u32 as f32);
             }
-            block_kernels(blk, &w, x, &mut rho, &mut num);
+            block_kernels(blk, &w, &ev.d2, &mut rho, &mut num);
         }
-        *evals += (self.n_inside * LANES) as u64;
         lane_total(&rho, &num)
     }
 
-    /// Adds the current point's pair terms to the pass's sums.
+    /// Adds the current point's pair terms to the pass's sums: those of the
+    /// blocks with a lane within the cutoff (the others' terms are zeros,
+    /// whose sums change no bit: an accumulator starts at +0 and `a + ±0`
+    /// is `a`).
     #[inline(always)]
     pub(super) fn backward(&mut self, cands: &BrickCands, g_rho: f32, g_n: f32) {
-        for &b in &self.inside[..self.n_inside] {
+        for &b in &self.live[..self.n_live] {
             let b = b as usize;
             let terms = block_pair_terms(&cands.blocks[b], &self.eval[b], g_rho, g_n);
             let acc = &mut self.acc[b];
@@ -455,6 +503,63 @@ mod tests {
         let (whole, _) = soa.forward_pointwise(x, &mut 0);
         assert_eq!(with.to_bits(), without.to_bits());
         assert!(whole >= with + 0.5 * prep.frames[0].w, "the first primitive's own weight at its centre: {whole} vs {with}");
+    }
+
+    /// Skipping the blocks whose box misses a point, and then those with no
+    /// lane within the cutoff, changes no bit: the forward's sums and every
+    /// candidate's pair sums are those of a pass that evaluates every block
+    /// at every point, with the same lane functions. Random primitives in a
+    /// brick of several blocks, so that many blocks are skipped each way.
+    #[test]
+    fn skipped_blocks_change_no_bit() {
+        let mut rng = Rng::new(11);
+        let n = 45;
+        let mut params = random_prims(&mut rng, n);
+        // Small enough (sigma 0.14 to 0.61) that a block's box misses
+        // many points.
+        for p in &mut params {
+            for a in 0..3 {
+                p[crate::math::kernel::layout::LOG_SCALE + a] = rng.range(-2.0, -0.5) as f32;
+            }
+        }
+        let mut prep = Prepared::default();
+        prep.update(&params);
+        let cands: Vec<u32> = (0..n as u32).collect();
+        let mut soa = BrickSoa::default();
+        soa.load(&prep.hot, &prep.boxes, &cands, true);
+        let blocks = &soa.cands.blocks;
+        let mut every = vec![[[0.0f32; LANES]; 12]; blocks.len()];
+        let (mut skipped_by_box, mut skipped_dead) = (0, 0);
+        for _ in 0..400 {
+            let x = [0, 1, 2].map(|_| rng.range(0.0, 6.0) as f32);
+            let (g_rho, g_n) = (rng.range(-1.0, 1.0) as f32, rng.range(-1.0, 1.0) as f32);
+            let (mut rho, mut num) = ([0.0f32; LANES], [0.0f32; LANES]);
+            for (blk, acc) in blocks.iter().zip(&mut every) {
+                let (d2, y) = block_coords(blk, x);
+                let k = block_kernels(blk, &blk.w, &d2, &mut rho, &mut num);
+                let terms = block_pair_terms(blk, &BlockEval { k, d2, y }, g_rho, g_n);
+                for t in 0..12 {
+                    for l in 0..LANES {
+                        acc[t][l] += terms[t][l];
+                    }
+                }
+            }
+            let want = lane_total(&rho, &num);
+            let got = soa.pass.forward(&soa.cands, x, &mut 0);
+            assert_eq!((got.0.to_bits(), got.1.to_bits()), (want.0.to_bits(), want.1.to_bits()), "at {x:?}");
+            soa.pass.backward(&soa.cands, g_rho, g_n);
+            skipped_by_box += blocks.len() - soa.pass.n_inside;
+            skipped_dead += soa.pass.n_inside - soa.pass.n_live;
+        }
+        assert!(skipped_by_box > 100 && skipped_dead > 100, "too few blocks skipped to test: {skipped_by_box} by box, {skipped_dead} dead");
+        // The candidates' lanes; the padding lanes' sums (kernel 1, weight
+        // 0) are never read.
+        for j in 0..n {
+            let (got, want) = (&soa.pass.acc[j / LANES], &every[j / LANES]);
+            for t in 0..12 {
+                assert_eq!(got[t][j % LANES].to_bits(), want[t][j % LANES].to_bits(), "candidate {j} term {t}");
+            }
+        }
     }
 
     /// The lane code is a transcription of `Frame::kernel` and
