@@ -95,8 +95,9 @@ fn encode_eval_info_decode_round_trip() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// The chunk loops are compiled for AVX-512, AVX2 and the baseline and
-/// chosen at run time (`GSENC_SIMD` caps the level); all three execute the
+/// The chunk loops, and the regularisers with Adam, are compiled for
+/// AVX-512, AVX2 and the baseline and chosen at run time (`GSENC_SIMD`
+/// caps the level, `math/simd.rs`); all three execute the
 /// same float operations in the same order, so the models are identical.
 /// On a CPU without AVX-512 (or AVX2) the higher levels fall back to what
 /// it has, and the test compares fewer builds.

@@ -160,6 +160,7 @@ pub fn regularizers(params: &[Primitive], w: &LossWeights, grad: &mut [Primitive
 /// their weighted gradients to `gs` and returns the run's (scale,
 /// anisotropy) terms; the model's terms are the runs' in order
 /// ([`RegTerms::sum`]).
+#[inline(always)]
 pub fn regularize_run(ps: &[Primitive], gs: &mut [Primitive], w: &LossWeights, n: usize) -> (f64, f64) {
     let n = n.max(1) as f32;
     let inv_3n = 1.0 / (3.0 * n);

@@ -2,12 +2,13 @@
 //! and "Objective"): a primitive, its truncated kernel and analytic gradient
 //! ([`kernel`]), the four loss terms and their gradients ([`loss`]), Adam with
 //! cosine decay ([`optim`]), and the seeded random stream everything draws
-//! from ([`rng`]). Every backend evaluates exactly this.
+//! from ([`rng`]); `simd` picks the build of a hot loop that runs. Every backend evaluates exactly this.
 
 pub mod kernel;
 pub mod loss;
 pub mod optim;
 pub mod rng;
+pub(crate) mod simd;
 
 /// Primitives per parallel task in a pass over every primitive (frames,
 /// binning, the gradient's reduction, the regularisers, Adam): at least

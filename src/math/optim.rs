@@ -6,6 +6,7 @@ use crate::math::kernel::Primitive;
 use crate::math::loss::{regularize_run, LossWeights, RegTerms};
 #[cfg(any(doc, test))]
 use crate::math::loss::regularizers;
+use crate::math::simd::simd_dispatch;
 use crate::profile;
 use rayon::prelude::*;
 
@@ -43,7 +44,7 @@ impl Adam {
             .par_chunks_mut(chunk)
             .zip(grad.par_chunks(chunk))
             .zip(self.m.par_chunks_mut(chunk).zip(self.v.par_chunks_mut(chunk)))
-            .for_each(|((p, g), (m, v))| profile::task("adam", || update(p, g, m, v, lr, bc1, bc2)));
+            .for_each(|((p, g), (m, v))| profile::task("adam", || update_dispatch(p, g, m, v, lr, bc1, bc2)));
     }
 
     /// The regularisers' gradients added to `grad`, then one Adam step:
@@ -60,11 +61,7 @@ impl Adam {
             .zip(grad.par_chunks_mut(chunk))
             .zip(self.m.par_chunks_mut(chunk).zip(self.v.par_chunks_mut(chunk)))
             .map(|((p, g), (m, v))| {
-                profile::task("regularisers and adam", || {
-                    let terms = regularize_run(p, g, w, n);
-                    update(p, g, m, v, lr, bc1, bc2);
-                    terms
-                })
+                profile::task("regularisers and adam", || regularize_and_update(p, g, m, v, (w, n), (lr, bc1, bc2)))
             })
             .collect();
         RegTerms::sum(&runs)
@@ -83,9 +80,22 @@ impl Adam {
     }
 }
 
+simd_dispatch!(fn update_dispatch(p: &mut [Primitive], g: &[Primitive], m: &mut [Primitive], v: &mut [Primitive], lr: f32, bc1: f32, bc2: f32) -> () => update);
+simd_dispatch!(fn regularize_and_update(p: &mut [Primitive], g: &mut [Primitive], m: &mut [Primitive], v: &mut [Primitive], reg: (&LossWeights, usize), step: (f32, f32, f32)) -> (f64, f64) => regularize_then_update);
+
+/// [`regularize_run`], then [`update`], on one run of primitives.
+#[inline(always)]
+fn regularize_then_update(p: &mut [Primitive], g: &mut [Primitive], m: &mut [Primitive], v: &mut [Primitive], (w, n): (&LossWeights, usize), (lr, bc1, bc2): (f32, f32, f32)) -> (f64, f64) {
+    let terms = regularize_run(p, g, w, n);
+    update(p, g, m, v, lr, bc1, bc2);
+    terms
+}
+
 /// Adam's update of a run of primitives, over flat slices so that the
 /// element loop vectorises (over `[f32; 12]` per primitive the compiler
-/// left it scalar); every element gets the same operations.
+/// left it scalar); every element gets the same operations, in the build
+/// that `simd` picks (the same bits in each).
+#[inline(always)]
 fn update(p: &mut [Primitive], g: &[Primitive], m: &mut [Primitive], v: &mut [Primitive], lr: f32, bc1: f32, bc2: f32) {
     let (p, g, m, v) = (p.as_flattened_mut(), g.as_flattened(), m.as_flattened_mut(), v.as_flattened_mut());
     for (((p, &g), m), v) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()) {

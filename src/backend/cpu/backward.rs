@@ -7,7 +7,7 @@
 
 use super::binning::{PointBins, WorkChunk};
 use super::lanes::{BrickCands, BrickSoa, PointPass};
-use super::simd::simd_dispatch;
+use crate::math::simd::simd_dispatch;
 use super::{CpuBackend, Prepared};
 use crate::backend::{check_len, PointBatch, PointLoss};
 use crate::error::Result;

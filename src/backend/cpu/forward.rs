@@ -10,7 +10,7 @@
 
 use super::binning::PointBins;
 use super::lanes::BrickSoa;
-use super::simd::simd_dispatch;
+use crate::math::simd::simd_dispatch;
 use super::{CpuBackend, Prepared};
 use crate::backend::bricks::PointBricks;
 use crate::backend::check_len;

@@ -21,7 +21,7 @@
 //! the lists, the cut into chunks), `backward.rs` (what a chunk runs, and
 //! step 4: `point_loss_grad`), `forward.rs` (the same chunks forward only,
 //! a dense brick's points in runs: `evaluate_points`), `decode.rs`; `lanes.rs` holds the 8-lane kernel
-//! loops they share and `simd.rs` which build of them runs. This file
+//! loops they share (`math/simd.rs` picks which build of them runs). This file
 //! holds the backend, what it derives from the parameters once a call, and
 //! the trait's entry points.
 
@@ -30,12 +30,11 @@ mod binning;
 mod decode;
 mod forward;
 mod lanes;
-mod simd;
 
 use self::backward::ChunkScratch;
 use self::binning::SPLIT_SHARES;
 use self::lanes::{BrickSoa, Hot, LANES};
-use self::simd::simd_dispatch;
+use crate::math::simd::simd_dispatch;
 use super::bricks::PointBricks;
 use super::{Backend, Lattice, PointBatch, PointLoss};
 use crate::error::Result;

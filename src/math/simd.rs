@@ -1,18 +1,20 @@
-//! Which build of the lane loops runs. The AVX-512 (32 vector registers,
-//! still 8 lanes), AVX2 and baseline builds execute the same IEEE operations
-//! in the same order (Rust never fuses multiply-adds on its own), so they
-//! return identical bits; `GSENC_SIMD=avx2|baseline` caps the level (for
+//! Which build of a hot loop runs: the CPU backend's lane loops, and the
+//! passes over every primitive (the regularisers and Adam). The AVX-512
+//! (32 vector registers), AVX2 and baseline builds execute the same IEEE
+//! operations in the same order (Rust never fuses multiply-adds on its
+//! own, and `sqrt` and `/` are exact whatever the width), so they return
+//! identical bits; `GSENC_SIMD=avx2|baseline` caps the level (for
 //! benchmarks and for testing that claim).
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(dead_code)] // the x86 levels exist only there
-pub(super) enum Simd {
+pub(crate) enum Simd {
     Baseline,
     Avx2,
     Avx512,
 }
 
-pub(super) fn simd_level() -> Simd {
+pub(crate) fn simd_level() -> Simd {
     static LEVEL: std::sync::OnceLock<Simd> = std::sync::OnceLock::new();
     *LEVEL.get_or_init(|| {
         let cap = match std::env::var("GSENC_SIMD").as_deref() {
@@ -53,15 +55,15 @@ macro_rules! simd_dispatch {
             unsafe fn avx2($($arg: $ty),*) -> $ret {
                 $inner($($arg),*)
             }
-            match $crate::backend::cpu::simd::simd_level() {
+            match $crate::math::simd::simd_level() {
                 // SAFETY: the CPU supports the instructions (`simd_level` checked).
                 #[cfg(target_arch = "x86_64")]
-                $crate::backend::cpu::simd::Simd::Avx512 => unsafe { avx512($($arg),*) },
+                $crate::math::simd::Simd::Avx512 => unsafe { avx512($($arg),*) },
                 #[cfg(target_arch = "x86_64")]
-                $crate::backend::cpu::simd::Simd::Avx2 => unsafe { avx2($($arg),*) },
+                $crate::math::simd::Simd::Avx2 => unsafe { avx2($($arg),*) },
                 _ => $inner($($arg),*),
             }
         }
     };
 }
-pub(super) use simd_dispatch;
+pub(crate) use simd_dispatch;
