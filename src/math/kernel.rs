@@ -111,6 +111,7 @@ pub struct Frame {
 }
 
 impl Frame {
+    #[inline(always)]
     pub fn new(p: &Primitive) -> Frame {
         use layout::*;
         let mu = [p[MU], p[MU + 1], p[MU + 2]];
@@ -188,6 +189,7 @@ impl Frame {
 
     /// Gradient of the loss with respect to the 12 stored parameters, from the
     /// accumulated pair sums of this primitive.
+    #[inline(always)]
     pub fn finalize(&self, acc: &GradAcc) -> Primitive {
         use layout::*;
         let g = &acc.0;
@@ -278,7 +280,7 @@ impl GradAcc {
         g[10] += c * y[1] * y[2];
     }
 
-    #[inline]
+    #[inline(always)]
     pub fn add(&mut self, other: &GradAcc) {
         for i in 0..11 {
             self.0[i] += other.0[i];

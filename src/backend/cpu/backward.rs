@@ -11,7 +11,7 @@ use crate::math::simd::simd_dispatch;
 use super::{CpuBackend, Prepared};
 use crate::backend::{check_len, PointBatch, PointLoss};
 use crate::error::Result;
-use crate::math::kernel::{GradAcc, Primitive};
+use crate::math::kernel::{Frame, GradAcc, Primitive};
 use crate::math::loss::{point_terms, LossWeights, PointNorm};
 use crate::math::primitives_per_task;
 use crate::profile::{self, Part};
@@ -79,6 +79,7 @@ impl ChunkScratch {
     /// Adds this chunk's sums of the primitives of block `k` (of the
     /// `block_len` that `group` was given) into `block`, that block's slice
     /// of the per-primitive sums.
+    #[inline(always)]
     fn add_block(&self, k: usize, block_len: usize, block: &mut [GradAcc]) {
         for &t in &self.by_block[self.block_start[k] as usize..self.block_start[k + 1] as usize] {
             block[self.touched[t as usize] as usize - k * block_len].add(&self.acc[t as usize]);
@@ -211,6 +212,25 @@ fn split_brick(job: &GradJob, sc: &mut ChunkScratch, b: usize, runs: usize, (blo
     sums
 }
 
+simd_dispatch!(fn reduce_dispatch(chunks: &[CachePadded<ChunkScratch>], frames: &[Frame], block: (usize, usize), gs: &mut [Primitive], accs: &mut [GradAcc]) -> () => reduce_block);
+
+/// Block `k` of `block_len` primitives (`block`): each primitive's sums
+/// added chunk by chunk into `accs`, then the chain rule into `gs`;
+/// `frames` starts at the block's first primitive.
+#[inline(always)]
+fn reduce_block(chunks: &[CachePadded<ChunkScratch>], frames: &[Frame], (k, block_len): (usize, usize), gs: &mut [Primitive], accs: &mut [GradAcc]) {
+    accs.fill(GradAcc::default());
+    for sc in chunks {
+        sc.add_block(k, block_len, accs);
+    }
+    for ((g, a), f) in gs.iter_mut().zip(accs.iter()).zip(frames) {
+        // Most primitives meet no point of a small batch; their sums are
+        // zero and so is their gradient (up to the sign of zero, which no
+        // later step sees), without reading the frame.
+        *g = if a.0 == [0.0; 12] { [0.0; 12] } else { f.finalize(a) };
+    }
+}
+
 impl CpuBackend {
     /// [`crate::backend::Backend::point_loss_grad`].
     pub(super) fn loss_grad(
@@ -287,18 +307,10 @@ impl CpuBackend {
         // (the same order, so the same bits, whatever the thread count),
         // in parallel over blocks of primitives; then the chain rule.
         let (chunks, frames) = (&*chunks, &prep.frames);
-        grad.par_chunks_mut(block_len).zip(acc.par_chunks_mut(block_len)).enumerate().for_each(|(k, (gs, accs))| profile::task("reduction", || {
-            accs.fill(GradAcc::default());
-            for sc in chunks {
-                sc.add_block(k, block_len, accs);
-            }
-            for (i, (g, a)) in gs.iter_mut().zip(accs.iter()).enumerate() {
-                // Most primitives meet no point of a small batch; their sums
-                // are zero and so is their gradient (up to the sign of
-                // zero, which no later step sees), without reading the frame.
-                *g = if a.0 == [0.0; 12] { [0.0; 12] } else { frames[k * block_len + i].finalize(a) };
-            }
-        }));
+        grad.par_chunks_mut(block_len)
+            .zip(acc.par_chunks_mut(block_len))
+            .enumerate()
+            .for_each(|(k, (gs, accs))| profile::task("reduction", || reduce_dispatch(chunks, &frames[k * block_len..], (k, block_len), gs, accs)));
         self.acc = acc;
         Ok(out)
     }

@@ -21,6 +21,7 @@ pub(super) struct Hot {
 }
 
 impl Hot {
+    #[inline(always)]
     pub(super) fn new(f: &Frame) -> Hot {
         let sa = f.scaled_axes();
         Hot { mu: f.mu, a: [sa[0][0], sa[0][1], sa[0][2], sa[1][0], sa[1][1], sa[1][2], sa[2][0], sa[2][1], sa[2][2]], w: f.w, s: f.s }

@@ -91,15 +91,19 @@ impl Prepared {
             .zip(self.hot.par_chunks_mut(task))
             .zip(self.boxes.par_chunks_mut(task))
             .zip(params.par_chunks(task))
-            .for_each(|(((fs, hs), bs), ps)| {
-                profile::task("frames", || {
-                    for (((f, h), b), p) in fs.iter_mut().zip(hs).zip(bs).zip(ps) {
-                        *f = Frame::new(p);
-                        *h = Hot::new(f);
-                        *b = [f.mu[0] - f.ext[0], f.mu[1] - f.ext[1], f.mu[2] - f.ext[2], f.mu[0] + f.ext[0], f.mu[1] + f.ext[1], f.mu[2] + f.ext[2]];
-                    }
-                })
-            });
+            .for_each(|(((fs, hs), bs), ps)| profile::task("frames", || frames_dispatch(fs, hs, bs, ps)));
+    }
+}
+
+simd_dispatch!(fn frames_dispatch(fs: &mut [Frame], hs: &mut [Hot], bs: &mut [[f32; 6]], ps: &[Primitive]) -> () => frames_run);
+
+/// The frames, hot data and boxes of a run of primitives.
+#[inline(always)]
+fn frames_run(fs: &mut [Frame], hs: &mut [Hot], bs: &mut [[f32; 6]], ps: &[Primitive]) {
+    for (((f, h), b), p) in fs.iter_mut().zip(hs).zip(bs).zip(ps) {
+        *f = Frame::new(p);
+        *h = Hot::new(f);
+        *b = [f.mu[0] - f.ext[0], f.mu[1] - f.ext[1], f.mu[2] - f.ext[2], f.mu[0] + f.ext[0], f.mu[1] + f.ext[1], f.mu[2] + f.ext[2]];
     }
 }
 
