@@ -2,7 +2,8 @@
 //! and "Objective"): a primitive, its truncated kernel and analytic gradient
 //! ([`kernel`]), the four loss terms and their gradients ([`loss`]), Adam with
 //! cosine decay ([`optim`]), and the seeded random stream everything draws
-//! from ([`rng`]); `simd` picks the build of a hot loop that runs. Every backend evaluates exactly this.
+//! from ([`rng`]); `simd` picks which build of a hot loop runs. Every
+//! backend evaluates exactly this.
 
 pub mod kernel;
 pub mod loss;

@@ -1,8 +1,9 @@
-//! Which build of a hot loop runs: the CPU backend's lane loops, and the
-//! passes over every primitive (the regularisers and Adam). The AVX-512
-//! (32 vector registers), AVX2 and baseline builds execute the same IEEE
-//! operations in the same order (Rust never fuses multiply-adds on its
-//! own, and `sqrt` and `/` are exact whatever the width), so they return
+//! Which build of a hot loop runs: the CPU backend's lane loops and its
+//! passes over every primitive (frames, the reduction with the chain rule),
+//! and the regularisers with Adam. The AVX-512 (32 vector registers), AVX2
+//! and baseline builds execute the same IEEE operations in the same order
+//! (Rust never fuses multiply-adds on its own, `sqrt` and `/` are exact
+//! whatever the width, and `exp` is the same libm call), so they return
 //! identical bits; `GSENC_SIMD=avx2|baseline` caps the level (for
 //! benchmarks and for testing that claim).
 

@@ -272,7 +272,6 @@ impl PointPass {
         }
     }
 
-
     /// Lists the blocks whose box holds `x` (`inside[..n_inside]`),
     /// without a branch: a branch per block would be mispredicted about a
     /// third of the time, and each miss would throw away the overlap of
