@@ -15,6 +15,15 @@
 //! section (negative seconds), or the end of an iteration (an empty pass).
 //! A record made within [`beside`] (work that runs beside the iteration's
 //! passes, as the next batch's draw does) has `beside: ` before its pass.
+//!
+//! With `GSENC_TASK_TIMELINE` set too (or alone), an encode on any number
+//! of threads also writes when each record ran and on which thread, one line
+//! a record, `pass<TAB>thread<TAB>start<TAB>end<TAB>kind` (seconds since
+//! the earliest start; thread -1 off the pool; kind `task`, `serial`, or
+//! `whole` for a pass timed whole), in the order the records were made:
+//! `benches/timeline.py` tells from it where a pass loses time on p
+//! threads (the wait for the pool to join, the wait for its last task, the
+//! gaps between passes).
 //! A task that forks ([`part`]: a head, then runs in parallel, then a tail
 //! that waits for them) has a third field, `head`, `run` or `tail`, so that
 //! the model starts the runs only after the head and the tail only after
@@ -109,20 +118,37 @@ pub fn write() -> std::io::Result<()> {
     if !ON {
         return Ok(());
     }
-    let text = LOG.take_text();
-    match std::env::var_os("GSENC_TASK_PROFILE") {
-        Some(path) => std::fs::write(path, text),
-        None => Ok(()),
+    let records = LOG.take();
+    if let Some(path) = std::env::var_os("GSENC_TASK_PROFILE") {
+        std::fs::write(path, text(&records))?;
     }
+    if let Some(path) = std::env::var_os("GSENC_TASK_TIMELINE") {
+        std::fs::write(path, timeline(&records))?;
+    }
+    Ok(())
 }
 
 fn in_beside() -> bool {
     BESIDE.with(Cell::get)
 }
 
-/// One record: pass, seconds (negative for a serial section), made beside
-/// the passes, part of a task that forks.
-type Record = (&'static str, f64, bool, Option<Part>);
+/// One record: a pass, its seconds (negative for a serial section), whether
+/// it was made beside the passes, the part of a task that forks, and when
+/// and where it ran (its start, and the time it spanned, `None` for the
+/// tasks of a pass timed whole but its first; the pool thread, -1 off the
+/// pool).
+#[derive(Clone, Copy, Debug)]
+struct Record {
+    pass: &'static str,
+    seconds: f64,
+    beside: bool,
+    part: Option<Part>,
+    start: Instant,
+    wall: Option<f64>,
+    /// One of the tasks of a pass timed whole ([`Recorder::even`]).
+    whole: bool,
+    thread: i64,
+}
 
 /// The records, in the order they were made.
 struct Recorder(Mutex<Vec<Record>>);
@@ -132,10 +158,18 @@ impl Recorder {
         Recorder(Mutex::new(Vec::new()))
     }
 
-    fn timed<R>(&self, f: impl FnOnce() -> R) -> (R, f64) {
+    /// Runs `f` and records it as `pass` with `seconds` mapped from its time.
+    fn record<R>(&self, pass: &'static str, part: Option<Part>, f: impl FnOnce() -> R, seconds: impl FnOnce(f64) -> f64) -> R {
         let t = Instant::now();
         let r = f();
-        (r, t.elapsed().as_secs_f64())
+        let s = t.elapsed().as_secs_f64();
+        self.push(pass, seconds(s), part, t, Some(s), false);
+        r
+    }
+
+    fn push(&self, pass: &'static str, seconds: f64, part: Option<Part>, start: Instant, wall: Option<f64>, whole: bool) {
+        let thread = rayon::current_thread_index().map_or(-1, |i| i as i64);
+        self.0.lock().push(Record { pass, seconds, beside: in_beside(), part, start, wall, whole, thread });
     }
 
     fn task<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
@@ -143,41 +177,72 @@ impl Recorder {
     }
 
     fn part<R>(&self, pass: &'static str, part: Option<Part>, f: impl FnOnce() -> R) -> R {
-        let (r, s) = self.timed(f);
-        self.0.lock().push((pass, s, in_beside(), part));
-        r
+        self.record(pass, part, f, |s| s)
     }
 
     fn serial<R>(&self, pass: &'static str, f: impl FnOnce() -> R) -> R {
-        let (r, s) = self.timed(f);
-        self.0.lock().push((pass, -s, in_beside(), None));
-        r
+        self.record(pass, None, f, |s| -s)
     }
 
+    /// A pass timed whole, recorded as `tasks` tasks of equal time (one
+    /// line of the timeline, the whole pass on the calling thread).
     fn even<R>(&self, pass: &'static str, tasks: usize, f: impl FnOnce() -> R) -> R {
-        let (r, s) = self.timed(f);
+        let t = Instant::now();
+        let r = f();
+        let whole = t.elapsed().as_secs_f64();
         let n = tasks.max(1);
-        self.0.lock().extend(std::iter::repeat_n((pass, s / n as f64, in_beside(), None), n));
+        for i in 0..n {
+            self.push(pass, whole / n as f64, None, t, (i == 0).then_some(whole), true);
+        }
         r
     }
 
     fn iteration_end(&self) {
-        self.0.lock().push(("", 0.0, false, None));
+        self.push("", 0.0, None, Instant::now(), Some(0.0), false);
     }
 
-    fn take_text(&self) -> String {
-        let lines = std::mem::take(&mut *self.0.lock());
-        lines
-            .iter()
-            .map(|&(pass, s, beside, part)| {
-                let side = if beside { "beside: " } else { "" };
-                match part {
-                    Some(p) => format!("{side}{pass}\t{s:.9}\t{}\n", p.label()),
-                    None => format!("{side}{pass}\t{s:.9}\n"),
-                }
-            })
-            .collect()
+    /// The records so far, forgotten here.
+    fn take(&self) -> Vec<Record> {
+        std::mem::take(&mut *self.0.lock())
     }
+
+    #[cfg(test)]
+    fn take_text(&self) -> String {
+        text(&self.take())
+    }
+}
+
+/// The task profile's lines (the module's account).
+fn text(records: &[Record]) -> String {
+    records
+        .iter()
+        .map(|r| {
+            let side = if r.beside { "beside: " } else { "" };
+            match r.part {
+                Some(p) => format!("{side}{}\t{:.9}\t{}\n", r.pass, r.seconds, p.label()),
+                None => format!("{side}{}\t{:.9}\n", r.pass, r.seconds),
+            }
+        })
+        .collect()
+}
+
+/// The timeline's lines (the module's account), its times counted from the
+/// earliest start.
+fn timeline(records: &[Record]) -> String {
+    let Some(epoch) = records.iter().map(|r| r.start).min() else { return String::new() };
+    records
+        .iter()
+        .filter_map(|r| {
+            let side = if r.beside { "beside: " } else { "" };
+            let kind = match (r.seconds < 0.0, r.whole) {
+                (true, _) => "serial",
+                (false, false) => "task",
+                (false, true) => "whole",
+            };
+            let start = (r.start - epoch).as_secs_f64();
+            r.wall.map(|w| format!("{side}{}\t{}\t{start:.9}\t{:.9}\t{kind}\n", r.pass, r.thread, start + w))
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -206,6 +271,31 @@ mod tests {
         assert!(lines[2..6].iter().all(|l| l.1 == lines[2].1 && l.1 >= 0.001), "{lines:?}");
         assert_eq!(lines[6].1, 0.0);
         assert_eq!(r.take_text(), "", "taking the text forgets the records");
+    }
+
+    #[test]
+    fn the_timeline_says_when_where_and_how_each_record_ran() {
+        let r = Recorder::new();
+        let ms = std::time::Duration::from_millis(2);
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        pool.install(|| r.task("a", || std::thread::sleep(ms)));
+        r.serial("s", || std::thread::sleep(ms));
+        r.even("e", 3, || std::thread::sleep(ms));
+        r.iteration_end();
+        let records = r.take();
+        assert_eq!(text(&records).lines().count(), 6, "the profile keeps one line a task");
+        let lines: Vec<Vec<String>> = timeline(&records).lines().map(|l| l.split('\t').map(String::from).collect()).collect();
+        let col = |i: usize| lines.iter().map(|l| l[i].as_str()).collect::<Vec<_>>();
+        assert_eq!(col(0), ["a", "s", "e", ""], "a pass timed whole is one line");
+        assert_eq!(col(4), ["task", "serial", "whole", "task"]);
+        let thread: Vec<i64> = col(1).iter().map(|t| t.parse().unwrap()).collect();
+        assert!((0..2).contains(&thread[0]) && thread[1..].iter().all(|&t| t == -1), "{thread:?}");
+        let span: Vec<(f64, f64)> = lines.iter().map(|l| (l[2].parse().unwrap(), l[3].parse().unwrap())).collect();
+        assert_eq!(span[0].0, 0.0, "times count from the earliest start");
+        for (i, &(s, e)) in span.iter().enumerate().take(3) {
+            assert!(e - s >= 0.002, "record {i} spans {s}..{e}");
+        }
+        assert!(span.windows(2).all(|w| w[1].0 >= w[0].1), "one after another: {span:?}");
     }
 
     #[test]

@@ -97,8 +97,10 @@ joined
 # The MPI layer under mpirun -n 1, 2, 4: C, Fortran, CLI and the mock solver.
 stage bash tests/mpi.sh
 
-# The thread-scaling model's scheduler, on a profile whose answer is known.
+# The thread-scaling model's scheduler, and the timeline's account of
+# where a pass loses time, each on a profile whose answer is known.
 stage python3 benches/scaling_model.py --check
+stage python3 benches/timeline.py --check
 # The benchmark scripts need the corpus or a lent GPU machine, so CI does
 # not run them; they must at least parse.
 stage bash -c 'for f in benches/*.sh benches/lent/*.sh; do bash -n "$f" || exit 1; done'

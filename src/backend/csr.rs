@@ -46,7 +46,7 @@ pub(crate) fn csr(nkeys: usize, mut parts: Vec<Keyed>) -> (Vec<u32>, Vec<u32>) {
     // pass over about a megabyte a batch).
     let mut vals: Vec<u32> = Vec::with_capacity(len);
     let out = SyncPtr(vals.as_mut_ptr());
-    parts.par_iter_mut().for_each(|part| {
+    parts.par_iter_mut().with_max_len(1).for_each(|part| {
         let out = &out;
         let Keyed { pairs, counts: off } = part;
         for &(k, v) in pairs.iter() {

@@ -151,6 +151,7 @@ pub fn regularizers(params: &[Primitive], w: &LossWeights, grad: &mut [Primitive
     let partial: Vec<(f64, f64)> = params
         .par_chunks(chunk)
         .zip(grad.par_chunks_mut(chunk))
+        .with_max_len(1)
         .map(|(ps, gs)| profile::task("regularisers", || regularize_run(ps, gs, w, params.len())))
         .collect();
     RegTerms::sum(&partial)

@@ -16,6 +16,15 @@ pub(crate) mod simd;
 /// `MIN`, and at most `MAX_TASKS` tasks, so that a small model still
 /// spreads over every core and a large one pays for few tasks. The split
 /// depends only on the count, never on the thread count.
+///
+/// The passes hand rayon these tasks one at a time (`with_max_len(1)`):
+/// left to itself, rayon runs a pass's tasks in runs of several that no
+/// other thread can take once started, and on two threads a pass then
+/// ended with one thread running the last run alone for up to half a
+/// millisecond an iteration (`benches/timeline.sh`, docs/BENCHMARKS.md
+/// "Where an iteration loses time on p threads"). Binning keeps rayon's
+/// runs: its tasks, each filling a list of its own, took twice as long
+/// handed out one at a time.
 pub fn primitives_per_task(n: usize) -> usize {
     const MIN: usize = 256;
     const MAX_TASKS: usize = 64;

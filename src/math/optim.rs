@@ -44,6 +44,7 @@ impl Adam {
             .par_chunks_mut(chunk)
             .zip(grad.par_chunks(chunk))
             .zip(self.m.par_chunks_mut(chunk).zip(self.v.par_chunks_mut(chunk)))
+            .with_max_len(1)
             .for_each(|((p, g), (m, v))| profile::task("adam", || update_dispatch(p, g, m, v, lr, bc1, bc2)));
     }
 
@@ -60,6 +61,7 @@ impl Adam {
             .par_chunks_mut(chunk)
             .zip(grad.par_chunks_mut(chunk))
             .zip(self.m.par_chunks_mut(chunk).zip(self.v.par_chunks_mut(chunk)))
+            .with_max_len(1)
             .map(|((p, g), (m, v))| {
                 profile::task("regularisers and adam", || regularize_and_update(p, g, m, v, (w, n), (lr, bc1, bc2)))
             })

@@ -295,7 +295,7 @@ impl CpuBackend {
             for (sc, out, w) in heavy {
                 s.spawn_fifo(move |_| *out = run(sc, w));
             }
-            s.spawn_fifo(move |_| light.into_par_iter().for_each(|(sc, out, w)| *out = run(sc, w)));
+            s.spawn_fifo(move |_| light.into_par_iter().with_max_len(1).for_each(|(sc, out, w)| *out = run(sc, w)));
         });
         let mut out = PointLoss::default();
         for (v, c, e) in losses {
@@ -310,6 +310,7 @@ impl CpuBackend {
         grad.par_chunks_mut(block_len)
             .zip(acc.par_chunks_mut(block_len))
             .enumerate()
+            .with_max_len(1)
             .for_each(|(k, (gs, accs))| profile::task("reduction", || reduce_dispatch(chunks, &frames[k * block_len..], (k, block_len), gs, accs)));
         self.acc = acc;
         Ok(out)

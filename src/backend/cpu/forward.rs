@@ -75,6 +75,7 @@ impl CpuBackend {
         let prep = &self.prep;
         let results: Vec<(Vec<(u32, f32, f32)>, u64)> = tasks
             .par_iter()
+            .with_max_len(1)
             .map(|&task| eval_chunk_dispatch(prep, &bins, pos, task, pointwise))
             .collect();
         for (part, evals) in results {

@@ -91,6 +91,7 @@ impl Prepared {
             .zip(self.hot.par_chunks_mut(task))
             .zip(self.boxes.par_chunks_mut(task))
             .zip(params.par_chunks(task))
+            .with_max_len(1)
             .for_each(|(((fs, hs), bs), ps)| profile::task("frames", || frames_dispatch(fs, hs, bs, ps)));
     }
 }
