@@ -11,7 +11,9 @@
 #   bin/gsenc-profiled   the same with the feature task-profile (benches/scaling_model.sh)
 #   bin/insitu           benches/insitu.c linked against libgsenc.a (benches/insitu.sh)
 #   bin/gpu-tests        tests/gpu.rs (run there with GSENC_REQUIRE_GPU=1)
-#   bin/device_churn     examples/device_churn.rs (benches/lent/tests.sh)
+#   bin/device_churn     examples/device_churn.rs (benches/lent/tests.sh), with
+#                        KIT_CHURN=1 only
+#   bin/fork_cost        examples/fork_cost.rs (benches/fork_cost.sh)
 #   data/                the corpus files the rows read (RM 256^3, hydrogen)
 #   gl/                  Debian 12's Vulkan loader and glvnd packages
 #   built-in             this checkout's path, which the test binary looks
@@ -36,8 +38,14 @@ cp "$target/release/gsenc" "$kit/bin/gsenc-profiled"
 cargo build --release --locked --bin gsenc >&2
 cargo build --release --locked -p gsenc-capi >&2
 cp "$target/release/gsenc" "$kit/bin/gsenc"
-cargo build --release --locked --example device_churn >&2
-cp "$target/release/examples/device_churn" "$kit/bin/device_churn"
+# device_churn (5 MiB) only when asked: the kit is close to what a call may
+# carry, and benches/lent/run.sh does not use it.
+if [ -n "${KIT_CHURN:-}" ]; then
+    cargo build --release --locked --example device_churn >&2
+    cp "$target/release/examples/device_churn" "$kit/bin/device_churn"
+fi
+cargo build --release --locked --example fork_cost >&2
+cp "$target/release/examples/fork_cost" "$kit/bin/fork_cost"
 cc -std=c99 -O2 -Iinclude -Iexamples_c benches/insitu.c "$target/release/libgsenc.a" -lpthread -ldl -lm -o "$kit/bin/insitu"
 tests=$(cargo test --release --locked -p gsenc --test gpu --no-run --message-format=json \
     | python3 -c 'import json, sys

@@ -13,9 +13,11 @@
 #      (benches/siblings.sh, about 25 s);
 #   3. where an iteration loses time at 1, 4 and 16 threads (benches/
 #      timeline.sh, 300 iterations a row: the pool joining a pass late, a
-#      last task running alone, the gaps between passes), then the scaling
-#      model's prediction for the same machine (benches/scaling_model.sh),
-#      to set beside stage 2;
+#      last task running alone, the gaps between passes), what a pass
+#      costs beyond its work with rayon and with threads that spin between
+#      passes (benches/fork_cost.sh, 2 to 16 threads, about 10 s), then the
+#      scaling model's prediction for the same machine
+#      (benches/scaling_model.sh), to set beside stage 2;
 #   4. the GPU tests (tests/gpu.rs, one test thread, GSENC_REQUIRE_GPU=1);
 #   5. how the point passes are cut into workgroups (benches/gpu_split.sh,
 #      at most a minute): the kernels' times with other splits, the same
@@ -73,9 +75,9 @@ echo "hardware GPUs: $(hardware)"
 # Seconds kept for the stages after the GPU rows (the H200 machine's times
 # of 2026-12-04: scaling 105 s at 500 iterations, the tests 15 s, in situ
 # on the CPU 75 s; estimated: the core probe 25 s, the timeline 25 s, the
-# model 80 s from its one-thread iteration times; the split sweep up to
-# 60 s; the last stage runs only if they took less).
-reserve=${RESERVE:-380}
+# pass cost 10 s, the model 80 s from its one-thread iteration times; the
+# split sweep up to 60 s; the last stage runs only if they took less).
+reserve=${RESERVE:-390}
 stage "1. GPU rows (benches/gpu.sh)"
 gpu_time=$(( $(left) - reserve ))
 if [ "$gpu_time" -gt 60 ]; then
@@ -103,6 +105,11 @@ if [ "$(left)" -gt 120 ]; then
     GSENC_PROFILED_BIN=$kit/bin/gsenc-profiled THREADS="1 4 16" ITERS=300 timeout 45 bash benches/timeline.sh > bench-out/timeline.md \
         || echo "benches/timeline.sh: exit $?"
     cat bench-out/timeline.md
+fi
+if [ "$(left)" -gt 100 ]; then
+    GSENC_FORK_COST_BIN=$kit/bin/fork_cost timeout 40 bash benches/fork_cost.sh 2 4 8 16 > bench-out/fork-cost.md \
+        || echo "benches/fork_cost.sh: exit $?"
+    cat bench-out/fork-cost.md
 fi
 if [ "$(left)" -gt 90 ]; then
     GSENC_PROFILED_BIN=$kit/bin/gsenc-profiled timeout $(( $(left) - 10 )) bash benches/scaling_model.sh > bench-out/scaling-model.md \

@@ -4,6 +4,7 @@
 # (docs/BENCHMARKS.md "A lent H200, 2026-12-04"). From the kit of
 # benches/lent/prepare.sh:
 #   device run: command "bash benches/lent/tests.sh", carry [".lent"], timeout_s 300
+# (step 1 needs the kit built with KIT_CHURN=1).
 # 1. examples/device_churn: rounds that list the adapters, open and drop the
 #    backend, and open, evaluate and drop it, each reporting whether the
 #    adapter is still seen and the process's open files, threads, memory;
@@ -24,10 +25,14 @@ echo "hardware GPUs: $(hardware); open files allowed: $(ulimit -n) (hard $(ulimi
 command -v nvidia-smi > /dev/null && nvidia-smi --query-gpu=name,driver_version,memory.used --format=csv
 
 echo "== 1. device_churn"
-for mode in enumerate open work; do
-    timeout 40 "$kit/bin/device_churn" "$mode" 40 | awk 'NR % 5 == 1 || /rounds|failed/'
-    echo "device_churn $mode: exit ${PIPESTATUS[0]}"
-done
+if [ -x "$kit/bin/device_churn" ]; then
+    for mode in enumerate open work; do
+        timeout 40 "$kit/bin/device_churn" "$mode" 40 | awk 'NR % 5 == 1 || /rounds|failed/'
+        echo "device_churn $mode: exit ${PIPESTATUS[0]}"
+    done
+else
+    echo "not in the kit: KIT_CHURN=1 bash benches/lent/prepare.sh builds it"
+fi
 
 echo "== 2. tests/gpu.rs in one process"
 export GSENC_REQUIRE_GPU=1
