@@ -20,24 +20,13 @@ rows=("$@")
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out/scaling_model
 mkdir -p "$out"
-if [ -n "${GSENC_PROFILED_BIN:-}" ]; then
-    cp "$GSENC_PROFILED_BIN" "$out/gsenc"
-else
-    cargo build --release --locked --bin gsenc --features gsenc/task-profile >&2
-    cp "${CARGO_TARGET_DIR:-target}/release/gsenc" "$out/gsenc"
-    cargo build --release --locked --bin gsenc >&2
-fi
-bin=$out/gsenc
-rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255 --downsample 2 --budget 32000)
-h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32 --budget 4096)
+. benches/profiled.sh
+bin=$(profiled_bin "$out")
 profiles=()
 for r in "${rows[@]}"; do
-    case $r in
-        rm128_32k_matched) args=("${rm_args[@]}" --schedule matched) ;;
-        rm128_32k_full) args=("${rm_args[@]}" --schedule full --iters 1000) ;;
-        hydrogen_4k_matched) args=("${h_args[@]}" --schedule matched) ;;
-        *) echo "unknown row $r" >&2; exit 2 ;;
-    esac
+    scaling_row_args "$r" || exit 2
+    # `full` runs 1,000 iterations: its passes are the same in every one.
+    [ "$r" != rm128_32k_full ] || args+=(--iters 1000)
     echo "[$r] one thread, task profile" >&2
     GSENC_TASK_PROFILE="$out/$r.tsv" "$bin" encode grid "${args[@]}" --backend cpu --threads 1 -o "$out/$r.gsm" --quiet > /dev/null
     profiles+=("$out/$r.tsv")

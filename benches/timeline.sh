@@ -20,24 +20,11 @@ iters=${ITERS:-300}
 corpus richtmyer_meshkov_t20.uint8 hydrogen_atom.float32
 out=bench-out/timeline
 mkdir -p "$out"
-if [ -n "${GSENC_PROFILED_BIN:-}" ]; then
-    bin=$GSENC_PROFILED_BIN
-else
-    cargo build --release --locked --bin gsenc --features gsenc/task-profile >&2
-    cp "${CARGO_TARGET_DIR:-target}/release/gsenc" "$out/gsenc"
-    cargo build --release --locked --bin gsenc >&2
-    bin=$out/gsenc
-fi
-rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255 --downsample 2 --budget 32000)
-h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32 --budget 4096)
+. benches/profiled.sh
+bin=$(profiled_bin "$out")
 files=()
 for r in "${rows[@]}"; do
-    case $r in
-        rm128_32k_matched) args=("${rm_args[@]}" --schedule matched) ;;
-        rm128_32k_full) args=("${rm_args[@]}" --schedule full) ;;
-        hydrogen_4k_matched) args=("${h_args[@]}" --schedule matched) ;;
-        *) echo "unknown row $r" >&2; exit 2 ;;
-    esac
+    scaling_row_args "$r" || exit 2
     for t in $threads; do
         echo "[$r] $t threads, $iters iterations, timeline" >&2
         GSENC_TASK_TIMELINE="$out/$r-t$t.tsv" "$bin" encode grid "${args[@]}" --iters "$iters" --backend cpu --threads "$t" -o "$out/$r.gsm" --quiet > /dev/null
