@@ -1,4 +1,5 @@
-//! Task timings for the thread-scaling model (`benches/scaling_model.sh`).
+//! Task timings for the thread-scaling model (`benches/scaling_model.sh`)
+//! and the timeline of the tasks as they ran (`benches/timeline.sh`).
 //!
 //! Built with the `task-profile` feature, an encode on one thread records
 //! how long each task of each parallel pass takes and how long each serial
@@ -15,6 +16,10 @@
 //! section (negative seconds), or the end of an iteration (an empty pass).
 //! A record made within [`beside`] (work that runs beside the iteration's
 //! passes, as the next batch's draw does) has `beside: ` before its pass.
+//! A task that forks ([`part`]: a head, then runs in parallel, then a tail
+//! that waits for them) has a third field, `head`, `run` or `tail`, so that
+//! the model starts the runs only after the head and the tail only after
+//! the last run.
 //!
 //! With `GSENC_TASK_TIMELINE` set too (or alone), an encode on any number
 //! of threads also writes when each record ran and on which thread, one line
@@ -24,10 +29,6 @@
 //! `benches/timeline.py` tells from it where a pass loses time on p
 //! threads (the wait for the pool to join, the wait for its last task, the
 //! gaps between passes).
-//! A task that forks ([`part`]: a head, then runs in parallel, then a tail
-//! that waits for them) has a third field, `head`, `run` or `tail`, so that
-//! the model starts the runs only after the head and the tail only after
-//! the last run.
 
 use parking_lot::Mutex;
 use std::cell::Cell;
