@@ -100,7 +100,7 @@ if [ "$(left)" -gt 150 ]; then
 fi
 pack
 
-stage "3. where time is lost at 16 threads (benches/timeline.sh), then the scaling model (benches/scaling_model.sh)"
+stage "3. where time is lost at 16 threads (benches/timeline.sh), what a pass costs (benches/fork_cost.sh), then the scaling model (benches/scaling_model.sh)"
 if [ "$(left)" -gt 120 ]; then
     GSENC_PROFILED_BIN=$kit/bin/gsenc-profiled THREADS="1 4 16" ITERS=300 timeout 45 bash benches/timeline.sh > bench-out/timeline.md \
         || echo "benches/timeline.sh: exit $?"
