@@ -147,6 +147,21 @@ pub struct Gpu {
     sleepy_wait: bool,
 }
 
+/// The most storage buffers one kernel binds (reduce.wgsl `step`, the
+/// reduction fused with the Adam step). WebGPU's default is 8; Vulkan,
+/// Metal and DX12 GPUs offer more, and an adapter that does not is refused
+/// when it is opened.
+pub const STORAGE_BUFFERS: u32 = 10;
+
+/// An error unless an adapter with `limits` can run every kernel.
+fn enough_bindings(name: &str, limits: &wgpu::Limits) -> Result<()> {
+    let have = limits.max_storage_buffers_per_shader_stage;
+    if have < STORAGE_BUFFERS {
+        return Err(Error::Device(format!("'{name}' lets a kernel bind {have} storage buffers; gsenc's kernels bind up to {STORAGE_BUFFERS}")));
+    }
+    Ok(())
+}
+
 /// `GSENC_GPU_TIMING=0` opens the device without timestamp queries: no
 /// per-kernel times (`kernel_seconds` stays empty), the same results.
 fn timing_from_env() -> bool {
@@ -159,6 +174,12 @@ impl Gpu {
         // Everything the adapter offers: storage bindings of more than the
         // default 128 MiB, 32 KiB of workgroup memory where there is.
         let limits = adapter.limits();
+        Gpu::open_with(adapter_summary, adapter, limits)
+    }
+
+    /// Opens `adapter` asking for `limits` (tests ask for less than it has).
+    fn open_with(adapter_summary: AdapterSummary, adapter: wgpu::Adapter, limits: wgpu::Limits) -> Result<Gpu> {
+        enough_bindings(&adapter_summary.name, &limits)?;
         let desc = wgpu::DeviceDescriptor {
             label: Some("gsenc"),
             // Per-kernel times (gpu/timer.rs) where the adapter has them,
@@ -242,5 +263,35 @@ impl Gpu {
             .poll(wgpu::PollType::Wait { submission_index: index, timeout: None })
             .map_err(|e| Error::Device(format!("waiting for '{}': {e}", self.adapter.name)))?;
         self.check()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::backend::gpu::kernels::Kernels;
+
+    /// `STORAGE_BUFFERS` is what the kernels need, no less and no more:
+    /// every kernel compiles on a device opened with that many storage
+    /// buffers a kernel, and not on one with one fewer, which `open`
+    /// refuses. Runs on any adapter wgpu sees (lavapipe in CI;
+    /// GSENC_REQUIRE_GPU=1 fails instead of skipping without one).
+    #[test]
+    fn the_kernels_need_as_many_storage_buffers_as_open_asks() {
+        let Some((summary, adapter)) = enumerate().into_iter().find(|(s, _)| s.name != "noop") else {
+            assert_ne!(std::env::var("GSENC_REQUIRE_GPU").as_deref(), Ok("1"), "GSENC_REQUIRE_GPU=1 and wgpu sees no adapter");
+            eprintln!("NOT RUN: wgpu sees no adapter");
+            return;
+        };
+        let capped = |n: u32| wgpu::Limits { max_storage_buffers_per_shader_stage: n, ..adapter.limits() };
+        let gpu = Gpu::open_with(summary.clone(), adapter.clone(), capped(STORAGE_BUFFERS)).unwrap();
+        Kernels::new(&gpu).unwrap();
+        let refused = Gpu::open_with(summary, adapter.clone(), capped(STORAGE_BUFFERS - 1)).err().expect("one binding short");
+        assert!(refused.to_string().contains(&format!("bind {} storage buffers", STORAGE_BUFFERS - 1)), "{refused}");
+        // A device with one fewer, opened past `open`'s check.
+        let desc = wgpu::DeviceDescriptor { required_limits: capped(STORAGE_BUFFERS - 1), ..Default::default() };
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc)).unwrap();
+        let short = Gpu { device, queue, ..gpu };
+        assert!(Kernels::new(&short).is_err(), "the kernels compiled with {} storage buffers a kernel", STORAGE_BUFFERS - 1);
     }
 }

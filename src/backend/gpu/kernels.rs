@@ -113,8 +113,7 @@ pub struct Kernels {
     pub forward: Kernel,
     pub backward: Kernel,
     pub reduce: Kernel,
-    pub adam: Kernel,
-    pub mark: Kernel,
+    pub step: Kernel,
     pub loss: Kernel,
     pub decode: Kernel,
 }
@@ -140,7 +139,7 @@ impl Kernels {
                 }),
             };
             let bin = module("bin.wgsl", include_str!("shaders/bin.wgsl"));
-            let adam = module("adam.wgsl", include_str!("shaders/adam.wgsl"));
+            let reduce = module("reduce.wgsl", include_str!("shaders/reduce.wgsl"));
             Ok(Kernels {
                 frames: pipeline(&module("frames.wgsl", include_str!("shaders/frames.wgsl")), "frames", "main"),
                 count: pipeline(&bin, "bin count", "count"),
@@ -148,9 +147,8 @@ impl Kernels {
                 scan: pipeline(&module("scan.wgsl", include_str!("shaders/scan.wgsl")), "scan", "main"),
                 forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "forward", "main"),
                 backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "backward", "main"),
-                reduce: pipeline(&module("reduce.wgsl", include_str!("shaders/reduce.wgsl")), "reduce", "main"),
-                adam: pipeline(&adam, "adam", "main"),
-                mark: pipeline(&adam, "adam mark", "mark"),
+                reduce: pipeline(&reduce, "reduce", "main"),
+                step: pipeline(&reduce, "reduce adam", "step"),
                 loss: pipeline(&module("loss.wgsl", include_str!("shaders/loss.wgsl")), "loss", "main"),
                 decode: pipeline(&module("decode.wgsl", include_str!("shaders/decode.wgsl")), "decode", "main"),
             })

@@ -15,12 +15,12 @@
 //! 4. `backward`: per (brick, candidate) the pair sums of `GradAcc`, each in
 //!    its own slot (8 workgroups a brick, each a slice of its candidates);
 //! 5. `reduce`: per primitive, its slots summed in brick order (a team of
-//!    threads finds them, one adds them), then `Frame::finalize`; `loss`:
-//!    the batch's loss terms;
-//! 6. resident training only (`resident.rs`): `adam`, the regularisers and
-//!    the Adam step on parameters and moments that stay on the device;
-//!    `mark` holds back the steps queued after one whose lists overflowed
-//!    (two steps may be in flight: `points::IN_FLIGHT`).
+//!    threads finds them, one adds them), then `Frame::finalize`; in
+//!    resident training (`resident.rs`) the same thread goes on with the
+//!    regularisers and the Adam step on parameters and moments that stay on
+//!    the device (reduce.wgsl `step`), and holds back the steps queued
+//!    after one whose lists overflowed (two steps may be in flight:
+//!    `points::IN_FLIGHT`); `loss`: the batch's loss terms.
 //!
 //! No float atomics anywhere, so a call gives the same bits run after run
 //! on one adapter. The points are sorted into bricks on the host

@@ -18,7 +18,7 @@ pub(super) enum Pass {
     Evaluate,
     /// The gradient and the point terms of the loss come back.
     Gradient,
-    /// A training step on the resident parameters (adam.wgsl); the loss
+    /// A training step on the resident parameters (reduce.wgsl `step`); the loss
     /// terms come back when `report`.
     Resident { report: bool },
 }
@@ -154,7 +154,7 @@ impl GpuBackend {
     }
 
     /// Clears the flag a resident step whose lists overflowed sets
-    /// (adam.wgsl `mark`), so that the steps after it change the
+    /// (reduce.wgsl `step`), so that the steps after it change the
     /// parameters again.
     pub(super) fn clear_poison(&mut self) -> Result<()> {
         self.bufs.poison.upload(&self.gpu, bytes(&[0u32; 4]), false)?;
@@ -172,8 +172,8 @@ impl GpuBackend {
     /// Waits for the oldest call in flight and returns what `run_points`
     /// does. While a level of its candidate lists overflows it runs again
     /// with more room (and waits); the calls queued after it ran on
-    /// parameters it did not update and changed nothing (adam.wgsl
-    /// `mark`), so they are waited for, and submitted again once it fits.
+    /// parameters it did not update and changed nothing (reduce.wgsl
+    /// `step`), so they are waited for, and submitted again once it fits.
     /// An error abandons every call in flight.
     pub(super) fn finish_points(&mut self) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>)> {
         let out = self.finish_oldest();
@@ -287,6 +287,8 @@ impl GpuBackend {
         b.reg_terms.ensure(gpu, 8 * n as u64, g && pass != Pass::Gradient)?;
         if pass != Pass::Evaluate {
             b.partial.ensure(gpu, 48 * self.capacity as u64, g)?;
+        }
+        if pass == Pass::Gradient {
             b.grad.ensure(gpu, 48 * n as u64, g)?;
         }
         let [us, us1] = &mut b.uniforms[slot];
@@ -314,20 +316,23 @@ impl GpuBackend {
             if pass == Pass::Evaluate {
                 read[0].1 = 8 * npts as u64;
             } else {
-                let (partial, occ, grad) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?, b.grad.ensure(gpu, 0, false)?);
+                let (partial, occ) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?);
                 let backward_groups = count_u32("backward workgroups", nbricks * p.split[1].max(1) as usize)?;
                 dispatch(gpu, &mut enc, timer, binds, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
                 // A team of `p.split[2]` threads a primitive.
                 let reduce_groups = groups_for(count_u32("reduce threads", n * p.split[2] as usize)? as usize);
-                dispatch(gpu, &mut enc, timer, binds, &k.reduce, &seq(&[&u, params, ranges, occ, starts, lists, partial, grad]), reduce_groups);
+                let summed = [(0, &u), (1, params), (2, ranges), (3, occ), (4, starts), (5, lists), (6, partial)];
                 if pass == Pass::Gradient {
+                    let grad = b.grad.ensure(gpu, 0, false)?;
+                    dispatch(gpu, &mut enc, timer, binds, &k.reduce, &[&summed[..], &[(7, grad)]].concat(), reduce_groups);
                     read = vec![(grad, 48 * n as u64), (loss, 8)];
                 } else {
-                    let moments = b.moments.ensure(gpu, 0, false)?;
-                    let poison = b.poison.ensure(gpu, 0, false)?;
-                    dispatch(gpu, &mut enc, timer, binds, &k.adam, &seq(&[&u, grad, params, moments, reg_terms, starts, starts1, poison]), groups_for(n));
-                    // Poisons the steps after this one if its lists overflowed.
-                    dispatch(gpu, &mut enc, timer, binds, &k.mark, &[(0, &u), (5, starts), (6, starts1), (7, poison)], 1);
+                    // The reduction, the regularisers and the Adam step;
+                    // it poisons the steps after this one if its lists
+                    // overflowed.
+                    let (moments, poison) = (b.moments.ensure(gpu, 0, false)?, b.poison.ensure(gpu, 0, false)?);
+                    let step = [(8, moments), (9, reg_terms), (10, starts1), (11, poison)];
+                    dispatch(gpu, &mut enc, timer, binds, &k.step, &[&summed[..], &step].concat(), reduce_groups);
                 }
                 if pass != (Pass::Resident { report: false }) {
                     dispatch(gpu, &mut enc, timer, binds, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);

@@ -6,7 +6,7 @@
 //! oldest step. Two steps may be in flight (`GpuBackend::depth`): the
 //! device runs the second while the host reads the first's results.
 //! Mirrors the iteration of encode/refine.rs: `point_loss_grad`, then
-//! `regularizers` and `Adam::step` (adam.wgsl).
+//! `regularizers` and `Adam::step` (reduce.wgsl `step`, after the reduction).
 
 use super::points::{InFlight, IN_FLIGHT};
 use super::{bytes, floats, GpuBackend, Pass};

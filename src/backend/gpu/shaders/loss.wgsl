@@ -1,6 +1,6 @@
 // The batch's L_val and L_cov: the sums of every point's terms, and, in
 // resident training, L_scale and L_aniso: the sums of every primitive's
-// (adam.wgsl). One workgroup, a fixed order (each thread a strided run,
+// (reduce.wgsl `step`). One workgroup, a fixed order (each thread a strided run,
 // then a tree). Mirrors the loss sums of cpu/mod.rs `point_loss_grad` and of
 // loss.rs `regularizers` (which sum in f64; here f32, so the figures differ
 // in the last digits).

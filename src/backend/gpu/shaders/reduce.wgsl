@@ -2,6 +2,17 @@
 // its box overlaps, in brick order, then the chain rule to the gradient of
 // its 12 stored parameters. Mirrors the fixed-order reduction of cpu/mod.rs
 // `point_loss_grad` (bricks in order) and kernel.rs `Frame::finalize`.
+// Two entry points share the reduction (`team_sum`):
+// - `main` writes the gradient (`point_loss_grad` brings it back);
+// - `step`, resident training: the regularisers' gradient added to it, then
+//   one Adam step on the parameters and moments that stay on the device.
+//   Mirrors loss.rs `regularizers` and optim.rs `Adam::step` (both in
+//   math.wgsl), as refine.rs calls them. The gradient never leaves the
+//   thread that summed it.
+//   When either level of candidate lists overflowed, the gradient is
+//   incomplete: nothing is changed, and `poison` is set so that the steps
+//   queued after this one change nothing either (they ran on parameters
+//   this one did not update); the host runs them all again.
 //
 // Finding a primitive's slot in a brick's list is a binary search, a chain
 // of dependent loads; a primitive whose box spans many bricks did them one
@@ -13,14 +24,23 @@
 // those of one thread walking the bricks, whatever the team's size.
 
 @group(0) @binding(0) var<uniform> P: Params;
-@group(0) @binding(1) var<storage, read> params: array<f32>;
+// Written by `step` only.
+@group(0) @binding(1) var<storage, read_write> params: array<f32>;
 @group(0) @binding(2) var<storage, read> ranges: array<vec4<u32>>;
 // Dense brick index -> occupied brick, NONE when it holds no point.
 @group(0) @binding(3) var<storage, read> occupied: array<u32>;
 @group(0) @binding(4) var<storage, read> starts: array<u32>;
 @group(0) @binding(5) var<storage, read> lists: array<u32>;
 @group(0) @binding(6) var<storage, read> partial: array<vec4<f32>>;
+// `main` only.
 @group(0) @binding(7) var<storage, read_write> grad: array<f32>;
+// `step` only. Per primitive: Adam's m (12 floats), then v (12 floats).
+@group(0) @binding(8) var<storage, read_write> moments: array<f32>;
+// Per primitive: the values of L_scale and L_aniso (summed by loss.wgsl).
+@group(0) @binding(9) var<storage, read_write> reg_terms: array<vec2<f32>>;
+@group(0) @binding(10) var<storage, read> coarse_starts: array<u32>;
+// Nonzero from a step whose lists overflowed until the host clears it.
+@group(0) @binding(11) var<storage, read_write> poison: array<atomic<u32>>;
 
 const WG: u32 = 128u;
 // Each thread's slot of the round (NONE: its brick is empty, lists no
@@ -53,8 +73,16 @@ fn team_size() -> u32 {
     return clamp(P.split.z, 1u, WG);
 }
 
-@compute @workgroup_size(128)
-fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+// What a thread of the reduction ends with: its primitive `g`, whether it
+// is its team's first thread (`lead`), and then the primitive's sums.
+struct Summed {
+    g: u32,
+    lead: bool,
+    acc: Acc,
+}
+
+// The reduction, called by every thread of the workgroup (it has barriers).
+fn team_sum(wid: vec3<u32>, nwg: vec3<u32>, lid: u32) -> Summed {
     let team = team_size();
     let g = group_index(wid, nwg) * (WG / team) + lid / team;
     let t = lid % team;
@@ -110,15 +138,53 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         }
         workgroupBarrier();
     }
-    if t != 0u || g >= P.counts.x {
-        return;
-    }
+    return Summed(g, t == 0u && g < P.counts.x, acc);
+}
+
+fn load_primitive(g: u32) -> array<f32, 12> {
     var p: array<f32, 12>;
     for (var i = 0u; i < 12u; i++) {
         p[i] = params[12u * g + i];
     }
-    let out = finalize(frame_new(p), acc);
+    return p;
+}
+
+@compute @workgroup_size(128)
+fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+    let s = team_sum(wid, nwg, lid);
+    if !s.lead {
+        return;
+    }
+    let out = finalize(frame_new(load_primitive(s.g)), s.acc);
     for (var i = 0u; i < 12u; i++) {
-        grad[12u * g + i] = out[i];
+        grad[12u * s.g + i] = out[i];
+    }
+}
+
+fn overflowed() -> bool {
+    return starts[P.counts.y] > P.counts.z || coarse_starts[P.coarse.x * max(P.bin.y, 1u)] > P.coarse.y;
+}
+
+@compute @workgroup_size(128)
+fn step(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) lid: u32) {
+    let s = team_sum(wid, nwg, lid);
+    // `overflowed()` is the same for every thread, so no thread reads the
+    // word this one sets but one that changes nothing anyway.
+    let over = overflowed();
+    if over && s.lead && s.g == 0u {
+        atomicStore(&poison[0], 1u);
+    }
+    if !s.lead || over || atomicLoad(&poison[0]) != 0u {
+        return;
+    }
+    let g = s.g;
+    let p = load_primitive(g);
+    var d = finalize(frame_new(p), s.acc);
+    reg_terms[g] = regularize(p, P.reg, P.objective.z, &d);
+    for (var i = 0u; i < 12u; i++) {
+        let r = adam_update(p[i], d[i], moments[24u * g + i], moments[24u * g + 12u + i], P.optim.x, P.optim.y, P.optim.z);
+        params[12u * g + i] = r.x;
+        moments[24u * g + i] = r.y;
+        moments[24u * g + 12u + i] = r.z;
     }
 }
