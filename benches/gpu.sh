@@ -163,4 +163,6 @@ for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w 
     device = ms(lambda d: sum(v.get("seconds", 0) for v in (d.get("kernel_seconds") or {}).values()))
     print(f"| {name} ({w}) | {ms(lambda d: d['seconds']):.3f} | {phase('draw')} | {phase('submit')} | {phase('wait')} | {device:.3f} |")
 PY
+# The GPU backend's share of `submit` and `wait`, by phase (none without GPU rows).
+{ echo; python3 benches/host_phases.py "$log" || true; } | tee -a "$out/gpu-table.md"
 keep "$out/gpu-table.md"

@@ -62,3 +62,7 @@ for name, runs in rows.items():
     phase = lambda k: f"{ms(lambda d: d['loop_phases'][k]):.3f}"
     print(f"| {name} | {len(runs)} | {runs[0]['points']} | {ms(lambda d: d['seconds']):.3f} | {phase('draw')} | {phase('submit')} | {phase('wait')} |")
 PY
+echo
+echo "The GPU backend's own phases, ms an iteration (benches/host_phases.py):"
+echo
+python3 benches/host_phases.py "$log"

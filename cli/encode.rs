@@ -2,7 +2,7 @@
 //! through the library's encode pipeline.
 
 use crate::args::{one_of, CellInput, GridInput, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
-use crate::output::{deposit_keys, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar, target_json, write_output};
+use crate::output::{deposit_keys, gpu_host_seconds, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar, target_json, write_output};
 use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
@@ -166,6 +166,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "backend": out.backend,
         "fell_back": out.fell_back,
         "kernel_seconds": kernel_seconds(backend.as_ref()),
+        "gpu_host_seconds": gpu_host_seconds(backend.as_ref()),
         "dims": reference.dims,
         "target": target_json(encoded.target.as_ref()),
         "output": o.output.display().to_string(),

@@ -191,9 +191,18 @@ pub fn write_grid(path: &Path, grid: &Grid, origin: [f64; 3], spacing: [f64; 3],
 /// Device seconds per kernel of a GPU backend (`{kernel: {passes, seconds}}`),
 /// null for the CPU's.
 pub fn kernel_seconds(backend: &dyn gsenc::backend::Backend) -> Value {
-    let k = backend.kernel_seconds();
+    named_seconds(backend.kernel_seconds(), "passes")
+}
+
+/// The host's seconds per phase of a GPU backend's point calls
+/// (`{phase: {times, seconds}}`), null for the CPU's.
+pub fn gpu_host_seconds(backend: &dyn gsenc::backend::Backend) -> Value {
+    named_seconds(backend.host_seconds(), "times")
+}
+
+fn named_seconds(k: Vec<(String, u64, f64)>, count: &str) -> Value {
     if k.is_empty() {
         return Value::Null;
     }
-    Value::Object(k.into_iter().map(|(name, passes, s)| (name, json!({ "passes": passes, "seconds": s }))).collect())
+    Value::Object(k.into_iter().map(|(name, n, s)| (name, json!({ count: n, "seconds": s }))).collect())
 }

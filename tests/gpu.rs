@@ -715,3 +715,37 @@ fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     let (fresh_p, _) = run(&mut fresh, 9);
     assert!(same_bits(&first, &again) && same_bits(&first, &fresh_p));
 }
+
+/// The host's phases of the point calls (`host_seconds`): each of a
+/// resident step's six phases counted once a step (`write` twice: the
+/// points, then the uniforms), and their seconds within the time the calls
+/// took. A phase timed twice, or one never timed, fails.
+#[test]
+fn host_phases_count_each_step_once_within_its_time() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(37);
+    let params = random_model(&mut rng, 120, 24.0);
+    let batch = random_batch(&mut rng, 900, 24.0);
+    let w = LossWeights::default();
+    g.resident().unwrap().load(&params, &Adam::new(params.len())).unwrap();
+    assert!(g.host_seconds().is_empty(), "phases timed before any point call: {:?}", g.host_seconds());
+    let steps = 5;
+    let started = std::time::Instant::now();
+    for _ in 0..steps {
+        let r = g.resident().unwrap();
+        r.submit(&batch, &w, 5e-3, false).unwrap();
+        r.finish().unwrap();
+    }
+    let took = started.elapsed().as_secs_f64();
+    let phases = g.host_seconds();
+    let names: Vec<&str> = phases.iter().map(|(n, _, _)| n.as_str()).collect();
+    let mut want = ["arrange", "write", "record", "submit", "wait", "read"];
+    want.sort();
+    assert_eq!(names, want, "{phases:?}");
+    for (name, times, _) in &phases {
+        let per_step = if name == "write" { 2 } else { 1 };
+        assert_eq!(*times, per_step * steps as u64, "{name}: {phases:?}");
+    }
+    let sum: f64 = phases.iter().map(|p| p.2).sum();
+    assert!(sum > 0.0 && sum <= took, "phases sum to {sum} s of the calls' {took} s: {phases:?}");
+}

@@ -1042,6 +1042,7 @@ fn backend_choice_end_to_end() {
     let c = json(&out);
     assert_eq!(c["backend"], "cpu");
     assert!(c["kernel_seconds"].is_null());
+    assert!(c["gpu_host_seconds"].is_null());
     let on_gpu = |out: &std::path::Path, env: &[(&str, &str)]| {
         let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
             .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--schedule", "short"])
@@ -1059,6 +1060,11 @@ fn backend_choice_end_to_end() {
     assert!(g["fell_back"].is_null());
     if let Some(k) = g["kernel_seconds"].as_object() {
         assert!(k["forward"]["passes"].as_u64().unwrap() >= 150, "{g}");
+    }
+    // The host's phases, whatever the adapter: each at least once a step.
+    let h = &g["gpu_host_seconds"];
+    for phase in ["arrange", "write", "record", "submit", "wait", "read"] {
+        assert!(h[phase]["times"].as_u64().unwrap() >= 150 && h[phase]["seconds"].as_f64().unwrap() >= 0.0, "{phase}: {h}");
     }
     let untimed = dir.join("untimed.gsm");
     let u = on_gpu(&untimed, &[("GSENC_GPU_TIMING", "0")]);

@@ -135,6 +135,14 @@ pub trait Backend: Send {
         vec![]
     }
 
+    /// Host seconds per phase of a device backend's calls (arranging,
+    /// writing, recording, submitting, waiting, reading back), with the
+    /// number of times each ran: `(phase, times, seconds)`. Empty for the
+    /// CPU backend.
+    fn host_seconds(&self) -> Vec<(String, u64, f64)> {
+        vec![]
+    }
+
     /// A backend that can keep the parameters and Adam's moments on its
     /// device through a run of iterations ([`Resident`]) says so here.
     fn resident(&mut self) -> Option<&mut dyn Resident> {

@@ -226,6 +226,10 @@ impl Backend for Fallback {
         self.gpu.as_ref().map_or(vec![], |g| g.kernel_seconds())
     }
 
+    fn host_seconds(&self) -> Vec<(String, u64, f64)> {
+        self.gpu.as_ref().map_or(vec![], |g| g.host_seconds())
+    }
+
     fn brick_edge(&self) -> Option<f32> {
         match &self.gpu {
             Some(g) => g.brick_edge(),

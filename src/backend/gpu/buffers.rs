@@ -82,6 +82,8 @@ pub struct Readback {
     staging: Slot,
     parts: Vec<(u64, u64)>,
     submission: Option<wgpu::SubmissionIndex>,
+    /// How long the last `read` waited for the device and the map.
+    pub waited: std::time::Duration,
 }
 
 impl Default for Readback {
@@ -90,6 +92,7 @@ impl Default for Readback {
             staging: Slot::with_usage("gsenc readback", wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST),
             parts: vec![],
             submission: None,
+            waited: std::time::Duration::ZERO,
         }
     }
 }
@@ -125,7 +128,10 @@ impl Readback {
         let done = std::sync::Arc::new(parking_lot::Mutex::new(None));
         let d = done.clone();
         slice.map_async(wgpu::MapMode::Read, move |r| *d.lock() = Some(r));
-        gpu.wait_for(self.submission.take(), || done.lock().is_some())?;
+        let waiting = std::time::Instant::now();
+        let waited = gpu.wait_for(self.submission.take(), || done.lock().is_some());
+        self.waited = waiting.elapsed();
+        waited?;
         match done.lock().take() {
             Some(Ok(())) => {}
             Some(Err(e)) => return Err(Error::Device(format!("reading results back: {e}"))),

@@ -43,7 +43,7 @@ use self::buffers::Buffers;
 use self::device::{DeviceRequest, Gpu};
 use self::kernels::{BindGroups, Kernels};
 use self::points::Pass;
-use self::timer::Timer;
+use self::timer::{HostTimes, Timer};
 use super::bricks::PointBricks;
 use super::{check_len, Backend, Lattice, PointBatch, PointLoss};
 use crate::error::{Error, Result};
@@ -56,6 +56,8 @@ pub struct GpuBackend {
     gpu: Gpu,
     kernels: Kernels,
     timer: Timer,
+    /// The host's time in each phase of the point calls.
+    host: HostTimes,
     bufs: Buffers,
     binds: BindGroups,
     /// Edge of a training brick in voxels (as the CPU backend's).
@@ -176,6 +178,7 @@ impl GpuBackend {
             gpu,
             kernels,
             timer,
+            host: HostTimes::default(),
             bufs: Buffers::default(),
             binds: BindGroups::default(),
             brick: 16.0,
@@ -294,6 +297,12 @@ impl Backend for GpuBackend {
 
     fn kernel_seconds(&self) -> Vec<(String, u64, f64)> {
         self.timer.totals()
+    }
+
+    /// The phases of the point calls (training steps, gradients,
+    /// evaluations): timer.rs [`HostTimes`].
+    fn host_seconds(&self) -> Vec<(String, u64, f64)> {
+        self.host.totals()
     }
 
     fn resident(&mut self) -> Option<&mut dyn super::Resident> {

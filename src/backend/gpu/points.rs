@@ -10,6 +10,7 @@ use crate::backend::bricks::PointBricks;
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use std::borrow::Cow;
+use std::time::{Duration, Instant};
 
 /// What a point call computes after the forward pass.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,6 +100,7 @@ impl GpuBackend {
         vref: Option<&[f32]>,
         mut bricks: Cow<'a, PointBricks>,
     ) -> Result<(Params, Cow<'a, PointBricks>, usize, Upload)> {
+        let started = Instant::now();
         let sorted: Vec<[f32; 4]> = bricks
             .order
             .iter()
@@ -124,6 +126,7 @@ impl GpuBackend {
         let team = self.reduce_team.unwrap_or_else(|| reduce_team_for(n));
         let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, team, 0];
         let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied };
+        self.host.lap("arrange", started);
         self.write_points(&upload)?;
         let nb = bricks.ranges.len();
         let p = Params {
@@ -140,6 +143,7 @@ impl GpuBackend {
 
     /// Writes an upload's points and bricks to the device.
     fn write_points(&mut self, u: &Upload) -> Result<()> {
+        let started = Instant::now();
         let (g, gpu, b) = (self.garbage, &self.gpu, &mut self.bufs);
         b.points.upload(gpu, bytes(&u.sorted), g)?;
         b.brick_points.upload(gpu, bytes(&u.ranges), g)?;
@@ -150,6 +154,7 @@ impl GpuBackend {
         b.counts.ensure(gpu, 4 * u.ranges.len() as u64, g)?;
         b.rho_n.ensure(gpu, 8 * u.sorted.len() as u64, g)?;
         b.terms.ensure(gpu, 16 * u.sorted.len() as u64, g)?;
+        self.host.lap("write", started);
         Ok(())
     }
 
@@ -219,9 +224,13 @@ impl GpuBackend {
     /// Waits for the call read back through `slot`: its first two regions
     /// and both levels' list starts.
     fn read_call(&mut self, slot: usize) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>, Vec<u32>)> {
+        let started = Instant::now();
         let gpu = &self.gpu;
         let b = &mut self.bufs;
         let out = gpu.scoped("reading a point pass back", || b.readback[slot].read(gpu));
+        let waited = b.readback[slot].waited;
+        self.host.add("wait", waited);
+        self.host.add("read", started.elapsed().saturating_sub(waited));
         let mut out = self.timed(slot, out)?.into_iter();
         let mut next = || out.next().unwrap_or_default();
         Ok((next(), next(), words(&next()), words(&next())))
@@ -291,10 +300,14 @@ impl GpuBackend {
         if pass == Pass::Gradient {
             b.grad.ensure(gpu, 48 * n as u64, g)?;
         }
+        let written = Instant::now();
         let [us, us1] = &mut b.uniforms[slot];
         let (u, u1) = (us.upload(gpu, bytemuck::bytes_of(&p), g)?.clone(), us1.upload(gpu, bytemuck::bytes_of(&coarse_p), g)?.clone());
+        let recording = self.host.lap("write", written);
+        let host = &mut self.host;
+        let mut submitted = Duration::ZERO;
         binds.keep_while(b.made());
-        gpu.scoped("a point pass", || {
+        let out = gpu.scoped("a point pass", || {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
             let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
@@ -342,9 +355,14 @@ impl GpuBackend {
             let times = timer.resolve(&mut enc).unwrap_or((loss, 0));
             read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (coarse_entries + 1)), times]);
             b.readback[slot].record(gpu, &mut enc, &read)?;
+            let submitting = Instant::now();
             b.readback[slot].submit(gpu, enc);
+            submitted = submitting.elapsed();
             Ok(())
-        })
+        });
+        host.add("record", recording.elapsed().saturating_sub(submitted));
+        host.add("submit", submitted);
+        out
     }
 
     /// Kernel evaluations of a forward pass: points times candidates per brick.

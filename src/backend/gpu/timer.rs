@@ -2,10 +2,12 @@
 //! end of every compute pass, where the adapter has them (`TIMESTAMP_QUERY`).
 //! Totals per kernel over the backend's life; read with the call's results,
 //! so timing adds no wait of its own. Each call that may be in flight at
-//! once has its own query set.
+//! once has its own query set. Beside it, [`HostTimes`]: the host's time in
+//! each phase of a call.
 
 use super::device::Gpu;
 use std::collections::BTreeMap;
+use std::time::{Duration, Instant};
 
 /// Passes timed per submission (two queries each).
 const MAX_PASSES: u32 = 64;
@@ -106,6 +108,46 @@ impl Timer {
     }
 
     /// Per kernel: passes timed and device seconds, since the backend opened.
+    pub fn totals(&self) -> Vec<(String, u64, f64)> {
+        self.totals.iter().map(|(k, &(n, s))| (k.to_string(), n, s)).collect()
+    }
+}
+
+/// The host's seconds per phase of the backend's calls, summed over its
+/// life, with the number of times each ran: where the host's share of a
+/// training step goes (`GpuBackend::host_seconds`). A GPU's driver and
+/// wgpu's no-op device split it differently, so the figures come from the
+/// machine that runs the encode. The phases, in a call's order:
+/// - `arrange`: the batch's points, bricks, pieces and coarse cells laid
+///   out as the device reads them;
+/// - `write`: handing them and the call's uniforms to the queue (wgpu
+///   copies them into staging memory);
+/// - `record`: recording the command buffer (bind groups, dispatches, the
+///   read-back's copies) inside wgpu's error scopes;
+/// - `submit`: finishing and submitting it;
+/// - `wait`: waiting for the device to finish it and map the results;
+/// - `read`: copying the mapped results out.
+#[derive(Default)]
+pub struct HostTimes {
+    totals: BTreeMap<&'static str, (u64, f64)>,
+}
+
+impl HostTimes {
+    /// Adds `d` to `phase`.
+    pub fn add(&mut self, phase: &'static str, d: Duration) {
+        let t = self.totals.entry(phase).or_default();
+        t.0 += 1;
+        t.1 += d.as_secs_f64();
+    }
+
+    /// Adds the time since `start` to `phase` and returns now.
+    pub fn lap(&mut self, phase: &'static str, start: Instant) -> Instant {
+        let now = Instant::now();
+        self.add(phase, now - start);
+        now
+    }
+
+    /// Per phase: times it ran and seconds.
     pub fn totals(&self) -> Vec<(String, u64, f64)> {
         self.totals.iter().map(|(k, &(n, s))| (k.to_string(), n, s)).collect()
     }
