@@ -36,12 +36,17 @@ WHOLE = "(timed whole) "
 
 
 def read(path):
-    """The iterations of a timeline: each a list of (pass, thread, start,
-    end); a serial section's pass gets `SERIAL` before it, a pass timed
-    whole `WHOLE` (after `BESIDE`, when it has that)."""
-    its, cur = [], []
+    """The iterations of a timeline, each a list of (pass, thread, start,
+    end), and the pool's size from its first line (None in a timeline
+    written before it had one); a serial section's pass gets `SERIAL`
+    before it, a pass timed whole `WHOLE` (after `BESIDE`, when it has
+    that)."""
+    its, cur, threads = [], [], None
     with open(path) as f:
         for line in f:
+            if line.startswith("#threads\t"):
+                threads = int(line.split("\t")[1])
+                continue
             pass_, thread, start, end, kind = line.rstrip("\n").split("\t")
             if pass_ == "":
                 its.append(cur)
@@ -50,11 +55,13 @@ def read(path):
             prefix = {"serial": SERIAL, "whole": WHOLE}.get(kind, "")
             side = BESIDE if pass_.startswith(BESIDE) else ""
             cur.append((side + prefix + pass_[len(side):], int(thread), float(start), float(end)))
-    return its
+    return its, threads
 
 
-def pool_threads(its):
-    return len({t for it in its for (_, t, _, _) in it if t >= 0}) or 1
+def pool_threads(its, threads=None):
+    """The pool's size: as the timeline says, else the threads that ran a
+    task (which misses a thread that never did)."""
+    return threads or len({t for it in its for (_, t, _, _) in it if t >= 0}) or 1
 
 
 def passes(it, p, keep=None):
@@ -93,10 +100,10 @@ def passes(it, p, keep=None):
 
 
 def summarise(path):
-    its = read(path)
+    its, threads = read(path)
     # The first iterations allocate what the others reuse.
     its = its[2:] if len(its) > 4 else its
-    p = pool_threads(its)
+    p = pool_threads(its, threads)
     # The passes of most iterations (a relocation's draw is not one).
     seen = {}
     for it in its:
@@ -147,11 +154,17 @@ def check():
     import os
     import tempfile
     lines = ["a\t0\t0\t2\ttask", "a\t1\t1\t3\ttask", "a\t0\t2\t4\ttask", "beside: d\t1\t3\t4\twhole", "b\t0\t5\t7\ttask", "s\t0\t7\t7.5\tserial", "\t0\t7.5\t7.5\ttask"]
-    with tempfile.NamedTemporaryFile("w", suffix=".tsv", delete=False) as f:
-        f.write("\n".join(lines) + "\n")
-    its = read(f.name)
-    os.unlink(f.name)
-    assert len(its) == 1 and pool_threads(its) == 2
+    def written(head):
+        with tempfile.NamedTemporaryFile("w", suffix=".tsv", delete=False) as f:
+            f.write("".join(h + "\n" for h in head) + "\n".join(lines) + "\n")
+        out = read(f.name)
+        os.unlink(f.name)
+        return out
+    its, threads = written([])
+    assert len(its) == 1 and threads is None and pool_threads(its, threads) == 2
+    # A pool of 3 whose third thread ran no task: the header says 3.
+    its3, threads3 = written(["#threads\t3"])
+    assert its3 == its and pool_threads(its3, threads3) == 3
     ps = passes(its[0], 2)
     assert [r[0] for r in ps] == ["a", "b", SERIAL + "s"], ps
     name, s, e, w, j, t = ps[0]

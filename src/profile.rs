@@ -25,7 +25,8 @@
 //! of threads also writes when each record ran and on which thread, one line
 //! a record, `pass<TAB>thread<TAB>start<TAB>end<TAB>kind` (seconds since
 //! the earliest start; thread -1 off the pool; kind `task`, `serial`, or
-//! `whole` for a pass timed whole), in the order the records were made:
+//! `whole` for a pass timed whole), in the order the records were made,
+//! after a first line `#threads<TAB>P`, the size of the pool that wrote it:
 //! `benches/timeline.py` tells from it where a pass loses time on p
 //! threads (the wait for the pool to join, the wait for its last task, the
 //! gaps between passes).
@@ -124,7 +125,9 @@ pub fn write() -> std::io::Result<()> {
         std::fs::write(path, text(&records))?;
     }
     if let Some(path) = std::env::var_os("GSENC_TASK_TIMELINE") {
-        std::fs::write(path, timeline(&records))?;
+        // The encode's pool: this runs on it (refine.rs), or on the calling
+        // thread of a one-thread encode.
+        std::fs::write(path, timeline(&records, rayon::current_num_threads()))?;
     }
     Ok(())
 }
@@ -227,12 +230,13 @@ fn text(records: &[Record]) -> String {
         .collect()
 }
 
-/// The timeline's lines (the module's account), its times counted from the
-/// earliest start.
-fn timeline(records: &[Record]) -> String {
+/// The timeline's lines (the module's account) of a pool of `threads`, its
+/// times counted from the earliest start.
+fn timeline(records: &[Record], threads: usize) -> String {
     let Some(epoch) = records.iter().map(|r| r.start).min() else { return String::new() };
-    records
-        .iter()
+    let head = format!("#threads\t{threads}\n");
+    std::iter::once(head)
+        .chain(records.iter()
         .filter_map(|r| {
             let side = if r.beside { "beside: " } else { "" };
             let kind = match (r.seconds < 0.0, r.whole) {
@@ -242,7 +246,7 @@ fn timeline(records: &[Record]) -> String {
             };
             let start = (r.start - epoch).as_secs_f64();
             r.wall.map(|w| format!("{side}{}\t{}\t{start:.9}\t{:.9}\t{kind}\n", r.pass, r.thread, start + w))
-        })
+        }))
         .collect()
 }
 
@@ -285,7 +289,10 @@ mod tests {
         r.iteration_end();
         let records = r.take();
         assert_eq!(text(&records).lines().count(), 6, "the profile keeps one line a task");
-        let lines: Vec<Vec<String>> = timeline(&records).lines().map(|l| l.split('\t').map(String::from).collect()).collect();
+        let text = timeline(&records, 3);
+        let (head, rest) = text.split_once('\n').unwrap();
+        assert_eq!(head, "#threads\t3", "the pool's size comes first");
+        let lines: Vec<Vec<String>> = rest.lines().map(|l| l.split('\t').map(String::from).collect()).collect();
         let col = |i: usize| lines.iter().map(|l| l[i].as_str()).collect::<Vec<_>>();
         assert_eq!(col(0), ["a", "s", "e", ""], "a pass timed whole is one line");
         assert_eq!(col(4), ["task", "serial", "whole", "task"]);
