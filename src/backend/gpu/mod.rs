@@ -300,7 +300,7 @@ impl Backend for GpuBackend {
     }
 
     /// The phases of the point calls (training steps, gradients,
-    /// evaluations): timer.rs [`HostTimes`].
+    /// evaluations): timer.rs `HostTimes`.
     fn host_seconds(&self) -> Vec<(String, u64, f64)> {
         self.host.totals()
     }
