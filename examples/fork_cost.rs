@@ -1,7 +1,7 @@
 //! What a pass of parallel tasks costs beyond its work, on p threads
 //! (`benches/fork_cost.sh`): an "iteration" of `PASSES` passes, each of 64
 //! tasks of equal arithmetic, run by rayon as the CPU backend runs its passes
-//! (`into_par_iter().with_max_len(1)` on the global pool), and by a team of
+//! (`into_par_iter().with_max_len(1)` on a pool of p threads), and by a team of
 //! threads that spin between passes instead of sleeping (an atomic task
 //! counter and a spinning barrier, as an OpenMP runtime keeps its threads
 //! awake between parallel regions). Both do the same work; what each takes

@@ -234,20 +234,17 @@ fn text(records: &[Record]) -> String {
 /// times counted from the earliest start.
 fn timeline(records: &[Record], threads: usize) -> String {
     let Some(epoch) = records.iter().map(|r| r.start).min() else { return String::new() };
-    let head = format!("#threads\t{threads}\n");
-    std::iter::once(head)
-        .chain(records.iter()
-        .filter_map(|r| {
-            let side = if r.beside { "beside: " } else { "" };
-            let kind = match (r.seconds < 0.0, r.whole) {
-                (true, _) => "serial",
-                (false, false) => "task",
-                (false, true) => "whole",
-            };
-            let start = (r.start - epoch).as_secs_f64();
-            r.wall.map(|w| format!("{side}{}\t{}\t{start:.9}\t{:.9}\t{kind}\n", r.pass, r.thread, start + w))
-        }))
-        .collect()
+    let lines = records.iter().filter_map(|r| {
+        let side = if r.beside { "beside: " } else { "" };
+        let kind = match (r.seconds < 0.0, r.whole) {
+            (true, _) => "serial",
+            (false, false) => "task",
+            (false, true) => "whole",
+        };
+        let start = (r.start - epoch).as_secs_f64();
+        r.wall.map(|w| format!("{side}{}\t{}\t{start:.9}\t{:.9}\t{kind}\n", r.pass, r.thread, start + w))
+    });
+    std::iter::once(format!("#threads\t{threads}\n")).chain(lines).collect()
 }
 
 #[cfg(test)]
