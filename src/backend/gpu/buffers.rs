@@ -70,8 +70,65 @@ impl Slot {
         let buf = self.ensure(gpu, data.len() as u64, garbage)?;
         if !data.is_empty() {
             gpu.queue.write_buffer(buf, 0, data);
+            gpu.uploaded();
         }
         Ok(buf)
+    }
+}
+
+/// What a call writes before its passes (its points, bricks and uniform
+/// blocks), as one write to the queue and a copy into each destination at
+/// the start of the call's command buffer.
+///
+/// Each `Queue::write_buffer` takes staging memory of its own (on native
+/// backends a new buffer, made and later destroyed by the driver), so eight
+/// writes a step cost eight of them; packed into one, a step costs one.
+/// The copies run on the device before the call's first pass, where the
+/// writes ran just before it, so a call reads the same bytes either way.
+pub struct Staged {
+    buf: Slot,
+}
+
+impl Default for Staged {
+    fn default() -> Self {
+        Staged { buf: Slot::with_usage("staged uploads", wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST) }
+    }
+}
+
+impl Staged {
+    /// Buffers it has made.
+    pub fn made(&self) -> u64 {
+        self.buf.made
+    }
+
+    /// Writes each `(bytes, destination)` region (lengths in whole 4-byte
+    /// words; the destination at least that large) and records, into
+    /// `enc`, its copy to the destination's start. Empty regions are skipped.
+    pub fn record(&mut self, gpu: &Gpu, enc: &mut wgpu::CommandEncoder, regions: &[(&[u8], &wgpu::Buffer)]) -> Result<()> {
+        if let Some((data, _)) = regions.iter().find(|(d, _)| d.len() as u64 % wgpu::COPY_BUFFER_ALIGNMENT != 0) {
+            return Err(Error::arg(format!("GPU backend: an upload of {} bytes, not whole words", data.len())));
+        }
+        let total: u64 = regions.iter().map(|(d, _)| d.len() as u64).sum();
+        let Some(size) = wgpu::BufferSize::new(total) else {
+            return Ok(());
+        };
+        let buf = self.buf.ensure(gpu, total, false)?;
+        let mut view = gpu
+            .queue
+            .write_buffer_with(buf, 0, size)
+            .ok_or_else(|| Error::Device(format!("staging {total} bytes of uploads failed")))?;
+        gpu.uploaded();
+        let mut at = 0;
+        for &(data, dst) in regions {
+            if data.is_empty() {
+                continue;
+            }
+            let end = at + data.len();
+            view.slice(at..end).copy_from_slice(data);
+            enc.copy_buffer_to_buffer(buf, at as u64, dst, 0, data.len() as u64);
+            at = end;
+        }
+        Ok(())
     }
 }
 
@@ -187,6 +244,9 @@ pub(super) struct Buffers {
     /// call binds the same buffers as the one before and its bind groups
     /// are kept (`kernels::BindGroups`).
     pub(super) uniforms: [[Slot; 2]; IN_FLIGHT],
+    /// A point call's uploads, one per read-back slot: never bound, so not
+    /// counted by `made`.
+    pub(super) staged: [Staged; IN_FLIGHT],
 }
 
 impl Buffers {
@@ -234,6 +294,7 @@ impl Default for Buffers {
             poison: Slot::storage("poison"),
             readback: Default::default(),
             uniforms: std::array::from_fn(|_| [Slot::uniform("params"), Slot::uniform("coarse params")]),
+            staged: Default::default(),
         }
     }
 }

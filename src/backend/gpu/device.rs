@@ -145,6 +145,9 @@ pub struct Gpu {
     /// Wait for results by polling and sleeping instead of blocking in the
     /// driver (`GSENC_GPU_WAIT=sleep`; see [`Gpu::wait_for`]).
     sleepy_wait: bool,
+    /// Data handed to the queue so far (`Gpu::uploaded`), garbage fills
+    /// not counted: each takes staging memory of its own.
+    uploads: std::sync::atomic::AtomicU64,
 }
 
 /// The most storage buffers one kernel binds (reduce.wgsl `step`, the
@@ -169,6 +172,17 @@ fn timing_from_env() -> bool {
 }
 
 impl Gpu {
+    /// Counts one write of data to the queue ([`Gpu::uploads`]).
+    pub fn uploaded(&self) {
+        self.uploads.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    }
+
+    /// Writes of data to the queue so far: a steady training step makes
+    /// one (buffers.rs `Staged`).
+    pub fn uploads(&self) -> u64 {
+        self.uploads.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
     pub fn open(req: &DeviceRequest) -> Result<Gpu> {
         let (adapter_summary, adapter) = choose(req)?;
         // Everything the adapter offers: storage bindings of more than the
@@ -202,7 +216,7 @@ impl Gpu {
             f.lock().get_or_insert(format!("{e}"));
         }));
         let sleepy_wait = std::env::var("GSENC_GPU_WAIT").is_ok_and(|v| v.trim() == "sleep");
-        Ok(Gpu { device, queue, adapter: adapter_summary, limits, failure, sleepy_wait })
+        Ok(Gpu { device, queue, adapter: adapter_summary, limits, failure, sleepy_wait, uploads: Default::default() })
     }
 
     /// The first failure wgpu reported outside an error scope, if any: the

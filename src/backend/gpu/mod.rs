@@ -262,7 +262,13 @@ impl GpuBackend {
     /// neither (it rewrites its buffers and binds those of the step
     /// before).
     pub fn objects_made(&self) -> (u64, u64) {
-        (self.bufs.made(), self.binds.created)
+        (self.bufs.made() + self.bufs.staged.iter().map(|s| s.made()).sum::<u64>(), self.binds.created)
+    }
+
+    /// Writes of data to the device's queue so far (garbage fills not
+    /// counted): one a steady training step.
+    pub fn uploads(&self) -> u64 {
+        self.gpu.uploads()
     }
 
     /// Hands a submission's timestamps (its last read-back region, read

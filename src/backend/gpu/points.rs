@@ -37,7 +37,8 @@ pub(super) struct InFlight {
     pub pass: Pass,
     /// Its read-back (and timer) slot, which `submit_points` assigns.
     pub slot: usize,
-    /// What it uploaded, to upload again when a later call overwrote it.
+    /// What it uploads: every submission of it (a rerun after its lists
+    /// overflowed included) writes it anew (buffers.rs `Staged`).
     pub upload: Upload,
 }
 
@@ -127,7 +128,6 @@ impl GpuBackend {
         let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, team, 0];
         let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied };
         self.host.lap("arrange", started);
-        self.write_points(&upload)?;
         let nb = bricks.ranges.len();
         let p = Params {
             grid_lo: [bricks.lo[0], bricks.lo[1], bricks.lo[2], bricks.inv_edge],
@@ -139,23 +139,6 @@ impl GpuBackend {
         };
         let ncoarse = upload.coarse.len() / 2;
         Ok((p, bricks, ncoarse, upload))
-    }
-
-    /// Writes an upload's points and bricks to the device.
-    fn write_points(&mut self, u: &Upload) -> Result<()> {
-        let started = Instant::now();
-        let (g, gpu, b) = (self.garbage, &self.gpu, &mut self.bufs);
-        b.points.upload(gpu, bytes(&u.sorted), g)?;
-        b.brick_points.upload(gpu, bytes(&u.ranges), g)?;
-        b.pieces.upload(gpu, bytes(&u.pieces), g)?;
-        b.cells.upload(gpu, bytes(&u.cells), g)?;
-        b.coarse_cells.upload(gpu, bytes(&u.coarse), g)?;
-        b.occupied.upload(gpu, bytes(&u.occupied), g)?;
-        b.counts.ensure(gpu, 4 * u.ranges.len() as u64, g)?;
-        b.rho_n.ensure(gpu, 8 * u.sorted.len() as u64, g)?;
-        b.terms.ensure(gpu, 16 * u.sorted.len() as u64, g)?;
-        self.host.lap("write", started);
-        Ok(())
     }
 
     /// Clears the flag a resident step whose lists overflowed sets
@@ -209,13 +192,9 @@ impl GpuBackend {
             if let Pass::Resident { .. } = call.pass {
                 self.clear_poison()?;
             }
-            if !later.is_empty() {
-                self.write_points(&call.upload)?;
-            }
             self.submit_points(call)?;
         };
         for call in later {
-            self.write_points(&call.upload)?;
             self.submit_points(call)?;
         }
         Ok(result)
@@ -248,9 +227,8 @@ impl GpuBackend {
         let _ = self.gpu.wait(None);
     }
 
-    /// Records and submits a point call without waiting for it: the host
-    /// can prepare the next batch while the device works. Its points must
-    /// be on the device (`upload_points`, or `write_points` of its upload).
+    /// Records and submits a point call, its upload first, without waiting
+    /// for it: the host can prepare the next batch while the device works.
     /// `finish_points` must follow before any other call.
     pub(super) fn submit_points(&mut self, call: InFlight) -> Result<()> {
         let slot = (0..IN_FLIGHT)
@@ -300,15 +278,32 @@ impl GpuBackend {
         if pass == Pass::Gradient {
             b.grad.ensure(gpu, 48 * n as u64, g)?;
         }
+        let up = &call.upload;
         let written = Instant::now();
-        let [us, us1] = &mut b.uniforms[slot];
-        let (u, u1) = (us.upload(gpu, bytemuck::bytes_of(&p), g)?.clone(), us1.upload(gpu, bytemuck::bytes_of(&coarse_p), g)?.clone());
-        let recording = self.host.lap("write", written);
+        let npts_sorted = up.sorted.len() as u64;
+        let regions = [
+            (bytes(&up.sorted), b.points.ensure(gpu, 16 * npts_sorted, g)?.clone()),
+            (bytes(&up.ranges), b.brick_points.ensure(gpu, 8 * up.ranges.len() as u64, g)?.clone()),
+            (bytes(&up.pieces), b.pieces.ensure(gpu, 16 * up.pieces.len() as u64, g)?.clone()),
+            (bytes(&up.cells), b.cells.ensure(gpu, 16 * up.cells.len() as u64, g)?.clone()),
+            (bytes(&up.coarse), b.coarse_cells.ensure(gpu, 16 * up.coarse.len() as u64, g)?.clone()),
+            (bytes(&up.occupied), b.occupied.ensure(gpu, 4 * up.occupied.len() as u64, g)?.clone()),
+            (bytemuck::bytes_of(&p), b.uniforms[slot][0].ensure(gpu, size_of::<Params>() as u64, g)?.clone()),
+            (bytemuck::bytes_of(&coarse_p), b.uniforms[slot][1].ensure(gpu, size_of::<Params>() as u64, g)?.clone()),
+        ];
+        b.counts.ensure(gpu, 4 * up.ranges.len() as u64, g)?;
+        b.rho_n.ensure(gpu, 8 * npts_sorted, g)?;
+        b.terms.ensure(gpu, 16 * npts_sorted, g)?;
+        let (u, u1) = (regions[6].1.clone(), regions[7].1.clone());
         let host = &mut self.host;
+        let mut recording = written;
         let mut submitted = Duration::ZERO;
         binds.keep_while(b.made());
         let out = gpu.scoped("a point pass", || {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let staged: Vec<(&[u8], &wgpu::Buffer)> = regions.iter().map(|(d, buf)| (*d, buf)).collect();
+            b.staged[slot].record(gpu, &mut enc, &staged)?;
+            recording = host.lap("write", written);
             let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
             let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
             let (cells1, counts1, starts1, lists1) =
