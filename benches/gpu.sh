@@ -8,10 +8,13 @@
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
 # the CPU rows need not run the whole schedule; CPU_ITERS= runs the whole
 # schedule, which the PSNR gap needs); ROWS selects rows by name, WHICH
-# the backends (default "gpu gpu1 gpunt cpu"; gpu1 is the GPU with one
-# training step in flight rather than two, GSENC_GPU_DEPTH=1; gpunt the GPU
-# without timestamp queries, GSENC_GPU_TIMING=0, once a row, for what
-# timing every pass costs); REPEAT
+# the backends (default "gpu gpuw gpunt cpu"; gpuw is the GPU with a
+# step's uploads written buffer by buffer, GSENC_GPU_UPLOAD=writes, run
+# beside each gpu run, for what one write a step saves; gpu1 (not run by
+# default: measured 2026-12-04) the GPU with one training step in flight
+# rather than two, GSENC_GPU_DEPTH=1; gpunt the GPU without timestamp
+# queries, GSENC_GPU_TIMING=0, once a row, for what timing every pass
+# costs); REPEAT
 # (default 1) runs each GPU row that many times (the table takes medians)
 # while the script is younger than DEADLINE seconds (default 300);
 # ROW_LIMIT (default 150 s; 240 s for the in-situ run) stops any one run,
@@ -26,7 +29,8 @@
 # benches/insitu.c (both built elsewhere with --release), and nothing is built.
 # Prints one JSON line per run to bench-out/gpu.jsonl, the adapters to
 # bench-out/gpu-devices.json, a Markdown table of the rows (and, as
-# comments, each row's ratio of two steps in flight to one), and a table of
+# comments, each row's ratio of one write a step to writes buffer by
+# buffer, and of two steps in flight to one when gpu1 ran), and a table of
 # where each GPU row's loop went per iteration (draw, submit, wait, device).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -54,17 +58,18 @@ late() { # true (and says so) when STOP_AFTER has passed
 run() { # name backend iteration-cap args...
     local name=$1 backend=$2 cap=$3; shift 3
     want "$name" || return 0
-    [[ " ${WHICH:-gpu gpu1 gpunt cpu} " == *" $backend "* ]] || return 0
+    [[ " ${WHICH:-gpu gpuw gpunt cpu} " == *" $backend "* ]] || return 0
     late "$name" && return 0
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")
     echo "[$name] $backend ${iters[*]}" >&2
     local result
     # `gpu1`: the GPU with one training step in flight instead of two.
-    local depth=2 as=$backend timing=1
+    local depth=2 as=$backend timing=1 upload=
     [ "$backend" = gpu1 ] && depth=1 as=gpu
     [ "$backend" = gpunt ] && timing=0 as=gpu
-    if result=$(GSENC_GPU_DEPTH=$depth GSENC_GPU_TIMING=$timing timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" --backend "$as" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
+    [ "$backend" = gpuw ] && upload=writes as=gpu
+    if result=$(GSENC_GPU_DEPTH=$depth GSENC_GPU_TIMING=$timing GSENC_GPU_UPLOAD=$upload timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" --backend "$as" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
         echo "$result" | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
     else
         echo "{\"row\": \"$name\", \"which\": \"$backend\", \"failed_or_timed_out\": true}" >> "$log"
@@ -78,6 +83,7 @@ row() { # name args...: the row on the GPU, then on the CPU
     for i in $(seq "${REPEAT:-1}"); do
         [ "$i" = 1 ] || [ "$SECONDS" -lt "${DEADLINE:-300}" ] || break
         run "$name" gpu "${ITERS:-}" "$@"
+        run "$name" gpuw "${ITERS:-}" "$@"
         run "$name" gpu1 "${ITERS:-}" "$@"
     done
     run "$name" gpunt "${ITERS:-}" "$@"
@@ -145,6 +151,9 @@ for name, by in rows.items():
     if "gpu" in by and "gpu1" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpu1"][0]["voxel_psnr"]
         print(f"<!-- {name}: two steps in flight {per['gpu1'] / per['gpu']:.2f}x one; same model: {same} -->")
+    if "gpu" in by and "gpuw" in by:
+        same = by["gpu"][0]["voxel_psnr"] == by["gpuw"][0]["voxel_psnr"]
+        print(f"<!-- {name}: a step's uploads as one write {per['gpuw'] / per['gpu']:.2f}x faster than buffer by buffer; same model: {same} -->")
     if "gpu" in by and "gpunt" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpunt"][0]["voxel_psnr"]
         print(f"<!-- {name}: timing every pass costs {per['gpu'] / per['gpunt']:.2f}x an iteration without; same model: {same} -->")
@@ -154,7 +163,7 @@ for name, by in rows.items():
 print()
 print("| row | loop ms / it | draw | submit | wait | device (every kernel of the run) |")
 print("|---|---|---|---|---|---|")
-for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpu1", "gpunt")]:
+for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpuw", "gpu1", "gpunt")]:
     if name == "decode_1024" or not runs or "loop_phases" not in runs[0]:
         continue
     it = runs[0]["iterations"]

@@ -719,6 +719,14 @@ fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     let mut fresh = gpu().unwrap();
     let (fresh_p, _) = run(&mut fresh, 9);
     assert!(same_bits(&first, &again) && same_bits(&first, &fresh_p));
+    // Written buffer by buffer (`GSENC_GPU_UPLOAD=writes`): the same bits,
+    // a write for each of the call's eight regions.
+    let mut per_buffer = gpu().unwrap();
+    per_buffer.upload_per_buffer = true;
+    run(&mut per_buffer, 9);
+    let (per_buffer_p, made) = run(&mut per_buffer, 9);
+    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 8), "writes to the queue step by step, buffer by buffer: {made:?}");
+    assert!(same_bits(&first, &per_buffer_p));
 }
 
 /// The host's phases of the point calls (`host_seconds`): each of a

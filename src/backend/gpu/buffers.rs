@@ -103,10 +103,19 @@ impl Staged {
 
     /// Writes each `(bytes, destination)` region (lengths in whole 4-byte
     /// words; the destination at least that large) and records, into
-    /// `enc`, its copy to the destination's start. Empty regions are skipped.
-    pub fn record(&mut self, gpu: &Gpu, enc: &mut wgpu::CommandEncoder, regions: &[(&[u8], &wgpu::Buffer)]) -> Result<()> {
+    /// `enc`, its copy to the destination's start; or, `per_buffer`, writes
+    /// each region straight to its destination, one write each. Empty
+    /// regions are skipped.
+    pub fn record(&mut self, gpu: &Gpu, enc: &mut wgpu::CommandEncoder, regions: &[(&[u8], &wgpu::Buffer)], per_buffer: bool) -> Result<()> {
         if let Some((data, _)) = regions.iter().find(|(d, _)| d.len() as u64 % wgpu::COPY_BUFFER_ALIGNMENT != 0) {
             return Err(Error::arg(format!("GPU backend: an upload of {} bytes, not whole words", data.len())));
+        }
+        if per_buffer {
+            for &(data, dst) in regions.iter().filter(|(d, _)| !d.is_empty()) {
+                gpu.queue.write_buffer(dst, 0, data);
+                gpu.uploaded();
+            }
+            return Ok(());
         }
         let total: u64 = regions.iter().map(|(d, _)| d.len() as u64).sum();
         let Some(size) = wgpu::BufferSize::new(total) else {

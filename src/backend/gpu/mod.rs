@@ -94,6 +94,11 @@ pub struct GpuBackend {
     /// `points::IN_FLIGHT`, the default): with two, the device runs one
     /// while the host waits for the other's results and records the next.
     pub depth: usize,
+    /// Hand a point call's uploads to the queue buffer by buffer, as
+    /// before 2026-12-05, rather than as one write (buffers.rs `Staged`):
+    /// the same bits, for measuring what one write saves
+    /// (`GSENC_GPU_UPLOAD=writes`).
+    pub upload_per_buffer: bool,
     /// Calls that ran again because the candidate lists overflowed.
     pub reruns: u64,
 }
@@ -195,6 +200,7 @@ impl GpuBackend {
             in_flight: VecDeque::new(),
             steps: VecDeque::new(),
             depth: depth_from_env(),
+            upload_per_buffer: std::env::var("GSENC_GPU_UPLOAD").is_ok_and(|v| v.trim() == "writes"),
             reruns: 0,
         };
         if let Some(split) = split {

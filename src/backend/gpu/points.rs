@@ -258,7 +258,7 @@ impl GpuBackend {
         let coarse_p = Params { counts: [p.counts[0], p.coarse[0], p.coarse[1], 0], bin: [split, 1, 0, 0], ..p };
         let coarse_entries = ncoarse as u64 * split as u64;
         let coarse_groups = count_u32("coarse bin workgroups", coarse_entries as usize)?;
-        let g = self.garbage;
+        let (g, per_buffer) = (self.garbage, self.upload_per_buffer);
         let gpu = &self.gpu;
         let k = &self.kernels;
         let timer = &mut self.timer;
@@ -302,7 +302,7 @@ impl GpuBackend {
         let out = gpu.scoped("a point pass", || {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
             let staged: Vec<(&[u8], &wgpu::Buffer)> = regions.iter().map(|(d, buf)| (*d, buf)).collect();
-            b.staged[slot].record(gpu, &mut enc, &staged)?;
+            b.staged[slot].record(gpu, &mut enc, &staged, per_buffer)?;
             recording = host.lap("write", written);
             let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
             let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
