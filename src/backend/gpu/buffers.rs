@@ -9,6 +9,26 @@
 use super::device::Gpu;
 use super::points::IN_FLIGHT;
 use crate::error::{Error, Result};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+/// The size of a buffer that replaces one of `have` bytes (if any) to hold
+/// `bytes`: grown by half again, in whole 16 bytes, within the adapter's
+/// largest buffer, or an error naming `label` when `bytes` exceed it.
+fn grown(gpu: &Gpu, label: &str, have: Option<u64>, bytes: u64) -> Result<u64> {
+    let bytes = bytes.max(16).next_multiple_of(16);
+    let limit = gpu.limits.max_storage_buffer_binding_size.min(gpu.limits.max_buffer_size);
+    if bytes > limit {
+        return Err(Error::Device(format!(
+            "'{label}' needs {:.1} MiB in one buffer, '{}' allows {:.1} MiB: use fewer primitives or points per call, or the CPU backend",
+            bytes as f64 / (1 << 20) as f64,
+            gpu.adapter.name,
+            limit as f64 / (1 << 20) as f64
+        )));
+    }
+    let grown = have.map_or(0, |h| h + h / 2);
+    Ok(bytes.max(grown).min(limit).next_multiple_of(16).min(limit))
+}
 
 /// A storage buffer kept at least as large as the largest request so far.
 pub struct Slot {
@@ -37,19 +57,8 @@ impl Slot {
     /// garbage when `garbage` is set.
     pub fn ensure(&mut self, gpu: &Gpu, bytes: u64, garbage: bool) -> Result<&wgpu::Buffer> {
         let bytes = bytes.max(16).next_multiple_of(16);
-        let limit = gpu.limits.max_storage_buffer_binding_size.min(gpu.limits.max_buffer_size);
-        if bytes > limit {
-            return Err(Error::Device(format!(
-                "'{}' needs {:.1} MiB in one buffer, '{}' allows {:.1} MiB: use fewer primitives or points per call, or the CPU backend",
-                self.label,
-                bytes as f64 / (1 << 20) as f64,
-                gpu.adapter.name,
-                limit as f64 / (1 << 20) as f64
-            )));
-        }
         if self.buf.as_ref().is_none_or(|b| b.size() < bytes) {
-            let grown = self.buf.as_ref().map_or(0, |b| b.size() + b.size() / 2);
-            let size = bytes.max(grown).min(limit).next_multiple_of(16).min(limit);
+            let size = grown(gpu, self.label, self.buf.as_ref().map(|b| b.size()), bytes)?;
             self.made += 1;
             self.buf = Some(gpu.device.create_buffer(&wgpu::BufferDescriptor {
                 label: Some(self.label),
@@ -77,36 +86,46 @@ impl Slot {
 }
 
 /// What a call writes before its passes (its points, bricks and uniform
-/// blocks), as one write to the queue and a copy into each destination at
-/// the start of the call's command buffer.
+/// blocks): written into a mapped staging buffer of its own, which copies
+/// at the start of the call's command buffer carry to each destination.
 ///
 /// Each `Queue::write_buffer` takes staging memory of its own (on native
-/// backends a new buffer, made and later destroyed by the driver), so eight
-/// writes a step cost eight of them; packed into one, a step costs one.
-/// The copies run on the device before the call's first pass, where the
-/// writes ran just before it, so a call reads the same bytes either way.
+/// backends a new buffer, made and destroyed by the driver), so a step
+/// that wrote its eight buffers so made eight. This buffer is made once
+/// and mapped again after each submission (wgpu maps it once the device
+/// is done with it, which reading the call's results back waits for), so
+/// a steady step makes none. The copies run on the device before the
+/// call's first pass, where queue writes ran just before it, so a call
+/// reads the same bytes either way.
 pub struct Staged {
-    buf: Slot,
+    buf: Option<wgpu::Buffer>,
+    /// Set by the map callback: `buf` is mapped and may be written.
+    mapped: Arc<AtomicBool>,
+    /// `buf` was written and unmapped for this call: map it again once
+    /// the call is submitted (`Staged::remap`).
+    to_remap: bool,
+    made: u64,
 }
 
 impl Default for Staged {
     fn default() -> Self {
-        Staged { buf: Slot::with_usage("staged uploads", wgpu::BufferUsages::COPY_SRC | wgpu::BufferUsages::COPY_DST) }
+        Staged { buf: None, mapped: Default::default(), to_remap: false, made: 0 }
     }
 }
 
 impl Staged {
     /// Buffers it has made.
     pub fn made(&self) -> u64 {
-        self.buf.made
+        self.made
     }
 
     /// Writes each `(bytes, destination)` region (lengths in whole 4-byte
     /// words; the destination at least that large) and records, into
-    /// `enc`, its copy to the destination's start; or, `per_buffer`, writes
-    /// each region straight to its destination, one write each. Empty
-    /// regions are skipped.
+    /// `enc`, its copy to the destination's start; or, `per_buffer`, hands
+    /// each region to the queue for its destination, one write each. Empty
+    /// regions are skipped. `remap` must follow the submission of `enc`.
     pub fn record(&mut self, gpu: &Gpu, enc: &mut wgpu::CommandEncoder, regions: &[(&[u8], &wgpu::Buffer)], per_buffer: bool) -> Result<()> {
+        self.to_remap = false;
         if let Some((data, _)) = regions.iter().find(|(d, _)| d.len() as u64 % wgpu::COPY_BUFFER_ALIGNMENT != 0) {
             return Err(Error::arg(format!("GPU backend: an upload of {} bytes, not whole words", data.len())));
         }
@@ -118,26 +137,54 @@ impl Staged {
             return Ok(());
         }
         let total: u64 = regions.iter().map(|(d, _)| d.len() as u64).sum();
-        let Some(size) = wgpu::BufferSize::new(total) else {
+        if total == 0 {
             return Ok(());
-        };
-        let buf = self.buf.ensure(gpu, total, false)?;
-        let mut view = gpu
-            .queue
-            .write_buffer_with(buf, 0, size)
-            .ok_or_else(|| Error::Device(format!("staging {total} bytes of uploads failed")))?;
+        }
+        // A buffer too small, or not mapped again yet (its call failed, or
+        // the map is late), is replaced by one mapped at creation.
+        let ready = self.buf.as_ref().is_some_and(|b| b.size() >= total) && self.mapped.load(Ordering::Acquire);
+        if !ready {
+            let size = grown(gpu, "staged uploads", self.buf.as_ref().map(|b| b.size()), total)?;
+            self.made += 1;
+            self.mapped = Arc::new(AtomicBool::new(true));
+            self.buf = Some(gpu.device.create_buffer(&wgpu::BufferDescriptor {
+                label: Some("staged uploads"),
+                size,
+                usage: wgpu::BufferUsages::MAP_WRITE | wgpu::BufferUsages::COPY_SRC,
+                mapped_at_creation: true,
+            }));
+        }
+        let buf = self.buf.as_ref().expect("made above");
+        self.mapped.store(false, Ordering::Release);
+        {
+            let mut view = buf.slice(0..total).get_mapped_range_mut().map_err(|e| Error::Device(format!("staging uploads: {e}")))?;
+            let mut at = 0;
+            for &(data, _) in regions {
+                view.slice(at..at + data.len()).copy_from_slice(data);
+                at += data.len();
+            }
+        }
+        buf.unmap();
+        self.to_remap = true;
         gpu.uploaded();
         let mut at = 0;
-        for &(data, dst) in regions {
-            if data.is_empty() {
-                continue;
-            }
-            let end = at + data.len();
-            view.slice(at..end).copy_from_slice(data);
-            enc.copy_buffer_to_buffer(buf, at as u64, dst, 0, data.len() as u64);
-            at = end;
+        for &(data, dst) in regions.iter().filter(|(d, _)| !d.is_empty()) {
+            enc.copy_buffer_to_buffer(buf, at, dst, 0, data.len() as u64);
+            at += data.len() as u64;
         }
         Ok(())
+    }
+
+    /// After the submission of the command buffer `record` wrote: asks for
+    /// the buffer to be mapped again once the device is done with it.
+    pub fn remap(&mut self) {
+        if !std::mem::take(&mut self.to_remap) {
+            return;
+        }
+        if let Some(buf) = &self.buf {
+            let mapped = self.mapped.clone();
+            buf.slice(..).map_async(wgpu::MapMode::Write, move |r| mapped.store(r.is_ok(), Ordering::Release));
+        }
     }
 }
 

@@ -352,6 +352,7 @@ impl GpuBackend {
             b.readback[slot].record(gpu, &mut enc, &read)?;
             let submitting = Instant::now();
             b.readback[slot].submit(gpu, enc);
+            b.staged[slot].remap();
             submitted = submitting.elapsed();
             Ok(())
         });
