@@ -10,7 +10,7 @@
 # schedule, which the PSNR gap needs); ROWS selects rows by name, WHICH
 # the backends (default "gpu gpuw gpunt cpu"; gpuw is the GPU with a
 # step's uploads written buffer by buffer, GSENC_GPU_UPLOAD=writes, run
-# beside each gpu run, for what one write a step saves; gpu1 (not run by
+# beside each gpu run, for what the mapped staging buffer saves; gpu1 (not run by
 # default: measured 2026-12-04) the GPU with one training step in flight
 # rather than two, GSENC_GPU_DEPTH=1; gpunt the GPU without timestamp
 # queries, GSENC_GPU_TIMING=0, once a row, for what timing every pass
@@ -29,8 +29,9 @@
 # benches/insitu.c (both built elsewhere with --release), and nothing is built.
 # Prints one JSON line per run to bench-out/gpu.jsonl, the adapters to
 # bench-out/gpu-devices.json, a Markdown table of the rows (and, as
-# comments, each row's ratio of one write a step to writes buffer by
-# buffer, and of two steps in flight to one when gpu1 ran), and a table of
+# comments, each row's ratio of uploads through the staging buffer to
+# writes buffer by buffer, and of two steps in flight to one when gpu1
+# ran), and a table of
 # where each GPU row's loop went per iteration (draw, submit, wait, device).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -153,7 +154,7 @@ for name, by in rows.items():
         print(f"<!-- {name}: two steps in flight {per['gpu1'] / per['gpu']:.2f}x one; same model: {same} -->")
     if "gpu" in by and "gpuw" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpuw"][0]["voxel_psnr"]
-        print(f"<!-- {name}: a step's uploads as one write {per['gpuw'] / per['gpu']:.2f}x faster than buffer by buffer; same model: {same} -->")
+        print(f"<!-- {name}: a step's uploads through its staging buffer {per['gpuw'] / per['gpu']:.2f}x faster than buffer by buffer; same model: {same} -->")
     if "gpu" in by and "gpunt" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpunt"][0]["voxel_psnr"]
         print(f"<!-- {name}: timing every pass costs {per['gpu'] / per['gpunt']:.2f}x an iteration without; same model: {same} -->")

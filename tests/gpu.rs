@@ -680,10 +680,11 @@ fn an_auto_warm_step_matches_the_cpu_backend() {
 /// grown to its batches, a resident step (two in flight, so both read-back
 /// slots) rewrites the buffers of the steps before it and binds them
 /// through the bind groups it kept, instead of making a uniform buffer and
-/// a bind group per dispatch, each a driver allocation. It hands the queue
-/// one write (buffers.rs `Staged`), not one per buffer, each of which takes
-/// staging memory of its own. And the steps give the bits of a backend
-/// that made everything afresh.
+/// a bind group per dispatch, each a driver allocation. Its uploads fill
+/// one staging buffer that is mapped again after each step (buffers.rs
+/// `Staged`), where a queue write per buffer takes staging memory of its
+/// own each. And the steps give the bits of a backend that made
+/// everything afresh.
 #[test]
 fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     let Some(mut g) = gpu() else { return };
@@ -715,7 +716,7 @@ fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     let objects = |m: &(u64, u64, u64)| (m.0, m.1);
     assert!(made.windows(2).all(|m| objects(&m[0]) == objects(&m[1])), "objects made (buffers, bind groups, writes) step by step: {made:?}");
     assert!(made[0].1 > 0, "no bind group counted: {made:?}");
-    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 1), "writes to the queue step by step (one each): {made:?}");
+    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 1), "uploads step by step (one each): {made:?}");
     let mut fresh = gpu().unwrap();
     let (fresh_p, _) = run(&mut fresh, 9);
     assert!(same_bits(&first, &again) && same_bits(&first, &fresh_p));
@@ -725,7 +726,7 @@ fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     per_buffer.upload_per_buffer = true;
     run(&mut per_buffer, 9);
     let (per_buffer_p, made) = run(&mut per_buffer, 9);
-    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 8), "writes to the queue step by step, buffer by buffer: {made:?}");
+    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 8), "uploads step by step, buffer by buffer: {made:?}");
     assert!(same_bits(&first, &per_buffer_p));
 }
 

@@ -145,8 +145,9 @@ pub struct Gpu {
     /// Wait for results by polling and sleeping instead of blocking in the
     /// driver (`GSENC_GPU_WAIT=sleep`; see [`Gpu::wait_for`]).
     sleepy_wait: bool,
-    /// Data handed to the queue so far (`Gpu::uploaded`), garbage fills
-    /// not counted: each takes staging memory of its own.
+    /// Uploads so far (`Gpu::uploaded`): writes to the queue, each with
+    /// staging memory of its own, and fills of a mapped staging buffer;
+    /// garbage fills not counted.
     uploads: std::sync::atomic::AtomicU64,
 }
 
@@ -172,13 +173,13 @@ fn timing_from_env() -> bool {
 }
 
 impl Gpu {
-    /// Counts one write of data to the queue ([`Gpu::uploads`]).
+    /// Counts one upload ([`Gpu::uploads`]).
     pub fn uploaded(&self) {
         self.uploads.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
 
-    /// Writes of data to the queue so far: a steady training step makes
-    /// one (buffers.rs `Staged`).
+    /// Uploads so far: a steady training step makes one (buffers.rs
+    /// `Staged`), or one a buffer with `GSENC_GPU_UPLOAD=writes`.
     pub fn uploads(&self) -> u64 {
         self.uploads.load(std::sync::atomic::Ordering::Relaxed)
     }

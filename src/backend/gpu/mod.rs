@@ -95,9 +95,9 @@ pub struct GpuBackend {
     /// while the host waits for the other's results and records the next.
     pub depth: usize,
     /// Hand a point call's uploads to the queue buffer by buffer, as
-    /// before 2026-12-05, rather than as one write (buffers.rs `Staged`):
-    /// the same bits, for measuring what one write saves
-    /// (`GSENC_GPU_UPLOAD=writes`).
+    /// before 2026-12-05, rather than through its slot's mapped staging
+    /// buffer (buffers.rs `Staged`): the same bits, for measuring what the
+    /// staging buffer saves (`GSENC_GPU_UPLOAD=writes`).
     pub upload_per_buffer: bool,
     /// Calls that ran again because the candidate lists overflowed.
     pub reruns: u64,
@@ -271,8 +271,8 @@ impl GpuBackend {
         (self.bufs.made() + self.bufs.staged.iter().map(|s| s.made()).sum::<u64>(), self.binds.created)
     }
 
-    /// Writes of data to the device's queue so far (garbage fills not
-    /// counted): one a steady training step.
+    /// Uploads so far (`Gpu::uploads`; garbage fills not counted): one a
+    /// steady training step.
     pub fn uploads(&self) -> u64 {
         self.gpu.uploads()
     }
