@@ -1,5 +1,5 @@
-//! Device buffers that grow with the work and are kept between calls, and
-//! the read-back of results.
+//! Device buffers that grow with the work and are kept between calls, the
+//! staging of a call's uploads and the read-back of results.
 //!
 //! With `garbage` set (the tests set it) every buffer is filled with 0xFF
 //! bytes before each call: NaN as a float, `u32::MAX` as an index. wgpu
@@ -91,7 +91,7 @@ impl Slot {
 ///
 /// Each `Queue::write_buffer` takes staging memory of its own (on native
 /// backends a new buffer, made and destroyed by the driver), so a step
-/// that wrote its eight buffers so made eight. This buffer is made once
+/// that wrote its eight buffers made eight. This buffer is made once
 /// and mapped again after each submission (wgpu maps it once the device
 /// is done with it, which reading the call's results back waits for), so
 /// a steady step makes none. The copies run on the device before the
@@ -354,8 +354,6 @@ impl Default for Buffers {
         }
     }
 }
-
-
 
 #[cfg(test)]
 mod tests {

@@ -280,29 +280,31 @@ impl GpuBackend {
         }
         let up = &call.upload;
         let written = Instant::now();
-        let npts_sorted = up.sorted.len() as u64;
-        let regions = [
-            (bytes(&up.sorted), b.points.ensure(gpu, 16 * npts_sorted, g)?.clone()),
+        let sorted = up.sorted.len() as u64;
+        let u = b.uniforms[slot][0].ensure(gpu, size_of::<Params>() as u64, g)?.clone();
+        let u1 = b.uniforms[slot][1].ensure(gpu, size_of::<Params>() as u64, g)?.clone();
+        // What the call uploads, and where (buffers.rs `Staged`).
+        let uploads = [
+            (bytes(&up.sorted), b.points.ensure(gpu, 16 * sorted, g)?.clone()),
             (bytes(&up.ranges), b.brick_points.ensure(gpu, 8 * up.ranges.len() as u64, g)?.clone()),
             (bytes(&up.pieces), b.pieces.ensure(gpu, 16 * up.pieces.len() as u64, g)?.clone()),
             (bytes(&up.cells), b.cells.ensure(gpu, 16 * up.cells.len() as u64, g)?.clone()),
             (bytes(&up.coarse), b.coarse_cells.ensure(gpu, 16 * up.coarse.len() as u64, g)?.clone()),
             (bytes(&up.occupied), b.occupied.ensure(gpu, 4 * up.occupied.len() as u64, g)?.clone()),
-            (bytemuck::bytes_of(&p), b.uniforms[slot][0].ensure(gpu, size_of::<Params>() as u64, g)?.clone()),
-            (bytemuck::bytes_of(&coarse_p), b.uniforms[slot][1].ensure(gpu, size_of::<Params>() as u64, g)?.clone()),
+            (bytemuck::bytes_of(&p), u.clone()),
+            (bytemuck::bytes_of(&coarse_p), u1.clone()),
         ];
         b.counts.ensure(gpu, 4 * up.ranges.len() as u64, g)?;
-        b.rho_n.ensure(gpu, 8 * npts_sorted, g)?;
-        b.terms.ensure(gpu, 16 * npts_sorted, g)?;
-        let (u, u1) = (regions[6].1.clone(), regions[7].1.clone());
+        b.rho_n.ensure(gpu, 8 * sorted, g)?;
+        b.terms.ensure(gpu, 16 * sorted, g)?;
         let host = &mut self.host;
         let mut recording = written;
         let mut submitted = Duration::ZERO;
         binds.keep_while(b.made());
         let out = gpu.scoped("a point pass", || {
             let mut enc = gpu.device.create_command_encoder(&Default::default());
-            let staged: Vec<(&[u8], &wgpu::Buffer)> = regions.iter().map(|(d, buf)| (*d, buf)).collect();
-            b.staged[slot].record(gpu, &mut enc, &staged, per_buffer)?;
+            let regions: Vec<(&[u8], &wgpu::Buffer)> = uploads.iter().map(|(d, buf)| (*d, buf)).collect();
+            b.staged[slot].record(gpu, &mut enc, &regions, per_buffer)?;
             recording = host.lap("write", written);
             let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
             let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);

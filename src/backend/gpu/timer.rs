@@ -120,8 +120,9 @@ impl Timer {
 /// machine that runs the encode. The phases, in a call's order:
 /// - `arrange`: the batch's points, bricks, pieces and coarse cells laid
 ///   out as the device reads them;
-/// - `write`: handing them and the call's uniforms to the queue (wgpu
-///   copies them into staging memory);
+/// - `write`: copying them and the call's uniforms into its staging
+///   buffer (buffers.rs `Staged`; with `GSENC_GPU_UPLOAD=writes`, handing
+///   each to the queue, which copies it into staging memory of its own);
 /// - `record`: recording the command buffer (bind groups, dispatches, the
 ///   read-back's copies) inside wgpu's error scopes;
 /// - `submit`: finishing and submitting it;
