@@ -8,13 +8,14 @@
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
 # the CPU rows need not run the whole schedule; CPU_ITERS= runs the whole
 # schedule, which the PSNR gap needs); ROWS selects rows by name, WHICH
-# the backends (default "gpu gpuw gpunt cpu"; gpuw is the GPU with a
+# the backends (default "gpu gpuw gpunt gpu4 cpu"; gpuw is the GPU with a
 # step's uploads written buffer by buffer, GSENC_GPU_UPLOAD=writes, run
-# beside each gpu run, for what the mapped staging buffer saves; gpu1 (not run by
-# default: measured 2026-12-04) the GPU with one training step in flight
-# rather than two, GSENC_GPU_DEPTH=1; gpunt the GPU without timestamp
-# queries, GSENC_GPU_TIMING=0, once a row, for what timing every pass
-# costs); REPEAT
+# beside each gpu run, for what the mapped staging buffer saves; gpu1 (not
+# run by default: measured 2026-12-04) the GPU with one training step in
+# flight rather than two, GSENC_GPU_DEPTH=1; gpunt the GPU without
+# timestamp queries, GSENC_GPU_TIMING=0, once a row, for what timing every
+# pass costs; gpu4 the GPU with a host pool of 4 threads, --threads 4, once
+# a row, for whether waking every core costs the host's draw); REPEAT
 # (default 1) runs each GPU row that many times (the table takes medians)
 # while the script is younger than DEADLINE seconds (default 300);
 # ROW_LIMIT (default 150 s; 240 s for the in-situ run) stops any one run,
@@ -59,18 +60,19 @@ late() { # true (and says so) when STOP_AFTER has passed
 run() { # name backend iteration-cap args...
     local name=$1 backend=$2 cap=$3; shift 3
     want "$name" || return 0
-    [[ " ${WHICH:-gpu gpuw gpunt cpu} " == *" $backend "* ]] || return 0
+    [[ " ${WHICH:-gpu gpuw gpunt gpu4 cpu} " == *" $backend "* ]] || return 0
     late "$name" && return 0
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")
     echo "[$name] $backend ${iters[*]}" >&2
     local result
     # `gpu1`: the GPU with one training step in flight instead of two.
-    local depth=2 as=$backend timing=1 upload=
+    local depth=2 as=$backend timing=1 upload= threads=()
     [ "$backend" = gpu1 ] && depth=1 as=gpu
     [ "$backend" = gpunt ] && timing=0 as=gpu
     [ "$backend" = gpuw ] && upload=writes as=gpu
-    if result=$(GSENC_GPU_DEPTH=$depth GSENC_GPU_TIMING=$timing GSENC_GPU_UPLOAD=$upload timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" --backend "$as" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
+    [ "$backend" = gpu4 ] && threads=(--threads 4) as=gpu
+    if result=$(GSENC_GPU_DEPTH=$depth GSENC_GPU_TIMING=$timing GSENC_GPU_UPLOAD=$upload timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" "${threads[@]}" --backend "$as" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
         echo "$result" | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
     else
         echo "{\"row\": \"$name\", \"which\": \"$backend\", \"failed_or_timed_out\": true}" >> "$log"
@@ -88,6 +90,7 @@ row() { # name args...: the row on the GPU, then on the CPU
         run "$name" gpu1 "${ITERS:-}" "$@"
     done
     run "$name" gpunt "${ITERS:-}" "$@"
+    run "$name" gpu4 "${ITERS:-}" "$@"
     run "$name" cpu "${CPU_ITERS-200}" "$@"
 }
 
@@ -155,6 +158,9 @@ for name, by in rows.items():
     if "gpu" in by and "gpuw" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpuw"][0]["voxel_psnr"]
         print(f"<!-- {name}: a step's uploads through its staging buffer {per['gpuw'] / per['gpu']:.2f}x faster than buffer by buffer; same model: {same} -->")
+    if "gpu" in by and "gpu4" in by:
+        same = by["gpu"][0]["voxel_psnr"] == by["gpu4"][0]["voxel_psnr"]
+        print(f"<!-- {name}: a host pool of every core {per['gpu4'] / per['gpu']:.2f}x faster than of 4 threads; same model: {same} -->")
     if "gpu" in by and "gpunt" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpunt"][0]["voxel_psnr"]
         print(f"<!-- {name}: timing every pass costs {per['gpu'] / per['gpunt']:.2f}x an iteration without; same model: {same} -->")
@@ -164,7 +170,7 @@ for name, by in rows.items():
 print()
 print("| row | loop ms / it | draw | submit | wait | device (every kernel of the run) |")
 print("|---|---|---|---|---|---|")
-for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpuw", "gpu1", "gpunt")]:
+for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpuw", "gpu1", "gpunt", "gpu4")]:
     if name == "decode_1024" or not runs or "loop_phases" not in runs[0]:
         continue
     it = runs[0]["iterations"]
