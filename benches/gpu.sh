@@ -8,14 +8,15 @@
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
 # the CPU rows need not run the whole schedule; CPU_ITERS= runs the whole
 # schedule, which the PSNR gap needs); ROWS selects rows by name, WHICH
-# the backends (default "gpu gpuw gpunt gpu4 cpu"; gpuw is the GPU with a
+# the backends (default "gpu gpuw gpu4 cpu"; gpuw is the GPU with a
 # step's uploads written buffer by buffer, GSENC_GPU_UPLOAD=writes, run
 # beside each gpu run, for what the mapped staging buffer saves; gpu1 (not
 # run by default: measured 2026-12-04) the GPU with one training step in
-# flight rather than two, GSENC_GPU_DEPTH=1; gpunt the GPU without
-# timestamp queries, GSENC_GPU_TIMING=0, once a row, for what timing every
-# pass costs; gpu4 the GPU with a host pool of 4 threads, --threads 4, once
-# a row, for whether waking every core costs the host's draw); REPEAT
+# flight rather than two, GSENC_GPU_DEPTH=1; gpunt (not run by default:
+# 0.92-1.11x, noise, on 2026-12-04) the GPU without timestamp queries,
+# GSENC_GPU_TIMING=0, once a row, for what timing every pass costs; gpu4
+# the GPU with a host pool of 4 threads, --threads 4, once a row, for
+# whether waking every core costs the host's draw); REPEAT
 # (default 1) runs each GPU row that many times (the table takes medians)
 # while the script is younger than DEADLINE seconds (default 300);
 # ROW_LIMIT (default 150 s; 240 s for the in-situ run) stops any one run,
@@ -60,7 +61,7 @@ late() { # true (and says so) when STOP_AFTER has passed
 run() { # name backend iteration-cap args...
     local name=$1 backend=$2 cap=$3; shift 3
     want "$name" || return 0
-    [[ " ${WHICH:-gpu gpuw gpunt gpu4 cpu} " == *" $backend "* ]] || return 0
+    [[ " ${WHICH:-gpu gpuw gpu4 cpu} " == *" $backend "* ]] || return 0
     late "$name" && return 0
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")

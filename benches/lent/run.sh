@@ -6,7 +6,7 @@
 # Stages, in order, each only while enough of BUDGET seconds (default 560)
 # is left for it:
 #   1. the GPU rows (beside them: a step's uploads written buffer by
-#      buffer, no timestamp queries, a host pool of 4 threads), the same
+#      buffer, and a host pool of 4 threads), the same
 #      rows on all the machine's cores, the decode of 1024^3 on the GPU and
 #      the in-situ run on the GPU (benches/gpu.sh);
 #   2. the CPU backend at 1, 2, 4, 8 and 16 threads (benches/scaling.sh,
