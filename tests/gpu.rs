@@ -681,7 +681,7 @@ fn an_auto_warm_step_matches_the_cpu_backend() {
 /// slots) rewrites the buffers of the steps before it and binds them
 /// through the bind groups it kept, instead of making a uniform buffer and
 /// a bind group per dispatch, each a driver allocation. Its uploads fill
-/// one staging buffer that is mapped again after each step (buffers.rs
+/// one staging buffer that is mapped again after each step (staged.rs
 /// `Staged`), where a queue write per buffer takes staging memory of its
 /// own each. And the steps give the bits of a backend that made
 /// everything afresh.

@@ -178,7 +178,7 @@ impl Gpu {
         self.uploads.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
 
-    /// Uploads so far: a steady training step makes one (buffers.rs
+    /// Uploads so far: a steady training step makes one (staged.rs
     /// `Staged`), or one a buffer with `GSENC_GPU_UPLOAD=writes`.
     pub fn uploads(&self) -> u64 {
         self.uploads.load(std::sync::atomic::Ordering::Relaxed)

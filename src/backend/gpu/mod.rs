@@ -37,6 +37,7 @@ mod decode;
 mod kernels;
 mod points;
 mod resident;
+mod staged;
 mod timer;
 
 use self::buffers::Buffers;
@@ -96,7 +97,7 @@ pub struct GpuBackend {
     pub depth: usize,
     /// Hand a point call's uploads to the queue buffer by buffer, as
     /// before 2026-12-05, rather than through its slot's mapped staging
-    /// buffer (buffers.rs `Staged`): the same bits, for measuring what the
+    /// buffer (staged.rs `Staged`): the same bits, for measuring what the
     /// staging buffer saves (`GSENC_GPU_UPLOAD=writes`).
     pub upload_per_buffer: bool,
     /// Calls that ran again because the candidate lists overflowed.

@@ -38,7 +38,7 @@ pub(super) struct InFlight {
     /// Its read-back (and timer) slot, which `submit_points` assigns.
     pub slot: usize,
     /// What it uploads: every submission of it (a rerun after its lists
-    /// overflowed included) writes it anew (buffers.rs `Staged`).
+    /// overflowed included) writes it anew (staged.rs `Staged`).
     pub upload: Upload,
 }
 
@@ -283,7 +283,7 @@ impl GpuBackend {
         let sorted = up.sorted.len() as u64;
         let u = b.uniforms[slot][0].ensure(gpu, size_of::<Params>() as u64, g)?.clone();
         let u1 = b.uniforms[slot][1].ensure(gpu, size_of::<Params>() as u64, g)?.clone();
-        // What the call uploads, and where (buffers.rs `Staged`).
+        // What the call uploads, and where (staged.rs `Staged`).
         let uploads = [
             (bytes(&up.sorted), b.points.ensure(gpu, 16 * sorted, g)?.clone()),
             (bytes(&up.ranges), b.brick_points.ensure(gpu, 8 * up.ranges.len() as u64, g)?.clone()),

@@ -121,7 +121,7 @@ impl Timer {
 /// - `arrange`: the batch's points, bricks, pieces and coarse cells laid
 ///   out as the device reads them;
 /// - `write`: copying them and the call's uniforms into its staging
-///   buffer (buffers.rs `Staged`; with `GSENC_GPU_UPLOAD=writes`, handing
+///   buffer (staged.rs `Staged`; with `GSENC_GPU_UPLOAD=writes`, handing
 ///   each to the queue, which copies it into staging memory of its own);
 /// - `record`: recording the command buffer (bind groups, dispatches, the
 ///   read-back's copies) inside wgpu's error scopes;
