@@ -20,6 +20,7 @@ use std::sync::Arc;
 /// a steady step makes none. The copies run on the device before the
 /// call's first pass, where queue writes ran just before it, so a call
 /// reads the same bytes either way.
+#[derive(Default)]
 pub struct Staged {
     buf: Option<wgpu::Buffer>,
     /// Set by the map callback: `buf` is mapped and may be written.
@@ -28,12 +29,6 @@ pub struct Staged {
     /// the call is submitted (`Staged::remap`).
     to_remap: bool,
     made: u64,
-}
-
-impl Default for Staged {
-    fn default() -> Self {
-        Staged { buf: None, mapped: Default::default(), to_remap: false, made: 0 }
-    }
 }
 
 impl Staged {
@@ -49,7 +44,7 @@ impl Staged {
     /// regions are skipped. `remap` must follow the submission of `enc`.
     pub fn record(&mut self, gpu: &Gpu, enc: &mut wgpu::CommandEncoder, regions: &[(&[u8], &wgpu::Buffer)], per_buffer: bool) -> Result<()> {
         self.to_remap = false;
-        if let Some((data, _)) = regions.iter().find(|(d, _)| d.len() as u64 % wgpu::COPY_BUFFER_ALIGNMENT != 0) {
+        if let Some((data, _)) = regions.iter().find(|(d, _)| !(d.len() as u64).is_multiple_of(wgpu::COPY_BUFFER_ALIGNMENT)) {
             return Err(Error::arg(format!("GPU backend: an upload of {} bytes, not whole words", data.len())));
         }
         if per_buffer {
