@@ -87,6 +87,11 @@ int main(int argc, char **argv) {
     cfg.when_full = GSENC_QUEUE_BLOCK;
     gsenc_encoder *enc = NULL;
     if (encode && check(gsenc_encoder_create(&cfg, &enc), "create")) return 1;
+    /* The grid's copy readied before the first push, as a solver would do
+     * once at start-up (INSITU_NO_RESERVE=1 leaves it out, to compare). */
+    const char *no_reserve = getenv("INSITU_NO_RESERVE");
+    int reserve = !(no_reserve && strcmp(no_reserve, "1") == 0);
+    if (encode && reserve && check(gsenc_encoder_reserve(enc, (uint64_t)N * N * N), "reserve")) return 1;
 
     float *u = malloc(sizeof(float) * N * N * N), *tmp = calloc((size_t)N * N * N, sizeof(float));
     double *compute = malloc(sizeof(double) * steps), *push = calloc((size_t)steps, sizeof(double));
@@ -121,10 +126,10 @@ int main(int argc, char **argv) {
         if (s > 0 && push[s] > push_max_later) push_max_later = push[s];
     }
     double push_median = median(push, steps), compute_median = median(compute, steps);
-    printf("{\"steps\":%d,\"encode\":%d,\"sweeps\":%d,\"budget\":%llu,\"threads\":%u,"
+    printf("{\"steps\":%d,\"encode\":%d,\"reserve\":%d,\"sweeps\":%d,\"budget\":%llu,\"threads\":%u,"
            "\"compute_median_s\":%.4f,\"step_mean_s\":%.4f,\"push_median_ms\":%.3f,\"push_max_ms\":%.3f,\"push_max_after_first_ms\":%.3f,"
            "\"solver_s\":%.3f,\"final_wait_s\":%.3f,\"total_s\":%.3f,\"encode_steps_per_s\":%.4f,\"last_psnr\":%.2f}\n",
-           steps, encode, sweeps, (unsigned long long)cfg.budget, cfg.threads, compute_median, step_sum / steps,
+           steps, encode, reserve, sweeps, (unsigned long long)cfg.budget, cfg.threads, compute_median, step_sum / steps,
            1e3 * push_median, 1e3 * push_max, 1e3 * push_max_later, t_solver, t_wait, t_total, encode ? steps / t_total : 0.0, psnr);
     gsenc_encoder_destroy(enc);
     free(u);

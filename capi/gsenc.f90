@@ -210,6 +210,13 @@ module gsenc
             import :: c_int, c_ptr
             type(c_ptr), value :: encoder
         end function
+        !> Readies the encoder for grid pushes of up to `values` values: the
+        !> first push then copies into a buffer whose memory is touched now.
+        integer(c_int) function gsenc_encoder_reserve(encoder, values) bind(c, name="gsenc_encoder_reserve")
+            import :: c_int, c_ptr, c_int64_t
+            type(c_ptr), value :: encoder
+            integer(c_int64_t), value :: values
+        end function
         integer(c_int) function gsenc_encoder_write_model_c(encoder, field, path) &
                 bind(c, name="gsenc_encoder_write_model")
             import :: c_int, c_ptr, c_char
@@ -259,7 +266,7 @@ module gsenc
         end function
     end interface
 
-    public :: gsenc_version, gsenc_encoder_cancel
+    public :: gsenc_version, gsenc_encoder_cancel, gsenc_encoder_reserve
     public :: gsenc_encoder_create_mpi_c, gsenc_encoder_create_mpi
     public :: gsenc_config_init_c, gsenc_encoder_create_c, gsenc_wait_c, gsenc_poll_c, gsenc_encoder_destroy_c, gsenc_push_grid_c, &
         gsenc_push_particles_c, gsenc_push_cells_c, gsenc_encoder_write_model_c, gsenc_encoder_last_step_c, &

@@ -354,3 +354,38 @@ fn the_encoders_threads_run_where_and_as_placed() {
     let e = BackgroundEncoder::new(QueueConfig { placement: outside, ..queue_config(4, WhenFull::Block) }, Box::new(gsenc::series::queue::CallerStores)).err().unwrap();
     assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("may not run on"), "{e}");
 }
+
+/// `reserve` readies a buffer for the next grid push before any step has
+/// run: the push takes it (`recycled_buffer`) instead of allocating. A
+/// reserve a kept buffer covers adds none; a larger one replaces a kept
+/// buffer once the queue keeps as many as it may, so that the buffers kept
+/// stay bounded; 0 does nothing; a size beyond any memory is refused.
+#[test]
+fn a_reserved_buffer_serves_the_first_grid_push() {
+    let q = BackgroundEncoder::new(queue_config(8, WhenFull::Block), Box::new(gsenc::series::queue::CallerStores)).unwrap();
+    let n = DIMS.iter().product::<usize>();
+    assert!(q.recycled_buffer(1).is_none(), "a buffer kept before any reserve or step");
+    q.reserve(0).unwrap();
+    assert!(q.recycled_buffer(1).is_none(), "reserve(0) kept a buffer");
+    q.reserve(n).unwrap();
+    let b = q.recycled_buffer(n).expect("the reserved buffer");
+    assert!(b.capacity() >= n && b.is_empty(), "capacity {} len {}", b.capacity(), b.len());
+    assert!(q.recycled_buffer(1).is_none(), "more than one buffer kept");
+    // Covered: a smaller reserve after a larger keeps one buffer.
+    q.reserve(n).unwrap();
+    q.reserve(n / 2).unwrap();
+    assert!(q.recycled_buffer(1).is_some() && q.recycled_buffer(1).is_none(), "a covered reserve kept another buffer");
+    // Growing reserves keep at most two buffers, the largest ones.
+    for k in 1..=4 {
+        q.reserve(k * 1000).unwrap();
+    }
+    let kept: Vec<usize> = std::iter::from_fn(|| q.recycled_buffer(1).map(|b| b.capacity())).collect();
+    assert_eq!(kept.len(), 2, "{kept:?}");
+    assert!(kept.iter().all(|&c| c >= 3000), "{kept:?}");
+    let e = q.reserve(usize::MAX / 2).unwrap_err();
+    assert!(e.to_string().contains("reserving a grid push's copy"), "{e}");
+    // Pushes still work after all of it.
+    q.reserve(n).unwrap();
+    q.push(job("rho", 0)).unwrap();
+    q.wait(None).unwrap();
+}

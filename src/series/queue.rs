@@ -162,6 +162,15 @@ impl State {
 /// grids): enough for a push while one job runs and one waits.
 const RECYCLED_BUFFERS: usize = 2;
 
+/// An empty buffer with room for `len` values, every page of it written
+/// once, so that a push that copies into it takes no page fault.
+fn touched_buffer(len: usize) -> Vec<f32> {
+    let mut b = crate::memory::with_pages(len);
+    b.resize(len, 0.0);
+    b.clear();
+    b
+}
+
 struct Shared {
     state: Mutex<State>,
     /// Signalled whenever a job changes state or bytes are released.
@@ -399,6 +408,34 @@ impl BackgroundEncoder {
         Some(st.recycled.swap_remove(i))
     }
 
+    /// Readies a buffer for the next grid push of up to `len` values, its
+    /// pages touched now: the first push of a series then copies into it as
+    /// later pushes copy into buffers recycled from finished steps, instead
+    /// of paying for a new buffer's page faults (on the H200 machine the
+    /// first push of 128^3 took 7.4 ms, later ones 3.9–4.3 ms). Nothing to
+    /// do when a kept buffer is large enough; otherwise a kept buffer too
+    /// small for it makes room. The memory must fit (`memory::check_fits`).
+    pub fn reserve(&self, len: usize) -> Result<()> {
+        let fits = |st: &State| st.recycled.iter().any(|b| b.capacity() >= len);
+        if len == 0 || fits(&self.shared.state.lock()) {
+            return Ok(());
+        }
+        let bytes = (len as u64).checked_mul(4).filter(|&b| b <= isize::MAX as u64);
+        let bytes = bytes.ok_or_else(|| Error::arg(format!("reserving a grid push's copy: {len} values do not fit in memory")))?;
+        crate::memory::check_fits("reserving a grid push's copy", bytes)?;
+        let buffer = touched_buffer(len);
+        let mut st = self.shared.state.lock();
+        if fits(&st) {
+            return Ok(());
+        }
+        if st.recycled.len() >= RECYCLED_BUFFERS {
+            let smallest = (0..st.recycled.len()).min_by_key(|&i| st.recycled[i].capacity()).expect("kept buffers");
+            st.recycled.swap_remove(smallest);
+        }
+        st.recycled.push(buffer);
+        Ok(())
+    }
+
     /// Bytes of pushed data the queue holds now.
     pub fn queued_bytes(&self) -> usize {
         self.shared.state.lock().bytes
@@ -469,9 +506,7 @@ impl Worker {
         if self.shared.state.lock().recycled.iter().any(|b| b.capacity() >= len) {
             return;
         }
-        let mut spare = vec![0f32; 0];
-        spare.resize(len, 0.0); // writes every page
-        spare.clear();
+        let spare = touched_buffer(len);
         let mut st = self.shared.state.lock();
         if st.recycled.len() < RECYCLED_BUFFERS {
             st.recycled.push(spare);

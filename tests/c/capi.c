@@ -196,6 +196,13 @@ int main(void) {
     cfg.preview_height = 64;
     EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
     cfg.preview = GSENC_PREVIEW_NONE; /* (the later encoders of this test draw none) */
+    /* A buffer readied for the first grid push; a size no memory holds is
+     * refused, and nothing else changes (the pushes below still work). */
+    EXPECT(gsenc_encoder_reserve(NULL, 64), GSENC_STATUS_NULL_POINTER);
+    EXPECT(gsenc_encoder_reserve(enc, (uint64_t)NX * NY * NZ), GSENC_STATUS_OK);
+    EXPECT(gsenc_encoder_reserve(enc, UINT64_MAX / 2), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "do not fit") != NULL, "a reserve beyond memory: %s", last_error());
+    EXPECT(gsenc_encoder_reserve(enc, 0), GSENC_STATUS_OK);
 
     /* A grid with ghost layers, passed with strides. */
     static double a[(NX + 2 * G) * (NY + 2 * G) * (NZ + 2 * G)];

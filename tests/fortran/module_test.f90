@@ -41,6 +41,8 @@ program module_test
     cfg%bounds_min = 0
     cfg%bounds_max = 1
     call expect(gsenc_encoder_create(cfg, enc, output_dir=trim(dir)), GSENC_STATUS_OK, 'create')
+    call expect(gsenc_encoder_reserve(enc, int(n, int64)**3), GSENC_STATUS_OK, 'reserve the grid push')
+    call expect(gsenc_encoder_reserve(c_null_ptr, 8_int64), GSENC_STATUS_NULL_POINTER, 'reserve on a NULL encoder')
 
     ! A real32 grid pushed as every other cell of a wider array: strides (2, 2n, 4n^2).
     allocate (wide(2 * n, n, n))
