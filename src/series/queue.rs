@@ -429,8 +429,9 @@ impl BackgroundEncoder {
             return Ok(());
         }
         if st.recycled.len() >= RECYCLED_BUFFERS {
-            let smallest = (0..st.recycled.len()).min_by_key(|&i| st.recycled[i].capacity()).expect("kept buffers");
-            st.recycled.swap_remove(smallest);
+            if let Some(smallest) = (0..st.recycled.len()).min_by_key(|&i| st.recycled[i].capacity()) {
+                st.recycled.swap_remove(smallest);
+            }
         }
         st.recycled.push(buffer);
         Ok(())
