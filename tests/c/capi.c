@@ -202,6 +202,12 @@ int main(void) {
     EXPECT(gsenc_encoder_reserve(enc, (uint64_t)NX * NY * NZ), GSENC_STATUS_OK);
     EXPECT(gsenc_encoder_reserve(enc, UINT64_MAX / 2), GSENC_STATUS_INVALID_ARGUMENT);
     CHECK(strstr(last_error(), "do not fit") != NULL, "a reserve beyond memory: %s", last_error());
+#ifdef __linux__
+    /* 4 PiB: a size that can be counted, refused by the memory check (what
+     * this process can take now, which Linux tells). */
+    EXPECT(gsenc_encoder_reserve(enc, (uint64_t)1 << 50), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "more than the") != NULL, "a reserve beyond this process's memory: %s", last_error());
+#endif
     EXPECT(gsenc_encoder_reserve(enc, 0), GSENC_STATUS_OK);
 
     /* A grid with ghost layers, passed with strides. */
