@@ -6,7 +6,7 @@ Each line is one `gsenc encode --json` run with a `row` name (and, from
 benches/gpu.sh, a `which`); lines without `gpu_host_seconds` (CPU rows,
 failed runs) are skipped. Prints a Markdown table: per row, the median over
 its runs of each phase's seconds divided by the run's iterations, in ms
-(timer.rs `HostTimes`: the phases of every point call of the encode, so
+(mod.rs `GpuBackend::host`: the phases of every point call of the encode, so
 relocation and validation passes are in them too).
 """
 import json

@@ -44,7 +44,7 @@ use self::buffers::Buffers;
 use self::device::{DeviceRequest, Gpu};
 use self::kernels::{BindGroups, Kernels};
 use self::points::Pass;
-use self::timer::{HostTimes, Timer};
+use self::timer::{Timer, Totals};
 use super::bricks::PointBricks;
 use super::{check_len, Backend, Lattice, PointBatch, PointLoss};
 use crate::error::{Error, Result};
@@ -57,8 +57,22 @@ pub struct GpuBackend {
     gpu: Gpu,
     kernels: Kernels,
     timer: Timer,
-    /// The host's time in each phase of the point calls.
-    host: HostTimes,
+    /// The host's seconds per phase of the point calls, with the number of
+    /// times each ran: where the host's share of a training step goes. A
+    /// GPU's driver and wgpu's no-op device split it differently, so the
+    /// figures come from the machine that runs the encode. The phases, in
+    /// a call's order:
+    /// - `arrange`: the batch's points, bricks, pieces and coarse cells laid
+    ///   out as the device reads them;
+    /// - `write`: copying them and the call's uniforms into its staging
+    ///   buffer (staged.rs `Staged`; with `GSENC_GPU_UPLOAD=writes`, handing
+    ///   each to the queue, which copies it into staging memory of its own);
+    /// - `record`: recording the command buffer (bind groups, dispatches, the
+    ///   read-back's copies) inside wgpu's error scopes;
+    /// - `submit`: finishing and submitting it;
+    /// - `wait`: waiting for the device to finish it and map the results;
+    /// - `read`: copying the mapped results out.
+    host: Totals,
     bufs: Buffers,
     binds: BindGroups,
     /// Edge of a training brick in voxels (as the CPU backend's).
@@ -184,7 +198,7 @@ impl GpuBackend {
             gpu,
             kernels,
             timer,
-            host: HostTimes::default(),
+            host: Totals::default(),
             bufs: Buffers::default(),
             binds: BindGroups::default(),
             brick: 16.0,
@@ -313,7 +327,7 @@ impl Backend for GpuBackend {
     }
 
     /// The phases of the point calls (training steps, gradients,
-    /// evaluations): timer.rs `HostTimes`.
+    /// evaluations): `GpuBackend::host`.
     fn host_seconds(&self) -> Vec<(String, u64, f64)> {
         self.host.totals()
     }

@@ -2,8 +2,8 @@
 //! end of every compute pass, where the adapter has them (`TIMESTAMP_QUERY`).
 //! Totals per kernel over the backend's life; read with the call's results,
 //! so timing adds no wait of its own. Each call that may be in flight at
-//! once has its own query set. Beside it, [`HostTimes`]: the host's time in
-//! each phase of a call.
+//! once has its own query set. Beside it, [`Totals`], which also sums the
+//! host's time in each phase of a call.
 
 use super::device::Gpu;
 use std::collections::BTreeMap;
@@ -28,7 +28,7 @@ pub struct Timer {
     current: usize,
     period_ns: f64,
     /// Per kernel: passes timed and seconds.
-    totals: BTreeMap<&'static str, (u64, f64)>,
+    totals: Totals,
 }
 
 impl Timer {
@@ -52,7 +52,7 @@ impl Timer {
                 labels: vec![],
             })
             .collect();
-        Timer { slots, current: 0, period_ns: gpu.queue.get_timestamp_period() as f64, totals: BTreeMap::new() }
+        Timer { slots, current: 0, period_ns: gpu.queue.get_timestamp_period() as f64, totals: Totals::default() }
     }
 
     /// The passes recorded next belong to a submission read back through
@@ -93,9 +93,7 @@ impl Timer {
         let Some(s) = self.slots.get_mut(slot) else { return };
         let ticks: Vec<u64> = bytemuck::pod_collect_to_vec(bytes);
         for (label, pair) in s.labels.iter().zip(ticks.chunks_exact(2)) {
-            let t = self.totals.entry(label).or_default();
-            t.0 += 1;
-            t.1 += pair[1].saturating_sub(pair[0]) as f64 * self.period_ns * 1e-9;
+            self.totals.add_seconds(label, pair[1].saturating_sub(pair[0]) as f64 * self.period_ns * 1e-9);
         }
         s.labels.clear();
     }
@@ -109,46 +107,39 @@ impl Timer {
 
     /// Per kernel: passes timed and device seconds, since the backend opened.
     pub fn totals(&self) -> Vec<(String, u64, f64)> {
-        self.totals.iter().map(|(k, &(n, s))| (k.to_string(), n, s)).collect()
+        self.totals.totals()
     }
 }
 
-/// The host's seconds per phase of the backend's calls, summed over its
-/// life, with the number of times each ran: where the host's share of a
-/// training step goes (`GpuBackend::host_seconds`). A GPU's driver and
-/// wgpu's no-op device split it differently, so the figures come from the
-/// machine that runs the encode. The phases, in a call's order:
-/// - `arrange`: the batch's points, bricks, pieces and coarse cells laid
-///   out as the device reads them;
-/// - `write`: copying them and the call's uniforms into its staging
-///   buffer (staged.rs `Staged`; with `GSENC_GPU_UPLOAD=writes`, handing
-///   each to the queue, which copies it into staging memory of its own);
-/// - `record`: recording the command buffer (bind groups, dispatches, the
-///   read-back's copies) inside wgpu's error scopes;
-/// - `submit`: finishing and submitting it;
-/// - `wait`: waiting for the device to finish it and map the results;
-/// - `read`: copying the mapped results out.
+/// Counts and seconds per label, summed over the backend's life: the
+/// device's per kernel ([`Timer`]) and the host's per phase of a call
+/// (`GpuBackend::host`).
 #[derive(Default)]
-pub struct HostTimes {
+pub struct Totals {
     totals: BTreeMap<&'static str, (u64, f64)>,
 }
 
-impl HostTimes {
-    /// Adds `d` to `phase`.
-    pub fn add(&mut self, phase: &'static str, d: Duration) {
-        let t = self.totals.entry(phase).or_default();
+impl Totals {
+    /// Adds one run of `label` that took `seconds`.
+    pub fn add_seconds(&mut self, label: &'static str, seconds: f64) {
+        let t = self.totals.entry(label).or_default();
         t.0 += 1;
-        t.1 += d.as_secs_f64();
+        t.1 += seconds;
     }
 
-    /// Adds the time since `start` to `phase` and returns now.
-    pub fn lap(&mut self, phase: &'static str, start: Instant) -> Instant {
+    /// Adds one run of `label` that took `d`.
+    pub fn add(&mut self, label: &'static str, d: Duration) {
+        self.add_seconds(label, d.as_secs_f64());
+    }
+
+    /// Adds the time since `start` to `label` and returns now.
+    pub fn lap(&mut self, label: &'static str, start: Instant) -> Instant {
         let now = Instant::now();
-        self.add(phase, now - start);
+        self.add(label, now - start);
         now
     }
 
-    /// Per phase: times it ran and seconds.
+    /// Per label: runs and seconds.
     pub fn totals(&self) -> Vec<(String, u64, f64)> {
         self.totals.iter().map(|(k, &(n, s))| (k.to_string(), n, s)).collect()
     }
