@@ -156,6 +156,11 @@ impl State {
     fn fits(&self, bytes: usize, max_bytes: usize) -> bool {
         self.in_flight == 0 || self.bytes + bytes <= max_bytes
     }
+
+    /// The kept grid buffer with room for `len` values, if any.
+    fn kept_for(&self, len: usize) -> Option<usize> {
+        self.recycled.iter().position(|b| b.capacity() >= len)
+    }
 }
 
 /// Buffers kept for reuse (beyond the queue's budget: at most this many
@@ -404,7 +409,7 @@ impl BackgroundEncoder {
     /// push its page faults, a third of a 128^3 push).
     pub fn recycled_buffer(&self, len: usize) -> Option<Vec<f32>> {
         let mut st = self.shared.state.lock();
-        let i = st.recycled.iter().position(|b| b.capacity() >= len)?;
+        let i = st.kept_for(len)?;
         Some(st.recycled.swap_remove(i))
     }
 
@@ -416,8 +421,7 @@ impl BackgroundEncoder {
     /// do when a kept buffer is large enough; otherwise a kept buffer too
     /// small for it makes room. The memory must fit (`memory::check_fits`).
     pub fn reserve(&self, len: usize) -> Result<()> {
-        let fits = |st: &State| st.recycled.iter().any(|b| b.capacity() >= len);
-        if len == 0 || fits(&self.shared.state.lock()) {
+        if len == 0 || self.shared.state.lock().kept_for(len).is_some() {
             return Ok(());
         }
         let bytes = (len as u64).checked_mul(4).filter(|&b| b <= isize::MAX as u64);
@@ -425,7 +429,7 @@ impl BackgroundEncoder {
         crate::memory::check_fits("reserving a grid push's copy", bytes)?;
         let buffer = touched_buffer(len);
         let mut st = self.shared.state.lock();
-        if fits(&st) {
+        if st.kept_for(len).is_some() {
             return Ok(());
         }
         if st.recycled.len() >= RECYCLED_BUFFERS {
@@ -504,7 +508,7 @@ impl Worker {
     fn prepare_spare(&self, data: &StepData) {
         let StepData::Grid { grid, .. } = data else { return };
         let len = grid.values.len();
-        if self.shared.state.lock().recycled.iter().any(|b| b.capacity() >= len) {
+        if self.shared.state.lock().kept_for(len).is_some() {
             return;
         }
         let spare = touched_buffer(len);
