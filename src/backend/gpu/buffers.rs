@@ -77,8 +77,7 @@ impl Slot {
     pub fn upload(&mut self, gpu: &Gpu, data: &[u8], garbage: bool) -> Result<&wgpu::Buffer> {
         let buf = self.ensure(gpu, data.len() as u64, garbage)?;
         if !data.is_empty() {
-            gpu.queue.write_buffer(buf, 0, data);
-            gpu.uploaded();
+            gpu.write(buf, data);
         }
         Ok(buf)
     }

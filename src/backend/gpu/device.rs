@@ -178,6 +178,12 @@ impl Gpu {
         self.uploads.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     }
 
+    /// Hands `data` to the queue for the start of `buf`, counted as an upload.
+    pub fn write(&self, buf: &wgpu::Buffer, data: &[u8]) {
+        self.queue.write_buffer(buf, 0, data);
+        self.uploaded();
+    }
+
     /// Uploads so far: a steady training step makes one (staged.rs
     /// `Staged`), or one a buffer with `GSENC_GPU_UPLOAD=writes`.
     pub fn uploads(&self) -> u64 {

@@ -49,8 +49,7 @@ impl Staged {
         }
         if per_buffer {
             for &(data, dst) in regions.iter().filter(|(d, _)| !d.is_empty()) {
-                gpu.queue.write_buffer(dst, 0, data);
-                gpu.uploaded();
+                gpu.write(dst, data);
             }
             return Ok(());
         }
