@@ -168,5 +168,14 @@ mod tests {
         let (x, y) = (words(64, 11), words(8, 12));
         check(round(&mut staged, &x, &y, true, true), &x, &y, "buffer by buffer");
         assert_eq!((staged.made(), gpu.uploads() - uploads), (3, 2));
+        // A region not in whole words (copies move 4 bytes at a time) is
+        // refused, either way, before anything is written or recorded.
+        let dst = a.ensure(&gpu, 4096, false).unwrap().clone();
+        for per_buffer in [false, true] {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let e = staged.record(&gpu, &mut enc, &[(&words(4, 13), &dst), (&[1, 2, 3, 4, 5, 6], &dst)], per_buffer).unwrap_err();
+            assert!(e.to_string().contains("6 bytes, not whole words"), "{e}");
+            assert_eq!((staged.made(), gpu.uploads() - uploads), (3, 2), "per_buffer {per_buffer}: something was written");
+        }
     }
 }
