@@ -605,48 +605,114 @@ fn a_step_that_overflows_holds_back_the_step_queued_after_it() {
         la.iter().zip(lb).all(|(a, b)| (a.0.val.to_bits(), a.1.aniso.to_bits()) == (b.0.val.to_bits(), b.1.aniso.to_bits()))
             && same_bits(&pa, &pb)
     };
+    // Each in a submission of its own, then two to a submission (the step
+    // that overflows and the one it holds back in one command buffer),
+    // then three (a submission read back before it is full).
     let want = in_turn(&mut g, &batches[..2]);
-    // Room for the small batch's lists and not the large one's: the first
-    // step alone overflows (one rerun), and the second, queued behind it
-    // with lists that fit, must wait for it.
-    let mut found = false;
-    for cap in (3..16).map(|k| 1usize << k) {
-        let mut tight = gpu().unwrap();
-        tight.set_capacity(cap);
-        let got = piped(&mut tight, &batches[..2]);
-        if tight.reruns == 1 {
-            assert!(same(&got, &want), "capacity {cap}: the queued step did not wait for the one that overflowed");
-            found = true;
+    for batch in [1, 2] {
+        // Room for the small batch's lists and not the large one's: the
+        // first step alone overflows (one rerun), and the second, queued
+        // behind it with lists that fit, must wait for it.
+        let mut found = false;
+        for cap in (3..16).map(|k| 1usize << k) {
+            let mut tight = gpu().unwrap();
+            (tight.batch, tight.reruns) = (batch, 0);
+            tight.set_capacity(cap);
+            let got = piped(&mut tight, &batches[..2]);
+            if tight.reruns == 1 {
+                assert!(same(&got, &want), "batch {batch}, capacity {cap}: the queued step did not wait for the one that overflowed");
+                found = true;
+            }
         }
+        assert!(found, "batch {batch}: no capacity made the large batch overflow and the small one fit");
     }
-    assert!(found, "no capacity made the large batch overflow and the small one fit");
     let want = in_turn(&mut g, &batches);
-    let mut tight = gpu().unwrap();
-    tight.set_capacity(5);
-    let got = piped(&mut tight, &batches);
-    assert!(tight.reruns >= 1, "the lists never overflowed");
-    assert!(same(&got, &want));
+    for batch in [1, 2, 3] {
+        let mut tight = gpu().unwrap();
+        tight.batch = batch;
+        tight.set_capacity(5);
+        let got = piped(&mut tight, &batches);
+        assert!(tight.reruns >= 1, "batch {batch}: the lists never overflowed");
+        assert!(same(&got, &want), "batch {batch}");
+    }
 }
 
-/// An encode with two resident steps in flight gives the model of the same
+/// An encode with two submissions of resident steps in flight, each of one
+/// step or of several (`GpuBackend::batch`), gives the model of the same
 /// encode one step at a time, bit for bit, also when the candidate lists
 /// start too small and overflow along the way.
 #[test]
-fn an_encode_with_two_steps_in_flight_gives_the_model_of_one_at_a_time() {
+fn an_encode_with_steps_in_flight_or_batched_gives_the_model_of_one_at_a_time() {
     let Some(mut g) = gpu() else { return };
     let field = hydrogen32();
     let t = Target { reference: &field, samples: &field };
     let cfg = short(60, 2048);
     g.depth = 1;
     let one = encode(&t, &cfg, None, &mut g, &mut |_| {}).unwrap();
-    let mut two = gpu().unwrap();
-    two.set_capacity(64);
-    assert_eq!(two.resident().unwrap().depth(), 2);
-    let piped = encode(&t, &cfg, None, &mut two, &mut |_| {}).unwrap();
-    assert!(two.reruns > 0, "the lists never overflowed");
     assert_eq!(one.relocations.len(), 3);
-    assert_eq!(one.last_loss.total.to_bits(), piped.last_loss.total.to_bits());
-    assert!(same_bits(&one.params, &piped.params));
+    for batch in [1, 2, 3] {
+        let mut piped = gpu().unwrap();
+        piped.set_capacity(64);
+        piped.batch = batch;
+        assert_eq!(piped.resident().unwrap().depth(), 2 * batch);
+        let out = encode(&t, &cfg, None, &mut piped, &mut |_| {}).unwrap();
+        assert!(piped.reruns > 0, "batch {batch}: the lists never overflowed");
+        assert_eq!(one.last_loss.total.to_bits(), out.last_loss.total.to_bits(), "batch {batch}");
+        assert!(same_bits(&one.params, &out.params), "batch {batch}");
+    }
+}
+
+/// Steps batched three to a submission: up to six in flight, each step
+/// arranged, written and recorded on its own, but submitted once a batch
+/// (and a batch that is not full once one of its steps is read back); the
+/// bits of one step a submission. Uploads written buffer by buffer take
+/// one step a submission, whatever the batch.
+#[test]
+fn batched_steps_share_a_submission() {
+    let Some(mut g) = gpu() else { return };
+    let mut rng = Rng::new(41);
+    let params = random_model(&mut rng, 140, 24.0);
+    let batches: Vec<PointBatch> = (0..7).map(|k| random_batch(&mut rng, 700 + 50 * k, 24.0)).collect();
+    let w = LossWeights::default();
+    let adam = Adam::new(params.len());
+    let run = |g: &mut GpuBackend| {
+        let r = g.resident().unwrap();
+        r.load(&params, &adam).unwrap();
+        let (depth, mut pending, mut losses) = (r.depth(), 0, vec![]);
+        for b in &batches {
+            r.submit(b, &w, 5e-3, true).unwrap();
+            pending += 1;
+            while pending >= depth {
+                losses.push(r.finish().unwrap().unwrap().0.val.to_bits());
+                pending -= 1;
+            }
+        }
+        for _ in 0..pending {
+            losses.push(r.finish().unwrap().unwrap().0.val.to_bits());
+        }
+        let (mut p, mut a) = (vec![[0.0; 12]; params.len()], Adam::new(0));
+        r.store(&mut p, &mut a).unwrap();
+        assert_eq!(a.t, batches.len() as u32);
+        let times = |phase: &str| g.host_seconds().iter().find(|(n, _, _)| n == phase).map_or(0, |p| p.1);
+        (p, losses, times("record"), times("submit"))
+    };
+    let (one_p, one_losses, recorded, submitted) = run(&mut g);
+    assert_eq!((recorded, submitted), (7, 7));
+    let mut three = gpu().unwrap();
+    three.batch = 3;
+    assert_eq!(three.resident().unwrap().depth(), 6);
+    let (p, losses, recorded, submitted) = run(&mut three);
+    // (0, 1, 2) and (3, 4, 5) full; 6 submitted when the end reads it.
+    assert_eq!((recorded, submitted), (7, 3));
+    assert_eq!(losses, one_losses);
+    assert!(same_bits(&p, &one_p));
+    let mut per_buffer = gpu().unwrap();
+    (per_buffer.batch, per_buffer.upload_per_buffer) = (3, true);
+    assert_eq!(per_buffer.resident().unwrap().depth(), 2);
+    let (p, losses, _, submitted) = run(&mut per_buffer);
+    assert_eq!(submitted, 7);
+    assert_eq!(losses, one_losses);
+    assert!(same_bits(&p, &one_p));
 }
 
 /// An `auto` warm step on the device (its start chosen and its end decided
@@ -713,6 +779,13 @@ fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     };
     let (first, _) = run(&mut g, 9);
     let (again, made) = run(&mut g, 9);
+    // Two steps to a submission: the same.
+    let mut batched = gpu().unwrap();
+    batched.batch = 2;
+    run(&mut batched, 9);
+    let (batched_p, batched_made) = run(&mut batched, 9);
+    assert!(batched_made.windows(2).all(|m| m[0] == (m[1].0, m[1].1, m[1].2 - 1)), "batched, step by step: {batched_made:?}");
+    assert!(same_bits(&first, &batched_p));
     let objects = |m: &(u64, u64, u64)| (m.0, m.1);
     assert!(made.windows(2).all(|m| objects(&m[0]) == objects(&m[1])), "objects made (buffers, bind groups, writes) step by step: {made:?}");
     assert!(made[0].1 > 0, "no bind group counted: {made:?}");

@@ -1003,8 +1003,8 @@ fn decode_of_several_pieces_writes_one_global_field() {
 /// adapters `gsenc devices` lists; and, on any adapter (llvmpipe on CI), the
 /// same encode through `--backend gpu` names its backend, times its kernels
 /// (unless `GSENC_GPU_TIMING=0`, which changes nothing else; nor do
-/// `GSENC_GPU_WAIT=sleep` and `GSENC_GPU_SPLIT`, whose bad values are usage
-/// errors) and lands within 0.3 dB of the CPU's.
+/// `GSENC_GPU_WAIT=sleep`, `GSENC_GPU_BATCH` and `GSENC_GPU_SPLIT`, whose
+/// bad values are usage errors) and lands within 0.3 dB of the CPU's.
 #[test]
 fn backend_choice_end_to_end() {
     let dir = tmpdir("backend");
@@ -1081,6 +1081,27 @@ fn backend_choice_end_to_end() {
     assert!(std::fs::read(&split).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_SPLIT changed the model");
     if let (Some(a), Some(b)) = (g["kernel_seconds"]["forward"]["passes"].as_u64(), s["kernel_seconds"]["forward"]["passes"].as_u64()) {
         assert_eq!(a, b, "{g} {s}");
+    }
+    // Three training steps to a submission: the same model, in fewer
+    // submissions than steps.
+    let batched = dir.join("batched.gsm");
+    let b = on_gpu(&batched, &[("GSENC_GPU_BATCH", "3")]);
+    assert!(std::fs::read(&batched).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_BATCH changed the model");
+    let times = |j: &serde_json::Value, phase: &str| j["gpu_host_seconds"][phase]["times"].as_u64().unwrap();
+    assert_eq!(times(&b, "record"), times(&g, "record"), "{b}");
+    assert!(3 * times(&b, "submit") < 2 * times(&g, "submit"), "{b}");
+    for bad in ["0", "5", "x", "2,2"] {
+        let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
+            .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--iters", "5"])
+            .args(["-o", missing.to_str().unwrap(), "-q", "--backend", "gpu"])
+            .env("GSENC_ADAPTER", adapter)
+            .env("GSENC_GPU_BATCH", bad)
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(2), "GSENC_GPU_BATCH={bad}: {err}");
+        assert!(err.contains("GSENC_GPU_BATCH"), "{err}");
+        assert!(!missing.exists());
     }
     for bad in ["0,8", "8", "8,8,8,8,8", "8,x", "8,8,8,6", "8,8,8,256"] {
         let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))

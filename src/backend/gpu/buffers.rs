@@ -7,7 +7,7 @@
 //! unnoticed without it.
 
 use super::device::Gpu;
-use super::points::IN_FLIGHT;
+use super::points::SLOTS;
 use super::staged::Staged;
 use crate::error::{Error, Result};
 
@@ -125,7 +125,13 @@ impl Readback {
 
     /// Submits `enc`, whose end `record` wrote.
     pub fn submit(&mut self, gpu: &Gpu, enc: wgpu::CommandEncoder) {
-        self.submission = Some(gpu.queue.submit([enc.finish()]));
+        self.submitted(gpu.queue.submit([enc.finish()]));
+    }
+
+    /// The recorded copies were submitted as `index` (with other calls'
+    /// commands, perhaps): `read` waits for it.
+    pub fn submitted(&mut self, index: wgpu::SubmissionIndex) {
+        self.submission = Some(index);
     }
 
     /// Waits for the submission and returns the recorded regions' bytes.
@@ -187,17 +193,17 @@ pub(super) struct Buffers {
     /// Resident training: set by a step whose lists overflowed, so that
     /// the steps queued after it change nothing either (points.rs).
     pub(super) poison: Slot,
-    /// One per call that may be in flight at once (`points::IN_FLIGHT`);
+    /// One per call that may be in flight at once (`points::SLOTS`);
     /// a call made while nothing is in flight uses the first.
-    pub(super) readback: [Readback; IN_FLIGHT],
+    pub(super) readback: [Readback; SLOTS],
     /// A point call's two uniform blocks (its own and its coarse level's),
     /// one pair per read-back slot: rewritten call after call, so that the
     /// call binds the same buffers as the one before and its bind groups
     /// are kept (`kernels::BindGroups`).
-    pub(super) uniforms: [[Slot; 2]; IN_FLIGHT],
+    pub(super) uniforms: [[Slot; 2]; SLOTS],
     /// A point call's uploads, one per read-back slot: never bound, so not
     /// counted by `made`.
-    pub(super) staged: [Staged; IN_FLIGHT],
+    pub(super) staged: [Staged; SLOTS],
 }
 
 impl Buffers {

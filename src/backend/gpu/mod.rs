@@ -19,8 +19,8 @@
 //!    resident training (`resident.rs`) the same thread goes on with the
 //!    regularisers and the Adam step on parameters and moments that stay on
 //!    the device (reduce.wgsl `step`), and holds back the steps queued
-//!    after one whose lists overflowed (two steps may be in flight:
-//!    `points::IN_FLIGHT`); `loss`: the batch's loss terms.
+//!    after one whose lists overflowed (two submissions of steps may be in
+//!    flight: `points::IN_FLIGHT`); `loss`: the batch's loss terms.
 //!
 //! No float atomics anywhere, so a call gives the same bits run after run
 //! on one adapter. The points are sorted into bricks on the host
@@ -105,10 +105,21 @@ pub struct GpuBackend {
     in_flight: VecDeque<points::InFlight>,
     /// The resident steps submitted and not yet finished (resident.rs).
     steps: VecDeque<resident::Step>,
-    /// Resident steps that may be in flight at once (1 or
+    /// Submissions of resident steps that may be in flight at once (1 or
     /// `points::IN_FLIGHT`, the default): with two, the device runs one
     /// while the host waits for the other's results and records the next.
     pub depth: usize,
+    /// Resident steps a submission carries (1, the default, to
+    /// `points::MAX_BATCH`; `GSENC_GPU_BATCH`): the steps are recorded into
+    /// one command buffer, submitted once it holds this many (or when one
+    /// of them is read back), so that a driver's cost per submission is
+    /// paid once for them. Up to `depth × batch` steps are then in flight.
+    /// The same bits whatever the batch (tested). Uploads written buffer by
+    /// buffer (`upload_per_buffer`) land before a whole submission's
+    /// commands, so they take one step a submission.
+    pub batch: usize,
+    /// The resident steps recorded and not yet submitted (points.rs).
+    open: Option<points::Open>,
     /// Hand a point call's uploads to the queue buffer by buffer, as
     /// before 2026-12-05, rather than through its slot's mapped staging
     /// buffer (staged.rs `Staged`): the same bits, for measuring what the
@@ -147,6 +158,22 @@ fn depth_from_env() -> usize {
         Some(d) => d.clamp(1, points::IN_FLIGHT),
         None => points::IN_FLIGHT,
     }
+}
+
+/// `GSENC_GPU_BATCH=K`: resident steps a submission carries
+/// ([`GpuBackend::batch`]), 1 to [`points::MAX_BATCH`]; unset or empty, 1.
+/// The same models whatever it is; for measuring what a driver's cost per
+/// submission takes from a step (`benches/gpu.sh`).
+fn batch_from_env() -> Result<usize> {
+    let Ok(v) = std::env::var("GSENC_GPU_BATCH") else { return Ok(1) };
+    if v.trim().is_empty() {
+        return Ok(1);
+    }
+    v.trim()
+        .parse::<usize>()
+        .ok()
+        .filter(|k| (1..=points::MAX_BATCH).contains(k))
+        .ok_or_else(|| Error::arg(format!("GSENC_GPU_BATCH={v:?}: expected resident steps a submission, 1 to {}", points::MAX_BATCH)))
 }
 
 /// What `GSENC_GPU_SPLIT=PIECE,SLICES[,CHUNK[,TEAM]]` sets: how the point
@@ -191,9 +218,10 @@ impl GpuBackend {
     /// Opens the adapter `req` names and compiles the kernels.
     pub fn new(req: &DeviceRequest) -> Result<GpuBackend> {
         let split = split_from_env()?;
+        let batch = batch_from_env()?;
         let gpu = Gpu::open(req)?;
         let kernels = Kernels::new(&gpu)?;
-        let timer = Timer::new(&gpu, points::IN_FLIGHT);
+        let timer = Timer::new(&gpu, points::SLOTS);
         let mut b = GpuBackend {
             gpu,
             kernels,
@@ -215,6 +243,8 @@ impl GpuBackend {
             in_flight: VecDeque::new(),
             steps: VecDeque::new(),
             depth: depth_from_env(),
+            batch,
+            open: None,
             upload_per_buffer: std::env::var("GSENC_GPU_UPLOAD").is_ok_and(|v| v.trim() == "writes"),
             reruns: 0,
         };
@@ -237,6 +267,16 @@ impl GpuBackend {
         self.capacity = slots.max(1);
         self.coarse_capacity = slots.max(1);
         self.slab_capacity = slots.max(1);
+    }
+
+    /// Resident steps a submission carries: `batch`, or one when uploads
+    /// go buffer by buffer.
+    fn batch(&self) -> usize {
+        if self.upload_per_buffer {
+            1
+        } else {
+            self.batch.clamp(1, points::MAX_BATCH)
+        }
     }
 
     /// An error when a submitted call has not been finished: every call

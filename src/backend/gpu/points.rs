@@ -4,13 +4,15 @@
 //! and (resident) the Adam step. Mirrors cpu/mod.rs `bin_points`, `grad_chunk`
 //! and `eval_chunk`.
 
+use super::buffers::Buffers;
+use super::device::Gpu;
 use super::kernels::*;
 use super::{bytes, count_u32, seq, words, GpuBackend};
 use crate::backend::bricks::PointBricks;
 use crate::error::{Error, Result};
 use crate::math::kernel::Primitive;
 use std::borrow::Cow;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 /// What a point call computes after the forward pass.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -24,9 +26,24 @@ pub(super) enum Pass {
     Resident { report: bool },
 }
 
-/// Point calls that may be in flight at once: two resident steps, so that
-/// the device runs one while the host finishes the other.
+/// Submissions of point calls that may be in flight at once: two of
+/// resident steps, so that the device runs one while the host finishes
+/// the other.
 pub const IN_FLIGHT: usize = 2;
+
+/// Resident steps one submission may carry (`GpuBackend::batch`).
+pub const MAX_BATCH: usize = 4;
+
+/// Read-back slots: each call in flight holds one.
+pub const SLOTS: usize = IN_FLIGHT * MAX_BATCH;
+
+/// Resident steps recorded into a command buffer that is not submitted
+/// yet, because it carries `GpuBackend::batch` steps and has fewer; the
+/// read-back slots of its calls, in order.
+pub(super) struct Open {
+    enc: wgpu::CommandEncoder,
+    slots: Vec<usize>,
+}
 
 /// A point call submitted and not yet finished: what `finish_points`
 /// needs to read it and to submit it again when its lists overflow.
@@ -203,6 +220,9 @@ impl GpuBackend {
     /// Waits for the call read back through `slot`: its first two regions
     /// and both levels' list starts.
     fn read_call(&mut self, slot: usize) -> Result<(Vec<u8>, Vec<u8>, Vec<u32>, Vec<u32>)> {
+        if self.open.as_ref().is_some_and(|o| o.slots.contains(&slot)) {
+            self.flush()?;
+        }
         let started = Instant::now();
         let gpu = &self.gpu;
         let b = &mut self.bufs;
@@ -224,14 +244,30 @@ impl GpuBackend {
         }
         self.steps.clear();
         self.loaded = None;
+        self.open = None;
         let _ = self.gpu.wait(None);
+    }
+
+    /// Submits the resident steps recorded and not yet submitted, if any.
+    pub(super) fn flush(&mut self) -> Result<()> {
+        let Some(open) = self.open.take() else { return Ok(()) };
+        let started = Instant::now();
+        let (gpu, b) = (&self.gpu, &mut self.bufs);
+        let out = gpu.scoped("submitting point passes", || {
+            submit_open(gpu, b, open);
+            Ok(())
+        });
+        self.host.add("submit", started.elapsed());
+        out
     }
 
     /// Records and submits a point call, its upload first, without waiting
     /// for it: the host can prepare the next batch while the device works.
+    /// A resident step is submitted with the steps recorded before it once
+    /// they are `GpuBackend::batch` (or when one of them is read back).
     /// `finish_points` must follow before any other call.
     pub(super) fn submit_points(&mut self, call: InFlight) -> Result<()> {
-        let slot = (0..IN_FLIGHT)
+        let slot = (0..SLOTS)
             .find(|s| self.in_flight.iter().all(|c| c.slot != *s))
             .ok_or_else(|| Error::arg("GPU backend: a call while every read-back slot is in flight"))?;
         let out = self.record_points(&call, slot);
@@ -259,6 +295,8 @@ impl GpuBackend {
         let coarse_entries = ncoarse as u64 * split as u64;
         let coarse_groups = count_u32("coarse bin workgroups", coarse_entries as usize)?;
         let (g, per_buffer) = (self.garbage, self.upload_per_buffer);
+        let batch = if matches!(pass, Pass::Resident { .. }) { self.batch() } else { 1 };
+        let mut open = self.open.take();
         let gpu = &self.gpu;
         let k = &self.kernels;
         let timer = &mut self.timer;
@@ -299,12 +337,13 @@ impl GpuBackend {
         b.terms.ensure(gpu, 16 * sorted, g)?;
         let host = &mut self.host;
         let mut recording = written;
-        let mut submitted = Duration::ZERO;
+        let mut submitted = None;
         binds.keep_while(b.made());
         let out = gpu.scoped("a point pass", || {
-            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            let mut open = open.take().unwrap_or_else(|| Open { enc: gpu.device.create_command_encoder(&Default::default()), slots: vec![] });
+            let enc = &mut open.enc;
             let regions: Vec<(&[u8], &wgpu::Buffer)> = uploads.iter().map(|(d, buf)| (*d, buf)).collect();
-            b.staged[slot].record(gpu, &mut enc, &regions, per_buffer)?;
+            b.staged[slot].record(gpu, enc, &regions, per_buffer)?;
             recording = host.lap("write", written);
             let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
             let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
@@ -315,26 +354,26 @@ impl GpuBackend {
             let pieces = b.pieces.ensure(gpu, 0, false)?;
             let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
             let nb = nbricks as u32;
-            dispatch(gpu, &mut enc, timer, binds, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
+            dispatch(gpu, enc, timer, binds, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
             // Each coarse cell's primitives, from all of them; each brick's,
             // from its coarse cell's.
             let coarse = ListLevel { uniform: &u1, cells: cells1, counts: counts1, starts: starts1, lists: lists1, groups: coarse_groups };
             let bricks = ListLevel { uniform: &u, cells, counts, starts, lists, groups: nb };
-            bin_two_levels(gpu, &mut enc, timer, binds, k, (ranges, ident, ident_bounds), &coarse, &bricks);
-            dispatch(gpu, &mut enc, timer, binds, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
+            bin_two_levels(gpu, enc, timer, binds, k, (ranges, ident, ident_bounds), &coarse, &bricks);
+            dispatch(gpu, enc, timer, binds, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
             let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
             if pass == Pass::Evaluate {
                 read[0].1 = 8 * npts as u64;
             } else {
                 let (partial, occ) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?);
                 let backward_groups = count_u32("backward workgroups", nbricks * p.split[1].max(1) as usize)?;
-                dispatch(gpu, &mut enc, timer, binds, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
+                dispatch(gpu, enc, timer, binds, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
                 // A team of `p.split[2]` threads a primitive.
                 let reduce_groups = groups_for(count_u32("reduce threads", n * p.split[2] as usize)? as usize);
                 let summed = [(0, &u), (1, params), (2, ranges), (3, occ), (4, starts), (5, lists), (6, partial)];
                 if pass == Pass::Gradient {
                     let grad = b.grad.ensure(gpu, 0, false)?;
-                    dispatch(gpu, &mut enc, timer, binds, &k.reduce, &[&summed[..], &[(7, grad)]].concat(), reduce_groups);
+                    dispatch(gpu, enc, timer, binds, &k.reduce, &[&summed[..], &[(7, grad)]].concat(), reduce_groups);
                     read = vec![(grad, 48 * n as u64), (loss, 8)];
                 } else {
                     // The reduction, the regularisers and the Adam step;
@@ -342,25 +381,31 @@ impl GpuBackend {
                     // overflowed.
                     let (moments, poison) = (b.moments.ensure(gpu, 0, false)?, b.poison.ensure(gpu, 0, false)?);
                     let step = [(8, moments), (9, reg_terms), (10, starts1), (11, poison)];
-                    dispatch(gpu, &mut enc, timer, binds, &k.step, &[&summed[..], &step].concat(), reduce_groups);
+                    dispatch(gpu, enc, timer, binds, &k.step, &[&summed[..], &step].concat(), reduce_groups);
                 }
                 if pass != (Pass::Resident { report: false }) {
-                    dispatch(gpu, &mut enc, timer, binds, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);
+                    dispatch(gpu, enc, timer, binds, &k.loss, &seq(&[&u, terms, reg_terms, loss]), 1);
                     read[1].1 = 16;
                 }
             }
-            let times = timer.resolve(&mut enc).unwrap_or((loss, 0));
+            let times = timer.resolve(enc).unwrap_or((loss, 0));
             read.extend([(starts, 4 * (nbricks as u64 + 1)), (starts1, 4 * (coarse_entries + 1)), times]);
-            b.readback[slot].record(gpu, &mut enc, &read)?;
+            b.readback[slot].record(gpu, enc, &read)?;
+            open.slots.push(slot);
+            if open.slots.len() < batch {
+                return Ok(Some(open));
+            }
             let submitting = Instant::now();
-            b.readback[slot].submit(gpu, enc);
-            b.staged[slot].remap();
-            submitted = submitting.elapsed();
-            Ok(())
+            submit_open(gpu, b, open);
+            submitted = Some(submitting.elapsed());
+            Ok(None)
         });
-        host.add("record", recording.elapsed().saturating_sub(submitted));
-        host.add("submit", submitted);
-        out
+        host.add("record", recording.elapsed().saturating_sub(submitted.unwrap_or_default()));
+        if let Some(s) = submitted {
+            host.add("submit", s);
+        }
+        self.open = out?;
+        Ok(())
     }
 
     /// Kernel evaluations of a forward pass: points times candidates per brick.
@@ -368,5 +413,16 @@ impl GpuBackend {
         for (b, &(s, e)) in ranges.iter().enumerate() {
             self.evaluations += (e - s) as u64 * (starts[b + 1] - starts[b]) as u64;
         }
+    }
+}
+
+/// Submits the calls of `open` in one command buffer: each read-back slot
+/// then waits for that submission, and each staging buffer is mapped again
+/// once the device is done with it.
+fn submit_open(gpu: &Gpu, b: &mut Buffers, open: Open) {
+    let index = gpu.queue.submit([open.enc.finish()]);
+    for &s in &open.slots {
+        b.readback[s].submitted(index.clone());
+        b.staged[s].remap();
     }
 }

@@ -50,7 +50,7 @@ impl Resident for GpuBackend {
     }
 
     fn depth(&self) -> usize {
-        self.depth.clamp(1, IN_FLIGHT)
+        self.depth.clamp(1, IN_FLIGHT) * self.batch()
     }
 
     fn submit(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()> {
