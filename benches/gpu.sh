@@ -8,9 +8,12 @@
 # CPU_ITERS caps the CPU rows (default 200: the ratio is per iteration, so
 # the CPU rows need not run the whole schedule; CPU_ITERS= runs the whole
 # schedule, which the PSNR gap needs); ROWS selects rows by name, WHICH
-# the backends (default "gpu gpuw gpu4 cpu"; gpuw is the GPU with a
+# the backends (default "gpu gpuw gpub gpu4 cpu"; gpuw is the GPU with a
 # step's uploads written buffer by buffer, GSENC_GPU_UPLOAD=writes, run
-# beside each gpu run, for what the mapped staging buffer saves; gpu1 (not
+# beside each gpu run, for what the mapped staging buffer saves; gpub the
+# GPU with BATCH (default 4) training steps to a submission,
+# GSENC_GPU_BATCH, run beside each gpu run, for what the driver's cost per
+# submission takes from a step; gpu1 (not
 # run by default: measured 2026-12-04) the GPU with one training step in
 # flight rather than two, GSENC_GPU_DEPTH=1; gpunt (not run by default:
 # 0.92-1.11x, noise, on 2026-12-04) the GPU without timestamp queries,
@@ -32,8 +35,8 @@
 # Prints one JSON line per run to bench-out/gpu.jsonl, the adapters to
 # bench-out/gpu-devices.json, a Markdown table of the rows (and, as
 # comments, each row's ratio of uploads through the staging buffer to
-# writes buffer by buffer, and of two steps in flight to one when gpu1
-# ran), and a table of
+# writes buffer by buffer, of steps batched to one a submission, and of
+# two steps in flight to one when gpu1 ran), and a table of
 # where each GPU row's loop went per iteration (draw, submit, wait, device).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -61,19 +64,20 @@ late() { # true (and says so) when STOP_AFTER has passed
 run() { # name backend iteration-cap args...
     local name=$1 backend=$2 cap=$3; shift 3
     want "$name" || return 0
-    [[ " ${WHICH:-gpu gpuw gpu4 cpu} " == *" $backend "* ]] || return 0
+    [[ " ${WHICH:-gpu gpuw gpub gpu4 cpu} " == *" $backend "* ]] || return 0
     late "$name" && return 0
     local iters=()
     [ -n "$cap" ] && iters=(--iters "$cap")
     echo "[$name] $backend ${iters[*]}" >&2
     local result
     # `gpu1`: the GPU with one training step in flight instead of two.
-    local depth=2 as=$backend timing=1 upload= threads=()
+    local depth=2 as=$backend timing=1 upload= batch=1 threads=()
     [ "$backend" = gpu1 ] && depth=1 as=gpu
     [ "$backend" = gpunt ] && timing=0 as=gpu
     [ "$backend" = gpuw ] && upload=writes as=gpu
+    [ "$backend" = gpub ] && batch=${BATCH:-4} as=gpu
     [ "$backend" = gpu4 ] && threads=(--threads 4) as=gpu
-    if result=$(GSENC_GPU_DEPTH=$depth GSENC_GPU_TIMING=$timing GSENC_GPU_UPLOAD=$upload timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" "${threads[@]}" --backend "$as" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
+    if result=$(GSENC_GPU_DEPTH=$depth GSENC_GPU_TIMING=$timing GSENC_GPU_UPLOAD=$upload GSENC_GPU_BATCH=$batch timeout "${ROW_LIMIT:-150}" "$bin" encode grid "$@" "${iters[@]}" "${threads[@]}" --backend "$as" -o "$out/gpu_${name}_$backend.gsm" --json --quiet); then
         echo "$result" | python3 -c "import json,sys; d=json.load(sys.stdin); d['row']='$name'; d['which']='$backend'; print(json.dumps(d))" >> "$log"
     else
         echo "{\"row\": \"$name\", \"which\": \"$backend\", \"failed_or_timed_out\": true}" >> "$log"
@@ -88,6 +92,7 @@ row() { # name args...: the row on the GPU, then on the CPU
         [ "$i" = 1 ] || [ "$SECONDS" -lt "${DEADLINE:-300}" ] || break
         run "$name" gpu "${ITERS:-}" "$@"
         run "$name" gpuw "${ITERS:-}" "$@"
+        run "$name" gpub "${ITERS:-}" "$@"
         run "$name" gpu1 "${ITERS:-}" "$@"
     done
     run "$name" gpunt "${ITERS:-}" "$@"
@@ -159,6 +164,9 @@ for name, by in rows.items():
     if "gpu" in by and "gpuw" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpuw"][0]["voxel_psnr"]
         print(f"<!-- {name}: a step's uploads through its staging buffer {per['gpuw'] / per['gpu']:.2f}x faster than buffer by buffer; same model: {same} -->")
+    if "gpu" in by and "gpub" in by:
+        same = by["gpu"][0]["voxel_psnr"] == by["gpub"][0]["voxel_psnr"]
+        print(f"<!-- {name}: steps batched to a submission {per['gpu'] / per['gpub']:.2f}x faster than one a submission; same model: {same} -->")
     if "gpu" in by and "gpu4" in by:
         same = by["gpu"][0]["voxel_psnr"] == by["gpu4"][0]["voxel_psnr"]
         print(f"<!-- {name}: a host pool of every core {per['gpu4'] / per['gpu']:.2f}x faster than of 4 threads; same model: {same} -->")
@@ -171,7 +179,7 @@ for name, by in rows.items():
 print()
 print("| row | loop ms / it | draw | submit | wait | device (every kernel of the run) |")
 print("|---|---|---|---|---|---|")
-for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpuw", "gpu1", "gpunt", "gpu4")]:
+for (name, w), runs in [((n, w), by.get(w, [])) for n, by in rows.items() for w in ("gpu", "gpuw", "gpub", "gpu1", "gpunt", "gpu4")]:
     if name == "decode_1024" or not runs or "loop_phases" not in runs[0]:
         continue
     it = runs[0]["iterations"]

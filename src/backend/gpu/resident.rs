@@ -1,10 +1,12 @@
 //! Resident training on the GPU: parameters and Adam's moments stay in
 //! device buffers between iterations; a step uploads only the batch's points
 //! and reads back only the list totals (and, when asked, four loss terms).
-//! `submit` returns once the step is on the device's queue, so the host
+//! `submit` returns once the step is on the device's queue (or recorded
+//! into a submission of several steps that is not full yet), so the host
 //! draws the next batch while the device works; `finish` waits for the
 //! oldest step. Two steps may be in flight (`GpuBackend::depth`): the
-//! device runs the second while the host reads the first's results.
+//! device runs the second while the host reads the first's results; with
+//! `GpuBackend::batch` K, two submissions of K steps each.
 //! Mirrors the iteration of encode/refine.rs: `point_loss_grad`, then
 //! `regularizers` and `Adam::step` (reduce.wgsl `step`, after the reduction).
 
