@@ -25,7 +25,8 @@
 # ROW_LIMIT (default 150 s; 240 s for the in-situ run) stops any one run,
 # recorded as timed out, and
 # STOP_AFTER (seconds, default none) skips every run that would start later,
-# so the script ends in time; DECODE_WHICH (default "gpu cpu") the decode's
+# so the script ends in time; DECODE_WHICH (default "gpu cpu"; empty: no
+# decode) the decode's
 # backends (the CPU's decode of 1024^3 took over 110 s on the H200's 16
 # cores); INSITU=0 skips the in-situ run (benches/insitu.sh,
 # one run of 8 steps, on the GPU backend); OUT (the device machine's output
@@ -106,9 +107,9 @@ row hydrogen_4k_matched "${h_args[@]}" --budget 4096 --schedule matched
 row rm256_200k_full "${rm_args[@]}" --budget 200000 --schedule full
 
 # The decode of 1024^3 (4 GiB of float32, streamed to disk and deleted).
-if want decode_1024; then
+if want decode_1024 && [ -n "${DECODE_WHICH-gpu cpu}" ]; then
     "$bin" encode grid "${h_args[@]}" --budget 4096 --schedule short --iters 100 --backend cpu -o "$out/gpu_decode_model.gsm" --quiet
-    for backend in ${DECODE_WHICH:-gpu cpu}; do
+    for backend in ${DECODE_WHICH-gpu cpu}; do
         late decode_1024 && break
         echo "[decode_1024] $backend" >&2
         if result=$(timeout "${ROW_LIMIT:-150}" "$bin" decode "$out/gpu_decode_model.gsm" --dims 1024,1024,1024 --backend "$backend" -o "$out/gpu_decode.raw" --json); then
