@@ -26,9 +26,9 @@ pub(super) enum Pass {
     Resident { report: bool },
 }
 
-/// Submissions of point calls that may be in flight at once: two of
-/// resident steps, so that the device runs one while the host finishes
-/// the other.
+/// Submissions of resident steps that may be in flight at once: two, so
+/// that the device runs one while the host finishes the other (each of
+/// `GpuBackend::batch` steps).
 pub const IN_FLIGHT: usize = 2;
 
 /// Resident steps one submission may carry (`GpuBackend::batch`).
