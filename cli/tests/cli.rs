@@ -1090,30 +1090,18 @@ fn backend_choice_end_to_end() {
     let times = |j: &serde_json::Value, phase: &str| j["gpu_host_seconds"][phase]["times"].as_u64().unwrap();
     assert_eq!(times(&b, "record"), times(&g, "record"), "{b}");
     assert!(3 * times(&b, "submit") < 2 * times(&g, "submit"), "{b}");
-    for bad in ["0", "5", "x", "2,2"] {
+    let bad_values = [("GSENC_GPU_BATCH", ["0", "5", "x", "2,2"].as_slice()), ("GSENC_GPU_SPLIT", &["0,8", "8", "8,8,8,8,8", "8,x", "8,8,8,6", "8,8,8,256"])];
+    for (var, bad) in bad_values.iter().flat_map(|(var, values)| values.iter().map(move |v| (*var, *v))) {
         let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
             .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--iters", "5"])
             .args(["-o", missing.to_str().unwrap(), "-q", "--backend", "gpu"])
             .env("GSENC_ADAPTER", adapter)
-            .env("GSENC_GPU_BATCH", bad)
+            .env(var, bad)
             .output()
             .unwrap();
         let err = String::from_utf8_lossy(&run.stderr);
-        assert_eq!(run.status.code(), Some(2), "GSENC_GPU_BATCH={bad}: {err}");
-        assert!(err.contains("GSENC_GPU_BATCH"), "{err}");
-        assert!(!missing.exists());
-    }
-    for bad in ["0,8", "8", "8,8,8,8,8", "8,x", "8,8,8,6", "8,8,8,256"] {
-        let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
-            .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--iters", "5"])
-            .args(["-o", missing.to_str().unwrap(), "-q", "--backend", "gpu"])
-            .env("GSENC_ADAPTER", adapter)
-            .env("GSENC_GPU_SPLIT", bad)
-            .output()
-            .unwrap();
-        let err = String::from_utf8_lossy(&run.stderr);
-        assert_eq!(run.status.code(), Some(2), "GSENC_GPU_SPLIT={bad}: {err}");
-        assert!(err.contains("GSENC_GPU_SPLIT"), "{err}");
+        assert_eq!(run.status.code(), Some(2), "{var}={bad}: {err}");
+        assert!(err.contains(var), "{err}");
         assert!(!missing.exists());
     }
     // On a toy field this small a different summation order alone moves the
