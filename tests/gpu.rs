@@ -616,7 +616,7 @@ fn a_step_that_overflows_holds_back_the_step_queued_after_it() {
         let mut found = false;
         for cap in (3..16).map(|k| 1usize << k) {
             let mut tight = gpu().unwrap();
-            (tight.batch, tight.reruns) = (batch, 0);
+            tight.batch = batch;
             tight.set_capacity(cap);
             let got = piped(&mut tight, &batches[..2]);
             if tight.reruns == 1 {
