@@ -159,21 +159,20 @@ for name, by in rows.items():
         if gpu and "cpu" in by and by["cpu"][0]["iterations"] == d["iterations"]:
             gap = f"{d['voxel_psnr'] - by['cpu'][0]['voxel_psnr']:+.3f}"
         print(f"| {name} | {d['backend']} ({w}) | {len(runs)} | {d['iterations']} | {d['voxel_psnr']:.2f} | {sec(runs):.2f} | {per[w]*1e3:.2f} ms | {ratio} | {gap} |")
-    if "gpu" in by and "gpu1" in by:
-        same = by["gpu"][0]["voxel_psnr"] == by["gpu1"][0]["voxel_psnr"]
-        print(f"<!-- {name}: two steps in flight {per['gpu1'] / per['gpu']:.2f}x one; same model: {same} -->")
-    if "gpu" in by and "gpuw" in by:
-        same = by["gpu"][0]["voxel_psnr"] == by["gpuw"][0]["voxel_psnr"]
-        print(f"<!-- {name}: a step's uploads through its staging buffer {per['gpuw'] / per['gpu']:.2f}x faster than buffer by buffer; same model: {same} -->")
-    if "gpu" in by and "gpub" in by:
-        same = by["gpu"][0]["voxel_psnr"] == by["gpub"][0]["voxel_psnr"]
-        print(f"<!-- {name}: steps batched to a submission {per['gpu'] / per['gpub']:.2f}x faster than one a submission; same model: {same} -->")
-    if "gpu" in by and "gpu4" in by:
-        same = by["gpu"][0]["voxel_psnr"] == by["gpu4"][0]["voxel_psnr"]
-        print(f"<!-- {name}: a host pool of every core {per['gpu4'] / per['gpu']:.2f}x faster than of 4 threads; same model: {same} -->")
-    if "gpu" in by and "gpunt" in by:
-        same = by["gpu"][0]["voxel_psnr"] == by["gpunt"][0]["voxel_psnr"]
-        print(f"<!-- {name}: timing every pass costs {per['gpu'] / per['gpunt']:.2f}x an iteration without; same model: {same} -->")
+    # Each variant beside the gpu runs: its comment's words around the
+    # ratio, and whether the ratio is the variant's time over gpu's (else
+    # gpu's over the variant's).
+    for w, before, after, over_gpu in (
+        ("gpu1", "two steps in flight", "x one", True),
+        ("gpuw", "a step's uploads through its staging buffer", "x faster than buffer by buffer", True),
+        ("gpub", "steps batched to a submission", "x faster than one a submission", False),
+        ("gpu4", "a host pool of every core", "x faster than of 4 threads", True),
+        ("gpunt", "timing every pass costs", "x an iteration without", False),
+    ):
+        if "gpu" in by and w in by:
+            same = by["gpu"][0]["voxel_psnr"] == by[w][0]["voxel_psnr"]
+            ratio = per[w] / per["gpu"] if over_gpu else per["gpu"] / per[w]
+            print(f"<!-- {name}: {before} {ratio:.2f}{after}; same model: {same} -->")
 # Where a GPU row's loop went, per iteration (medians over the runs): the
 # host's phases (refine.rs `LoopPhases`; drawing runs beside submit and
 # wait when the pool has a second thread) and the kernels' device time.
