@@ -164,6 +164,8 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "points": out.points,
         "kernel_evals_per_second": out.kernel_evaluations as f64 / out.loop_seconds.max(1e-9),
         "backend": out.backend,
+        // The build of the CPU backend's loops (math/simd.rs), for reading timings.
+        "simd": gsenc::math::simd::build(),
         "fell_back": out.fell_back,
         "kernel_seconds": kernel_seconds(backend.as_ref()),
         "gpu_host_seconds": gpu_host_seconds(backend.as_ref()),

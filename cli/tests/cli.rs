@@ -99,27 +99,45 @@ fn encode_eval_info_decode_round_trip() {
 /// AVX-512, AVX2 and the baseline and chosen at run time (`GSENC_SIMD`
 /// caps the level, `math/simd.rs`); all three execute the
 /// same float operations in the same order, so the models are identical.
-/// On a CPU without AVX-512 (or AVX2) the higher levels fall back to what
-/// it has, and the test compares fewer builds.
+/// The output's `simd` names the build that ran: the cap, or what the CPU
+/// has below it (on a CPU without AVX-512 or AVX2 the test compares fewer
+/// builds, and says which it compared). A cap that names no build is a
+/// usage error, not a silent run of another build.
 #[test]
 fn every_simd_build_of_the_cpu_backend_gives_the_same_model() {
     let dir = tmpdir("simd");
     let (input, _) = write_input(&dir);
-    let model = |level: &str| {
+    let encode = |level: &str| {
         let m = dir.join(format!("{level}.gsm"));
         let out = Command::new(env!("CARGO_BIN_EXE_gsenc"))
             .args(["encode", "grid", "--input", input.to_str().unwrap(), "--dims", "20,16,12", "--dtype", "f32", "--budget", "200"])
-            .args(["--schedule", "short", "--iters", "80", "--points", "1500", "--backend", "cpu", "--quiet", "-o", m.to_str().unwrap()])
+            .args(["--schedule", "short", "--iters", "80", "--points", "1500", "--backend", "cpu", "--quiet", "--json", "-o", m.to_str().unwrap()])
             .env("GSENC_SIMD", level)
             .output()
             .unwrap();
-        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-        std::fs::read(m).unwrap()
+        (out, m)
     };
-    let best = model("avx512");
+    let model = |level: &str| {
+        let (out, m) = encode(level);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        let ran = serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()["simd"].as_str().unwrap().to_string();
+        (std::fs::read(m).unwrap(), ran)
+    };
+    let (best, top) = model("avx512");
     assert_eq!(gsenc::format::read_model(&best).unwrap().params.len(), 200);
-    assert!(model("avx2") == best, "the AVX2 build's model differs from the AVX-512 build's");
-    assert!(model("baseline") == best, "the baseline build's model differs from the AVX-512 build's");
+    let (avx2, ran_avx2) = model("avx2");
+    let (baseline, ran_baseline) = model("baseline");
+    assert_eq!(ran_baseline, "baseline", "GSENC_SIMD=baseline ran another build");
+    let order = ["baseline", "avx2", "avx512"];
+    let rank = |s: &str| order.iter().position(|&o| o == s).unwrap_or_else(|| panic!("unknown build {s}"));
+    assert_eq!(ran_avx2, order[rank(&top).min(1)], "GSENC_SIMD=avx2 on a CPU whose best build is {top}");
+    eprintln!("compared the builds {top}, {ran_avx2} and baseline");
+    assert!(avx2 == best, "the {ran_avx2} build's model differs from the {top} build's");
+    assert!(baseline == best, "the baseline build's model differs from the {top} build's");
+    let (out, _) = encode("avx-2");
+    assert_eq!(out.status.code(), Some(2), "a GSENC_SIMD that names no build");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.ends_with("gsenc: invalid argument: GSENC_SIMD: unknown build 'avx-2' (avx512, avx2, baseline)\n"), "{err}");
 }
 
 /// `gsenc render`: a slice and a volume of a model beside its reference,
@@ -290,6 +308,15 @@ fn bad_inputs_fail_with_codes_and_messages() {
         }
         assert_eq!(limited.exists(), code == 0, "{limit}");
     }
+    // A backend that does not exist, named where a job script sets it.
+    let out = Command::new(env!("CARGO_BIN_EXE_gsenc"))
+        .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "10", "--quiet", "-o", ms])
+        .env("GSENC_BACKEND", "cuda")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.ends_with("gsenc: invalid argument: GSENC_BACKEND: unknown backend 'cuda' (auto, cpu, gpu)\n"), "{err}");
     vals[123] = f32::NAN;
     let nan = dir.join("nan.f32");
     std::fs::write(&nan, gsenc::io::raw::to_f32_bytes(&vals)).unwrap();

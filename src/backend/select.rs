@@ -42,7 +42,7 @@ impl BackendKind {
     /// The kind `GSENC_BACKEND` names when it is set (and not empty), else `self`.
     pub fn or_env(self) -> Result<BackendKind> {
         match std::env::var("GSENC_BACKEND") {
-            Ok(s) if !s.trim().is_empty() => BackendKind::from_name(s.trim()).map_err(|e| Error::arg(format!("GSENC_BACKEND: {e}"))),
+            Ok(s) if !s.trim().is_empty() => BackendKind::from_name(s.trim()).map_err(|e| e.in_context("GSENC_BACKEND")),
             _ => Ok(self),
         }
     }
@@ -106,8 +106,10 @@ impl BackendChoice {
         }
     }
 
-    /// Opens the backend, `GSENC_BACKEND` overriding the kind.
+    /// Opens the backend, `GSENC_BACKEND` overriding the kind; a
+    /// `GSENC_SIMD` that names no build is refused here too.
     pub fn open(self) -> Result<Box<dyn Backend>> {
+        crate::math::simd::check_env()?;
         match self.kind.or_env()? {
             BackendKind::Cpu => Ok(Box::new(cpu_backend(self.brick))),
             BackendKind::Gpu => gpu_backend(self.gpu_index, adapter_from_env(), self.brick),

@@ -9,7 +9,7 @@ pub mod kernel;
 pub mod loss;
 pub mod optim;
 pub mod rng;
-pub(crate) mod simd;
+pub mod simd;
 
 /// Primitives per parallel task in a pass over every primitive (frames,
 /// binning, the gradient's reduction, the regularisers, Adam): at least
