@@ -14,9 +14,9 @@
 # for RM `matched`, 300 for hydrogen, 50 for RM `full`: 2-3 s a copy on the
 # H200 machine's cores); GSENC_BIN names a prebuilt gsenc. Every copy of a
 # row must write the same model bytes (checked: the same seeds under load).
-# Writes bench-out/rate.jsonl and prints a Markdown table; where
-# bench-out/scaling.jsonl holds the same machine's benches/scaling.sh runs,
-# the table sets the speed-up p threads measured beside the ceiling.
+# Writes bench-out/rate.jsonl and prints a Markdown table. SCALING names
+# the same machine's benches/scaling.sh runs (bench-out/scaling.jsonl), so
+# that the table sets the speed-up p threads measured beside the ceiling.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 . benches/corpus.sh
@@ -47,6 +47,8 @@ args() { # ROW: its encode arguments and default iterations
 for row in "${rows[@]}"; do
     args "$row"
     for p in $copies; do
+      # The copy alone is the reference of every ratio: ALONE runs of it (default 3).
+      for round in $(seq 1 $([ "$p" -eq 1 ] && echo "${ALONE:-3}" || echo 1)); do
         echo "[$row] $p copies" >&2
         pids=()
         for i in $(seq 0 $((p - 1))); do
@@ -55,8 +57,9 @@ for row in "${rows[@]}"; do
             pids+=($!)
         done
         for pid in "${pids[@]}"; do wait "$pid"; done
+        [ "$p" -gt 1 ] || cp "$out/$row-1-0.gsm" "$out/$row-alone.gsm"
         for i in $(seq 0 $((p - 1))); do
-            cmp -s "$out/$row-1-0.gsm" "$out/$row-$p-$i.gsm" || { echo "$row: copy $i of $p wrote another model than the copy alone" >&2; exit 1; }
+            cmp -s "$out/$row-alone.gsm" "$out/$row-$p-$i.gsm" || { echo "$row: copy $i of $p wrote another model than the copy alone" >&2; exit 1; }
             python3 -c "
 import json, sys
 d = json.load(open(sys.argv[1]))
@@ -66,14 +69,15 @@ print(json.dumps({'row': sys.argv[2], 'copies': int(sys.argv[3]), 'cpu': int(sys
                   'iterations': d['iterations'], 'simd': d.get('simd')}))" \
                 "$out/$row-$p-$i.json" "$row" "$p" "${cpus[$i]}" >> bench-out/rate.jsonl
         done
+      done
     done
 done
 
-python3 - bench-out/rate.jsonl bench-out/scaling.jsonl <<'PY'
-import json, os, statistics, sys
+python3 - bench-out/rate.jsonl "${SCALING:-}" <<'PY'
+import json, statistics, sys
 runs = [json.loads(l) for l in open(sys.argv[1])]
 scaling = {}
-if os.path.exists(sys.argv[2]):
+if sys.argv[2]:
     for l in open(sys.argv[2]):
         d = json.loads(l)
         scaling[(d["row"], d["threads"])] = d["seconds"] / d["iterations"]

@@ -13,7 +13,9 @@
 #   2. the CPU backend at 1, 2, 4, 8 and 16 threads (benches/scaling.sh,
 #      SCALING_ITERS iterations a row, default 500: the time an iteration
 #      takes is what compares), then which CPUs share a core with CPU 0
-#      (benches/siblings.sh, about 25 s);
+#      (benches/siblings.sh, about 25 s), then what the machine allows p
+#      threads apart from the pool: 1 to 16 one-thread encodes at once
+#      (benches/rate.sh, about 45 s);
 #   3. where an iteration loses time at 1, 4 and 16 threads (benches/
 #      timeline.sh, 300 iterations a row: the pool joining a pass late, a
 #      last task running alone, the gaps between passes), what a pass
@@ -77,10 +79,11 @@ echo "hardware GPUs: $(hardware)"
 
 # Seconds kept for the stages after the GPU rows (the H200 machine's times
 # of 2026-12-04: scaling 105 s at 500 iterations, the tests 15 s, in situ
-# on the CPU 75 s; estimated: the core probe 25 s, the timeline 25 s, the
+# on the CPU 75 s; estimated: the core probe 25 s, p encodes at once 45 s
+# (from its rows' times on the 2-core VM, 1.6x slower), the timeline 25 s, the
 # pass cost 10 s, the model 80 s from its one-thread iteration times; the
 # split sweep up to 60 s; the last stage runs only if they took less).
-reserve=${RESERVE:-390}
+reserve=${RESERVE:-430}
 stage "1. GPU rows (benches/gpu.sh)"
 gpu_time=$(( $(left) - reserve ))
 if [ "$gpu_time" -gt 60 ]; then
@@ -102,6 +105,11 @@ fi
 if [ "$(left)" -gt 150 ]; then
     ITERS=50 timeout 60 bash benches/siblings.sh > bench-out/siblings.md || echo "benches/siblings.sh: exit $?"
     cat bench-out/siblings.md
+fi
+if [ "$(left)" -gt 240 ]; then
+    ALONE=2 SCALING=bench-out/scaling.jsonl timeout 70 bash benches/rate.sh rm128_32k_matched hydrogen_4k_matched > bench-out/rate.md \
+        || echo "benches/rate.sh: exit $?"
+    cat bench-out/rate.md
 fi
 pack
 
