@@ -19,9 +19,8 @@ use crate::error::Result;
 use crate::field::{prefetch, Grid};
 use crate::input::samples::SampleSet;
 use crate::math::loss::{v_eval, MASK_REF};
-use crate::math::rng::{normal_from, Rng};
+use crate::math::rng::{normal_from, open0_from, range_from, uniform_from, Rng};
 use crate::profile;
-use rayon::prelude::*;
 
 pub const HIGH_THRESHOLD: f32 = 0.4;
 pub const MID_THRESHOLD: f32 = 0.02;
@@ -213,159 +212,171 @@ impl PointSampler {
         c
     }
 
-    /// A batch of `p` points. Two passes: what each point takes from the
-    /// random stream is drawn in turn on this thread (`Draw`); turning
-    /// the draws into positions and reference values (the pool, sample and
-    /// error-map lookups, the normals' logarithms and cosines, the
-    /// interpolation) takes nothing more from the stream, so it runs in
-    /// parallel point by point. The batch is the same bits as drawing and
-    /// placing each point in turn, whatever the thread count.
+    /// A batch of `p` points, in runs of [`RUN`]. Two passes: what each
+    /// point takes from the random stream is drawn in turn on this thread
+    /// (the words of a `Draw`, run by run); turning a run's words into
+    /// positions and reference values (the conversions to uniforms, the
+    /// pool, sample and error-map lookups, the normals' logarithms and
+    /// cosines, the interpolation) takes nothing more from the stream, so
+    /// each run is a task of its own, handed to the pool as soon as its
+    /// words are drawn: the pool places the first runs while this thread
+    /// draws the next. The batch is the same bits as drawing and placing
+    /// each point in turn, whatever the thread count.
     pub fn draw(&mut self, p: usize, reference: &Grid, samples: &dyn SampleSet) -> PointBatch {
         let c = self.counts(p, !samples.is_empty());
         let dims = reference.dims;
-        let on_lattice = self.rule.on_lattice;
-        let draws = profile::serial("draw: stream", || self.stream(&c, dims, samples.len()));
+        let PointSampler { high, mid, rule, errors, rng, .. } = self;
+        let (high, mid, errors, on_lattice) = (&*high, &*mid, errors.as_ref(), rule.on_lattice);
         // Where each stratum's points end in the batch.
-        let ends = [c.high, c.high + c.mid, c.high + c.mid + c.uniform, c.high + c.mid + c.uniform + c.samples];
+        let ends = [c.high, c.high + c.mid, c.high + c.mid + c.uniform, c.high + c.mid + c.uniform + c.samples, p];
+        let stratum = |i: usize| ends.iter().position(|&e| i < e).expect("a point beyond the batch");
         let voxel = |i: u32| reference.centre(i as usize).map(f64::from);
         // Where point `i` of the batch lies before placing, by its stratum.
         let unplaced = |i: usize, d: &Draw| -> [f64; 3] {
-            if i < ends[0] {
-                voxel(self.high[d.pick as usize])
-            } else if i < ends[1] {
-                voxel(self.mid[d.pick as usize])
-            } else if i < ends[2] {
-                [d.u[0], d.u[1], d.u[2]]
-            } else if i < ends[3] {
-                let q = samples.position(d.pick as usize);
-                [0, 1, 2].map(|a| q[a] as f64 + SAMPLE_NOISE_SIGMA * normal_from(d.u[2 * a], d.u[2 * a + 1]))
-            } else {
-                // The first mapped voxel whose running sum passes the draw.
-                let map = self.errors.as_ref().expect("an error stratum only with a map");
-                let k = map.guide.find(&map.cumulative, d.u[0] * map.guide.total).min(map.voxels.len() - 1);
-                voxel(map.voxels[k])
+            match stratum(i) {
+                HIGH => voxel(high[d.pick as usize]),
+                MID => voxel(mid[d.pick as usize]),
+                UNIFORM if on_lattice => [0, 1, 2].map(|a| d.w[a] as f64),
+                UNIFORM => [0, 1, 2].map(|a| range_from(0.0, (dims[a] - 1) as f64, d.w[a])),
+                SAMPLES => {
+                    let q = samples.position(d.pick as usize);
+                    [0, 1, 2].map(|a| q[a] as f64 + SAMPLE_NOISE_SIGMA * normal_from(open0_from(d.w[2 * a]), uniform_from(d.w[2 * a + 1])))
+                }
+                _ => {
+                    // The first mapped voxel whose running sum passes the draw.
+                    let map = errors.expect("an error stratum only with a map");
+                    let k = map.guide.find(&map.cumulative, uniform_from(d.w[0]) * map.guide.total).min(map.voxels.len() - 1);
+                    voxel(map.voxels[k])
+                }
             }
         };
         // The paper's points: jittered, then clamped to the domain; gsenc's:
         // rounded to the nearest voxel centre, then clamped.
-        let place = |q: [f64; 3], jitter: [f64; 3]| -> [f32; 3] {
+        let place = |q: [f64; 3], d: &Draw| -> [f32; 3] {
             std::array::from_fn(|a| {
-                let x = if on_lattice { q[a].round() } else { q[a] + jitter[a] };
+                let x = if on_lattice { q[a].round() } else { q[a] + range_from(-0.5, 0.5, d.w[JITTER + a]) };
                 x.clamp(0.0, (dims[a] - 1) as f64) as f32
             })
         };
-        // At a voxel centre the trilinear value is the voxel's own, bit for
-        // bit (every weight but its own is zero and the values are
-        // finite), so gsenc's points read that one value rather than eight.
         // What placing point `i` reads at random (a pool's entry, a
         // sample's position), asked of the cache ahead of the point.
-        let prefetch_unplaced = |i: usize| {
-            let Some(d) = draws.get(i) else { return };
-            if i < ends[0] {
-                prefetch(&self.high, d.pick as usize);
-            } else if i < ends[1] {
-                prefetch(&self.mid, d.pick as usize);
-            } else if i >= ends[2] && i < ends[3] {
-                samples.prefetch_position(d.pick as usize);
-            } else if let Some(map) = self.errors.as_ref().filter(|_| i >= ends[3]) {
-                map.guide.prefetch(d.u[0] * map.guide.total);
+        let prefetch_unplaced = |i: usize, d: &Draw| match stratum(i) {
+            HIGH => prefetch(high, d.pick as usize),
+            MID => prefetch(mid, d.pick as usize),
+            UNIFORM => {}
+            SAMPLES => samples.prefetch_position(d.pick as usize),
+            _ => {
+                if let Some(map) = errors {
+                    map.guide.prefetch(uniform_from(d.w[0]) * map.guide.total)
+                }
             }
         };
-        // Runs of points, each placed first and then read: apart, the
-        // loops keep many independent cache misses in flight (one loop that
-        // placed and read each point in turn was slower by a third); the
-        // placing asks the cache for what it reads `AHEAD` points early,
-        // and the reading for all of a run's values before it reads any.
-        const RUN: usize = 512;
+        // A run, its points placed first and then read: apart, the loops
+        // keep many independent cache misses in flight (one loop that placed
+        // and read each point in turn was slower by a third); the placing
+        // asks the cache for what it reads `AHEAD` points early, and the
+        // reading for all of the run's values before it reads any.
         const AHEAD: usize = 16;
+        let place_run = |first: usize, ds: &[Draw], xs: &mut [[f32; 3]], vs: &mut [f32]| {
+            for (k, d) in ds.iter().enumerate().take(AHEAD) {
+                prefetch_unplaced(first + k, d);
+            }
+            for (k, (x, d)) in xs.iter_mut().zip(ds).enumerate() {
+                if let Some(ahead) = ds.get(k + AHEAD) {
+                    prefetch_unplaced(first + k + AHEAD, ahead);
+                }
+                *x = place(unplaced(first + k, d), d);
+            }
+            // At a voxel centre the trilinear value is the voxel's own, bit
+            // for bit (every weight but its own is zero and the values are
+            // finite), so gsenc's points read that one value rather than eight.
+            if on_lattice {
+                let mut at = [0usize; RUN];
+                for (a, &x) in at.iter_mut().zip(xs.iter()) {
+                    *a = lattice_index(reference, x);
+                    prefetch(&reference.values, *a);
+                }
+                for (v, &a) in vs.iter_mut().zip(at.iter()) {
+                    *v = reference.values[a];
+                }
+            } else {
+                let mut corners = [([0usize; 3], [0f32; 3]); RUN];
+                for (c, &x) in corners.iter_mut().zip(xs.iter()) {
+                    *c = reference.corner(x);
+                    reference.prefetch_corner(c.0);
+                }
+                for (v, &(i0, t)) in vs.iter_mut().zip(corners.iter()) {
+                    *v = reference.interpolate(i0, t);
+                }
+            }
+        };
+        // The stream's words of one point, in the stream's order: its pick
+        // (or the uniform stratum's lattice coordinates), then its jitter.
+        let sizes = [high.len() as u64, mid.len() as u64, 0, samples.len() as u64, 0];
+        let take = |rng: &mut Rng, stratum: usize, d: &mut Draw| {
+            match stratum {
+                UNIFORM if on_lattice => (0..3).for_each(|a| d.w[a] = rng.below(dims[a] as u64)),
+                UNIFORM => (0..3).for_each(|a| d.w[a] = rng.next_u64()),
+                // Each axis's normal: its two uniforms, in `Rng::normal`'s order.
+                SAMPLES => {
+                    d.pick = rng.below(sizes[SAMPLES]);
+                    (0..6).for_each(|k| d.w[k] = rng.next_u64());
+                }
+                ERROR => d.w[0] = rng.next_u64(),
+                pool => d.pick = rng.below(sizes[pool]),
+            }
+            // The paper's points are jittered by half a voxel; gsenc's are not.
+            if !on_lattice {
+                (0..3).for_each(|a| d.w[JITTER + a] = rng.next_u64());
+            }
+        };
+        // A run's words, stratum by stratum.
+        let take_run = |rng: &mut Rng, first: usize, ds: &mut [Draw]| {
+            let mut from = 0;
+            for (st, &end) in ends.iter().enumerate() {
+                let to = end.saturating_sub(first).clamp(from, ds.len());
+                ds[from..to].iter_mut().for_each(|d| take(rng, st, d));
+                from = to;
+            }
+        };
+        let mut draws = vec![Draw::default(); p];
         let (mut pos, mut vref) = (vec![[0f32; 3]; p], vec![0f32; p]);
-        profile::even("draw: points", p.div_ceil(RUN), || {
-            pos.par_chunks_mut(RUN).zip(vref.par_chunks_mut(RUN)).enumerate().for_each(|(r, (xs, vs))| {
+        rayon::scope(|s| {
+            let runs = draws.chunks_mut(RUN).zip(pos.chunks_mut(RUN)).zip(vref.chunks_mut(RUN));
+            for (r, ((ds, xs), vs)) in runs.enumerate() {
                 let first = r * RUN;
-                (first..first + AHEAD.min(xs.len())).for_each(prefetch_unplaced);
-                for (k, x) in xs.iter_mut().enumerate() {
-                    if k + AHEAD < RUN {
-                        prefetch_unplaced(first + k + AHEAD);
-                    }
-                    let d = &draws[first + k];
-                    *x = place(unplaced(first + k, d), d.jitter);
-                }
-                // Where each point reads, asked of the cache as it is
-                // found, then the reads.
-                if on_lattice {
-                    let mut at = [0usize; RUN];
-                    for (a, &x) in at.iter_mut().zip(xs.iter()) {
-                        *a = lattice_index(reference, x);
-                        prefetch(&reference.values, *a);
-                    }
-                    for (v, &a) in vs.iter_mut().zip(at.iter()) {
-                        *v = reference.values[a];
-                    }
-                } else {
-                    let mut corners = [([0usize; 3], [0f32; 3]); RUN];
-                    for (c, &x) in corners.iter_mut().zip(xs.iter()) {
-                        *c = reference.corner(x);
-                        reference.prefetch_corner(c.0);
-                    }
-                    for (v, &(i0, t)) in vs.iter_mut().zip(corners.iter()) {
-                        *v = reference.interpolate(i0, t);
-                    }
-                }
-            })
+                profile::serial("draw: stream", || take_run(rng, first, ds));
+                let (ds, place_run) = (&*ds, &place_run);
+                s.spawn(move |_| profile::task("draw: points", || place_run(first, ds, xs, vs)));
+            }
         });
         PointBatch::new(pos, vref)
     }
-
-    /// What each point of a batch of counts `c` takes from the random
-    /// stream, stratum by stratum, in the stream's order.
-    fn stream(&mut self, c: &StratumCounts, dims: [usize; 3], samples: usize) -> Vec<Draw> {
-        let on_lattice = self.rule.on_lattice;
-        let rng = &mut self.rng;
-        let mut draws = Vec::with_capacity(c.high + c.mid + c.uniform + c.samples + c.error);
-        // The paper's points are jittered by half a voxel; gsenc's are not.
-        let jitter = |rng: &mut Rng| if on_lattice { [0.0; 3] } else { [0, 1, 2].map(|_| rng.range(-0.5, 0.5)) };
-        for (pool, count) in [(&self.high, c.high), (&self.mid, c.mid)] {
-            for _ in 0..count {
-                let pick = rng.below(pool.len() as u64);
-                draws.push(Draw { pick, u: [0.0; 6], jitter: jitter(rng) });
-            }
-        }
-        for _ in 0..c.uniform {
-            let mut u = [0.0; 6];
-            for a in 0..3 {
-                u[a] = if on_lattice { rng.below(dims[a] as u64) as f64 } else { rng.range(0.0, (dims[a] - 1) as f64) };
-            }
-            draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
-        }
-        for _ in 0..c.samples {
-            let pick = rng.below(samples as u64);
-            // Each axis's normal: its two uniforms, in `Rng::normal`'s order.
-            let mut u = [0.0; 6];
-            for a in 0..3 {
-                u[2 * a] = rng.uniform_open0();
-                u[2 * a + 1] = rng.uniform();
-            }
-            draws.push(Draw { pick, u, jitter: jitter(rng) });
-        }
-        if self.errors.is_some() {
-            for _ in 0..c.error {
-                let u = [rng.uniform(), 0.0, 0.0, 0.0, 0.0, 0.0];
-                draws.push(Draw { pick: 0, u, jitter: jitter(rng) });
-            }
-        }
-        draws
-    }
 }
 
-/// What one point of a batch takes from the random stream, in the stream's
-/// order: an index into its pool or the sample set (`pick`), the uniform
-/// stratum's position or the sample stratum's three pairs of uniforms for
-/// its normals or the error stratum's uniform (`u`), then its jitter.
-#[derive(Clone, Copy)]
+/// A batch's strata, in the batch's and the stream's order.
+const HIGH: usize = 0;
+const MID: usize = 1;
+const UNIFORM: usize = 2;
+const SAMPLES: usize = 3;
+const ERROR: usize = 4;
+/// Points a task of the draw places; each task's draws are drawn before
+/// it starts, while the tasks before it run.
+const RUN: usize = 512;
+/// Where a `Draw`'s jitter words begin.
+const JITTER: usize = 6;
+
+/// The words one point of a batch takes from the random stream, as drawn:
+/// an index into its pool or the sample set (`pick`), then the uniform
+/// stratum's three coordinates (on the lattice: already integers), the
+/// sample stratum's three pairs of uniforms for its normals, or the error
+/// stratum's uniform (`w[0..6]`), then its jitter (`w[6..9]`). Only the
+/// words its stratum takes are drawn; the conversions to floats happen
+/// where the point is placed.
+#[derive(Clone, Copy, Default)]
 struct Draw {
     pick: u64,
-    u: [f64; 6],
-    jitter: [f64; 3],
+    w: [u64; 9],
 }
 
 /// The voxel whose centre `x` is (a lattice point inside the grid).
@@ -477,7 +488,7 @@ mod tests {
                                     })
                                     .unwrap();
                                 }
-                                for p in [5, 2000] {
+                                for p in [5, 2000, 5000] {
                                     let (a, b) = (two.draw(p, g, samples), draw_in_turn(&mut one, p, g, samples));
                                     assert_eq!(a.len(), p);
                                     let bits = |b: &PointBatch| -> Vec<u32> { b.pos.iter().flatten().chain(&b.vref).map(|x| x.to_bits()).collect() };

@@ -40,17 +40,17 @@ impl Rng {
 
     /// Uniform in [0, 1) with 53 random bits.
     pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+        uniform_from(self.next_u64())
     }
 
     /// Uniform in (0, 1]: safe to take the logarithm of.
     pub fn uniform_open0(&mut self) -> f64 {
-        1.0 - self.uniform()
+        open0_from(self.next_u64())
     }
 
     /// Uniform in [lo, hi).
     pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.uniform()
+        range_from(lo, hi, self.next_u64())
     }
 
     /// Uniform integer in [0, n), unbiased (Lemire's multiply-shift with rejection).
@@ -72,6 +72,23 @@ impl Rng {
         let u2 = self.uniform();
         normal_from(u1, u2)
     }
+}
+
+/// What [`Rng::uniform`] makes of the word `x` of the stream, for code that
+/// takes the words in one place and converts them in another (the training
+/// draw: `encode/points.rs`).
+pub fn uniform_from(x: u64) -> f64 {
+    (x >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// What [`Rng::uniform_open0`] makes of the word `x`.
+pub fn open0_from(x: u64) -> f64 {
+    1.0 - uniform_from(x)
+}
+
+/// What [`Rng::range`] makes of the word `x`.
+pub fn range_from(lo: f64, hi: f64, x: u64) -> f64 {
+    lo + (hi - lo) * uniform_from(x)
 }
 
 /// The standard normal that [`Rng::normal`] makes of its two uniforms
