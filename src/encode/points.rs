@@ -452,7 +452,8 @@ mod tests {
     /// voxels and from scattered samples, with an empty pool and a batch
     /// smaller than a parallel task: the two-pass draw gives the bits of
     /// the draw in turn, batch after batch (so it also leaves the stream
-    /// where that one does), on one thread and on three.
+    /// where that one does), on one thread and on three, its kept words
+    /// garbage at first and then the last batch's.
     #[test]
     fn the_two_pass_draw_gives_the_points_of_the_draw_in_turn() {
         let mut rng = Rng::new(17);
@@ -476,6 +477,9 @@ mod tests {
                     for rule in [PointRule::PAPER, PointRule::GSENC] {
                         for samples in [g as &dyn SampleSet, &scattered, &none] {
                             let (mut two, mut one) = (PointSampler::new(g, 5, rule), PointSampler::new(g, 5, rule));
+                            // Words it keeps between batches, garbage at first: a point
+                            // must read only the words drawn for it.
+                            two.draws = vec![Draw { pick: u64::MAX, w: [0x7ff8_dead_beef_f00d; 9] }; 6000];
                             for round in 0..3 {
                                 if round == 1 {
                                     // A made-up error map (the same in both).
