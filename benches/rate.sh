@@ -34,12 +34,12 @@ import sys
 n, asked = int(sys.argv[1]), [int(c) for c in sys.argv[2].split()]
 print(*sorted({c for c in asked if c <= n} | {n}))' "${#cpus[@]}" "${COPIES:-1 2 4 8 16}")
 
-args() { # ROW: its encode arguments and default iterations
-    local rm=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255 --downsample 2 --budget 32000)
+args() { # ROW: its encode arguments (corpus.sh's, as benches/core.sh's rows) and default iterations
+    local rm=("${rm128[@]}" --range 0,255 --budget 32000)
     case $1 in
         rm128_32k_matched) row_args=("${rm[@]}" --schedule matched); row_iters=100 ;;
         rm128_32k_full) row_args=("${rm[@]}" --schedule full); row_iters=50 ;;
-        hydrogen_4k_matched) row_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32 --budget 4096 --schedule matched); row_iters=300 ;;
+        hydrogen_4k_matched) row_args=("${hyd[@]}" --budget 4096 --schedule matched); row_iters=300 ;;
         *) echo "rate.sh: no row named $1" >&2; exit 2 ;;
     esac
 }
@@ -52,7 +52,7 @@ for row in "${rows[@]}"; do
         echo "[$row] $p copies" >&2
         pids=()
         for i in $(seq 0 $((p - 1))); do
-            taskset -c "${cpus[$i]}" "$bin" encode grid "${row_args[@]}" --iters "${ITERS:-$row_iters}" --threads 1 --backend cpu \
+            taskset -c "${cpus[$i]}" "$bin" encode "${row_args[@]}" --iters "${ITERS:-$row_iters}" --threads 1 --backend cpu \
                 -o "$out/$row-$p-$i.gsm" --json --quiet > "$out/$row-$p-$i.json" &
             pids+=($!)
         done

@@ -315,18 +315,18 @@ impl PointSampler {
         };
         // The stream's words of one point, in the stream's order: its pick
         // (or the uniform stratum's lattice coordinates), then its jitter.
-        let sizes = [high.len() as u64, mid.len() as u64, 0, samples.len() as u64, 0];
         let take = |rng: &mut Rng, stratum: usize, d: &mut Draw| {
             match stratum {
+                HIGH => d.pick = rng.below(high.len() as u64),
+                MID => d.pick = rng.below(mid.len() as u64),
                 UNIFORM if on_lattice => (0..3).for_each(|a| d.w[a] = rng.below(dims[a] as u64)),
                 UNIFORM => (0..3).for_each(|a| d.w[a] = rng.next_u64()),
                 // Each axis's normal: its two uniforms, in `Rng::normal`'s order.
                 SAMPLES => {
-                    d.pick = rng.below(sizes[SAMPLES]);
+                    d.pick = rng.below(samples.len() as u64);
                     (0..6).for_each(|k| d.w[k] = rng.next_u64());
                 }
-                ERROR => d.w[0] = rng.next_u64(),
-                pool => d.pick = rng.below(sizes[pool]),
+                _ => d.w[0] = rng.next_u64(),
             }
             // The paper's points are jittered by half a voxel; gsenc's are not.
             if !on_lattice {
