@@ -257,6 +257,10 @@ impl gsenc_config {
 
 /// Fills `*config` with the defaults above. `config->struct_size` must be
 /// set first (to `sizeof(gsenc_config)`). Thread-safe.
+///
+/// # Safety
+/// `config` is NULL or a `gsenc_config` the caller owns, aligned, whose
+/// `struct_size` is set; this version's bytes of it are written.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_config_init(config: *mut gsenc_config) -> gsenc_status {
     guard(|| {

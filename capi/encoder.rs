@@ -62,6 +62,11 @@ impl ModelSink for KeepInMemory {
 
 /// Creates an encoder from `*config` (read, not kept) into `*out`.
 /// On failure `*out` is NULL. Thread-safe.
+///
+/// # Safety
+/// `config` is NULL or an initialised `gsenc_config` whose strings (NULL
+/// or NUL-terminated) are readable during the call; `out` is NULL or
+/// writable.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: *mut *mut gsenc_encoder) -> gsenc_status {
     // SAFETY: per this function's contract.
@@ -125,6 +130,11 @@ unsafe fn create_into(
 /// it calls done may reach the store at the next collective call. Ranks pushing
 /// different fields, steps or forms get `GSENC_STATUS_MPI` together.
 /// `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
+///
+/// # Safety
+/// As for `gsenc_encoder_create`; `comm` is a communicator's Fortran
+/// handle (an invalid one is MPI's error, which MPI's error handler
+/// decides).
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_create_mpi(config: *const gsenc_config, comm: i32, out: *mut *mut gsenc_encoder) -> gsenc_status {
     // SAFETY: per this function's contract.
@@ -167,6 +177,9 @@ fn create_mpi(_: Settings, _: i32) -> Result<gsenc_encoder, Failure> {
 /// is waited for first.
 /// Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
 /// duplicated communicator).
+///
+/// # Safety
+/// `encoder` may be any value: only a live encoder handle is freed.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
     crate::handles::release(encoder, Kind::Encoder, || {

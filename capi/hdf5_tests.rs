@@ -2,8 +2,7 @@
 //! appended at the synchronising calls, on the caller's thread, and read
 //! back equal to the encoder's own.
 
-#[path = "../tests/common/mod.rs"]
-mod common;
+use crate::common;
 use crate::config::{gsenc_config, gsenc_config_init, GSENC_OUTPUT_HDF5, GSENC_SCHEDULE_SHORT};
 use crate::encoder::*;
 use crate::jobs::*;

@@ -112,6 +112,13 @@ pub struct gsenc_particles {
 /// `GSENC_STATUS_SKIPPED`); `gsenc_wait` and `gsenc_poll` follow it.
 /// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
+///
+/// # Safety
+/// `encoder` may be any value (only a live encoder handle is used);
+/// `field` is NULL or a NUL-terminated string; `grid` is NULL or an
+/// initialised `gsenc_grid` whose `data` holds every element its `extents`
+/// and strides name. gsenc cannot see an array's length: a shorter array
+/// is read past its end.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_grid(
     encoder: *mut gsenc_encoder,
@@ -162,6 +169,9 @@ unsafe fn push_step(
 /// does nothing; a size this process's memory cannot take now is refused
 /// (`GSENC_STATUS_INVALID_ARGUMENT`, nothing allocated). Calls on one
 /// encoder run one at a time.
+///
+/// # Safety
+/// `encoder` may be any value (only a live encoder handle is used).
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_reserve(encoder: *mut gsenc_encoder, values: u64) -> gsenc_status {
     guard(|| {
@@ -223,6 +233,11 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Copi
 /// arrays and `field` are copied before the call returns.
 /// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
+///
+/// # Safety
+/// As for `gsenc_push_grid`, with `particles` NULL or an initialised
+/// `gsenc_particles` whose arrays each hold every element `count` and
+/// their strides name (`mass` may be NULL).
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_particles(
     encoder: *mut gsenc_encoder,
@@ -271,6 +286,12 @@ unsafe fn particle_data(enc: &gsenc_encoder, particles: *const gsenc_particles) 
 /// returns.
 /// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
+///
+/// # Safety
+/// As for `gsenc_push_grid`, with `cells` NULL or an initialised
+/// `gsenc_cells` whose arrays of its layout each hold every element
+/// `count` (`point_count` for `points`) and their strides name, and
+/// `connectivity` `8 * count` indices.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_push_cells(
     encoder: *mut gsenc_encoder,

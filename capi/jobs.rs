@@ -17,6 +17,10 @@ use std::os::raw::c_char;
 /// on the caller's thread. Collective for an MPI encoder writing an HDF5
 /// store (rank 0 writes every rank's models; a rank's failed write is its
 /// step's failure). Calls on one encoder run one at a time.
+///
+/// # Safety
+/// `encoder` may be any value (only a live encoder handle is used);
+/// `field` is NULL or a NUL-terminated string.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_wait(encoder: *mut gsenc_encoder, field: *const c_char) -> gsenc_status {
     guard(|| {
@@ -75,6 +79,10 @@ pub struct gsenc_job {
 /// Fills `*job` with the state of `field`'s step `step`, without waiting.
 /// `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
 /// for an HDF5 store are written here. Calls on one encoder run one at a time.
+///
+/// # Safety
+/// As for `gsenc_wait` (`field` NULL is refused here); `job` is NULL or a
+/// writable `gsenc_job` whose `struct_size` is set.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c_char, step: u64, job: *mut gsenc_job) -> gsenc_status {
     guard(|| {
@@ -130,6 +138,9 @@ pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c
 /// iteration; returns when the worker is idle. Their states become
 /// `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
 /// encoded one. The encoder stays usable. Calls on one encoder run one at a time.
+///
+/// # Safety
+/// `encoder` may be any value (only a live encoder handle is used).
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gsenc_status {
     guard(|| {
@@ -147,6 +158,10 @@ pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gs
 /// payload. Does not wait for
 /// queued steps (call `gsenc_wait` first for the newest). Strings are read
 /// during the call only. Calls on one encoder run one at a time.
+///
+/// # Safety
+/// `encoder` may be any value (only a live encoder handle is used);
+/// `field` and `path` are NULL or NUL-terminated strings.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, field: *const c_char, path: *const c_char) -> gsenc_status {
     guard(|| {
@@ -169,6 +184,10 @@ pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, 
 /// NULL `buffer` to learn it; a `capacity` below it is
 /// `GSENC_STATUS_INVALID_ARGUMENT` with nothing written. Does not wait for
 /// queued steps. Calls on one encoder run one at a time.
+///
+/// # Safety
+/// As for `gsenc_wait`; `buffer` is NULL or holds `capacity` writable
+/// bytes; `size` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_model_bytes(
     encoder: *mut gsenc_encoder,
@@ -207,6 +226,9 @@ pub unsafe extern "C" fn gsenc_encoder_model_bytes(
 /// The last encoded step of `field` and the voxel PSNR (dB) of its model as
 /// stored, against the reference it was fitted to. Does not wait for queued
 /// steps. Calls on one encoder run one at a time.
+///
+/// # Safety
+/// As for `gsenc_wait`; `step` and `psnr` are NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_last_step(
     encoder: *mut gsenc_encoder,

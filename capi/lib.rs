@@ -32,6 +32,11 @@ pub mod jobs;
 pub mod model;
 pub mod status;
 
+// The helpers the library's test suites share (tests/common/), once for
+// both test modules below.
+#[cfg(test)]
+#[path = "../tests/common/mod.rs"]
+mod common;
 #[cfg(all(test, feature = "hdf5"))]
 mod hdf5_tests;
 #[cfg(test)]

@@ -70,6 +70,9 @@ fn with_model<R>(model: *const gsenc_model, what: &str, f: impl FnOnce(&Model) -
 /// Reads the model file at `path` into `*out` (NULL on failure). The
 /// caller owns the new handle and frees it with `gsenc_model_destroy`.
 /// Thread-safe.
+///
+/// # Safety
+/// `path` is NULL or a NUL-terminated string; `out` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gsenc_model) -> gsenc_status {
     guard(|| {
@@ -91,6 +94,10 @@ pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gs
 /// as `gsenc_encoder_model_bytes` gives them) into `*out` (NULL on
 /// failure). The bytes are read during the call only. The caller owns the
 /// new handle and frees it with `gsenc_model_destroy`. Thread-safe.
+///
+/// # Safety
+/// `data` is NULL or holds `size` readable bytes; `out` is NULL or
+/// writable.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_read_buffer(data: *const u8, size: usize, out: *mut *mut gsenc_model) -> gsenc_status {
     guard(|| {
@@ -121,6 +128,9 @@ fn new_handle(model: Model) -> *mut gsenc_model {
 /// Frees a model. NULL, and a handle destroyed already, are ignored;
 /// other calls with it afterwards fail with `GSENC_STATUS_INVALID_ARGUMENT`.
 /// Calls on it in flight on other threads are waited for first.
+///
+/// # Safety
+/// `model` may be any value: only a live model handle is freed.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
     crate::handles::release(model, Kind::Model, || {
@@ -136,6 +146,10 @@ pub unsafe extern "C" fn gsenc_model_destroy(model: *mut gsenc_model) {
 /// NUL-terminated when `len > 0`), its full length without the NUL in
 /// `*length`, so that a call with a NULL `buf` sizes the buffer.
 /// Thread-safe, also on one model.
+///
+/// # Safety
+/// `model` may be any value (only a live model handle is used); `buf` is
+/// NULL or holds `len` writable bytes; `length` is NULL or writable.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_field(model: *const gsenc_model, buf: *mut c_char, len: usize, length: *mut usize) -> gsenc_status {
     guard(|| {
@@ -152,6 +166,10 @@ pub unsafe extern "C" fn gsenc_model_field(model: *const gsenc_model, buf: *mut 
 
 /// Fills `*info` (whose `struct_size` must be set). Thread-safe, also on
 /// one model.
+///
+/// # Safety
+/// `model` may be any value (only a live model handle is used); `info`
+/// is NULL or a writable `gsenc_model_info` whose `struct_size` is set.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *mut gsenc_model_info) -> gsenc_status {
     guard(|| {
@@ -193,6 +211,12 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 /// the data were empty). The caller owns `out`. Runs on a hardware GPU when
 /// there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses).
 /// Thread-safe, also on one model.
+///
+/// # Safety
+/// `model` may be any value (only a live model handle is used); `dims`
+/// is NULL or three readable `uint64_t`; `out` is NULL or holds `out_len`
+/// writable floats (`out_len` is checked against `dims`; that `out` holds
+/// them, gsenc cannot see).
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *const u64, out: *mut f32, out_len: u64) -> gsenc_status {
     guard(|| {
@@ -235,6 +259,11 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 /// GPU. Runs in runs of 65,536 points, so that it holds about a megabyte
 /// besides the caller's arrays however many points there are. Thread-safe,
 /// also on one model.
+///
+/// # Safety
+/// `model` may be any value (only a live model handle is used); `points`
+/// is NULL or holds `3 * count` readable doubles, and `out` is NULL or
+/// holds `count` writable floats; the two do not overlap.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points: *const f64, count: u64, out: *mut f32) -> gsenc_status {
     guard(|| {

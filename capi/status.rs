@@ -131,6 +131,9 @@ pub(crate) unsafe fn copy_c_string(text: &str, buf: *mut c_char, len: usize) -> 
 /// message's full length without the NUL, so that `gsenc_last_error(NULL, 0)`
 /// sizes the buffer. Empty when no call of this thread has failed.
 /// Thread-safe: each thread has its own message.
+///
+/// # Safety
+/// `buf` is NULL or holds `len` writable bytes.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_last_error(buf: *mut c_char, len: usize) -> usize {
     catch_unwind(|| {
@@ -171,6 +174,9 @@ pub extern "C" fn gsenc_status_string(status: i32) -> *const c_char {
 /// bindings (the Fortran module) that refuse an argument before calling
 /// into gsenc; C callers have no use for it. NULL records an empty message.
 /// Thread-safe: each thread has its own message.
+///
+/// # Safety
+/// `message` is NULL or a NUL-terminated string.
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_set_last_error(message: *const c_char) {
     let _ = catch_unwind(|| {

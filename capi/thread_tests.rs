@@ -5,8 +5,7 @@
 //! and the destroy returns while the decode has not yet written its
 //! values.
 
-#[path = "../tests/common/mod.rs"]
-mod common;
+use crate::common;
 use crate::config::{gsenc_config, gsenc_config_init, GSENC_SCHEDULE_SHORT};
 use crate::encoder::*;
 use crate::inputs::{f32_grid, gsenc_push_grid};

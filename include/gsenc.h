@@ -8,6 +8,14 @@
  * in flight); a model is read by any number of threads at once. A destroy
  * waits for the calls in flight on its handle; calls after it fail.
  * Structs passed in start with struct_size = sizeof(struct); set it first.
+ *
+ * Pointers: a handle is looked up before it is used, so a destroyed or
+ * foreign one is refused (GSENC_STATUS_INVALID_ARGUMENT), and a NULL where
+ * a pointer is needed gives GSENC_STATUS_NULL_POINTER. What gsenc cannot
+ * check, the caller guarantees: strings are NUL-terminated, arrays hold
+ * every element their counts and strides name, and out pointers point to
+ * writable memory of their type. Each function's "Safety" paragraph says
+ * which of its pointers these are.
  */
 
 #ifndef GSENC_H
@@ -690,12 +698,21 @@ const char *gsenc_version_string(void);
 /*
  Fills `*config` with the defaults above. `config->struct_size` must be
  set first (to `sizeof(gsenc_config)`). Thread-safe.
+
+ # Safety
+ `config` is NULL or a `gsenc_config` the caller owns, aligned, whose
+ `struct_size` is set; this version's bytes of it are written.
  */
 gsenc_status gsenc_config_init(gsenc_config *config);
 
 /*
  Creates an encoder from `*config` (read, not kept) into `*out`.
  On failure `*out` is NULL. Thread-safe.
+
+ # Safety
+ `config` is NULL or an initialised `gsenc_config` whose strings (NULL
+ or NUL-terminated) are readable during the call; `out` is NULL or
+ writable.
  */
 gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **out);
 
@@ -731,6 +748,11 @@ gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **ou
  it calls done may reach the store at the next collective call. Ranks pushing
  different fields, steps or forms get `GSENC_STATUS_MPI` together.
  `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
+
+ # Safety
+ As for `gsenc_encoder_create`; `comm` is a communicator's Fortran
+ handle (an invalid one is MPI's error, which MPI's error handler
+ decides).
  */
 gsenc_status gsenc_encoder_create_mpi(const gsenc_config *config,
                                       int32_t comm,
@@ -746,6 +768,9 @@ gsenc_status gsenc_encoder_create_mpi(const gsenc_config *config,
  is waited for first.
  Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
  duplicated communicator).
+
+ # Safety
+ `encoder` may be any value: only a live encoder handle is freed.
  */
 void gsenc_encoder_destroy(gsenc_encoder *encoder);
 
@@ -758,6 +783,13 @@ void gsenc_encoder_destroy(gsenc_encoder *encoder);
  `GSENC_STATUS_SKIPPED`); `gsenc_wait` and `gsenc_poll` follow it.
  Calls on one encoder from several threads run one at a time; different
  encoders are independent.
+
+ # Safety
+ `encoder` may be any value (only a live encoder handle is used);
+ `field` is NULL or a NUL-terminated string; `grid` is NULL or an
+ initialised `gsenc_grid` whose `data` holds every element its `extents`
+ and strides name. gsenc cannot see an array's length: a shorter array
+ is read past its end.
  */
 gsenc_status gsenc_push_grid(gsenc_encoder *encoder,
                              const char *field,
@@ -777,6 +809,9 @@ gsenc_status gsenc_push_grid(gsenc_encoder *encoder,
  does nothing; a size this process's memory cannot take now is refused
  (`GSENC_STATUS_INVALID_ARGUMENT`, nothing allocated). Calls on one
  encoder run one at a time.
+
+ # Safety
+ `encoder` may be any value (only a live encoder handle is used).
  */
 gsenc_status gsenc_encoder_reserve(gsenc_encoder *encoder, uint64_t values);
 
@@ -786,6 +821,11 @@ gsenc_status gsenc_encoder_reserve(gsenc_encoder *encoder, uint64_t values);
  arrays and `field` are copied before the call returns.
  Calls on one encoder from several threads run one at a time; different
  encoders are independent.
+
+ # Safety
+ As for `gsenc_push_grid`, with `particles` NULL or an initialised
+ `gsenc_particles` whose arrays each hold every element `count` and
+ their strides name (`mass` may be NULL).
  */
 gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
                                   const char *field,
@@ -800,6 +840,12 @@ gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
  returns.
  Calls on one encoder from several threads run one at a time; different
  encoders are independent.
+
+ # Safety
+ As for `gsenc_push_grid`, with `cells` NULL or an initialised
+ `gsenc_cells` whose arrays of its layout each hold every element
+ `count` (`point_count` for `points`) and their strides name, and
+ `connectivity` `8 * count` indices.
  */
 gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
                               const char *field,
@@ -815,6 +861,10 @@ gsenc_status gsenc_push_cells(gsenc_encoder *encoder,
  on the caller's thread. Collective for an MPI encoder writing an HDF5
  store (rank 0 writes every rank's models; a rank's failed write is its
  step's failure). Calls on one encoder run one at a time.
+
+ # Safety
+ `encoder` may be any value (only a live encoder handle is used);
+ `field` is NULL or a NUL-terminated string.
  */
 gsenc_status gsenc_wait(gsenc_encoder *encoder, const char *field);
 
@@ -822,6 +872,10 @@ gsenc_status gsenc_wait(gsenc_encoder *encoder, const char *field);
  Fills `*job` with the state of `field`'s step `step`, without waiting.
  `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
  for an HDF5 store are written here. Calls on one encoder run one at a time.
+
+ # Safety
+ As for `gsenc_wait` (`field` NULL is refused here); `job` is NULL or a
+ writable `gsenc_job` whose `struct_size` is set.
  */
 gsenc_status gsenc_poll(gsenc_encoder *encoder, const char *field, uint64_t step, gsenc_job *job);
 
@@ -830,6 +884,9 @@ gsenc_status gsenc_poll(gsenc_encoder *encoder, const char *field, uint64_t step
  iteration; returns when the worker is idle. Their states become
  `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
  encoded one. The encoder stays usable. Calls on one encoder run one at a time.
+
+ # Safety
+ `encoder` may be any value (only a live encoder handle is used).
  */
 gsenc_status gsenc_encoder_cancel(gsenc_encoder *encoder);
 
@@ -840,6 +897,10 @@ gsenc_status gsenc_encoder_cancel(gsenc_encoder *encoder);
  payload. Does not wait for
  queued steps (call `gsenc_wait` first for the newest). Strings are read
  during the call only. Calls on one encoder run one at a time.
+
+ # Safety
+ `encoder` may be any value (only a live encoder handle is used);
+ `field` and `path` are NULL or NUL-terminated strings.
  */
 gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field, const char *path);
 
@@ -851,6 +912,10 @@ gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field
  NULL `buffer` to learn it; a `capacity` below it is
  `GSENC_STATUS_INVALID_ARGUMENT` with nothing written. Does not wait for
  queued steps. Calls on one encoder run one at a time.
+
+ # Safety
+ As for `gsenc_wait`; `buffer` is NULL or holds `capacity` writable
+ bytes; `size` is NULL or writable.
  */
 gsenc_status gsenc_encoder_model_bytes(gsenc_encoder *encoder,
                                        const char *field,
@@ -862,6 +927,9 @@ gsenc_status gsenc_encoder_model_bytes(gsenc_encoder *encoder,
  The last encoded step of `field` and the voxel PSNR (dB) of its model as
  stored, against the reference it was fitted to. Does not wait for queued
  steps. Calls on one encoder run one at a time.
+
+ # Safety
+ As for `gsenc_wait`; `step` and `psnr` are NULL or writable.
  */
 gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
                                      const char *field,
@@ -872,6 +940,9 @@ gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder,
  Reads the model file at `path` into `*out` (NULL on failure). The
  caller owns the new handle and frees it with `gsenc_model_destroy`.
  Thread-safe.
+
+ # Safety
+ `path` is NULL or a NUL-terminated string; `out` is NULL or writable.
  */
 gsenc_status gsenc_model_read(const char *path, gsenc_model **out);
 
@@ -880,6 +951,10 @@ gsenc_status gsenc_model_read(const char *path, gsenc_model **out);
  as `gsenc_encoder_model_bytes` gives them) into `*out` (NULL on
  failure). The bytes are read during the call only. The caller owns the
  new handle and frees it with `gsenc_model_destroy`. Thread-safe.
+
+ # Safety
+ `data` is NULL or holds `size` readable bytes; `out` is NULL or
+ writable.
  */
 gsenc_status gsenc_model_read_buffer(const uint8_t *data, size_t size, gsenc_model **out);
 
@@ -887,6 +962,9 @@ gsenc_status gsenc_model_read_buffer(const uint8_t *data, size_t size, gsenc_mod
  Frees a model. NULL, and a handle destroyed already, are ignored;
  other calls with it afterwards fail with `GSENC_STATUS_INVALID_ARGUMENT`.
  Calls on it in flight on other threads are waited for first.
+
+ # Safety
+ `model` may be any value: only a live model handle is freed.
  */
 void gsenc_model_destroy(gsenc_model *model);
 
@@ -895,12 +973,20 @@ void gsenc_model_destroy(gsenc_model *model);
  NUL-terminated when `len > 0`), its full length without the NUL in
  `*length`, so that a call with a NULL `buf` sizes the buffer.
  Thread-safe, also on one model.
+
+ # Safety
+ `model` may be any value (only a live model handle is used); `buf` is
+ NULL or holds `len` writable bytes; `length` is NULL or writable.
  */
 gsenc_status gsenc_model_field(const gsenc_model *model, char *buf, size_t len, size_t *length);
 
 /*
  Fills `*info` (whose `struct_size` must be set). Thread-safe, also on
  one model.
+
+ # Safety
+ `model` may be any value (only a live model handle is used); `info`
+ is NULL or a writable `gsenc_model_info` whose `struct_size` is set.
  */
 gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *info);
 
@@ -911,6 +997,12 @@ gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *in
  the data were empty). The caller owns `out`. Runs on a hardware GPU when
  there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses).
  Thread-safe, also on one model.
+
+ # Safety
+ `model` may be any value (only a live model handle is used); `dims`
+ is NULL or three readable `uint64_t`; `out` is NULL or holds `out_len`
+ writable floats (`out_len` is checked against `dims`; that `out` holds
+ them, gsenc cannot see).
  */
 gsenc_status gsenc_model_decode(const gsenc_model *model,
                                 const uint64_t *dims,
@@ -926,6 +1018,11 @@ gsenc_status gsenc_model_decode(const gsenc_model *model,
  GPU. Runs in runs of 65,536 points, so that it holds about a megabyte
  besides the caller's arrays however many points there are. Thread-safe,
  also on one model.
+
+ # Safety
+ `model` may be any value (only a live model handle is used); `points`
+ is NULL or holds `3 * count` readable doubles, and `out` is NULL or
+ holds `count` writable floats; the two do not overlap.
  */
 gsenc_status gsenc_model_evaluate(const gsenc_model *model,
                                   const double *points,
@@ -938,6 +1035,9 @@ gsenc_status gsenc_model_evaluate(const gsenc_model *model,
  message's full length without the NUL, so that `gsenc_last_error(NULL, 0)`
  sizes the buffer. Empty when no call of this thread has failed.
  Thread-safe: each thread has its own message.
+
+ # Safety
+ `buf` is NULL or holds `len` writable bytes.
  */
 size_t gsenc_last_error(char *buf, size_t len);
 
@@ -952,6 +1052,9 @@ const char *gsenc_status_string(int32_t status);
  bindings (the Fortran module) that refuse an argument before calling
  into gsenc; C callers have no use for it. NULL records an empty message.
  Thread-safe: each thread has its own message.
+
+ # Safety
+ `message` is NULL or a NUL-terminated string.
  */
 void gsenc_set_last_error(const char *message);
 

@@ -257,6 +257,7 @@ fn two_overlapping_cells_follow_eq_6() {
 }
 
 #[test]
+#[allow(clippy::identity_op)] // a voxel's index written as x + 16 (y + 16 z)
 fn stamp_box_is_clamped_and_never_empty_inside() {
     // x [floor(-0.8), ceil(1.2)) clamped to [0, 2); y [2, 4); z [6, ceil(8.4)) clamped to [6, 8).
     assert_eq!(stamp_box([8; 3], [0.2, 3.0, 7.4], 0.5), Some(([0, 2, 6], [2, 4, 8])));

@@ -133,7 +133,7 @@ fn pieces_off_one_lattice_are_refused() {
     later.meta.step = 4;
     assert!(matches!(merge(&[p.clone(), later]), Err(Error::InvalidArgument(_))));
     assert!(merge(&[]).is_err());
-    assert_eq!(merge(&[p.clone()]).unwrap().params, p.params);
+    assert_eq!(merge(std::slice::from_ref(&p)).unwrap().params, p.params);
 }
 
 /// One model re-expressed in two overlapping pieces' frames: each piece

@@ -603,7 +603,7 @@ fn a_step_that_overflows_holds_back_the_step_queued_after_it() {
     };
     let same = |(la, pa): &(Vec<(PointLoss, RegTerms)>, Vec<Primitive>), (lb, pb): &(Vec<(PointLoss, RegTerms)>, Vec<Primitive>)| {
         la.iter().zip(lb).all(|(a, b)| (a.0.val.to_bits(), a.1.aniso.to_bits()) == (b.0.val.to_bits(), b.1.aniso.to_bits()))
-            && same_bits(&pa, &pb)
+            && same_bits(pa, pb)
     };
     // Each in a submission of its own, then two to a submission (the step
     // that overflows and the one it holds back in one command buffer),

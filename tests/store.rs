@@ -54,7 +54,7 @@ fn every_payload_round_trips_with_its_metadata() {
         assert_eq!(back_payload, *payload, "{}", key.path());
         assert_eq!(back.meta, m.meta, "{}", key.path());
         // Exactly what the .gsm file of that payload holds: one quantisation.
-        assert_eq!(back.params, payload.round_trip(&m).unwrap(), "{}", key.path());
+        assert_eq!(back.params, payload.round_trip(m).unwrap(), "{}", key.path());
         let info = entries.iter().find(|e| e.key == key).unwrap().content.as_ref().unwrap();
         assert_eq!(info.count, m.params.len() as u64);
     }

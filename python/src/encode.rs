@@ -80,7 +80,7 @@ fn run(py: Python<'_>, input: Input<'_>, mut o: Options, progress: Option<Py<PyA
     let encoded = py.detach(|| -> gsenc::Result<pipeline::Encoded> {
         let mut backend = choice.open()?;
         let mut report = |p: &gsenc::encode::refine::Progress| {
-            if p.iteration % 10 != 0 && p.iteration != p.iterations {
+            if !p.iteration.is_multiple_of(10) && p.iteration != p.iterations {
                 return;
             }
             Python::attach(|py| {

@@ -109,6 +109,7 @@ impl Model {
     /// half-open voxel ranges of that lattice). Returns float32 `[z][y][x]`
     /// in data units (or normalised to [0, 1]): what `gsenc decode` writes.
     #[pyo3(signature = (dims=None, r#box=None, normalized=false, additive=false, threads=None, backend="auto"))]
+    #[allow(clippy::too_many_arguments)] // Python's keyword arguments
     fn decode<'py>(
         &self,
         py: Python<'py>,

@@ -257,7 +257,7 @@ fn refine(
     // gsenc's rule maps the model's error every tenth of the run, for the
     // error stratum of the batches after it (points.rs).
     let (maps, map_every) = (sampler.wants_errors(), (iterations / ERROR_MAPS_PER_RUN).max(1));
-    let maps_at = |t: usize| maps && t > 0 && t % map_every == 0;
+    let maps_at = |t: usize| maps && t > 0 && t.is_multiple_of(map_every);
     // An iteration that relocates or maps draws its own batch after that:
     // none is drawn ahead of it.
     let draws_own = |t: usize| reloc_at.contains(&t) || maps_at(t);

@@ -73,7 +73,7 @@ impl<'a> BitReader<'a> {
         if byte < self.bytes.len() {
             return false;
         }
-        self.at % 8 == 0 || self.bytes[self.at / 8] >> (self.at % 8) == 0
+        self.at.is_multiple_of(8) || self.bytes[self.at / 8] >> (self.at % 8) == 0
     }
 }
 

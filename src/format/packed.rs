@@ -236,7 +236,7 @@ pub fn rotation_bits(scale: [u16; 3], scale_bits: u8, bits: u8) -> u8 {
     }
     let levels = (1u64 << scale_bits) - 1;
     let mut spare = 0;
-    while spare + 1 < bits && 3 * d << (spare + 1) <= levels {
+    while spare + 1 < bits && (3 * d) << (spare + 1) <= levels {
         spare += 1;
     }
     bits - spare

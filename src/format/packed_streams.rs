@@ -107,7 +107,7 @@ impl Stream<'_> {
     /// Checks what a context reads against the stream's length.
     fn check(&self, count: usize) -> Result<()> {
         let ok = match *self {
-            Stream::Scale { .. } => count % 3 == 0,
+            Stream::Scale { .. } => count.is_multiple_of(3),
             Stream::Rotation { rbits, bits } => count == 3 * rbits.len() && rbits.iter().all(|&b| (1..=bits).contains(&b)),
             Stream::Weight { scale_x, value, .. } => scale_x.len() == count && value.len() == count,
             _ => true,

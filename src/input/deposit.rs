@@ -79,7 +79,7 @@ pub fn m4_spline(r: f64, h: f64) -> f64 {
 
 /// Checks the total voxel count before anything is allocated.
 pub(crate) fn lattice_len(dims: [usize; 3]) -> Result<usize> {
-    if dims.iter().any(|&d| d == 0) {
+    if dims.contains(&0) {
         return Err(Error::arg(format!("reference dims must be positive, got {dims:?}")));
     }
     dims.iter()

@@ -195,7 +195,7 @@ pub struct Rows {
 /// into f64, as selected by `rows`.
 pub fn parse_items(bytes: &[u8], dtype: DType, comps: usize, rows: Rows, what: &str) -> Result<Vec<f64>> {
     let item_bytes = comps * dtype.size();
-    if bytes.len() % item_bytes != 0 {
+    if !bytes.len().is_multiple_of(item_bytes) {
         return Err(Error::data(format!(
             "{what}: {} bytes is not a whole number of {comps}-component {}-byte items",
             bytes.len(),
@@ -208,7 +208,7 @@ pub fn parse_items(bytes: &[u8], dtype: DType, comps: usize, rows: Rows, what: &
         None => (0, held),
         Some(0) => return Err(Error::arg("item count must be at least 1")),
         Some(c) => {
-            if held % c != 0 {
+            if !held.is_multiple_of(c) {
                 return Err(Error::data(format!("{what}: {held} items are not whole rows of {c}")));
             }
             if rows.row >= held / c {

@@ -312,7 +312,7 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
             v.into_iter().map(|x| x as f32).collect()
         }
         "binary" => {
-            let raw = base64_decode(xml[dstart..dend].as_bytes());
+            let raw = base64_decode(&xml.as_bytes()[dstart..dend]);
             convert(&layout.payload(&raw, need)?, &ty, layout.big_endian, n)?
         }
         "appended" => {

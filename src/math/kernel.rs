@@ -51,6 +51,8 @@ pub fn logit_clamped(p: f32) -> f32 {
 /// `expf` polynomial with Cody-Waite range reduction). Branch-free and made of
 /// plain float and integer operations, so loops over it vectorise; every
 /// backend uses it so that all evaluate the same function.
+// The coefficients are Cephes' as published, as math.wgsl writes them.
+#[allow(clippy::excessive_precision)]
 #[inline(always)]
 pub fn exp_neg_half(d2: f32) -> f32 {
     const LOG2E: f32 = std::f32::consts::LOG2_E;

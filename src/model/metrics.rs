@@ -6,7 +6,7 @@ use crate::math::rng::Rng;
 /// Number of voxel centres of the sampled PSNR.
 pub const SAMPLED_PSNR_POINTS: usize = 500_000;
 /// The fixed seed of the sampled PSNR's voxel draw (with replacement).
-pub const SAMPLED_PSNR_SEED: u64 = 0x5eed_0f_9505;
+pub const SAMPLED_PSNR_SEED: u64 = 0x5e_ed0f_9505;
 
 /// `10 log10(1 / MSE)`; an exact match is reported as 200 dB (MSE 1e-20)
 /// so that the figure stays finite in JSON.

@@ -266,7 +266,7 @@ impl Model {
     /// them has no voxel or more than it decodes.
     pub(crate) fn lattice_dims(&self, dims: Option<[usize; 3]>) -> Result<[usize; 3]> {
         let out_dims = dims.unwrap_or(self.meta.frame.dims);
-        if out_dims.iter().any(|&d| d == 0) {
+        if out_dims.contains(&0) {
             return Err(Error::arg(format!("decode dims must be positive, got {out_dims:?}")));
         }
         let n = out_dims.iter().try_fold(1usize, |a, &d| a.checked_mul(d));

@@ -324,8 +324,8 @@ impl BackgroundEncoder {
         st.in_flight += 1;
         st.bytes += bytes;
         drop(st);
-        let sent = self.jobs.as_ref().map(|tx| tx.send(job));
-        if !matches!(sent, Some(Ok(()))) {
+        let sent = self.jobs.as_ref().is_some_and(|tx| tx.send(job).is_ok());
+        if !sent {
             // Only after a worker panic outside its guard: undo, and say so.
             let mut st = self.shared.state.lock();
             st.jobs.insert(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))));
