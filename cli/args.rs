@@ -65,7 +65,10 @@ impl GridInput {
         let (grid, origin, spacing) = if is_vti {
             let v = vti::read_vti(&self.input, self.array.as_deref())?;
             let s = v.spacing;
-            if (0..3).any(|i| !s[i].is_finite() || s[i] <= 0.0 || ((s[i] - s[0]) / s[0]).abs() > 1e-6) {
+            if s.iter().any(|&d| !d.is_finite() || d <= 0.0) {
+                return Err(Error::data(format!("{}: spacing {s:?} must be positive and finite", self.input.display())));
+            }
+            if (0..3).any(|i| ((s[i] - s[0]) / s[0]).abs() > 1e-6) {
                 return Err(Error::data(format!("{}: spacing {s:?} is not isotropic; resample the grid to cubic voxels first", self.input.display())));
             }
             (v.grid, v.origin, s[0])

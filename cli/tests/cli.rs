@@ -102,15 +102,24 @@ fn vti_inputs_need_cubic_finite_voxels() {
     let dir = tmpdir("vti-spacing");
     let grid = gsenc::field::Grid::new([6, 5, 4], (0..120).map(|i| (i % 7) as f32).collect()).unwrap();
     let m = dir.join("m.gsm");
-    for (spacing, ok) in [([0.5; 3], true), ([1.0, 1.0, 2.0], false), ([0.0; 3], false), ([-1.0; 3], false), ([f64::INFINITY; 3], false), ([f64::NAN; 3], false)] {
+    let bad = "must be positive and finite";
+    for (spacing, refused) in [
+        ([0.5; 3], None),
+        ([1.0, 1.0, 2.0], Some("is not isotropic")),
+        ([0.0; 3], Some(bad)),
+        ([-1.0; 3], Some(bad)),
+        ([1.0, f64::INFINITY, 1.0], Some(bad)),
+        ([f64::NAN; 3], Some(bad)),
+    ] {
         let input = dir.join("in.vti");
         std::fs::write(&input, vti::write_vti_bytes(&grid, [0.0; 3], spacing, "f")).unwrap();
         let (code, _, err) = gsenc(&["encode", "grid", "--input", input.to_str().unwrap(), "--budget", "8", "--iters", "5", "--points", "64", "-o", m.to_str().unwrap(), "--quiet"]);
-        if ok {
-            assert_eq!(code, 0, "{spacing:?}: {err}");
-        } else {
-            assert_eq!(code, 3, "{spacing:?}: {err}");
-            assert!(err.contains("is not isotropic"), "{spacing:?}: {err}");
+        match refused {
+            None => assert_eq!(code, 0, "{spacing:?}: {err}"),
+            Some(why) => {
+                assert_eq!(code, 3, "{spacing:?}: {err}");
+                assert!(err.contains(why), "{spacing:?}: {err}");
+            }
         }
     }
     std::fs::remove_dir_all(&dir).unwrap();
