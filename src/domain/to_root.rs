@@ -9,7 +9,7 @@
 //! by the packed payload's measured precision, which that file does not
 //! carry ([`to_wire`]). Rank 0 stores its own, then each rank's in rank
 //! order, each rank's in the order it finished them, and answers each rank
-//! with what became of each of its models ([`Verdict`]s). Rank 0 takes one
+//! with what became of each of its models (`Verdict`s). Rank 0 takes one
 //! model at a time, so it never holds more than one other rank's model.
 //!
 //! What stores a model is the caller's (`store`): this layer knows MPI,

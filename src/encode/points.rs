@@ -214,7 +214,7 @@ impl PointSampler {
         c
     }
 
-    /// A batch of `p` points, in runs of [`RUN`]. Two passes: what each
+    /// A batch of `p` points, in runs of `RUN`. Two passes: what each
     /// point takes from the random stream is drawn in turn on this thread
     /// (the words of a `Draw`, run by run); turning a run's words into
     /// positions and reference values (the conversions to uniforms, the

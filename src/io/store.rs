@@ -50,7 +50,7 @@ pub enum Verified {
 /// Layout version of the store, in the root attribute `gsenc_store`.
 /// 1.1 adds the optional `support` dataset of an entry, 1.2 its optional
 /// `outside` attribute, 1.3 the optional `index` dataset of a step, 1.4 an
-/// entry's `crc32` attribute ([`entry_crc`]).
+/// entry's `crc32` attribute (`entry_crc`).
 pub const STORE_VERSION: &str = "1.4";
 /// An entry's checksum attribute (1.4).
 const CRC: &str = "crc32";
