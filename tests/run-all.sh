@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
 # Every test of the project: the Rust suites of the three crates (library,
 # C ABI, command-line tool; with the HDF5 store), the default build without
-# system libraries, the generated C header's freshness, clippy with warnings
-# as errors, the C API from C
+# system libraries, the generated C header's freshness, clippy and rustdoc
+# with warnings as errors, the C API from C
 # (under valgrind too), the C API and the tool giving the same models, the
 # installed CMake package with C and Fortran, MPI under mpirun, the thread-
 # scaling model's scheduler, the store
@@ -68,6 +68,9 @@ fi
 # and why). About 3 minutes on two cores. A newer toolchain's new lints fail
 # here first: fix them, or turn one off there with its reason.
 stage cargo clippy --workspace --all-targets --locked --features gsenc/hdf5,gsenc/mpi,gsenc-capi/hdf5,gsenc-capi/mpi -- -D warnings
+# The library's API documentation, with every feature's items, warnings as
+# errors (broken links); it reuses what clippy compiled of the dependencies.
+stage env RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --features gsenc/hdf5,gsenc/mpi
 
 # The library, libgsenc (.so and .a) and the tool, without features.
 stage cargo build --release --locked -p gsenc-capi -p gsenc-cli
