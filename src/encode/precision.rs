@@ -75,8 +75,8 @@ pub fn measure_precision(model: &mut Model, reference: &Grid, backend: &mut dyn 
     let float32_psnr = voxel_psnr(&decode_as_stored(Payload::Float32, model, reference, backend)?.decoded, &reference.values);
     let finest = finest_for(&model.params);
     // One search for every allowance: a retry scores only what the search
-    // before it did not (on hydrogen's `tuned` model, the retry's bisection
-    // is the first one's, a third of the retry's scorings).
+    // before it did not (most of its bisection repeats the first search's:
+    // 25 of 76 scorings for hydrogen's `tuned` model at 300 iterations).
     let mut search = Search::new(&model.params, reference, model.support.is_some(), backend)?;
     let mut allowances = SEARCH_ALLOWANCES.iter();
     let mut p = finest;
