@@ -1,43 +1,69 @@
 #!/usr/bin/env bash
-# Decode throughput: voxels per second and peak memory of
-# `gsenc decode` at several lattice resolutions, streaming to a .raw file.
-#   bash benches/decode.sh [REPEATS]
+# Decode throughput: voxels per second and peak memory of `gsenc decode`
+# at several lattice resolutions, streaming to a .raw file.
+#   bash benches/decode.sh [REPEATS]           # medians of REPEATS (3) a row
+#   ROWS="rm128_32k@256 hydrogen_4k@256" bash benches/decode.sh 5
+#   BASE_BIN=/path/to/other/gsenc bash benches/decode.sh
+# With BASE_BIN, each run of a row runs that build and then this one, back
+# to back, and their outputs must be the same bytes (checked); the table
+# then sets the two builds' medians side by side.
 # Uses the models benches/core.sh leaves in bench-out/ (rm128_32k_full,
-# rm256_200k_full). One JSON line per run goes to bench-out/decode.jsonl; a
-# Markdown table of medians is printed. The 1024^3 row runs once (4 GiB out).
+# rm256_200k_full, hydrogen_4k_matched); a row whose model is missing is
+# named and skipped. The 512^3 and 1024^3 rows run once (0.5 and 4.3 GB out).
+# Env: BACKEND (default cpu: `auto` would take a GPU where there is one);
+# ROWS selects rows by name; GSENC_BIN a build to time instead of this
+# checkout's (benches/corpus.sh). One JSON line per run goes to
+# bench-out/decode.jsonl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-repeats=${1:-3}
+. benches/corpus.sh
 out=bench-out
-cargo build --release --locked --bin gsenc >&2
-bin=target/release/gsenc
-rm -f "$out/decode.jsonl"
+mkdir -p "$out"
+gsenc_bin
+repeats=${1:-3}
+log="$out/decode.jsonl"
+rm -f "$log"
+builds=(new)
+[ -n "${BASE_BIN:-}" ] && builds=(base new)
+want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
 row() { # name model dims repeats
-    local name=$1 model=$2 dims=$3 n=$4
+    local name=$1 model=$2 dims=$3 n=$4 i b exe
+    want "$name" || return 0
     [ -f "$model" ] || { echo "skipping $name: $model is missing (run benches/core.sh)" >&2; return 0; }
     for i in $(seq 1 "$n"); do
-        "$bin" decode "$model" --dims "$dims" -o "$out/decode.raw" --json --quiet \
-            | python3 -c "import json,sys; d=json.load(sys.stdin); d.update(row='$name', model='$model'); print(json.dumps(d))" >> "$out/decode.jsonl"
-        echo "[$name] run $i/$n" >&2
+        for b in "${builds[@]}"; do
+            exe=$bin
+            [ "$b" = base ] && exe=$BASE_BIN
+            "$exe" decode "$model" --dims "$dims" --backend "${BACKEND:-cpu}" -o "$out/decode_$b.raw" --json --quiet \
+                | python3 -c "import json,sys; d=json.load(sys.stdin); d.update(row='$name', model='$model', build='$b'); print(json.dumps(d))" >> "$log"
+            echo "[$name] run $i/$n, $b build" >&2
+        done
+        if [ "${#builds[@]}" = 2 ] && ! cmp -s "$out/decode_base.raw" "$out/decode_new.raw"; then
+            echo "[$name] the two builds decoded different values" >&2
+            exit 1
+        fi
     done
-    rm -f "$out/decode.raw"
+    rm -f "$out"/decode_*.raw
 }
+row hydrogen_4k@256 "$out/hydrogen_4k_matched.gsm" 256 "$repeats"
+row hydrogen_4k@512 "$out/hydrogen_4k_matched.gsm" 512 1
 row rm128_32k@128 "$out/rm128_32k_full.gsm" 128 "$repeats"
 row rm128_32k@256 "$out/rm128_32k_full.gsm" 256 "$repeats"
 row rm128_32k@512 "$out/rm128_32k_full.gsm" 512 1
 row rm128_32k@1024 "$out/rm128_32k_full.gsm" 1024 1
 row rm256_200k@256 "$out/rm256_200k_full.gsm" 256 "$repeats"
 row rm256_200k@512 "$out/rm256_200k_full.gsm" 512 1
-python3 - "$out/decode.jsonl" <<'PY'
+python3 - "$log" <<'PY'
 import json, statistics, sys
 rows = {}
 for line in open(sys.argv[1]):
     d = json.loads(line)
-    rows.setdefault(d["row"], []).append(d)
-print("| model @ lattice | runs | voxels | seconds (median) | voxels/s | peak RSS MB | output MB |")
-print("|---|---|---|---|---|---|---|")
-for name, runs in rows.items():
+    rows.setdefault((d["row"], d["build"]), []).append(d)
+print("| model @ lattice | build | runs | voxels | seconds (median) | voxels/s | peak RSS MB | output MB |")
+print("|---|---|---|---|---|---|---|---|")
+for (name, build), runs in rows.items():
     med = lambda k: statistics.median(r[k] for r in runs)
-    print(f"| {name} | {len(runs)} | {runs[0]['voxels']:,} | {med('seconds'):.2f} | {med('voxels_per_second')/1e6:.2f} M | "
-          f"{med('peak_rss_bytes')/1e6:.0f} | {runs[0]['voxels']*4/1e6:.0f} |")
+    each = ", ".join(f"{r['seconds']:.2f}" for r in runs)
+    print(f"| {name} | {build} | {len(runs)} | {runs[0]['voxels']:,} | {med('seconds'):.2f} ({each}) | "
+          f"{med('voxels_per_second')/1e6:.2f} M | {med('peak_rss_bytes')/1e6:.0f} | {runs[0]['voxels']*4/1e6:.0f} |")
 PY

@@ -240,9 +240,9 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
             let range = m.meta.range;
             let mut backend = BackendChoice::default().open()?;
             m.decode_streaming(backend.as_mut(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
-                for (o, &v) in out[at..at + slab.len()].iter_mut().zip(slab) {
-                    *o = range.denormalize(v) as f32;
-                }
+                let part = &mut out[at..at + slab.len()];
+                part.copy_from_slice(slab);
+                range.denormalize_all(part);
                 at += slab.len();
                 Ok(())
             })?;
@@ -282,9 +282,7 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
             // Into the caller's array, in runs: nothing sized by count is
             // copied. A point that is not finite is InvalidData, by index.
             m.evaluate_into(&mut CpuBackend::new(), pts, out)?;
-            for o in out.iter_mut() {
-                *o = m.meta.range.denormalize(*o) as f32;
-            }
+            m.meta.range.denormalize_all(out);
             Ok(())
         })
     })

@@ -3,7 +3,7 @@
 //! slabs into a `.vti` or raw float32 file.
 
 use crate::args::{parse_box, parse_dims, BackendArgs, GridOutput};
-use crate::output::{is_vti, kernel_seconds, output_unit, peak_rss_bytes, print_result, Sink};
+use crate::output::{is_vti, kernel_seconds, peak_rss_bytes, print_result, to_output_unit, Sink};
 use clap::Args;
 use gsenc::encode::with_threads;
 use gsenc::field::IndexBox;
@@ -73,11 +73,13 @@ pub fn decode(a: DecodeArgs) -> Result<()> {
     if is_vti {
         file.write(&vti::vti_prefix(region.dims(), origin, spacing, &model.meta.field))?;
     }
-    let mut bytes = Vec::new();
-    let unit = output_unit(&model.meta.range, a.output.normalized);
+    let (mut values, mut bytes) = (Vec::new(), Vec::new());
     let mut write = |slab: &[f32]| {
+        values.clear();
+        values.extend_from_slice(slab);
+        to_output_unit(&model.meta.range, a.output.normalized, &mut values);
         bytes.clear();
-        bytes.extend(slab.iter().flat_map(|&v| unit(v).to_le_bytes()));
+        bytes.extend(values.iter().flat_map(|v| v.to_le_bytes()));
         file.write(&bytes)
     };
     let mut backend = a.device.choice().open()?;

@@ -2,7 +2,7 @@
 //! cells are encoded against, written as `.vti` or raw float32.
 
 use crate::args::{CellInput, GridOutput, ParticleInput, ValueArgs};
-use crate::output::{deposit_keys, output_unit, peak_rss_bytes, print_result, write_grid};
+use crate::output::{deposit_keys, peak_rss_bytes, print_result, to_output_unit, write_grid};
 use clap::{Args, Subcommand};
 use gsenc::encode::with_threads;
 use gsenc::field::Grid;
@@ -60,8 +60,8 @@ pub fn deposit(input: DepositInput) -> Result<()> {
 }
 
 fn write(p: Prepared, o: &GridOutput) -> Result<()> {
-    let unit = output_unit(&p.range, o.normalized);
-    let values: Vec<f32> = p.reference.values.iter().map(|&v| unit(v)).collect();
+    let mut values = p.reference.values.clone();
+    to_output_unit(&p.range, o.normalized, &mut values);
     let spacing = 1.0 / p.frame.gamma;
     write_grid(&o.output, &Grid::new(p.reference.dims, values)?, p.frame.bmin.map(|b| b + 0.5 * spacing), [spacing; 3], "deposit")?;
     let mut result = serde_json::Map::new();

@@ -171,9 +171,12 @@ pub fn deposit_keys(p: &Prepared) -> Map<String, Value> {
     }))
 }
 
-/// How a normalised value is written: kept, or mapped back to data units.
-pub fn output_unit(range: &ValueRange, normalized: bool) -> impl Fn(f32) -> f32 + '_ {
-    move |v| if normalized { v } else { range.denormalize(v) as f32 }
+/// Normalised values as they are written: kept, or mapped back to data
+/// units.
+pub fn to_output_unit(range: &ValueRange, normalized: bool, values: &mut [f32]) {
+    if !normalized {
+        range.denormalize_all(values);
+    }
 }
 
 /// Whether an output path names a `.vti` file (otherwise raw float32).

@@ -106,7 +106,7 @@ pub fn render_cmd(a: RenderArgs) -> Result<()> {
     };
     let dims = reference.as_ref().map(|r| r.dims).or(a.dims).unwrap_or(model.meta.frame.dims);
     let mut backend = a.device.choice().open()?;
-    let decoded = with_threads(a.threads, || field.decode(backend.as_mut(), dims, gsenc::field::IndexBox::whole(dims), false, &|v| v))??;
+    let decoded = with_threads(a.threads, || field.decode(backend.as_mut(), dims, gsenc::field::IndexBox::whole(dims), false))??;
     let ours = with_threads(a.threads, || render(&Grid::new(dims, decoded)?, &view))??;
     let theirs = match &reference {
         Some(r) => Some(with_threads(a.threads, || render(r, &view))??),

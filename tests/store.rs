@@ -574,7 +574,7 @@ fn a_decoded_series_blends_a_step_that_has_its_index() {
     // The global grid is the blend, on the global lattice.
     let g = GlobalField::of_step(index.clone(), pieces).unwrap();
     let range = g.merged().meta.range;
-    let want = g.decode(&mut cpu, index.dims, IndexBox::whole(index.dims), false, &|v| range.denormalize(v) as f32).unwrap();
+    let want: Vec<f32> = g.decode(&mut cpu, index.dims, IndexBox::whole(index.dims), false).unwrap().iter().map(|&v| range.denormalize(v) as f32).collect();
     let (shape, got) = read_f32_dataset(&out, "/rho/4/global");
     assert_eq!(shape, [12, 16, 24]);
     assert_eq!(got, want);

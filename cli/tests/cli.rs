@@ -125,10 +125,11 @@ fn vti_inputs_need_cubic_finite_voxels() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// The chunk loops, and the regularisers with Adam, are compiled for
-/// AVX-512, AVX2 and the baseline and chosen at run time (`GSENC_SIMD`
-/// caps the level, `math/simd.rs`); all three execute the
-/// same float operations in the same order, so the models are identical.
+/// The chunk loops, the regularisers with Adam and the decode's rows are
+/// compiled for AVX-512, AVX2 and the baseline and chosen at run time
+/// (`GSENC_SIMD` caps the level, `math/simd.rs`); all three execute the
+/// same float operations in the same order, so the models and the decoded
+/// values are identical.
 /// The output's `simd` names the build that ran: the cap, or what the CPU
 /// has below it (on a CPU without AVX-512 or AVX2 the test compares fewer
 /// builds, and says which it compared). A cap that names no build is a
@@ -164,6 +165,23 @@ fn every_simd_build_of_the_cpu_backend_gives_the_same_model() {
     eprintln!("compared the builds {top}, {ran_avx2} and baseline");
     assert!(avx2 == best, "the {ran_avx2} build's model differs from the {top} build's");
     assert!(baseline == best, "the baseline build's model differs from the {top} build's");
+    // The decode's rows are vectors of each build too: the same values,
+    // on a lattice whose sides are no multiple of its bricks.
+    let decode = |level: &str| {
+        let raw = dir.join(format!("{level}.raw"));
+        let out = Command::new(env!("CARGO_BIN_EXE_gsenc"))
+            .args(["decode", dir.join("avx512.gsm").to_str().unwrap(), "--dims", "37,29,19", "--backend", "cpu", "--quiet", "-o", raw.to_str().unwrap()])
+            .env("GSENC_SIMD", level)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        std::fs::read(raw).unwrap()
+    };
+    let decoded = decode("avx512");
+    assert_eq!(decoded.len(), 4 * 37 * 29 * 19);
+    assert!(decoded.chunks(4).any(|v| f32::from_le_bytes(v.try_into().unwrap()) > 0.0));
+    assert!(decode("avx2") == decoded, "the {ran_avx2} build's decode differs from the {top} build's");
+    assert!(decode("baseline") == decoded, "the baseline build's decode differs from the {top} build's");
     let (out, _) = encode("avx-2");
     assert_eq!(out.status.code(), Some(2), "a GSENC_SIMD that names no build");
     let err = String::from_utf8_lossy(&out.stderr);

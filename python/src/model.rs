@@ -130,8 +130,13 @@ impl Model {
         let values = py
             .detach(|| -> gsenc::Result<Vec<f32>> {
                 let mut backend = choice.open()?;
-                let unit = |v: f32| if normalized { v } else { range.denormalize(v) as f32 };
-                with_threads(threads, || self.field.decode(backend.as_mut(), dims, region, additive, &unit))?
+                with_threads(threads, || {
+                    let mut values = self.field.decode(backend.as_mut(), dims, region, additive)?;
+                    if !normalized {
+                        range.denormalize_all(&mut values);
+                    }
+                    Ok(values)
+                })?
             })
             .py_err()?;
         grid_array(py, region.dims(), values)
@@ -147,8 +152,13 @@ impl Model {
         let values = py
             .detach(|| -> gsenc::Result<Vec<f32>> {
                 let mut cpu = gsenc::backend::cpu::CpuBackend::new();
-                let v = with_threads(threads, || self.field.evaluate(&mut cpu, &points, additive))??;
-                Ok(if normalized { v } else { v.into_iter().map(|v| range.denormalize(v) as f32).collect() })
+                with_threads(threads, || {
+                    let mut values = self.field.evaluate(&mut cpu, &points, additive)?;
+                    if !normalized {
+                        range.denormalize_all(&mut values);
+                    }
+                    Ok(values)
+                })?
             })
             .py_err()?;
         Ok(vector(py, values))

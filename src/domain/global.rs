@@ -101,9 +101,10 @@ impl GlobalField {
         }
     }
 
-    /// [`GlobalField::decode_streaming`] into one array (x fastest), with
-    /// every value passed through `unit`.
-    pub fn decode(&self, backend: &mut dyn Backend, dims: [usize; 3], region: IndexBox, additive: bool, unit: &dyn Fn(f32) -> f32) -> Result<Vec<f32>> {
+    /// [`GlobalField::decode_streaming`] into one array (x fastest), the
+    /// values normalised ([`crate::field::ValueRange::denormalize_all`]
+    /// maps them to data units).
+    pub fn decode(&self, backend: &mut dyn Backend, dims: [usize; 3], region: IndexBox, additive: bool) -> Result<Vec<f32>> {
         region.check_within(dims)?;
         // Before the product below, which wraps beyond 64 bits.
         self.merged().lattice_dims(Some(dims))?;
@@ -111,7 +112,7 @@ impl GlobalField {
         let mut out = Vec::new();
         out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
         self.decode_streaming(backend, dims, region, additive, crate::model::DEFAULT_SLAB_VOXELS, &mut |slab| {
-            out.extend(slab.iter().map(|&v| unit(v)));
+            out.extend_from_slice(slab);
             Ok(())
         })?;
         Ok(out)

@@ -191,7 +191,10 @@ fn write_grid(
     decode(dims, &mut |slab| {
         let layers = slab.len() / (dims[0] * dims[1]);
         values.clear();
-        values.extend(slab.iter().map(|&v| if opts.normalized { v } else { range.denormalize(v) as f32 }));
+        values.extend_from_slice(slab);
+        if !opts.normalized {
+            range.denormalize_all(&mut values);
+        }
         let view = ndarray::ArrayView3::from_shape((layers, dims[1], dims[0]), &values)
             .map_err(|e| Error::arg(format!("slab shape: {e}")))?;
         ds.write_slice(view, (z..z + layers, .., ..)).map_err(h5err)?;

@@ -1,6 +1,6 @@
-//! Which build of a hot loop runs: the CPU backend's lane loops and its
-//! passes over every primitive (frames, the reduction with the chain rule),
-//! and the regularisers with Adam. The AVX-512 (32 vector registers), AVX2
+//! Which build of a hot loop runs: the CPU backend's lane loops, its
+//! passes over every primitive (frames, the reduction with the chain rule)
+//! and its decode's rows, and the regularisers with Adam. The AVX-512 (32 vector registers), AVX2
 //! and baseline builds execute the same IEEE operations in the same order
 //! (Rust never fuses multiply-adds on its own, `sqrt` and `/` are exact
 //! whatever the width, and `exp` is the same libm call), so they return
