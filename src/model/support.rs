@@ -26,6 +26,15 @@ pub struct Support {
     outside: Outside,
 }
 
+/// Whether a support voxel's four (y, z) neighbours of a lattice row are
+/// all in the support, all out of it, or neither ([`Support::apply`]).
+#[derive(Clone, Copy, PartialEq)]
+enum Mark {
+    In,
+    Out,
+    Mixed,
+}
+
 impl Support {
     /// The voxels of `reference` (normalised) above the objective's mask;
     /// `None` when that is every voxel (nothing to store).
@@ -157,9 +166,40 @@ impl Support {
         };
         let (ax, ay, az) = (axis(0), axis(1), axis(2));
         let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
+        // Where the lattice is at least as fine as the support along x, a
+        // row first marks the support's voxels along x whose four (y, z)
+        // neighbours of the row are all in it, or all out of it. Between two
+        // such the factor is exactly 1, or exactly 0 (each lerp of equal
+        // ends is that end), so the row knows it without the eight bits:
+        // inside, a point keeps its value; outside, it takes the blend at 0.
+        let skim = nx >= self.dims[0];
         out.par_chunks_mut((nx * ny).max(1)).zip(az.par_iter()).for_each(|(layer, &(z0, z1, tz))| {
+            let mut marks = vec![Mark::Mixed; if skim { self.dims[0] } else { 0 }];
+            let mut marked = None;
             for (j, &(y0, y1, ty)) in ay.iter().enumerate() {
+                if marked != Some((y0, y1)) {
+                    for (x, m) in marks.iter_mut().enumerate() {
+                        let ins = [(y0, z0), (y1, z0), (y0, z1), (y1, z1)].map(|(y, z)| self.bit(x, y, z) == 1.0);
+                        *m = match ins {
+                            [true, true, true, true] => Mark::In,
+                            [false, false, false, false] => Mark::Out,
+                            _ => Mark::Mixed,
+                        };
+                    }
+                    marked = Some((y0, y1));
+                }
                 for (i, &(x0, x1, tx)) in ax.iter().enumerate() {
+                    if skim && marks[x0] == marks[x1] {
+                        match marks[x0] {
+                            Mark::In => continue,
+                            Mark::Out => {
+                                let v = &mut layer[i + nx * j];
+                                *v = self.blend(*v, 0.0);
+                                continue;
+                            }
+                            Mark::Mixed => {}
+                        }
+                    }
                     let plane = |k: usize| {
                         let a = lerp(self.bit(x0, y0, k), self.bit(x1, y0, k), tx);
                         let b = lerp(self.bit(x0, y1, k), self.bit(x1, y1, k), tx);
@@ -276,6 +316,46 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// A support of a ball with holes, on lattices finer than it (where a
+    /// row skips the points whose neighbours are all in it), as fine, and
+    /// coarser, shifted and stretched per axis: every point gets exactly
+    /// the blend of its own factor.
+    #[test]
+    fn apply_blends_every_point_by_its_own_factor_where_rows_skip_full_cells() {
+        let dims = [13, 11, 9];
+        let mut g = Grid::new(dims, vec![0.0; 13 * 11 * 9]).unwrap();
+        for k in 0..9 {
+            for j in 0..11 {
+                for i in 0..13 {
+                    let r2 = [(i as f32 - 6.0) / 5.5, (j as f32 - 5.0) / 4.5, (k as f32 - 4.0) / 3.5].iter().map(|d| d * d).sum::<f32>();
+                    let at = g.index(i, j, k);
+                    g.values[at] = if r2 < 1.0 && (i * 7 + j * 3 + k * 5) % 11 != 0 { 0.5 } else { 0.0 };
+                }
+            }
+        }
+        let o = Outside { offset: 0.001, gain: 0.25 };
+        let s = Support::from_reference(&g).unwrap().with_outside(o).unwrap();
+        for lattice in [
+            Lattice::resampled(dims, [40, 31, 20]),
+            Lattice::reference(dims),
+            Lattice::resampled(dims, [6, 5, 4]),
+            Lattice { dims: [29, 17, 7], origin: [-0.6, 1.3, 2.1], step: [0.45, 0.61, 0.83] },
+        ] {
+            let before: Vec<f32> = (0..lattice.len()).map(|i| 0.002 + (i % 97) as f32 * 0.01).collect();
+            let mut out = before.clone();
+            s.apply(&lattice, &mut out);
+            let [nx, ny, _] = lattice.dims;
+            let (mut kept, mut blended) = (0, 0);
+            for (i, (v, b)) in out.iter().zip(&before).enumerate() {
+                let f = s.factor(lattice.point(i % nx, i / nx % ny, i / (nx * ny)));
+                let want = if f == 1.0 { *b } else { s.blend(*b, f) };
+                assert_eq!(v.to_bits(), want.to_bits(), "{lattice:?} point {i}: {v}, want {want} at factor {f}");
+                if f == 1.0 { kept += 1 } else { blended += 1 }
+            }
+            assert!(kept > 0 && blended > 0, "{lattice:?}: {kept} kept, {blended} blended");
         }
     }
 
