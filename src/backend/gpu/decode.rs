@@ -4,7 +4,7 @@
 //! `decode_lattice`.
 
 use super::kernels::*;
-use super::{count_u32, floats, seq, words, GpuBackend};
+use super::{count_u32, seq, words, GpuBackend};
 use crate::backend::{check_len, Lattice};
 use crate::error::Result;
 use crate::math::kernel::Primitive;
@@ -99,7 +99,8 @@ impl GpuBackend {
                 self.reruns += 1;
                 continue;
             }
-            out[z0 * layer..(z0 + layers) * layer].copy_from_slice(&floats(&read[0]));
+            // Straight into the caller's slab: no float vector between.
+            bytemuck::cast_slice_mut::<f32, u8>(&mut out[z0 * layer..(z0 + layers) * layer]).copy_from_slice(&read[0]);
             bz += 1;
         }
         Ok(())
