@@ -40,7 +40,7 @@ fuzz_target!(|data: &[u8]| {
     }
     let Ok(field) = GlobalField::of_step(index, pieces) else { return };
     let dims = global.dims.map(|d| d.min(6));
-    if let Ok(values) = field.decode(&mut CpuBackend::new(), dims, IndexBox::whole(dims), false, &|v| v) {
+    if let Ok(values) = field.decode(&mut CpuBackend::new(), dims, IndexBox::whole(dims), false) {
         assert_eq!(values.len(), dims.iter().product::<usize>());
         assert!(values.iter().all(|v| v.is_finite()), "a blend gave a value that is not finite");
     }
