@@ -47,3 +47,24 @@ gsenc_bin() {
     cargo build --release --locked "$@" >&2
     bin=${CARGO_TARGET_DIR:-target}/release/gsenc
 }
+
+# `want NAME`: whether the row NAME runs, by the names ROWS lists (every
+# row when ROWS is unset or empty). core.sh and inputs.sh take their rows
+# as arguments and define their own.
+want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
+
+# Back to back against another build: with BASE_BIN set, `builds` is
+# (base new) and each run of a row runs both, else (new); `build_bin B`
+# prints the tool of build B (after `gsenc_bin`). Used by precision.sh and
+# decode.sh, which then compare the two builds' outputs.
+builds=(new)
+if [ -n "${BASE_BIN:-}" ]; then
+    builds=(base new)
+fi
+build_bin() {
+    if [ "$1" = base ]; then
+        echo "$BASE_BIN"
+    else
+        echo "$bin"
+    fi
+}

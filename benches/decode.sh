@@ -23,17 +23,13 @@ gsenc_bin
 repeats=${1:-3}
 log="$out/decode.jsonl"
 rm -f "$log"
-builds=(new)
-[ -n "${BASE_BIN:-}" ] && builds=(base new)
-want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
 row() { # name model dims repeats
     local name=$1 model=$2 dims=$3 n=$4 i b exe
     want "$name" || return 0
     [ -f "$model" ] || { echo "skipping $name: $model is missing (run benches/core.sh)" >&2; return 0; }
     for i in $(seq 1 "$n"); do
         for b in "${builds[@]}"; do
-            exe=$bin
-            [ "$b" = base ] && exe=$BASE_BIN
+            exe=$(build_bin "$b")
             "$exe" decode "$model" --dims "$dims" --backend "${BACKEND:-cpu}" -o "$out/decode_$b.raw" --json --quiet \
                 | python3 -c "import json,sys; d=json.load(sys.stdin); d.update(row='$name', model='$model', build='$b'); print(json.dumps(d))" >> "$log"
             echo "[$name] run $i/$n, $b build" >&2

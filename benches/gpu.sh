@@ -57,7 +57,6 @@ keep "$out/gpu-devices.json" "$out/gpu-nvidia-smi.csv" "$out/gpu-cpu.txt"
 
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)
 h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
-want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
 late() { # true (and says so) when STOP_AFTER has passed
     [ -n "${STOP_AFTER:-}" ] && [ "$SECONDS" -ge "$STOP_AFTER" ] && echo "[$1] skipped: STOP_AFTER=$STOP_AFTER s passed" >&2
 }

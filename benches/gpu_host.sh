@@ -31,7 +31,6 @@ log="$out/gpu_host.jsonl"
 rm -f "$log"
 threads=()
 [ -n "${THREADS:-}" ] && threads=(--threads "$THREADS")
-want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
 row() { # name iterations args...
     local name=$1 iters=$2 i; shift 2
     want "$name" || return 0

@@ -32,7 +32,6 @@ work_splits=(${SPLITS:-8,8,4096 8,8,4096,1 8,8,4096,8 8,8,4096,32 4,8,4096 16,8,
 bin_splits=(${BIN_SPLITS:-8,8,4096 8,8,4096,8 8,8,1024 8,8,16384})
 rm_args=(--input "$data/richtmyer_meshkov_t20.uint8" --dims 256,256,256 --dtype u8 --range 0,255)
 h_args=(--input "$data/hydrogen_atom.float32" --dims 64,64,64 --dtype f32)
-want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
 status=0
 
 row() { # name iterations splits-array-name args...

@@ -21,16 +21,12 @@ mkdir -p "$out"
 gsenc_bin
 log="$out/precision.jsonl"
 rm -f "$log"
-builds=(new)
-[ -n "${BASE_BIN:-}" ] && builds=(base new)
-want() { [ -z "${ROWS:-}" ] || [[ " $ROWS " == *" $1 "* ]]; }
 row() { # name args...
     local name=$1 i b exe; shift
     want "$name" || return 0
     for i in $(seq "${REPEAT:-3}"); do
         for b in "${builds[@]}"; do
-            exe=$bin
-            [ "$b" = base ] && exe=$BASE_BIN
+            exe=$(build_bin "$b")
             echo "[$name] run $i, $b build" >&2
             "$exe" encode "$@" --backend cpu --payload packed -o "$out/precision_$b.gsm" --json --quiet \
                 | python3 -c "import json, sys; d = json.load(sys.stdin); d.update(row='$name', build='$b'); print(json.dumps(d))" >> "$log"
