@@ -10,6 +10,7 @@ mod common;
 use common::*;
 use gsenc::backend::gpu::device::{adapters, instances_made, DeviceRequest};
 use gsenc::backend::gpu::GpuBackend;
+use gsenc::backend::bricks::PointBricks;
 use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch, PointLoss};
 use gsenc::encode::config::EncodeConfig;
 use gsenc::encode::relocate::relocate;
@@ -195,7 +196,8 @@ fn calls_are_bitwise_identical_run_to_run() {
 /// How the work is cut into workgroups does not change the bits:
 /// gradients, evaluations, a resident step and a decode. The passes that
 /// bin from every primitive split the primitives into chunks (4096: one
-/// chunk here, 64 and 7: uneven, many per cell); the forward pass cuts a
+/// chunk here, 64 and 7: uneven, many per cell), and the brick level cuts
+/// each coarse cell's list into chunks (1, 5, 256); the forward pass cuts a
 /// brick's points into pieces (8 by default; 1, 3, 5, and 1000: one a
 /// brick), the backward pass gives each brick slices of its candidates (8
 /// by default; 1, 2 and 13, more than any brick has chunks of 128), and
@@ -231,6 +233,11 @@ fn how_the_work_is_split_does_not_change_the_bits() {
         g.set_bin_chunk(chunk);
         assert!(run(&mut g) == reference, "chunks of {chunk}");
     }
+    for chunks in [1, 5, 256] {
+        let mut g = gpu().unwrap();
+        g.set_brick_chunks(chunks);
+        assert!(run(&mut g) == reference, "coarse lists in {chunks} chunks at the brick level");
+    }
     for (points, slices) in [(1000, 1), (1, 2), (3, 13), (5, 1)] {
         let mut g = gpu().unwrap();
         g.set_work_split(points, slices);
@@ -246,6 +253,70 @@ fn how_the_work_is_split_does_not_change_the_bits() {
         g.garbage = team == 2;
         assert!(run(&mut g) == reference, "reduction teams of {team}");
     }
+}
+
+/// The device's candidate lists of training bricks are the CPU backend's,
+/// entry for entry and in order: bin_bricks.wgsl marks each coarse cell's
+/// entries in per-brick bit rows and writes them back row by row, so an
+/// entry dropped, listed twice or out of place shows here. Bricks of 16
+/// and of 4 (many coarse cells, several clipped at the grid's edge), the
+/// lists cut into 1 (tiles of 1,024 entries and more), 3 and 256 chunks
+/// and the default, empty bricks in between, one large primitive alone
+/// and among others, one outside, and lists that overflow and run again.
+#[test]
+fn each_bricks_candidates_are_the_cpu_backends_in_order() {
+    let Some(_) = gpu() else { return };
+    let mut rng = Rng::new(31);
+    let spread = random_batch(&mut rng, 5000, 100.0).pos;
+    let mut clustered = vec![];
+    for i in 0..2000 {
+        let c = if i % 2 == 0 { 5.0 } else { 90.0 };
+        clustered.push([0, 1, 2].map(|_| (c + rng.range(-4.0, 4.0)) as f32));
+    }
+    let mut over_all = isotropic([50.0; 3], 9.0, 0.6, 0.9);
+    over_all[6..10].copy_from_slice(&[0.9, 0.1, 0.3, -0.2]);
+    let mut with_outside = random_model(&mut rng, 300, 100.0);
+    with_outside.push(isotropic([500.0, 0.0, 0.0], 1.0, 0.5, 0.5));
+    with_outside.insert(7, over_all);
+    let many = random_model(&mut rng, 6000, 100.0);
+    let cases: Vec<(&str, &[Primitive], &[[f32; 3]])> =
+        vec![("6,000 primitives", &many, &spread), ("clustered points", &with_outside, &clustered), ("one large primitive", std::slice::from_ref(&over_all), &spread)];
+    let (mut longest, mut total) = (0, 0);
+    for (name, params, pos) in cases {
+        for edge in [16.0, 4.0] {
+            let mut cpu = CpuBackend::new();
+            cpu.brick = edge;
+            let want = cpu.candidate_lists(params, pos);
+            for (chunks, capacity) in [(None, None), (Some(1), None), (Some(3), Some(7)), (Some(256), None)] {
+                let mut g = gpu().unwrap();
+                g.brick = edge;
+                if let Some(k) = chunks {
+                    g.set_brick_chunks(k);
+                }
+                if let Some(c) = capacity {
+                    g.set_capacity(c);
+                }
+                let got = g.candidate_lists(params, pos).unwrap();
+                assert_eq!(got.len(), want.len(), "{name}, bricks of {edge}: occupied bricks");
+                for (b, (x, y)) in got.iter().zip(&want).enumerate() {
+                    assert_eq!(x, y, "{name}, bricks of {edge}, {chunks:?} chunks: brick {b}");
+                }
+                assert!(capacity.is_none() || g.reruns >= 1, "a capacity of 7 must overflow");
+            }
+            // The longest coarse cell's list (4^3 bricks): the union of its
+            // bricks' lists.
+            let bricks = PointBricks::new(pos, edge);
+            let mut cells = std::collections::HashMap::<[u32; 3], std::collections::BTreeSet<u32>>::new();
+            for (c, list) in bricks.coords.iter().zip(&want) {
+                cells.entry(c.map(|v| v / 4)).or_default().extend(list);
+            }
+            longest = longest.max(cells.values().map(|c| c.len()).max().unwrap_or(0));
+            total += want.iter().map(Vec::len).sum::<usize>();
+        }
+    }
+    // A coarse cell's list longer than a tile (in one chunk, several
+    // tiles), and many entries in all.
+    assert!(longest > 1024 && total > 100_000, "longest coarse list {longest}, {total} entries");
 }
 
 #[test]
@@ -794,12 +865,12 @@ fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     let (fresh_p, _) = run(&mut fresh, 9);
     assert!(same_bits(&first, &again) && same_bits(&first, &fresh_p));
     // Written buffer by buffer (`GSENC_GPU_UPLOAD=writes`): the same bits,
-    // a write for each of the call's eight regions.
+    // a write for each of the call's seven regions.
     let mut per_buffer = gpu().unwrap();
     per_buffer.upload_per_buffer = true;
     run(&mut per_buffer, 9);
     let (per_buffer_p, made) = run(&mut per_buffer, 9);
-    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 8), "uploads step by step, buffer by buffer: {made:?}");
+    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 7), "uploads step by step, buffer by buffer: {made:?}");
     assert!(same_bits(&first, &per_buffer_p));
 }
 

@@ -1150,9 +1150,10 @@ fn backend_choice_end_to_end() {
     assert!(std::fs::read(&sleepy).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_WAIT=sleep changed the model");
     // Another cut of the work into workgroups (pieces of 3 points, 2
     // backward slices, bin chunks of 64 primitives of the 200, reduction
-    // teams of 4 threads): the same model.
+    // teams of 4 threads, coarse lists in 3 chunks at the brick level):
+    // the same model.
     let split = dir.join("split.gsm");
-    let s = on_gpu(&split, &[("GSENC_GPU_SPLIT", "3,2,64,4")]);
+    let s = on_gpu(&split, &[("GSENC_GPU_SPLIT", "3,2,64,4,3")]);
     assert!(std::fs::read(&split).unwrap() == std::fs::read(&gpu).unwrap(), "GSENC_GPU_SPLIT changed the model");
     if let (Some(a), Some(b)) = (g["kernel_seconds"]["forward"]["passes"].as_u64(), s["kernel_seconds"]["forward"]["passes"].as_u64()) {
         assert_eq!(a, b, "{g} {s}");
@@ -1165,7 +1166,7 @@ fn backend_choice_end_to_end() {
     let times = |j: &serde_json::Value, phase: &str| j["gpu_host_seconds"][phase]["times"].as_u64().unwrap();
     assert_eq!(times(&b, "record"), times(&g, "record"), "{b}");
     assert!(3 * times(&b, "submit") < 2 * times(&g, "submit"), "{b}");
-    let bad_values = [("GSENC_GPU_BATCH", ["0", "5", "x", "2,2"].as_slice()), ("GSENC_GPU_SPLIT", &["0,8", "8", "8,8,8,8,8", "8,x", "8,8,8,6", "8,8,8,256"])];
+    let bad_values = [("GSENC_GPU_BATCH", ["0", "5", "x", "2,2"].as_slice()), ("GSENC_GPU_SPLIT", &["0,8", "8", "8,8,8,8,8,8", "8,x", "8,8,8,6", "8,8,8,256", "8,8,8,8,0", "8,8,8,8,257"])];
     for (var, bad) in bad_values.iter().flat_map(|(var, values)| values.iter().map(move |v| (*var, *v))) {
         let run = Command::new(env!("CARGO_BIN_EXE_gsenc"))
             .args(["encode", "grid", "--input", inp, "--dims", "20,16,12", "--dtype", "f32", "--budget", "200", "--iters", "5"])

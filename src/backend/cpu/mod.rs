@@ -113,6 +113,17 @@ impl CpuBackend {
         Self::default()
     }
 
+    /// The candidate lists of the training bricks of `pos` under `params`
+    /// (`bin_points`): per occupied brick, in `PointBricks` order, the
+    /// primitives whose box reaches it, in order. Tests compare the GPU
+    /// backend's with them (`GpuBackend::candidate_lists`).
+    #[doc(hidden)]
+    pub fn candidate_lists(&mut self, params: &[Primitive], pos: &[[f32; 3]]) -> Vec<Vec<u32>> {
+        self.prep.update(params);
+        let bins = self.bin_points(Cow::Owned(PointBricks::new(pos, self.brick)));
+        bins.cand_start.windows(2).map(|w| bins.cand[w[0] as usize..w[1] as usize].to_vec()).collect()
+    }
+
     /// The ceiling of this backend's lane code on one core: `blocks`
     /// blocks of 8 candidates that all cover `points` points, evaluated
     /// over and over from cache (no binning, no culling, no memory

@@ -109,6 +109,9 @@ pub struct Kernels {
     pub frames: Kernel,
     pub count: Kernel,
     pub fill: Kernel,
+    pub count_bricks: Kernel,
+    pub total_bricks: Kernel,
+    pub fill_bricks: Kernel,
     pub scan: Kernel,
     pub forward: Kernel,
     pub backward: Kernel,
@@ -139,11 +142,15 @@ impl Kernels {
                 }),
             };
             let bin = module("bin.wgsl", include_str!("shaders/bin.wgsl"));
+            let bricks = module("bin_bricks.wgsl", include_str!("shaders/bin_bricks.wgsl"));
             let reduce = module("reduce.wgsl", include_str!("shaders/reduce.wgsl"));
             Ok(Kernels {
                 frames: pipeline(&module("frames.wgsl", include_str!("shaders/frames.wgsl")), "frames", "main"),
                 count: pipeline(&bin, "bin count", "count"),
                 fill: pipeline(&bin, "bin fill", "fill"),
+                count_bricks: pipeline(&bricks, "bin bricks count", "count"),
+                total_bricks: pipeline(&bricks, "bin bricks total", "total"),
+                fill_bricks: pipeline(&bricks, "bin bricks fill", "fill"),
                 scan: pipeline(&module("scan.wgsl", include_str!("shaders/scan.wgsl")), "scan", "main"),
                 forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "forward", "main"),
                 backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "backward", "main"),
@@ -240,10 +247,27 @@ pub struct ListLevel<'a> {
     pub groups: u32,
 }
 
-/// Records the two-level binning that the point passes and the decode
-/// share: each `outer` cell's primitives from all of them (their `ranges`,
-/// through `ident` and `ident_bounds`), then each `inner` cell's from its
-/// outer cell's list; count, scan and fill at each level.
+/// Records one level of `bin.wgsl`: count, scan and fill of `l`'s cells
+/// from the source lists `src` (entries) and `src_starts`.
+#[allow(clippy::too_many_arguments)]
+fn bin_level(
+    gpu: &Gpu,
+    enc: &mut wgpu::CommandEncoder,
+    timer: &mut Timer,
+    binds: &mut BindGroups,
+    k: &Kernels,
+    ranges: &wgpu::Buffer,
+    (src, src_starts): (&wgpu::Buffer, &wgpu::Buffer),
+    l: &ListLevel,
+) {
+    dispatch(gpu, enc, timer, binds, &k.count, &seq(&[l.uniform, ranges, src, src_starts, l.cells, l.counts]), l.groups);
+    dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[l.uniform, l.counts, l.starts]), 1);
+    dispatch(gpu, enc, timer, binds, &k.fill, &[(0, l.uniform), (1, ranges), (2, src), (3, src_starts), (4, l.cells), (6, l.starts), (7, l.lists)], l.groups);
+}
+
+/// Records the two-level binning of the decode: each `outer` cell's
+/// primitives from all of them (their `ranges`, through `ident` and
+/// `ident_bounds`), then each `inner` cell's from its outer cell's list.
 #[allow(clippy::too_many_arguments)]
 pub fn bin_two_levels(
     gpu: &Gpu,
@@ -255,14 +279,68 @@ pub fn bin_two_levels(
     outer: &ListLevel,
     inner: &ListLevel,
 ) {
-    let o = outer;
-    dispatch(gpu, enc, timer, binds, &k.count, &seq(&[o.uniform, ranges, ident, ident_bounds, o.cells, o.counts]), o.groups);
-    dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[o.uniform, o.counts, o.starts]), 1);
-    dispatch(gpu, enc, timer, binds, &k.fill, &[(0, o.uniform), (1, ranges), (2, ident), (3, ident_bounds), (4, o.cells), (6, o.starts), (7, o.lists)], o.groups);
-    let i = inner;
-    dispatch(gpu, enc, timer, binds, &k.count, &seq(&[i.uniform, ranges, o.lists, o.starts, i.cells, i.counts]), i.groups);
-    dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[i.uniform, i.counts, i.starts]), 1);
-    dispatch(gpu, enc, timer, binds, &k.fill, &[(0, i.uniform), (1, ranges), (2, o.lists), (3, o.starts), (4, i.cells), (6, i.starts), (7, i.lists)], i.groups);
+    bin_level(gpu, enc, timer, binds, k, ranges, (ident, ident_bounds), outer);
+    bin_level(gpu, enc, timer, binds, k, ranges, (outer.lists, outer.starts), inner);
+}
+
+/// Coarse-list entries a workgroup of the training binning's brick level
+/// aims at (bin_bricks.wgsl: a chunk of one coarse cell's list).
+pub const BRICK_CHUNK: usize = 512;
+/// The fewest workgroups that level aims at, so that a few coarse cells
+/// (hydrogen 64³ has one) still give a GPU work to spread.
+pub const BRICK_GROUPS: usize = 512;
+/// The most chunks a coarse cell's list is cut into.
+pub const MAX_BRICK_CHUNKS: usize = 256;
+
+/// Chunks each coarse cell's list is cut into at the brick level, for
+/// about `coarse_entries` entries in the lists of `coarse_cells` cells.
+/// The lists do not depend on it.
+pub fn brick_chunks_for(coarse_entries: usize, coarse_cells: usize) -> u32 {
+    let cells = coarse_cells.max(1);
+    let k = coarse_entries.div_ceil(cells * BRICK_CHUNK).max(BRICK_GROUPS.div_ceil(cells));
+    k.clamp(1, MAX_BRICK_CHUNKS) as u32
+}
+
+/// The brick level of the training binning (bin_bricks.wgsl): its uniform
+/// (`P.bin.z` chunks a coarse cell), the dense brick map, the per (brick,
+/// chunk) counts, the bricks' counts, starts and lists, how many occupied
+/// bricks there are and the workgroups of its count and fill (coarse
+/// cells times chunks).
+pub struct BrickLevel<'a> {
+    pub uniform: &'a wgpu::Buffer,
+    pub occupied: &'a wgpu::Buffer,
+    pub chunk_counts: &'a wgpu::Buffer,
+    pub counts: &'a wgpu::Buffer,
+    pub starts: &'a wgpu::Buffer,
+    pub lists: &'a wgpu::Buffer,
+    pub bricks: u32,
+    pub groups: u32,
+}
+
+/// Records the training binning: each `coarse` cell's primitives from all
+/// of them (bin.wgsl), then each occupied brick's from its coarse cell's
+/// list (bin_bricks.wgsl `count`, `total`, scan.wgsl over the bricks'
+/// totals, `fill`).
+#[allow(clippy::too_many_arguments)]
+pub fn bin_training(
+    gpu: &Gpu,
+    enc: &mut wgpu::CommandEncoder,
+    timer: &mut Timer,
+    binds: &mut BindGroups,
+    k: &Kernels,
+    (ranges, ident, ident_bounds): (&wgpu::Buffer, &wgpu::Buffer, &wgpu::Buffer),
+    coarse: &ListLevel,
+    b: &BrickLevel,
+) {
+    bin_level(gpu, enc, timer, binds, k, ranges, (ident, ident_bounds), coarse);
+    // `count` and `fill` share their walk over the bit rows (bin_bricks.wgsl
+    // `rows`), so both bind every buffer of it; `count` writes only the
+    // per (brick, chunk) counts.
+    let rows = [(0, b.uniform), (1, ranges), (2, coarse.lists), (3, coarse.starts), (4, coarse.cells), (5, b.occupied), (6, b.chunk_counts), (8, b.starts), (9, b.lists)];
+    dispatch(gpu, enc, timer, binds, &k.count_bricks, &rows, b.groups);
+    dispatch(gpu, enc, timer, binds, &k.total_bricks, &[(0, b.uniform), (6, b.chunk_counts), (7, b.counts)], groups_for(b.bricks as usize));
+    dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[b.uniform, b.counts, b.starts]), 1);
+    dispatch(gpu, enc, timer, binds, &k.fill_bricks, &rows, b.groups);
 }
 
 /// Workgroups for one thread per item of the per-primitive kernels.
@@ -287,6 +365,26 @@ mod tests {
             let t = reduce_team_for(n);
             assert!(t.is_power_of_two() && (1..=REDUCE_TEAM).contains(&t), "{n}: team {t}");
             assert!(t == 1 || n * t as usize <= REDUCE_THREADS, "{n}: team {t} makes {} threads", n * t as usize);
+        }
+    }
+
+    /// The brick level's chunks: at least `BRICK_GROUPS` workgroups while
+    /// the cells are few (hydrogen 64³: one cell, the most chunks),
+    /// about `BRICK_CHUNK` entries a workgroup where the lists are long (RM
+    /// 256³ at 200,000 primitives: 64 cells, about 1.1 million entries),
+    /// one chunk a cell where the cells alone are enough, never none.
+    #[test]
+    fn the_brick_levels_chunks_follow_the_lists() {
+        for ((entries, cells), want) in [((5_000, 1), 256), ((0, 0), 256), ((1_100_000, 64), 34), ((65_536, 8), 64), ((200_000, 4_096), 1), ((0, 100_000), 1)] {
+            assert_eq!(brick_chunks_for(entries, cells), want, "{entries} entries in {cells} cells");
+        }
+        for cells in [1, 3, 64, 700] {
+            for entries in (0..3_000_000).step_by(99_991) {
+                let k = brick_chunks_for(entries, cells) as usize;
+                assert!((1..=MAX_BRICK_CHUNKS).contains(&k), "{entries} entries in {cells} cells: {k}");
+                assert!(k == MAX_BRICK_CHUNKS || k * cells >= BRICK_GROUPS, "{entries} entries in {cells} cells: {k} chunks");
+                assert!(k == MAX_BRICK_CHUNKS || entries.div_ceil(k * cells) <= BRICK_CHUNK, "{entries} entries in {cells} cells: {k} chunks");
+            }
         }
     }
 }

@@ -3,11 +3,13 @@
 //!
 //! A training iteration is one command buffer (`points.rs`):
 //! 1. `frames`: each primitive's `Hot` record and the bricks its box overlaps;
-//! 2. `bin` `count`, `scan`, `bin` `fill`, twice: per coarse cell of 4^3
-//!    bricks the primitives that reach it, then per occupied brick its
-//!    candidates from its coarse cell's list, in primitive order (one
-//!    workgroup per cell, or per chunk of its source list at the first
-//!    level, gathers, so no atomics); the lists get a capacity,
+//! 2. per coarse cell of 4^3 bricks the primitives that reach it (`bin`
+//!    `count`, `scan`, `bin` `fill`: one workgroup per chunk of the
+//!    primitives and cell, gathers), then per occupied brick its candidates
+//!    from its coarse cell's list (`bin_bricks` `count`, `total`, `scan`,
+//!    `bin_bricks` `fill`: one workgroup per chunk of a coarse list, which
+//!    marks each entry in the bit rows of the bricks it reaches), both in
+//!    primitive order, with no float atomics; the lists get a capacity,
 //!    and the scans' totals, read back with the results, say whether they
 //!    fitted (if not, the call runs again with room for them);
 //! 3. `forward`: per piece of a brick's points (8), the points' density and
@@ -22,7 +24,8 @@
 //!    after one whose lists overflowed (two submissions of steps may be in
 //!    flight: `points::IN_FLIGHT`); `loss`: the batch's loss terms.
 //!
-//! No float atomics anywhere, so a call gives the same bits run after run
+//! No float atomics anywhere (the integer OR of bin_bricks.wgsl gives the
+//! same bits in any order), so a call gives the same bits run after run
 //! on one adapter. The points are sorted into bricks on the host
 //! ([`crate::backend::bricks::PointBricks`], as the CPU backend does) and
 //! uploaded. `point_loss_grad` brings the gradient back; `evaluate_points`
@@ -88,6 +91,10 @@ pub struct GpuBackend {
     /// Source entries a workgroup of a bin pass from every primitive tests
     /// (`kernels::BIN_CHUNK`; tests make it small).
     bin_chunk: usize,
+    /// Chunks each coarse cell's list is cut into at the brick level of
+    /// training binning; `None`: by the lists' size
+    /// (`kernels::brick_chunks_for`).
+    brick_chunks: Option<u32>,
     /// Points a forward workgroup evaluates, and backward workgroups per
     /// brick (`kernels::FORWARD_PIECE`, `kernels::BACKWARD_SLICES`; tests
     /// vary them).
@@ -176,21 +183,23 @@ fn batch_from_env() -> Result<usize> {
         .ok_or_else(|| Error::arg(format!("GSENC_GPU_BATCH={v:?}: expected resident steps a submission, 1 to {}", points::MAX_BATCH)))
 }
 
-/// What `GSENC_GPU_SPLIT=PIECE,SLICES[,CHUNK[,TEAM]]` sets: how the point
-/// passes' work is cut into workgroups.
+/// What `GSENC_GPU_SPLIT=PIECE,SLICES[,CHUNK[,TEAM[,BRICK_CHUNKS]]]`
+/// sets: how the point passes' work is cut into workgroups.
 struct Split {
     piece: usize,
     slices: u32,
     chunk: Option<usize>,
     team: Option<u32>,
+    brick_chunks: Option<u32>,
 }
 
 /// `GSENC_GPU_SPLIT` ([`GpuBackend::set_work_split`],
-/// [`GpuBackend::set_bin_chunk`], [`GpuBackend::set_reduce_team`]): the
-/// same results whatever the split (tested), for finding the fastest on a
-/// GPU (`benches/gpu_split.sh`). Unset or empty: the defaults. Anything but
-/// two to four positive integers, the fourth a power of two up to 128, is
-/// an error.
+/// [`GpuBackend::set_bin_chunk`], [`GpuBackend::set_reduce_team`],
+/// [`GpuBackend::set_brick_chunks`]): the same results whatever the split
+/// (tested), for finding the fastest on a GPU (`benches/gpu_split.sh`).
+/// Unset or empty: the defaults. Anything but two to five positive
+/// integers, the fourth a power of two up to 128 and the fifth at most
+/// `kernels::MAX_BRICK_CHUNKS`, is an error.
 fn split_from_env() -> Result<Option<Split>> {
     let Ok(v) = std::env::var("GSENC_GPU_SPLIT") else { return Ok(None) };
     if v.trim().is_empty() {
@@ -198,12 +207,14 @@ fn split_from_env() -> Result<Option<Split>> {
     }
     let bad = || {
         Error::arg(format!(
-            "GSENC_GPU_SPLIT={v:?}: expected PIECE,SLICES[,CHUNK[,TEAM]] (positive integers: points a forward workgroup, \
-             backward workgroups a brick, primitives a bin workgroup, threads a primitive's reduction, a power of two up to 128)"
+            "GSENC_GPU_SPLIT={v:?}: expected PIECE,SLICES[,CHUNK[,TEAM[,BRICK_CHUNKS]]] (positive integers: points a forward workgroup, \
+             backward workgroups a brick, primitives a bin workgroup, threads a primitive's reduction, a power of two up to 128, \
+             chunks a coarse cell's list at the brick level, up to {})",
+            kernels::MAX_BRICK_CHUNKS
         ))
     };
     let n: Vec<usize> = v.split(',').map(|x| x.trim().parse::<usize>().ok().filter(|&n| n > 0)).collect::<Option<_>>().ok_or_else(bad)?;
-    if !(2..=4).contains(&n.len()) {
+    if !(2..=5).contains(&n.len()) {
         return Err(bad());
     }
     let team = match n.get(3) {
@@ -211,7 +222,12 @@ fn split_from_env() -> Result<Option<Split>> {
         Some(_) => return Err(bad()),
         None => None,
     };
-    Ok(Some(Split { piece: n[0], slices: u32::try_from(n[1]).map_err(|_| bad())?, chunk: n.get(2).copied(), team }))
+    let brick_chunks = match n.get(4) {
+        Some(&k) if k <= kernels::MAX_BRICK_CHUNKS => Some(k as u32),
+        Some(_) => return Err(bad()),
+        None => None,
+    };
+    Ok(Some(Split { piece: n[0], slices: u32::try_from(n[1]).map_err(|_| bad())?, chunk: n.get(2).copied(), team, brick_chunks }))
 }
 
 impl GpuBackend {
@@ -235,6 +251,7 @@ impl GpuBackend {
             coarse_capacity: 1 << 16,
             slab_capacity: 1 << 16,
             bin_chunk: kernels::BIN_CHUNK,
+            brick_chunks: None,
             forward_piece: kernels::FORWARD_PIECE,
             backward_slices: kernels::BACKWARD_SLICES,
             reduce_team: None,
@@ -255,6 +272,9 @@ impl GpuBackend {
             }
             if let Some(t) = split.team {
                 b.set_reduce_team(t);
+            }
+            if let Some(k) = split.brick_chunks {
+                b.set_brick_chunks(k);
             }
         }
         Ok(b)
@@ -294,6 +314,13 @@ impl GpuBackend {
     /// on it, and tests use it to split small models.
     pub fn set_bin_chunk(&mut self, entries: usize) {
         self.bin_chunk = entries.max(1);
+    }
+
+    /// Cuts each coarse cell's list into `chunks` at the brick level of
+    /// training binning, one workgroup each (default: by the lists' size,
+    /// `kernels::brick_chunks_for`); the lists do not depend on it.
+    pub fn set_brick_chunks(&mut self, chunks: u32) {
+        self.brick_chunks = Some(chunks.clamp(1, kernels::MAX_BRICK_CHUNKS as u32));
     }
 
     /// Splits each brick's points into pieces of `points`, one forward

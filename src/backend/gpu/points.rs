@@ -4,7 +4,7 @@
 //! and (resident) the Adam step. Mirrors cpu/mod.rs `bin_points`, `grad_chunk`
 //! and `eval_chunk`.
 
-use super::buffers::Buffers;
+use super::buffers::{Buffers, Readback};
 use super::device::Gpu;
 use super::kernels::*;
 use super::{bytes, count_u32, seq, words, GpuBackend};
@@ -66,7 +66,6 @@ pub(super) struct Upload {
     /// The forward pass's workgroups: (brick, first point, end, 0), each
     /// brick's points cut into runs of `GpuBackend::forward_piece`.
     pieces: Vec<[u32; 4]>,
-    cells: Vec<[u32; 4]>,
     coarse: Vec<[u32; 4]>,
     occupied: Vec<u32>,
 }
@@ -74,10 +73,10 @@ pub(super) struct Upload {
 /// Bricks per coarse cell along each axis: the first level of training bins.
 const COARSE: u32 = 4;
 
-/// The coarse cells (of `COARSE`^3 bricks) that hold occupied bricks, as
-/// bin.wgsl's `cells` (two vec4 each: the inclusive brick box, parent 0),
-/// and the occupied bricks as `cells` whose parent is their coarse cell.
-fn coarse_cells(bricks: &PointBricks) -> (Vec<[u32; 4]>, Vec<[u32; 4]>) {
+/// The coarse cells (of `COARSE`^3 bricks; bin_bricks.wgsl `COARSE`) that
+/// hold occupied bricks, as bin.wgsl's `cells` (two vec4 each: the
+/// inclusive brick box, parent 0).
+fn coarse_cells(bricks: &PointBricks) -> Vec<[u32; 4]> {
     let mut index = std::collections::BTreeMap::new();
     let key = |c: &[u32; 3]| [c[2] / COARSE, c[1] / COARSE, c[0] / COARSE];
     for c in &bricks.coords {
@@ -90,8 +89,7 @@ fn coarse_cells(bricks: &PointBricks) -> (Vec<[u32; 4]>, Vec<[u32; 4]>) {
         coarse[2 * i as usize] = [k[2] * COARSE, k[1] * COARSE, k[0] * COARSE, 0];
         coarse[2 * i as usize + 1] = [hi(0, k[2]), hi(1, k[1]), hi(2, k[0]), 0];
     }
-    let cells = bricks.coords.iter().flat_map(|c| [[c[0], c[1], c[2], index[&key(c)]], [c[0], c[1], c[2], 0]]).collect();
-    (coarse, cells)
+    coarse
 }
 
 impl GpuBackend {
@@ -134,7 +132,7 @@ impl GpuBackend {
             .enumerate()
             .flat_map(|(b, &[s, e])| (s..e).step_by(piece as usize).map(move |p| [b as u32, p, p.saturating_add(piece).min(e), 0]))
             .collect();
-        let (coarse, cells) = coarse_cells(&bricks);
+        let coarse = coarse_cells(&bricks);
         // The dense brick map serves only the device: it moves to the upload
         // (a sort made ahead, borrowed from its batch, lends a copy).
         let occupied = match &mut bricks {
@@ -143,7 +141,7 @@ impl GpuBackend {
         };
         let team = self.reduce_team.unwrap_or_else(|| reduce_team_for(n));
         let split = [count_u32("forward pieces", pieces.len())?, self.backward_slices, team, 0];
-        let upload = Upload { sorted, ranges, pieces, cells, coarse, occupied };
+        let upload = Upload { sorted, ranges, pieces, coarse, occupied };
         self.host.lap("arrange", started);
         let nb = bricks.ranges.len();
         let p = Params {
@@ -290,7 +288,8 @@ impl GpuBackend {
         // The coarse level bins from every primitive, in chunks; the
         // brick level reads the coarse lists whole.
         let split = bin_split(n, self.bin_chunk)?;
-        p.bin = [1, split, 0, 0];
+        let chunks = self.brick_chunks.unwrap_or_else(|| brick_chunks_for(self.coarse_capacity, ncoarse));
+        p.bin = [1, split, chunks, 0];
         let coarse_p = Params { counts: [p.counts[0], p.coarse[0], p.coarse[1], 0], bin: [split, 1, 0, 0], ..p };
         let coarse_entries = ncoarse as u64 * split as u64;
         let coarse_groups = count_u32("coarse bin workgroups", coarse_entries as usize)?;
@@ -307,6 +306,8 @@ impl GpuBackend {
         b.coarse_starts.ensure(gpu, 4 * (coarse_entries + 1), g)?;
         b.coarse_lists.ensure(gpu, 4 * self.coarse_capacity as u64, g)?;
         b.starts.ensure(gpu, 4 * (nbricks as u64 + 1), g)?;
+        let brick_groups = count_u32("brick bin workgroups", ncoarse * chunks as usize)?;
+        b.chunk_counts.ensure(gpu, 4 * (nbricks as u64 * chunks as u64).max(1), g)?;
         b.lists.ensure(gpu, 4 * self.capacity as u64, g)?;
         b.loss.ensure(gpu, 16, g)?;
         b.reg_terms.ensure(gpu, 8 * n as u64, g && pass != Pass::Gradient)?;
@@ -326,7 +327,6 @@ impl GpuBackend {
             (bytes(&up.sorted), b.points.ensure(gpu, 16 * sorted, g)?.clone()),
             (bytes(&up.ranges), b.brick_points.ensure(gpu, 8 * up.ranges.len() as u64, g)?.clone()),
             (bytes(&up.pieces), b.pieces.ensure(gpu, 16 * up.pieces.len() as u64, g)?.clone()),
-            (bytes(&up.cells), b.cells.ensure(gpu, 16 * up.cells.len() as u64, g)?.clone()),
             (bytes(&up.coarse), b.coarse_cells.ensure(gpu, 16 * up.coarse.len() as u64, g)?.clone()),
             (bytes(&up.occupied), b.occupied.ensure(gpu, 4 * up.occupied.len() as u64, g)?.clone()),
             (bytemuck::bytes_of(&p), u.clone()),
@@ -349,7 +349,8 @@ impl GpuBackend {
             let (ident, ident_bounds) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?);
             let (cells1, counts1, starts1, lists1) =
                 (b.coarse_cells.ensure(gpu, 0, false)?, b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
-            let (cells, counts, starts, lists) = (b.cells.ensure(gpu, 0, false)?, b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
+            let (counts, starts, lists) = (b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
+            let (occ, chunk_counts) = (b.occupied.ensure(gpu, 0, false)?, b.chunk_counts.ensure(gpu, 0, false)?);
             let (bp, pts, rho_n, terms) = (b.brick_points.ensure(gpu, 0, false)?, b.points.ensure(gpu, 0, false)?, b.rho_n.ensure(gpu, 0, false)?, b.terms.ensure(gpu, 0, false)?);
             let pieces = b.pieces.ensure(gpu, 0, false)?;
             let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
@@ -358,14 +359,14 @@ impl GpuBackend {
             // Each coarse cell's primitives, from all of them; each brick's,
             // from its coarse cell's.
             let coarse = ListLevel { uniform: &u1, cells: cells1, counts: counts1, starts: starts1, lists: lists1, groups: coarse_groups };
-            let bricks = ListLevel { uniform: &u, cells, counts, starts, lists, groups: nb };
-            bin_two_levels(gpu, enc, timer, binds, k, (ranges, ident, ident_bounds), &coarse, &bricks);
+            let bricks = BrickLevel { uniform: &u, occupied: occ, chunk_counts, counts, starts, lists, bricks: nb, groups: brick_groups };
+            bin_training(gpu, enc, timer, binds, k, (ranges, ident, ident_bounds), &coarse, &bricks);
             dispatch(gpu, enc, timer, binds, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
             let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
             if pass == Pass::Evaluate {
                 read[0].1 = 8 * npts as u64;
             } else {
-                let (partial, occ) = (b.partial.ensure(gpu, 0, false)?, b.occupied.ensure(gpu, 0, false)?);
+                let partial = b.partial.ensure(gpu, 0, false)?;
                 let backward_groups = count_u32("backward workgroups", nbricks * p.split[1].max(1) as usize)?;
                 dispatch(gpu, enc, timer, binds, &k.backward, &seq(&[&u, hot, starts, lists, bp, pts, terms, partial]), backward_groups);
                 // A team of `p.split[2]` threads a primitive.
@@ -406,6 +407,33 @@ impl GpuBackend {
         }
         self.open = out?;
         Ok(())
+    }
+
+    /// The candidate lists the device makes for the training bricks of
+    /// `pos` under `params` (an evaluation's binning): per occupied brick,
+    /// in `PointBricks` order, its primitives in order. Tests compare them
+    /// with the CPU backend's (`CpuBackend::candidate_lists`).
+    #[doc(hidden)]
+    pub fn candidate_lists(&mut self, params: &[Primitive], pos: &[[f32; 3]]) -> Result<Vec<Vec<u32>>> {
+        self.idle("reading candidate lists")?;
+        if params.is_empty() || pos.is_empty() {
+            return Err(Error::arg("candidate lists: no primitives or no points"));
+        }
+        self.upload_params(params)?;
+        let (p, bricks, ncoarse, upload) = self.upload_points(params.len(), pos, None, Cow::Owned(PointBricks::new(pos, self.brick)))?;
+        let (_, _, starts) = self.run_points(p, bricks.ranges.len(), ncoarse, Pass::Evaluate, upload)?;
+        let total = starts.last().copied().unwrap_or(0) as u64;
+        let gpu = &self.gpu;
+        let lists = self.bufs.lists.ensure(gpu, 0, false)?.clone();
+        let mut back = Readback::default();
+        let read = gpu.scoped("reading candidate lists back", || {
+            let mut enc = gpu.device.create_command_encoder(&Default::default());
+            back.record(gpu, &mut enc, &[(&lists, 4 * total)])?;
+            back.submit(gpu, enc);
+            back.read(gpu)
+        })?;
+        let all = words(&read[0]);
+        Ok(starts.windows(2).map(|w| all[w[0] as usize..w[1] as usize].to_vec()).collect())
     }
 
     /// Kernel evaluations of a forward pass: points times candidates per brick.
