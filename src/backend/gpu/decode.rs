@@ -84,7 +84,8 @@ impl GpuBackend {
                 // from the slab's.
                 let slab_level = ListLevel { uniform: &u1, cells, counts: sc, starts: ss, lists: sl, groups: split };
                 let brick_level = ListLevel { uniform: &u2, cells, counts, starts, lists, groups: ncells };
-                bin_two_levels(gpu, &mut enc, timer, binds, k, (ranges, ident, ident_bounds), &slab_level, &brick_level);
+                bin_level(gpu, &mut enc, timer, binds, k, ranges, (ident, ident_bounds), &slab_level);
+                bin_level(gpu, &mut enc, timer, binds, k, ranges, (sl, ss), &brick_level);
                 dispatch(gpu, &mut enc, timer, binds, &k.decode, &seq(&[&u2, hot, starts, lists, slab]), ncells);
                 let times = timer.resolve(&mut enc).unwrap_or((slab, 0));
                 b.readback[0].record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;

@@ -248,9 +248,11 @@ pub struct ListLevel<'a> {
 }
 
 /// Records one level of `bin.wgsl`: count, scan and fill of `l`'s cells
-/// from the source lists `src` (entries) and `src_starts`.
+/// from the source lists `src` (entries) and `src_starts`: every
+/// primitive (`ident`, `ident_bounds`) or the cells of the level before
+/// (its lists and starts). The decode's two levels are two of these.
 #[allow(clippy::too_many_arguments)]
-fn bin_level(
+pub fn bin_level(
     gpu: &Gpu,
     enc: &mut wgpu::CommandEncoder,
     timer: &mut Timer,
@@ -263,24 +265,6 @@ fn bin_level(
     dispatch(gpu, enc, timer, binds, &k.count, &seq(&[l.uniform, ranges, src, src_starts, l.cells, l.counts]), l.groups);
     dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[l.uniform, l.counts, l.starts]), 1);
     dispatch(gpu, enc, timer, binds, &k.fill, &[(0, l.uniform), (1, ranges), (2, src), (3, src_starts), (4, l.cells), (6, l.starts), (7, l.lists)], l.groups);
-}
-
-/// Records the two-level binning of the decode: each `outer` cell's
-/// primitives from all of them (their `ranges`, through `ident` and
-/// `ident_bounds`), then each `inner` cell's from its outer cell's list.
-#[allow(clippy::too_many_arguments)]
-pub fn bin_two_levels(
-    gpu: &Gpu,
-    enc: &mut wgpu::CommandEncoder,
-    timer: &mut Timer,
-    binds: &mut BindGroups,
-    k: &Kernels,
-    (ranges, ident, ident_bounds): (&wgpu::Buffer, &wgpu::Buffer, &wgpu::Buffer),
-    outer: &ListLevel,
-    inner: &ListLevel,
-) {
-    bin_level(gpu, enc, timer, binds, k, ranges, (ident, ident_bounds), outer);
-    bin_level(gpu, enc, timer, binds, k, ranges, (outer.lists, outer.starts), inner);
 }
 
 /// Coarse-list entries a workgroup of the training binning's brick level
@@ -317,22 +301,12 @@ pub struct BrickLevel<'a> {
     pub groups: u32,
 }
 
-/// Records the training binning: each `coarse` cell's primitives from all
-/// of them (bin.wgsl), then each occupied brick's from its coarse cell's
-/// list (bin_bricks.wgsl `count`, `total`, scan.wgsl over the bricks'
-/// totals, `fill`).
+/// Records the brick level of the training binning, after `coarse`, the
+/// first level (`bin_level` from every primitive): each occupied brick's
+/// candidates from its coarse cell's list (bin_bricks.wgsl `count`,
+/// `total`, scan.wgsl over the bricks' totals, `fill`).
 #[allow(clippy::too_many_arguments)]
-pub fn bin_training(
-    gpu: &Gpu,
-    enc: &mut wgpu::CommandEncoder,
-    timer: &mut Timer,
-    binds: &mut BindGroups,
-    k: &Kernels,
-    (ranges, ident, ident_bounds): (&wgpu::Buffer, &wgpu::Buffer, &wgpu::Buffer),
-    coarse: &ListLevel,
-    b: &BrickLevel,
-) {
-    bin_level(gpu, enc, timer, binds, k, ranges, (ident, ident_bounds), coarse);
+pub fn bin_bricks(gpu: &Gpu, enc: &mut wgpu::CommandEncoder, timer: &mut Timer, binds: &mut BindGroups, k: &Kernels, ranges: &wgpu::Buffer, coarse: &ListLevel, b: &BrickLevel) {
     // `count` and `fill` share their walk over the bit rows (bin_bricks.wgsl
     // `rows`), so both bind every buffer of it; `count` writes only the
     // per (brick, chunk) counts.

@@ -360,7 +360,8 @@ impl GpuBackend {
             // from its coarse cell's.
             let coarse = ListLevel { uniform: &u1, cells: cells1, counts: counts1, starts: starts1, lists: lists1, groups: coarse_groups };
             let bricks = BrickLevel { uniform: &u, occupied: occ, chunk_counts, counts, starts, lists, bricks: nb, groups: brick_groups };
-            bin_training(gpu, enc, timer, binds, k, (ranges, ident, ident_bounds), &coarse, &bricks);
+            bin_level(gpu, enc, timer, binds, k, ranges, (ident, ident_bounds), &coarse);
+            bin_bricks(gpu, enc, timer, binds, k, ranges, &coarse, &bricks);
             dispatch(gpu, enc, timer, binds, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
             let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
             if pass == Pass::Evaluate {
