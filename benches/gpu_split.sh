@@ -87,6 +87,6 @@ for d in runs:
     k = d.get("kernel_seconds") or {}
     ms = lambda *names: f"{sum(k.get(n, {}).get('seconds', 0) for n in names) * 1e3 / it:.3f}" if k else ""
     device = f"{sum(v.get('seconds', 0) for v in k.values()) * 1e3 / it:.3f}" if k else ""
-    print(f"| {d['row']} | {d['split']} | {it} | {d['seconds'] * 1e3 / it:.3f} | {device} | {ms('bin count', 'bin fill')} | {ms('bin bricks count', 'bin bricks total', 'bin bricks fill')} | {ms('forward')} | {ms('backward')} | {ms('reduce', 'reduce adam')} | {d['same_model']} |")
+    print(f"| {d['row']} | {d['split']} | {it} | {d['seconds'] * 1e3 / it:.3f} | {device} | {ms('bin count', 'bin fill', 'bin cells count', 'bin cells total', 'bin cells fill')} | {ms('bin bricks count', 'bin bricks total', 'bin bricks fill')} | {ms('forward')} | {ms('backward')} | {ms('reduce', 'reduce adam')} | {d['same_model']} |")
 PY
 exit $status

@@ -256,10 +256,11 @@ fn how_the_work_is_split_does_not_change_the_bits() {
 }
 
 /// The device's candidate lists of training bricks are the CPU backend's,
-/// entry for entry and in order: bin_bricks.wgsl marks each coarse cell's
+/// entry for entry and in order: bin_rows.wgsl marks each coarse cell's
 /// entries in per-brick bit rows and writes them back row by row, so an
 /// entry dropped, listed twice or out of place shows here. Bricks of 16
-/// and of 4 (many coarse cells, several clipped at the grid's edge), the
+/// (a 2^3 coarse grid, its cells' lists from bit rows too) and of 4 (a
+/// 7^3 coarse grid, gathered by bin.wgsl; cells clipped at its edge), the
 /// lists cut into 1 (tiles of 1,024 entries and more), 3 and 256 chunks
 /// and the default, empty bricks in between, one large primitive alone
 /// and among others, one outside, and lists that overflow and run again.
@@ -865,12 +866,12 @@ fn steady_resident_steps_make_no_buffers_or_bind_groups() {
     let (fresh_p, _) = run(&mut fresh, 9);
     assert!(same_bits(&first, &again) && same_bits(&first, &fresh_p));
     // Written buffer by buffer (`GSENC_GPU_UPLOAD=writes`): the same bits,
-    // a write for each of the call's seven regions.
+    // a write for each of the call's nine regions.
     let mut per_buffer = gpu().unwrap();
     per_buffer.upload_per_buffer = true;
     run(&mut per_buffer, 9);
     let (per_buffer_p, made) = run(&mut per_buffer, 9);
-    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 7), "uploads step by step, buffer by buffer: {made:?}");
+    assert!(made.windows(2).all(|m| m[1].2 == m[0].2 + 9), "uploads step by step, buffer by buffer: {made:?}");
     assert!(same_bits(&first, &per_buffer_p));
 }
 

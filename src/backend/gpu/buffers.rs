@@ -189,9 +189,13 @@ pub(super) struct Buffers {
     pub(super) coarse_counts: Slot,
     pub(super) coarse_starts: Slot,
     pub(super) coarse_lists: Slot,
-    /// Training bricks: per (occupied brick, chunk of its coarse cell's
-    /// list) the chunk's entries, then their place (bin_bricks.wgsl).
+    /// Training's levels from bit rows: per (child, chunk of its parent's
+    /// list) the chunk's entries, then their place (bin_rows.wgsl).
     pub(super) chunk_counts: Slot,
+    /// The dense map of the coarse grid and the root block's box, where
+    /// the coarse cells are made from bit rows (points.rs `Coarse`).
+    pub(super) coarse_map: Slot,
+    pub(super) root: Slot,
     pub(super) slab: Slot,
     /// Resident training: set by a step whose lists overflowed, so that
     /// the steps queued after it change nothing either (points.rs).
@@ -217,7 +221,7 @@ impl Buffers {
             &self.params, &self.hot, &self.ranges, &self.identity, &self.identity_bounds, &self.cells, &self.counts, &self.starts,
             &self.lists, &self.brick_points, &self.pieces, &self.points, &self.occupied, &self.rho_n, &self.terms, &self.partial,
             &self.grad, &self.moments, &self.reg_terms, &self.loss, &self.coarse_cells, &self.coarse_counts, &self.coarse_starts,
-            &self.coarse_lists, &self.chunk_counts, &self.slab, &self.poison,
+            &self.coarse_lists, &self.chunk_counts, &self.coarse_map, &self.root, &self.slab, &self.poison,
         ];
         slots.into_iter().chain(self.uniforms.iter().flatten()).map(|s| s.made).sum()
     }
@@ -250,7 +254,9 @@ impl Default for Buffers {
             coarse_counts: Slot::storage("coarse counts"),
             coarse_starts: Slot::storage("coarse starts"),
             coarse_lists: Slot::storage("coarse lists"),
-            chunk_counts: Slot::storage("brick chunk counts"),
+            chunk_counts: Slot::storage("chunk counts"),
+            coarse_map: Slot::storage("coarse cell map"),
+            root: Slot::storage("root block"),
             slab: Slot::storage("slab values"),
             poison: Slot::storage("poison"),
             readback: Default::default(),

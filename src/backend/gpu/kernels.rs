@@ -28,6 +28,7 @@ pub struct Params {
     pub bin: [u32; 4],
     pub objective: [f32; 4],
     pub split: [u32; 4],
+    pub rows: [u32; 4],
 }
 
 impl Params {
@@ -105,13 +106,21 @@ pub struct Kernel {
     pub pipeline: wgpu::ComputePipeline,
 }
 
+/// The three kernels of bin_rows.wgsl.
+pub struct RowKernels {
+    pub count: Kernel,
+    pub total: Kernel,
+    pub fill: Kernel,
+}
+
 pub struct Kernels {
     pub frames: Kernel,
     pub count: Kernel,
     pub fill: Kernel,
-    pub count_bricks: Kernel,
-    pub total_bricks: Kernel,
-    pub fill_bricks: Kernel,
+    /// bin_rows.wgsl at the coarse level and at the brick level: the same
+    /// pipelines, timed under names of their own.
+    pub cells: RowKernels,
+    pub bricks: RowKernels,
     pub scan: Kernel,
     pub forward: Kernel,
     pub backward: Kernel,
@@ -142,15 +151,25 @@ impl Kernels {
                 }),
             };
             let bin = module("bin.wgsl", include_str!("shaders/bin.wgsl"));
-            let bricks = module("bin_bricks.wgsl", include_str!("shaders/bin_bricks.wgsl"));
+            let rows = module("bin_rows.wgsl", include_str!("shaders/bin_rows.wgsl"));
+            let bricks = RowKernels {
+                count: pipeline(&rows, "bin bricks count", "count"),
+                total: pipeline(&rows, "bin bricks total", "total"),
+                fill: pipeline(&rows, "bin bricks fill", "fill"),
+            };
+            let as_cells = |k: &Kernel, label| Kernel { label, pipeline: k.pipeline.clone() };
+            let cells = RowKernels {
+                count: as_cells(&bricks.count, "bin cells count"),
+                total: as_cells(&bricks.total, "bin cells total"),
+                fill: as_cells(&bricks.fill, "bin cells fill"),
+            };
             let reduce = module("reduce.wgsl", include_str!("shaders/reduce.wgsl"));
             Ok(Kernels {
                 frames: pipeline(&module("frames.wgsl", include_str!("shaders/frames.wgsl")), "frames", "main"),
                 count: pipeline(&bin, "bin count", "count"),
                 fill: pipeline(&bin, "bin fill", "fill"),
-                count_bricks: pipeline(&bricks, "bin bricks count", "count"),
-                total_bricks: pipeline(&bricks, "bin bricks total", "total"),
-                fill_bricks: pipeline(&bricks, "bin bricks fill", "fill"),
+                cells,
+                bricks,
                 scan: pipeline(&module("scan.wgsl", include_str!("shaders/scan.wgsl")), "scan", "main"),
                 forward: pipeline(&module("forward.wgsl", include_str!("shaders/forward.wgsl")), "forward", "main"),
                 backward: pipeline(&module("backward.wgsl", include_str!("shaders/backward.wgsl")), "backward", "main"),
@@ -267,14 +286,16 @@ pub fn bin_level(
     dispatch(gpu, enc, timer, binds, &k.fill, &[(0, l.uniform), (1, ranges), (2, src), (3, src_starts), (4, l.cells), (6, l.starts), (7, l.lists)], l.groups);
 }
 
-/// Coarse-list entries a workgroup of the training binning's brick level
-/// aims at (bin_bricks.wgsl: a chunk of one coarse cell's list).
+/// Source entries a workgroup of a bit-row level aims at (bin_rows.wgsl:
+/// a chunk of one parent's list).
 pub const BRICK_CHUNK: usize = 512;
-/// The fewest workgroups that level aims at, so that a few coarse cells
-/// (hydrogen 64³ has one) still give a GPU work to spread.
+/// The fewest workgroups the brick level aims at, so that a few coarse
+/// cells (hydrogen 64³ has one) still give a GPU work to spread.
 pub const BRICK_GROUPS: usize = 512;
 /// The most chunks a coarse cell's list is cut into.
 pub const MAX_BRICK_CHUNKS: usize = 256;
+/// The most chunks the primitives are cut into at the coarse level.
+pub const MAX_CELL_CHUNKS: usize = 4096;
 
 /// Chunks each coarse cell's list is cut into at the brick level, for
 /// about `coarse_entries` entries in the lists of `coarse_cells` cells.
@@ -285,36 +306,44 @@ pub fn brick_chunks_for(coarse_entries: usize, coarse_cells: usize) -> u32 {
     k.clamp(1, MAX_BRICK_CHUNKS) as u32
 }
 
-/// The brick level of the training binning (bin_bricks.wgsl): its uniform
-/// (`P.bin.z` chunks a coarse cell), the dense brick map, the per (brick,
-/// chunk) counts, the bricks' counts, starts and lists, how many occupied
-/// bricks there are and the workgroups of its count and fill (coarse
-/// cells times chunks).
-pub struct BrickLevel<'a> {
+/// Chunks the primitives are cut into where the coarse level is made from
+/// bit rows (one root block): about `BRICK_CHUNK` primitives a workgroup.
+pub fn cell_chunks_for(primitives: usize) -> u32 {
+    primitives.div_ceil(BRICK_CHUNK).clamp(1, MAX_CELL_CHUNKS) as u32
+}
+
+/// A level of the training binning made from bit rows (bin_rows.wgsl): its
+/// uniform (`P.rows`), the source lists and starts, the parents' boxes,
+/// the dense map of child cells, the per (child, chunk) counts, the
+/// children's counts, starts and lists, how many children there are and
+/// the workgroups of its count and fill (parents times chunks).
+pub struct RowLevel<'a> {
     pub uniform: &'a wgpu::Buffer,
-    pub occupied: &'a wgpu::Buffer,
+    pub src: &'a wgpu::Buffer,
+    pub src_starts: &'a wgpu::Buffer,
+    pub parents: &'a wgpu::Buffer,
+    pub child_map: &'a wgpu::Buffer,
     pub chunk_counts: &'a wgpu::Buffer,
     pub counts: &'a wgpu::Buffer,
     pub starts: &'a wgpu::Buffer,
     pub lists: &'a wgpu::Buffer,
-    pub bricks: u32,
+    pub children: u32,
     pub groups: u32,
 }
 
-/// Records the brick level of the training binning, after `coarse`, the
-/// first level (`bin_level` from every primitive): each occupied brick's
-/// candidates from its coarse cell's list (bin_bricks.wgsl `count`,
-/// `total`, scan.wgsl over the bricks' totals, `fill`).
+/// Records a level of the training binning from bit rows: each child's
+/// entries of its parent's list (bin_rows.wgsl `count`, `total`, scan.wgsl
+/// over the children's totals, `fill`), timed under `k`'s names.
 #[allow(clippy::too_many_arguments)]
-pub fn bin_bricks(gpu: &Gpu, enc: &mut wgpu::CommandEncoder, timer: &mut Timer, binds: &mut BindGroups, k: &Kernels, ranges: &wgpu::Buffer, coarse: &ListLevel, b: &BrickLevel) {
-    // `count` and `fill` share their walk over the bit rows (bin_bricks.wgsl
+pub fn bin_rows(gpu: &Gpu, enc: &mut wgpu::CommandEncoder, timer: &mut Timer, binds: &mut BindGroups, k: &RowKernels, scan: &Kernel, ranges: &wgpu::Buffer, l: &RowLevel) {
+    // `count` and `fill` share their walk over the bit rows (bin_rows.wgsl
     // `rows`), so both bind every buffer of it; `count` writes only the
-    // per (brick, chunk) counts.
-    let rows = [(0, b.uniform), (1, ranges), (2, coarse.lists), (3, coarse.starts), (4, coarse.cells), (5, b.occupied), (6, b.chunk_counts), (8, b.starts), (9, b.lists)];
-    dispatch(gpu, enc, timer, binds, &k.count_bricks, &rows, b.groups);
-    dispatch(gpu, enc, timer, binds, &k.total_bricks, &[(0, b.uniform), (6, b.chunk_counts), (7, b.counts)], groups_for(b.bricks as usize));
-    dispatch(gpu, enc, timer, binds, &k.scan, &seq(&[b.uniform, b.counts, b.starts]), 1);
-    dispatch(gpu, enc, timer, binds, &k.fill_bricks, &rows, b.groups);
+    // per (child, chunk) counts.
+    let rows = [(0, l.uniform), (1, ranges), (2, l.src), (3, l.src_starts), (4, l.parents), (5, l.child_map), (6, l.chunk_counts), (8, l.starts), (9, l.lists)];
+    dispatch(gpu, enc, timer, binds, &k.count, &rows, l.groups);
+    dispatch(gpu, enc, timer, binds, &k.total, &[(0, l.uniform), (6, l.chunk_counts), (7, l.counts)], l.children);
+    dispatch(gpu, enc, timer, binds, scan, &seq(&[l.uniform, l.counts, l.starts]), 1);
+    dispatch(gpu, enc, timer, binds, &k.fill, &rows, l.groups);
 }
 
 /// Workgroups for one thread per item of the per-primitive kernels.
@@ -359,6 +388,11 @@ mod tests {
                 assert!(k == MAX_BRICK_CHUNKS || k * cells >= BRICK_GROUPS, "{entries} entries in {cells} cells: {k} chunks");
                 assert!(k == MAX_BRICK_CHUNKS || entries.div_ceil(k * cells) <= BRICK_CHUNK, "{entries} entries in {cells} cells: {k} chunks");
             }
+        }
+        // The coarse level from bit rows: chunks of at most `BRICK_CHUNK`
+        // primitives, up to `MAX_CELL_CHUNKS`.
+        for (n, want) in [(0, 1), (1, 1), (512, 1), (513, 2), (4096, 8), (200_000, 391), (10_000_000, 4096)] {
+            assert_eq!(cell_chunks_for(n), want, "{n} primitives");
         }
     }
 }

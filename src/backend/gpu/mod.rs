@@ -3,13 +3,14 @@
 //!
 //! A training iteration is one command buffer (`points.rs`):
 //! 1. `frames`: each primitive's `Hot` record and the bricks its box overlaps;
-//! 2. per coarse cell of 4^3 bricks the primitives that reach it (`bin`
-//!    `count`, `scan`, `bin` `fill`: one workgroup per chunk of the
-//!    primitives and cell, gathers), then per occupied brick its candidates
-//!    from its coarse cell's list (`bin_bricks` `count`, `total`, `scan`,
-//!    `bin_bricks` `fill`: one workgroup per chunk of a coarse list, which
-//!    marks each entry in the bit rows of the bricks it reaches), both in
-//!    primitive order, with no float atomics; the lists get a capacity,
+//! 2. per coarse cell of 4^3 bricks the primitives that reach it, then per
+//!    occupied brick its candidates from its coarse cell's list, both in
+//!    primitive order: `bin_rows` `count`, `total`, `scan`, `bin_rows`
+//!    `fill` (one workgroup per chunk of a parent's list, which marks each
+//!    entry in the bit rows of the children it reaches) at the brick level,
+//!    and at the coarse level where the coarse grid is at most 4 cells a
+//!    side; else `bin` `count`, `scan`, `bin` `fill` (one workgroup per
+//!    chunk of the primitives and cell, gathers); the lists get a capacity,
 //!    and the scans' totals, read back with the results, say whether they
 //!    fitted (if not, the call runs again with room for them);
 //! 3. `forward`: per piece of a brick's points (8), the points' density and
@@ -24,7 +25,7 @@
 //!    after one whose lists overflowed (two submissions of steps may be in
 //!    flight: `points::IN_FLIGHT`); `loss`: the batch's loss terms.
 //!
-//! No float atomics anywhere (the integer OR of bin_bricks.wgsl gives the
+//! No float atomics anywhere (the integer OR of bin_rows.wgsl gives the
 //! same bits in any order), so a call gives the same bits run after run
 //! on one adapter. The points are sorted into bricks on the host
 //! ([`crate::backend::bricks::PointBricks`], as the CPU backend does) and

@@ -66,30 +66,52 @@ pub(super) struct Upload {
     /// The forward pass's workgroups: (brick, first point, end, 0), each
     /// brick's points cut into runs of `GpuBackend::forward_piece`.
     pieces: Vec<[u32; 4]>,
-    coarse: Vec<[u32; 4]>,
+    coarse: Coarse,
     occupied: Vec<u32>,
 }
 
-/// Bricks per coarse cell along each axis: the first level of training bins.
+/// Bricks per coarse cell along each axis: the first level of training
+/// bins (bin_rows.wgsl `COARSE`).
 const COARSE: u32 = 4;
 
-/// The coarse cells (of `COARSE`^3 bricks; bin_bricks.wgsl `COARSE`) that
-/// hold occupied bricks, as bin.wgsl's `cells` (two vec4 each: the
-/// inclusive brick box, parent 0).
-fn coarse_cells(bricks: &PointBricks) -> Vec<[u32; 4]> {
+/// The coarse cells (of `COARSE`^3 bricks) that hold occupied bricks: their
+/// inclusive brick boxes (two vec4 each; bin.wgsl's `cells` with parent 0,
+/// bin_rows.wgsl's parents of the bricks), and, where the coarse grid is at
+/// most `COARSE` cells a side, what bin_rows.wgsl needs to make their lists
+/// from bit rows: the dense map of the coarse grid to coarse cells and the
+/// one root block's box in coarse cells.
+pub(super) struct Coarse {
+    cells: Vec<[u32; 4]>,
+    /// Dense coarse cell index -> coarse cell, `NONE` where none; one
+    /// `NONE` where `root` is `None`.
+    map: Vec<u32>,
+    root: Option<[[u32; 4]; 2]>,
+}
+
+const NONE: u32 = u32::MAX;
+
+fn coarse_cells(bricks: &PointBricks) -> Coarse {
     let mut index = std::collections::BTreeMap::new();
     let key = |c: &[u32; 3]| [c[2] / COARSE, c[1] / COARSE, c[0] / COARSE];
     for c in &bricks.coords {
         let n = index.len() as u32;
         index.entry(key(c)).or_insert(n);
     }
-    let mut coarse = vec![[0u32; 4]; 2 * index.len()];
+    let mut cells = vec![[0u32; 4]; 2 * index.len()];
     for (k, &i) in &index {
         let hi = |a: usize, v: u32| (v * COARSE + COARSE - 1).min(bricks.dims[a] as u32 - 1);
-        coarse[2 * i as usize] = [k[2] * COARSE, k[1] * COARSE, k[0] * COARSE, 0];
-        coarse[2 * i as usize + 1] = [hi(0, k[2]), hi(1, k[1]), hi(2, k[0]), 0];
+        cells[2 * i as usize] = [k[2] * COARSE, k[1] * COARSE, k[0] * COARSE, 0];
+        cells[2 * i as usize + 1] = [hi(0, k[2]), hi(1, k[1]), hi(2, k[0]), 0];
     }
-    coarse
+    let d = bricks.dims.map(|n| (n as u32).div_ceil(COARSE));
+    if d.iter().any(|&n| n > COARSE) {
+        return Coarse { cells, map: vec![NONE], root: None };
+    }
+    let mut map = vec![NONE; (d[0] * d[1] * d[2]) as usize];
+    for (k, &i) in &index {
+        map[(k[2] + d[0] * (k[1] + d[1] * k[0])) as usize] = i;
+    }
+    Coarse { cells, map, root: Some([[0; 4], [d[0] - 1, d[1] - 1, d[2] - 1, 0]]) }
 }
 
 impl GpuBackend {
@@ -152,7 +174,7 @@ impl GpuBackend {
             split,
             ..Params::default()
         };
-        let ncoarse = upload.coarse.len() / 2;
+        let ncoarse = upload.coarse.cells.len() / 2;
         Ok((p, bricks, ncoarse, upload))
     }
 
@@ -285,14 +307,27 @@ impl GpuBackend {
         p.counts[2] = count_u32("candidate slots", self.capacity)?;
         p.coarse[0] = count_u32("coarse cells", ncoarse)?;
         p.coarse[1] = count_u32("candidate slots", self.coarse_capacity)?;
-        // The coarse level bins from every primitive, in chunks; the
-        // brick level reads the coarse lists whole.
+        // The coarse level from every primitive: from bit rows where the
+        // coarse cells fit in one block, the primitives in chunks (its
+        // counts and starts one a cell); else gathered by bin.wgsl, one
+        // workgroup per (cell, chunk of the primitives) (counts and starts
+        // one a (cell, chunk)). The brick level from bit rows, each coarse
+        // cell's list in chunks.
+        let cell_rows = call.upload.coarse.root.is_some();
         let split = bin_split(n, self.bin_chunk)?;
+        let cell_chunks = cell_chunks_for(n);
+        let stride = if cell_rows { 1 } else { split };
         let chunks = self.brick_chunks.unwrap_or_else(|| brick_chunks_for(self.coarse_capacity, ncoarse));
-        p.bin = [1, split, chunks, 0];
-        let coarse_p = Params { counts: [p.counts[0], p.coarse[0], p.coarse[1], 0], bin: [split, 1, 0, 0], ..p };
-        let coarse_entries = ncoarse as u64 * split as u64;
-        let coarse_groups = count_u32("coarse bin workgroups", coarse_entries as usize)?;
+        p.bin = [1, stride, 0, 0];
+        p.rows = [p.coarse[0], chunks, 0, stride];
+        let coarse_p = Params {
+            counts: [p.counts[0], p.coarse[0], p.coarse[1], 0],
+            bin: [if cell_rows { 1 } else { split }, 1, 0, 0],
+            rows: [1, cell_chunks, COARSE.ilog2(), 1],
+            ..p
+        };
+        let coarse_entries = ncoarse as u64 * stride as u64;
+        let coarse_groups = count_u32("coarse bin workgroups", if cell_rows { cell_chunks as usize } else { coarse_entries as usize })?;
         let (g, per_buffer) = (self.garbage, self.upload_per_buffer);
         let batch = if matches!(pass, Pass::Resident { .. }) { self.batch() } else { 1 };
         let mut open = self.open.take();
@@ -307,7 +342,8 @@ impl GpuBackend {
         b.coarse_lists.ensure(gpu, 4 * self.coarse_capacity as u64, g)?;
         b.starts.ensure(gpu, 4 * (nbricks as u64 + 1), g)?;
         let brick_groups = count_u32("brick bin workgroups", ncoarse * chunks as usize)?;
-        b.chunk_counts.ensure(gpu, 4 * (nbricks as u64 * chunks as u64).max(1), g)?;
+        let chunk_slots = (nbricks as u64 * chunks as u64).max(if cell_rows { ncoarse as u64 * cell_chunks as u64 } else { 0 });
+        b.chunk_counts.ensure(gpu, 4 * chunk_slots.max(1), g)?;
         b.lists.ensure(gpu, 4 * self.capacity as u64, g)?;
         b.loss.ensure(gpu, 16, g)?;
         b.reg_terms.ensure(gpu, 8 * n as u64, g && pass != Pass::Gradient)?;
@@ -318,6 +354,7 @@ impl GpuBackend {
             b.grad.ensure(gpu, 48 * n as u64, g)?;
         }
         let up = &call.upload;
+        let root = up.coarse.root.unwrap_or_default();
         let written = Instant::now();
         let sorted = up.sorted.len() as u64;
         let u = b.uniforms[slot][0].ensure(gpu, size_of::<Params>() as u64, g)?.clone();
@@ -327,7 +364,9 @@ impl GpuBackend {
             (bytes(&up.sorted), b.points.ensure(gpu, 16 * sorted, g)?.clone()),
             (bytes(&up.ranges), b.brick_points.ensure(gpu, 8 * up.ranges.len() as u64, g)?.clone()),
             (bytes(&up.pieces), b.pieces.ensure(gpu, 16 * up.pieces.len() as u64, g)?.clone()),
-            (bytes(&up.coarse), b.coarse_cells.ensure(gpu, 16 * up.coarse.len() as u64, g)?.clone()),
+            (bytes(&up.coarse.cells), b.coarse_cells.ensure(gpu, 16 * up.coarse.cells.len() as u64, g)?.clone()),
+            (bytes(&up.coarse.map), b.coarse_map.ensure(gpu, 4 * up.coarse.map.len() as u64, g)?.clone()),
+            (bytes(&root), b.root.ensure(gpu, 32, g)?.clone()),
             (bytes(&up.occupied), b.occupied.ensure(gpu, 4 * up.occupied.len() as u64, g)?.clone()),
             (bytemuck::bytes_of(&p), u.clone()),
             (bytemuck::bytes_of(&coarse_p), u1.clone()),
@@ -351,6 +390,7 @@ impl GpuBackend {
                 (b.coarse_cells.ensure(gpu, 0, false)?, b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
             let (counts, starts, lists) = (b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
             let (occ, chunk_counts) = (b.occupied.ensure(gpu, 0, false)?, b.chunk_counts.ensure(gpu, 0, false)?);
+            let (coarse_map, root) = (b.coarse_map.ensure(gpu, 0, false)?, b.root.ensure(gpu, 0, false)?);
             let (bp, pts, rho_n, terms) = (b.brick_points.ensure(gpu, 0, false)?, b.points.ensure(gpu, 0, false)?, b.rho_n.ensure(gpu, 0, false)?, b.terms.ensure(gpu, 0, false)?);
             let pieces = b.pieces.ensure(gpu, 0, false)?;
             let (loss, reg_terms) = (b.loss.ensure(gpu, 0, false)?, b.reg_terms.ensure(gpu, 0, false)?);
@@ -358,10 +398,21 @@ impl GpuBackend {
             dispatch(gpu, enc, timer, binds, &k.frames, &seq(&[&u, params, hot, ranges]), groups_for(n));
             // Each coarse cell's primitives, from all of them; each brick's,
             // from its coarse cell's.
-            let coarse = ListLevel { uniform: &u1, cells: cells1, counts: counts1, starts: starts1, lists: lists1, groups: coarse_groups };
-            let bricks = BrickLevel { uniform: &u, occupied: occ, chunk_counts, counts, starts, lists, bricks: nb, groups: brick_groups };
-            bin_level(gpu, enc, timer, binds, k, ranges, (ident, ident_bounds), &coarse);
-            bin_bricks(gpu, enc, timer, binds, k, ranges, &coarse, &bricks);
+            if cell_rows {
+                let l = RowLevel {
+                    uniform: &u1, src: ident, src_starts: ident_bounds, parents: root, child_map: coarse_map, chunk_counts,
+                    counts: counts1, starts: starts1, lists: lists1, children: ncoarse as u32, groups: coarse_groups,
+                };
+                bin_rows(gpu, enc, timer, binds, &k.cells, &k.scan, ranges, &l);
+            } else {
+                let l = ListLevel { uniform: &u1, cells: cells1, counts: counts1, starts: starts1, lists: lists1, groups: coarse_groups };
+                bin_level(gpu, enc, timer, binds, k, ranges, (ident, ident_bounds), &l);
+            }
+            let l = RowLevel {
+                uniform: &u, src: lists1, src_starts: starts1, parents: cells1, child_map: occ, chunk_counts,
+                counts, starts, lists, children: nb, groups: brick_groups,
+            };
+            bin_rows(gpu, enc, timer, binds, &k.bricks, &k.scan, ranges, &l);
             dispatch(gpu, enc, timer, binds, &k.forward, &seq(&[&u, hot, starts, lists, pieces, pts, rho_n, terms]), p.split[0]);
             let mut read: Vec<(&wgpu::Buffer, u64)> = vec![(rho_n, 0), (loss, 0)];
             if pass == Pass::Evaluate {

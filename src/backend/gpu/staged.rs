@@ -14,7 +14,7 @@ use std::sync::Arc;
 ///
 /// Each `Queue::write_buffer` takes staging memory of its own (on native
 /// backends a new buffer, made and destroyed by the driver), so a step
-/// that wrote its seven buffers made seven. This buffer is made once
+/// that wrote its nine buffers made nine. This buffer is made once
 /// and mapped again after each submission (wgpu maps it once the device
 /// is done with it, which reading the call's results back waits for), so
 /// a steady step makes none. The copies run on the device before the

@@ -372,6 +372,10 @@ struct Params {
     // Point passes: x: pieces of the forward pass (one workgroup each);
     // y: workgroups of the backward pass per brick (0 reads as 1).
     split: vec4<u32>,
+    // Binning from bit rows (bin_rows.wgsl): x: parents; y: chunks a
+    // parent's list is cut into; z: log2 of a child's edge in bricks; w:
+    // the stride of the source starts.
+    rows: vec4<u32>,
 }
 
 // Params.grid_dims.w
