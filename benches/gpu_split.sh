@@ -66,7 +66,7 @@ row() { # name iterations splits-array-name args...
     done
 }
 
-# RM 256^3 first: since 2026-12-05 its binning's brick level is new and
+# RM 256^3 first: since 2026-12-05 its binning is made from bit rows and
 # unmeasured on a GPU, and a lent run gives this script a minute.
 row rm256_200k_full 40 bin_splits "${rm_args[@]}" --budget 200000 --schedule full
 row hydrogen_4k_matched 300 work_splits "${h_args[@]}" --budget 4096 --schedule matched
