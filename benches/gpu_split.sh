@@ -77,7 +77,7 @@ import json, sys
 runs = [json.loads(l) for l in open(sys.argv[1])]
 # Device time: every kernel of the run (seeding's and the PSNR's too),
 # per loop iteration; the kernels' columns likewise.
-print("| row | split (piece, slices, chunk, team, brick chunks) | iterations | loop ms / it | device ms / it | bin: first level | bin: bricks | forward | backward | reduce | same model |")
+print("| row | split (piece, slices, chunk, team, brick chunks) | iterations | loop ms / it | device ms / it | bin: coarse level and the PSNR decode | bin: bricks | forward | backward | reduce | same model |")
 print("|---|---|---|---|---|---|---|---|---|---|---|")
 for d in runs:
     if d.get("failed"):
