@@ -167,7 +167,6 @@ pub(super) struct Buffers {
     pub(super) ranges: Slot,
     pub(super) identity: Slot,
     pub(super) identity_bounds: Slot,
-    pub(super) cells: Slot,
     pub(super) counts: Slot,
     pub(super) starts: Slot,
     pub(super) lists: Slot,
@@ -184,7 +183,9 @@ pub(super) struct Buffers {
     pub(super) moments: Slot,
     pub(super) reg_terms: Slot,
     pub(super) loss: Slot,
-    /// The first level of binning: coarse cells (training), the slab (decoding).
+    /// The first level of binning: the coarse cells' boxes (training; the
+    /// decode binds it as bin.wgsl's `cells`, which its slab stages never
+    /// read).
     pub(super) coarse_cells: Slot,
     pub(super) coarse_counts: Slot,
     pub(super) coarse_starts: Slot,
@@ -218,7 +219,7 @@ impl Buffers {
     /// only buffers made before it (`kernels::BindGroups`).
     pub(super) fn made(&self) -> u64 {
         let slots = [
-            &self.params, &self.hot, &self.ranges, &self.identity, &self.identity_bounds, &self.cells, &self.counts, &self.starts,
+            &self.params, &self.hot, &self.ranges, &self.identity, &self.identity_bounds, &self.counts, &self.starts,
             &self.lists, &self.brick_points, &self.pieces, &self.points, &self.occupied, &self.rho_n, &self.terms, &self.partial,
             &self.grad, &self.moments, &self.reg_terms, &self.loss, &self.coarse_cells, &self.coarse_counts, &self.coarse_starts,
             &self.coarse_lists, &self.chunk_counts, &self.coarse_map, &self.root, &self.slab, &self.poison,
@@ -235,7 +236,6 @@ impl Default for Buffers {
             ranges: Slot::storage("ranges"),
             identity: Slot::storage("identity"),
             identity_bounds: Slot::storage("identity bounds"),
-            cells: Slot::storage("cells"),
             counts: Slot::storage("counts"),
             starts: Slot::storage("starts"),
             lists: Slot::storage("candidate lists"),

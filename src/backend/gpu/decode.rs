@@ -64,7 +64,7 @@ impl GpuBackend {
             b.counts.ensure(gpu, 4 * ncells as u64, g)?;
             b.starts.ensure(gpu, 4 * (ncells as u64 + 1), g)?;
             b.lists.ensure(gpu, 4 * self.slab_capacity as u64, g)?;
-            b.cells.ensure(gpu, 32, g)?;
+            b.coarse_cells.ensure(gpu, 32, g)?;
             b.slab.ensure(gpu, 4 * (layer * layers) as u64, g)?;
             timer.begin(0);
             let [us1, us2] = &mut b.uniforms[0];
@@ -73,7 +73,7 @@ impl GpuBackend {
             let read = gpu.scoped("a decode slab", || {
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
-                let (ident, ident_bounds, cells) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?, b.cells.ensure(gpu, 0, false)?);
+                let (ident, ident_bounds, cells) = (b.identity.ensure(gpu, 0, false)?, b.identity_bounds.ensure(gpu, 0, false)?, b.coarse_cells.ensure(gpu, 0, false)?);
                 let (sc, ss, sl) = (b.coarse_counts.ensure(gpu, 0, false)?, b.coarse_starts.ensure(gpu, 0, false)?, b.coarse_lists.ensure(gpu, 0, false)?);
                 let (counts, starts, lists) = (b.counts.ensure(gpu, 0, false)?, b.starts.ensure(gpu, 0, false)?, b.lists.ensure(gpu, 0, false)?);
                 let slab = b.slab.ensure(gpu, 0, false)?;

@@ -288,7 +288,7 @@ pub fn bin_level(
 
 /// Source entries a workgroup of a bit-row level aims at (bin_rows.wgsl:
 /// a chunk of one parent's list).
-pub const BRICK_CHUNK: usize = 512;
+pub const ROW_CHUNK: usize = 512;
 /// The fewest workgroups the brick level aims at, so that a few coarse
 /// cells (hydrogen 64³ has one) still give a GPU work to spread.
 pub const BRICK_GROUPS: usize = 512;
@@ -302,14 +302,14 @@ pub const MAX_CELL_CHUNKS: usize = 4096;
 /// The lists do not depend on it.
 pub fn brick_chunks_for(coarse_entries: usize, coarse_cells: usize) -> u32 {
     let cells = coarse_cells.max(1);
-    let k = coarse_entries.div_ceil(cells * BRICK_CHUNK).max(BRICK_GROUPS.div_ceil(cells));
+    let k = coarse_entries.div_ceil(cells * ROW_CHUNK).max(BRICK_GROUPS.div_ceil(cells));
     k.clamp(1, MAX_BRICK_CHUNKS) as u32
 }
 
 /// Chunks the primitives are cut into where the coarse level is made from
-/// bit rows (one root block): about `BRICK_CHUNK` primitives a workgroup.
+/// bit rows (one root block): about `ROW_CHUNK` primitives a workgroup.
 pub fn cell_chunks_for(primitives: usize) -> u32 {
-    primitives.div_ceil(BRICK_CHUNK).clamp(1, MAX_CELL_CHUNKS) as u32
+    primitives.div_ceil(ROW_CHUNK).clamp(1, MAX_CELL_CHUNKS) as u32
 }
 
 /// A level of the training binning made from bit rows (bin_rows.wgsl): its
@@ -373,7 +373,7 @@ mod tests {
 
     /// The brick level's chunks: at least `BRICK_GROUPS` workgroups while
     /// the cells are few (hydrogen 64³: one cell, the most chunks),
-    /// about `BRICK_CHUNK` entries a workgroup where the lists are long (RM
+    /// about `ROW_CHUNK` entries a workgroup where the lists are long (RM
     /// 256³ at 200,000 primitives: 64 cells, about 1.1 million entries),
     /// one chunk a cell where the cells alone are enough, never none.
     #[test]
@@ -386,10 +386,10 @@ mod tests {
                 let k = brick_chunks_for(entries, cells) as usize;
                 assert!((1..=MAX_BRICK_CHUNKS).contains(&k), "{entries} entries in {cells} cells: {k}");
                 assert!(k == MAX_BRICK_CHUNKS || k * cells >= BRICK_GROUPS, "{entries} entries in {cells} cells: {k} chunks");
-                assert!(k == MAX_BRICK_CHUNKS || entries.div_ceil(k * cells) <= BRICK_CHUNK, "{entries} entries in {cells} cells: {k} chunks");
+                assert!(k == MAX_BRICK_CHUNKS || entries.div_ceil(k * cells) <= ROW_CHUNK, "{entries} entries in {cells} cells: {k} chunks");
             }
         }
-        // The coarse level from bit rows: chunks of at most `BRICK_CHUNK`
+        // The coarse level from bit rows: chunks of at most `ROW_CHUNK`
         // primitives, up to `MAX_CELL_CHUNKS`.
         for (n, want) in [(0, 1), (1, 1), (512, 1), (513, 2), (4096, 8), (200_000, 391), (10_000_000, 4096)] {
             assert_eq!(cell_chunks_for(n), want, "{n} primitives");

@@ -322,7 +322,7 @@ impl GpuBackend {
         p.rows = [p.coarse[0], chunks, 0, stride];
         let coarse_p = Params {
             counts: [p.counts[0], p.coarse[0], p.coarse[1], 0],
-            bin: [if cell_rows { 1 } else { split }, 1, 0, 0],
+            bin: [stride, 1, 0, 0],
             rows: [1, cell_chunks, COARSE.ilog2(), 1],
             ..p
         };
