@@ -343,11 +343,13 @@ fn decode_matches_the_cpu_decode() {
     let mut rng = Rng::new(15);
     let params = random_model(&mut rng, 250, 20.0);
     // The reference lattice, a finer resampling with sizes not a multiple of
-    // the decode brick, and a shifted window.
+    // the decode brick, a shifted window, and slabs of more than a megabyte
+    // (copied out of the mapped buffer in runs of one: the last run short).
     for lat in [
         Lattice::reference([20, 20, 20]),
         Lattice::resampled([20, 20, 20], [37, 29, 19]),
         Lattice { dims: [9, 17, 25], origin: [3.5, -2.0, 1.25], step: [0.75, 1.0, 0.5] },
+        Lattice::resampled([20, 20, 20], [181, 190, 11]),
     ] {
         let mut a = vec![0.0; lat.len()];
         let mut b = vec![f32::NAN; lat.len()];

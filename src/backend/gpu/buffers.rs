@@ -136,6 +136,13 @@ impl Readback {
 
     /// Waits for the submission and returns the recorded regions' bytes.
     pub fn read(&mut self, gpu: &Gpu) -> Result<Vec<Vec<u8>>> {
+        self.read_with(gpu, |parts| parts.iter().map(|p| p.to_vec()).collect())
+    }
+
+    /// Waits for the submission and hands the recorded regions, as mapped,
+    /// to `take` (which copies what it keeps: the decode's slab goes
+    /// straight into the caller's array).
+    pub fn read_with<T>(&mut self, gpu: &Gpu, take: impl FnOnce(&[&[u8]]) -> T) -> Result<T> {
         let end = self.parts.iter().map(|&(at, n)| at + n).max().unwrap_or(0).max(8).next_multiple_of(8);
         let staging = self.staging.buf.as_ref().expect("recorded before read");
         let slice = staging.slice(0..end);
@@ -153,7 +160,8 @@ impl Readback {
         }
         let out = {
             let view = slice.get_mapped_range().map_err(|e| Error::Device(format!("reading results back: {e}")))?;
-            self.parts.iter().map(|&(at, n)| view[at as usize..(at + n) as usize].to_vec()).collect()
+            let parts: Vec<&[u8]> = self.parts.iter().map(|&(at, n)| &view[at as usize..(at + n) as usize]).collect();
+            take(&parts)
         };
         staging.unmap();
         Ok(out)

@@ -8,6 +8,10 @@ use super::{count_u32, seq, words, GpuBackend};
 use crate::backend::{check_len, Lattice};
 use crate::error::Result;
 use crate::math::kernel::Primitive;
+use rayon::prelude::*;
+
+/// Bytes of a slab copied out of the mapped buffer by one task.
+const COPY_RUN: usize = 1 << 20;
 
 impl GpuBackend {
     /// `Backend::decode_lattice`: slab by slab of lattice bricks.
@@ -70,6 +74,8 @@ impl GpuBackend {
             let [us1, us2] = &mut b.uniforms[0];
             let (u1, u2) = (us1.upload(gpu, bytemuck::bytes_of(&slab_p), g)?.clone(), us2.upload(gpu, bytemuck::bytes_of(&brick_p), g)?.clone());
             binds.keep_while(b.made());
+            let dest = bytemuck::cast_slice_mut::<f32, u8>(&mut out[z0 * layer..(z0 + layers) * layer]);
+            let capacity = self.slab_capacity;
             let read = gpu.scoped("a decode slab", || {
                 let mut enc = gpu.device.create_command_encoder(&Default::default());
                 let (params, hot, ranges) = (b.params.ensure(gpu, 0, false)?, b.hot.ensure(gpu, 0, false)?, b.ranges.ensure(gpu, 0, false)?);
@@ -90,18 +96,25 @@ impl GpuBackend {
                 let times = timer.resolve(&mut enc).unwrap_or((slab, 0));
                 b.readback[0].record(gpu, &mut enc, &[(slab, 4 * (layer * layers) as u64), (starts, 4 * (ncells as u64 + 1)), times])?;
                 b.readback[0].submit(gpu, enc);
-                b.readback[0].read(gpu)
+                b.readback[0].read_with(gpu, |parts| {
+                    // The lists' total; the slab, when its lists fitted,
+                    // from the mapped buffer straight into the caller's
+                    // array, on the pool's threads; the times.
+                    let total = words(parts[1]).last().copied().unwrap_or(0) as usize;
+                    if total <= capacity {
+                        dest.par_chunks_mut(COPY_RUN).zip(parts[0].par_chunks(COPY_RUN)).for_each(|(d, s)| d.copy_from_slice(s));
+                    }
+                    vec![bytemuck::bytes_of(&(total as u64)).to_vec(), parts[2].to_vec()]
+                })
             });
             let read = self.timed(0, read)?;
             frames_done = true;
-            let total = words(&read[1]).last().copied().unwrap_or(0) as usize;
+            let total = bytemuck::pod_read_unaligned::<u64>(&read[0]) as usize;
             if total > self.slab_capacity {
                 self.slab_capacity = total + total / 4;
                 self.reruns += 1;
                 continue;
             }
-            // Straight into the caller's slab: no float vector between.
-            bytemuck::cast_slice_mut::<f32, u8>(&mut out[z0 * layer..(z0 + layers) * layer]).copy_from_slice(&read[0]);
             bz += 1;
         }
         Ok(())
