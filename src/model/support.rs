@@ -172,43 +172,59 @@ impl Support {
         // such the factor is exactly 1, or exactly 0 (each lerp of equal
         // ends is that end), so the row knows it without the eight bits:
         // inside, a point keeps its value; outside, it takes the blend at 0.
+        // The marks hold for every row between the same two support rows,
+        // and so do the runs of lattice points they make: kept, skipped,
+        // blended at 0, or blended by their own factor.
         let skim = nx >= self.dims[0];
         out.par_chunks_mut((nx * ny).max(1)).zip(az.par_iter()).for_each(|(layer, &(z0, z1, tz))| {
             let mut marks = vec![Mark::Mixed; if skim { self.dims[0] } else { 0 }];
+            // Per support voxel along x, its bits at (y0, z0), (y1, z0),
+            // (y0, z1) and (y1, z1) of the row.
+            let mut corners = vec![[0f32; 4]; self.dims[0]];
+            let mut runs: Vec<(usize, usize, Mark)> = Vec::new();
             let mut marked = None;
             for (j, &(y0, y1, ty)) in ay.iter().enumerate() {
                 if marked != Some((y0, y1)) {
-                    for (x, m) in marks.iter_mut().enumerate() {
-                        let ins = [(y0, z0), (y1, z0), (y0, z1), (y1, z1)].map(|(y, z)| self.bit(x, y, z) == 1.0);
-                        *m = match ins {
-                            [true, true, true, true] => Mark::In,
-                            [false, false, false, false] => Mark::Out,
+                    for (x, c) in corners.iter_mut().enumerate() {
+                        *c = [(y0, z0), (y1, z0), (y0, z1), (y1, z1)].map(|(y, z)| self.bit(x, y, z));
+                    }
+                    for (m, c) in marks.iter_mut().zip(&corners) {
+                        *m = match c {
+                            [1.0, 1.0, 1.0, 1.0] => Mark::In,
+                            [0.0, 0.0, 0.0, 0.0] => Mark::Out,
                             _ => Mark::Mixed,
                         };
                     }
-                    marked = Some((y0, y1));
-                }
-                for (i, &(x0, x1, tx)) in ax.iter().enumerate() {
-                    if skim && marks[x0] == marks[x1] {
-                        match marks[x0] {
-                            Mark::In => continue,
-                            Mark::Out => {
-                                let v = &mut layer[i + nx * j];
-                                *v = self.blend(*v, 0.0);
-                                continue;
-                            }
-                            Mark::Mixed => {}
+                    runs.clear();
+                    for (i, &(x0, x1, _)) in ax.iter().enumerate() {
+                        let kind = if skim && marks[x0] == marks[x1] { marks[x0] } else { Mark::Mixed };
+                        match runs.last_mut() {
+                            Some((_, end, k)) if *k == kind => *end = i + 1,
+                            _ => runs.push((i, i + 1, kind)),
                         }
                     }
-                    let plane = |k: usize| {
-                        let a = lerp(self.bit(x0, y0, k), self.bit(x1, y0, k), tx);
-                        let b = lerp(self.bit(x0, y1, k), self.bit(x1, y1, k), tx);
-                        lerp(a, b, ty)
-                    };
-                    let f = lerp(plane(z0), plane(z1), tz);
-                    if f != 1.0 {
-                        let v = &mut layer[i + nx * j];
-                        *v = self.blend(*v, f);
+                    marked = Some((y0, y1));
+                }
+                let row = &mut layer[nx * j..nx * (j + 1)];
+                for &(start, end, kind) in &runs {
+                    match kind {
+                        Mark::In => {}
+                        Mark::Out => row[start..end].iter_mut().for_each(|v| *v = self.blend(*v, 0.0)),
+                        Mark::Mixed => {
+                            for (v, &(x0, x1, tx)) in row[start..end].iter_mut().zip(&ax[start..end]) {
+                                let (c0, c1) = (&corners[x0], &corners[x1]);
+                                // The plane at z0 (corners 0, 1), then z1 (2, 3).
+                                let plane = |k: usize| {
+                                    let a = lerp(c0[k], c1[k], tx);
+                                    let b = lerp(c0[k + 1], c1[k + 1], tx);
+                                    lerp(a, b, ty)
+                                };
+                                let f = lerp(plane(0), plane(2), tz);
+                                if f != 1.0 {
+                                    *v = self.blend(*v, f);
+                                }
+                            }
+                        }
                     }
                 }
             }
