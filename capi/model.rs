@@ -240,9 +240,7 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
             let range = m.meta.range;
             let mut backend = BackendChoice::default().open()?;
             m.decode_streaming(backend.as_mut(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
-                let part = &mut out[at..at + slab.len()];
-                part.copy_from_slice(slab);
-                range.denormalize_all(part);
+                range.output_into(false, slab, &mut out[at..at + slab.len()]);
                 at += slab.len();
                 Ok(())
             })?;

@@ -4,6 +4,9 @@
 use crate::error::{Error, Result};
 use rayon::prelude::*;
 
+/// Values a task of the parallel conversions maps.
+const RUN: usize = 1 << 14;
+
 /// Optional transform applied to raw values before normalisation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Transform {
@@ -124,13 +127,32 @@ impl ValueRange {
     /// conversion a `powf` a voxel (docs/BENCHMARKS.md "The decode's rows as
     /// vectors").
     pub fn denormalize_all(&self, values: &mut [f32]) {
-        const RUN: usize = 1 << 14;
-        fn map_all(values: &mut [f32], f: impl Fn(f32) -> f64 + Sync) {
-            values.par_chunks_mut(RUN).for_each(|run| run.iter_mut().for_each(|v| *v = f(*v) as f32));
+        self.denormalize_runs(None, values);
+    }
+
+    /// `src` (normalised) into `dst` (as long) as a decode writes it: in
+    /// data units, the values of [`ValueRange::denormalize_all`], or kept
+    /// normalised; one parallel pass, no copy before it.
+    pub fn output_into(&self, normalized: bool, src: &[f32], dst: &mut [f32]) {
+        assert_eq!(src.len(), dst.len(), "output_into: {} values into {}", src.len(), dst.len());
+        if normalized {
+            dst.par_chunks_mut(RUN).zip(src.par_chunks(RUN)).for_each(|(d, s)| d.copy_from_slice(s));
+        } else {
+            self.denormalize_runs(Some(src), dst);
+        }
+    }
+
+    /// [`ValueRange::denormalize`] of `src` (or of `dst` itself) into `dst`.
+    fn denormalize_runs(&self, src: Option<&[f32]>, dst: &mut [f32]) {
+        fn map(src: Option<&[f32]>, dst: &mut [f32], f: impl Fn(f32) -> f64 + Sync) {
+            match src {
+                None => dst.par_chunks_mut(RUN).for_each(|run| run.iter_mut().for_each(|v| *v = f(*v) as f32)),
+                Some(src) => dst.par_chunks_mut(RUN).zip(src.par_chunks(RUN)).for_each(|(d, s)| d.iter_mut().zip(s).for_each(|(v, &x)| *v = f(x) as f32)),
+            }
         }
         match self.transform {
-            Transform::Linear => map_all(values, |v| self.unscale(v)),
-            Transform::Log10 => map_all(values, |v| 10f64.powf(self.unscale(v))),
+            Transform::Linear => map(src, dst, |v| self.unscale(v)),
+            Transform::Log10 => map(src, dst, |v| 10f64.powf(self.unscale(v))),
         }
     }
 
@@ -186,8 +208,16 @@ mod tests {
             let mut all = values.clone();
             range.denormalize_all(&mut all);
             let want: Vec<u32> = values.iter().map(|&v| (range.denormalize(v) as f32).to_bits()).collect();
-            assert!(all.iter().map(|v| v.to_bits()).eq(want), "{range:?}");
+            assert!(all.iter().map(|v| v.to_bits()).eq(want.iter().copied()), "{range:?}");
             assert_eq!(all[values.len() - 2], range.denormalize(1.0) as f32);
+            // Into another slice (garbage before): the same bits; kept
+            // normalised, the values themselves.
+            for normalized in [false, true] {
+                let mut into = vec![f32::NAN; values.len()];
+                range.output_into(normalized, &values, &mut into);
+                let want = if normalized { values.iter().map(|v| v.to_bits()).collect() } else { want.clone() };
+                assert!(into.iter().map(|v| v.to_bits()).eq(want), "{range:?}, normalized {normalized}");
+            }
         }
     }
 

@@ -190,11 +190,8 @@ fn write_grid(
     let mut values = Vec::new();
     decode(dims, &mut |slab| {
         let layers = slab.len() / (dims[0] * dims[1]);
-        values.clear();
-        values.extend_from_slice(slab);
-        if !opts.normalized {
-            range.denormalize_all(&mut values);
-        }
+        values.resize(slab.len(), 0.0);
+        range.output_into(opts.normalized, slab, &mut values);
         let view = ndarray::ArrayView3::from_shape((layers, dims[1], dims[0]), &values)
             .map_err(|e| Error::arg(format!("slab shape: {e}")))?;
         ds.write_slice(view, (z..z + layers, .., ..)).map_err(h5err)?;
