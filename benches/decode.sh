@@ -9,10 +9,18 @@
 # then sets the two builds' medians side by side.
 # Uses the models benches/core.sh leaves in bench-out/ (rm128_32k_full,
 # rm256_200k_full, hydrogen_4k_matched); a row whose model is missing is
-# named and skipped. The 512^3 and 1024^3 rows run once (0.5 and 4.3 GB out).
+# named and skipped. The 512^3 and 1024^3 rows run LARGE times (default
+# once: 0.5 and 4.3 GB out;
+# hydrogen's 1024^3 row, the decode of benches/gpu.sh, about 2 minutes on
+# two cores with BACKEND=cpu).
 # Env: BACKEND (default cpu: `auto` would take a GPU where there is one);
 # ROWS selects rows by name; GSENC_BIN a build to time instead of this
-# checkout's (benches/corpus.sh). One JSON line per run goes to
+# checkout's (benches/corpus.sh); OUT=null writes to standard output into
+# /dev/null instead of a file, so that the disk's time is left out (the
+# outputs are then not compared). With a build of the feature `gpu-noop`,
+# BACKEND=gpu GSENC_ADAPTER=noop OUT=null times the host's share of a GPU
+# decode (docs/BENCHMARKS.md "A decode written behind"). Each run to a
+# file starts after a `sync`. One JSON line per run goes to
 # bench-out/decode.jsonl.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -30,11 +38,16 @@ row() { # name model dims repeats
     for i in $(seq 1 "$n"); do
         for b in "${builds[@]}"; do
             exe=$(build_bin "$b")
-            "$exe" decode "$model" --dims "$dims" --backend "${BACKEND:-cpu}" -o "$out/decode_$b.raw" --json --quiet \
-                | python3 -c "import json,sys; d=json.load(sys.stdin); d.update(row='$name', model='$model', build='$b'); print(json.dumps(d))" >> "$log"
+            if [ "${OUT:-file}" = null ]; then
+                # The result goes to standard error when the data take standard output.
+                "$exe" decode "$model" --dims "$dims" --backend "${BACKEND:-cpu}" -o - --json --quiet 2>&1 >/dev/null | tail -n 1
+            else
+                sync
+                "$exe" decode "$model" --dims "$dims" --backend "${BACKEND:-cpu}" -o "$out/decode_$b.raw" --json --quiet
+            fi | python3 -c "import json,sys; d=json.load(sys.stdin); d.update(row='$name', model='$model', build='$b', out='${OUT:-file}'); print(json.dumps(d))" >> "$log"
             echo "[$name] run $i/$n, $b build" >&2
         done
-        if [ "${#builds[@]}" = 2 ] && ! cmp -s "$out/decode_base.raw" "$out/decode_new.raw"; then
+        if [ "${#builds[@]}" = 2 ] && [ "${OUT:-file}" != null ] && ! cmp -s "$out/decode_base.raw" "$out/decode_new.raw"; then
             echo "[$name] the two builds decoded different values" >&2
             exit 1
         fi
@@ -42,13 +55,15 @@ row() { # name model dims repeats
     rm -f "$out"/decode_*.raw
 }
 row hydrogen_4k@256 "$out/hydrogen_4k_matched.gsm" 256 "$repeats"
-row hydrogen_4k@512 "$out/hydrogen_4k_matched.gsm" 512 1
+large=${LARGE:-1}
+row hydrogen_4k@512 "$out/hydrogen_4k_matched.gsm" 512 "$large"
+row hydrogen_4k@1024 "$out/hydrogen_4k_matched.gsm" 1024 "$large"
 row rm128_32k@128 "$out/rm128_32k_full.gsm" 128 "$repeats"
 row rm128_32k@256 "$out/rm128_32k_full.gsm" 256 "$repeats"
-row rm128_32k@512 "$out/rm128_32k_full.gsm" 512 1
-row rm128_32k@1024 "$out/rm128_32k_full.gsm" 1024 1
+row rm128_32k@512 "$out/rm128_32k_full.gsm" 512 "$large"
+row rm128_32k@1024 "$out/rm128_32k_full.gsm" 1024 "$large"
 row rm256_200k@256 "$out/rm256_200k_full.gsm" 256 "$repeats"
-row rm256_200k@512 "$out/rm256_200k_full.gsm" 512 1
+row rm256_200k@512 "$out/rm256_200k_full.gsm" 512 "$large"
 python3 - "$log" <<'PY'
 import json, statistics, sys
 rows = {}

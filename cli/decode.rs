@@ -3,7 +3,8 @@
 //! slabs into a `.vti` or raw float32 file.
 
 use crate::args::{parse_box, parse_dims, BackendArgs, GridOutput};
-use crate::output::{is_vti, kernel_seconds, peak_rss_bytes, print_result, to_output_unit, Sink};
+use crate::output::{is_vti, kernel_seconds, peak_rss_bytes, print_result, Sink};
+use crate::write_behind::WriteBehind;
 use clap::Args;
 use gsenc::encode::with_threads;
 use gsenc::field::IndexBox;
@@ -39,7 +40,8 @@ pub struct DecodeArgs {
     sub_box: Option<[usize; 6]>,
     #[command(flatten)]
     device: BackendArgs,
-    /// Voxels decoded at once (memory: 4 bytes each, twice).
+    /// Voxels decoded at once (memory: 4 bytes each, three times: the
+    /// slab decoding, and two in output units, one of them being written).
     #[arg(long, default_value_t = gsenc::model::DEFAULT_SLAB_VOXELS, hide = true)]
     slab_voxels: usize,
     #[command(flatten)]
@@ -73,18 +75,19 @@ pub fn decode(a: DecodeArgs) -> Result<()> {
     if is_vti {
         file.write(&vti::vti_prefix(region.dims(), origin, spacing, &model.meta.field))?;
     }
-    let (mut values, mut bytes) = (Vec::new(), Vec::new());
+    // Each slab in output units, then written on the writer's thread while
+    // the next slab decodes (write_behind.rs).
+    let mut writer = WriteBehind::new(file)?;
     let mut write = |slab: &[f32]| {
-        values.clear();
-        values.extend_from_slice(slab);
-        to_output_unit(&model.meta.range, a.output.normalized, &mut values);
-        bytes.clear();
-        bytes.extend(values.iter().flat_map(|v| v.to_le_bytes()));
-        file.write(&bytes)
+        let mut values = writer.buffer();
+        values.resize(slab.len(), 0.0);
+        model.meta.range.output_into(a.output.normalized, slab, &mut values);
+        writer.send(values)
     };
     let mut backend = a.device.choice().open()?;
     let backend = backend.as_mut();
     with_threads(a.output.threads, || field.decode_streaming(backend, dims, region, a.additive, a.slab_voxels, &mut write))??;
+    let mut file = writer.finish()?;
     if is_vti {
         file.write(vti::VTI_SUFFIX)?;
     }

@@ -15,6 +15,7 @@ mod output;
 mod render;
 mod series;
 mod store;
+mod write_behind;
 
 use clap::{Parser, Subcommand};
 use gsenc::Error;

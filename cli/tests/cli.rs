@@ -79,6 +79,19 @@ fn encode_eval_info_decode_round_trip() {
     for (a, b) in parsed.grid.values.iter().zip(&lib.values) {
         assert_eq!(*a, lib_model.meta.range.denormalize(*b) as f32);
     }
+    // Written in slabs of any size (each written while the next decodes:
+    // write_behind.rs), .vti and raw, the same bytes as in one slab.
+    let whole_raw = dir.join("whole.raw");
+    let (code, _, err) = gsenc(&["decode", m, "-o", whole_raw.to_str().unwrap(), "--quiet"]);
+    assert_eq!(code, 0, "{err}");
+    for slab in ["1", "320", "1000", "3839"] {
+        for (name, whole) in [("s.vti", &out_vti), ("s.raw", &whole_raw)] {
+            let p = dir.join(name);
+            let (code, _, err) = gsenc(&["decode", m, "--slab-voxels", slab, "-o", p.to_str().unwrap(), "--quiet"]);
+            assert_eq!(code, 0, "{err}");
+            assert!(std::fs::read(&p).unwrap() == std::fs::read(whole).unwrap(), "{name} in slabs of {slab} voxels differs");
+        }
+    }
     // The decoded field is close to the input in data units.
     let rms = (parsed.grid.values.iter().zip(&vals).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
     assert!(rms < 0.5, "rms {rms}");
@@ -1302,11 +1315,15 @@ fn a_full_disk_fails_model_and_decode_writes_and_keeps_the_earlier_file() {
     assert_eq!(code, 0, "{err}");
     let decoded = std::fs::read(&raw).unwrap();
     assert_eq!(decoded.len(), 8 * 8 * 8 * 4);
-    let (code, err) = gsenc_on(&disk, &["decode", m, "--dims", "32,32,32", "--backend", "cpu", "-q", "-o", raw.to_str().unwrap()]);
-    assert_eq!(code, 5, "{err}");
-    assert!(says_full(&err) && err.contains("d.raw"), "{err}");
-    assert_eq!(std::fs::read(&raw).unwrap(), decoded, "the earlier decode changed");
-    assert_eq!(disk.names(), ["d.raw", "m.gsm"], "a temporary file was left behind");
+    // In one slab, and in slabs of one layer, so that the disk fills while
+    // later slabs still decode (the writer's error stops the decode).
+    for slab in ["16777216", "1024"] {
+        let (code, err) = gsenc_on(&disk, &["decode", m, "--dims", "32,32,32", "--slab-voxels", slab, "--backend", "cpu", "-q", "-o", raw.to_str().unwrap()]);
+        assert_eq!(code, 5, "{err}");
+        assert!(says_full(&err) && err.contains("d.raw"), "{err}");
+        assert_eq!(std::fs::read(&raw).unwrap(), decoded, "the earlier decode changed");
+        assert_eq!(disk.names(), ["d.raw", "m.gsm"], "a temporary file was left behind");
+    }
 }
 
 #[cfg(feature = "hdf5")]
