@@ -44,8 +44,11 @@ beside_pid=
 stage bash tests/deps.sh
 export GSENC_REQUIRE_GPU=1
 # Mesa's Wayland code complains on stderr without a runtime folder (harmless).
+xdg_made=
 if [ -z "${XDG_RUNTIME_DIR:-}" ]; then
     export XDG_RUNTIME_DIR="$(mktemp -d)"
+    xdg_made=$XDG_RUNTIME_DIR
+    trap 'rm -rf "$xdg_made"' EXIT
 fi
 stage cargo test --release --locked --features hdf5
 # A plain build needs no system library: it must still compile, and its tool
@@ -79,7 +82,7 @@ stage cargo build --release --locked -p gsenc-capi -p gsenc-cli
 # whose decode loop did ran 2.3 times slower).
 stage bash tests/hot_loops.sh target/release/gsenc target/release/libgsenc.so
 out="$(mktemp -d)"
-trap '[ -z "$beside_pid" ] || kill "$beside_pid" 2>/dev/null; rm -rf "$out"' EXIT
+trap '[ -z "$beside_pid" ] || kill "$beside_pid" 2>/dev/null; rm -rf "$out" ${xdg_made:+"$xdg_made"}' EXIT
 cc -std=c99 -Wall -Werror -Iinclude examples_c/version.c target/release/libgsenc.a -lpthread -ldl -lm -o "$out/version"
 "$out/version"
 echo "c: 1 passed, 0 failed"

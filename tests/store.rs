@@ -208,7 +208,7 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
 
 /// The bytes of a store of `entries` (field, step, payload; rank 0, 40
 /// primitives each), written in a fresh `tmpdir(name)`, which is returned.
-fn sound_store(name: &str, entries: &[(&str, u64, Payload)]) -> (std::path::PathBuf, Vec<u8>) {
+fn sound_store(name: &str, entries: &[(&str, u64, Payload)]) -> (common::TmpDir, Vec<u8>) {
     let dir = tmpdir(name);
     let path = dir.join("s.h5");
     let mut s = Store::open_append(&path).unwrap();

@@ -14,12 +14,15 @@ pub struct SmallDisk {
     pub dir: PathBuf,
     kib: u64,
     mounted: bool,
+    /// The test's folder that holds `dir`, removed after the unmount.
+    _root: super::TmpDir,
 }
 
 impl SmallDisk {
     /// The folder `disk` in a fresh `tmpdir(name)`.
     pub fn new(name: &str, kib: u64) -> SmallDisk {
-        let dir = super::tmpdir(name).join("disk");
+        let root = super::tmpdir(name);
+        let dir = root.join("disk");
         std::fs::create_dir_all(&dir).unwrap();
         let size = format!("size={kib}k");
         let mounted = cfg!(target_os = "linux")
@@ -28,7 +31,7 @@ impl SmallDisk {
             true => eprintln!("full disk: a {kib} KiB tmpfs at {}", dir.display()),
             false => eprintln!("full disk: no tmpfs could be mounted (not root?): files of at most {kib} KiB (ulimit -f)"),
         }
-        SmallDisk { dir, kib, mounted }
+        SmallDisk { dir, kib, mounted, _root: root }
     }
 
     pub fn path(&self, name: &str) -> PathBuf {

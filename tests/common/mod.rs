@@ -193,11 +193,39 @@ pub fn repo_data(name: &str) -> std::path::PathBuf {
 }
 
 /// A fresh, empty folder for one test.
-pub fn tmpdir(name: &str) -> std::path::PathBuf {
+pub fn tmpdir(name: &str) -> TmpDir {
     let d = std::env::temp_dir().join(format!("gsenc-test-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&d);
     std::fs::create_dir_all(&d).unwrap();
-    d
+    TmpDir(d)
+}
+
+/// A test's folder ([`tmpdir`]), removed with what it holds when the test
+/// passes and kept when it fails (a panicking thread drops it), for a look
+/// at what the test left.
+pub struct TmpDir(std::path::PathBuf);
+
+impl std::ops::Deref for TmpDir {
+    type Target = std::path::Path;
+    fn deref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl AsRef<std::path::Path> for TmpDir {
+    fn as_ref(&self) -> &std::path::Path {
+        &self.0
+    }
+}
+
+impl Drop for TmpDir {
+    fn drop(&mut self) {
+        if std::thread::panicking() {
+            eprintln!("kept for a look: {}", self.0.display());
+        } else {
+            let _ = std::fs::remove_dir_all(&self.0);
+        }
+    }
 }
 
 /// A model for the store tests whose parameters follow from (field, step, rank): a reader can
