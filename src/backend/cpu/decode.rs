@@ -83,11 +83,15 @@ fn splat_slab(job: Slab, slab: &mut [f32]) {
     let (nbx, nby) = (dims[0].div_ceil(bs), dims[1].div_ceil(bs));
     let nz = slab.len() / (dims[0] * dims[1]);
     let mut pairs = vec![];
-    for &g in cands {
+    // Per candidate, the rows of each of the slab's planes its ellipsoid
+    // reaches (`reached_rows`), found once for all the bricks of the slab.
+    let mut reach = Vec::with_capacity(cands.len());
+    for (i, &g) in cands.iter().enumerate() {
         let b = boxes[g as usize].unwrap();
+        reach.push(reached_rows(&frames[g as usize], &b, lattice, z0, nz));
         for by in b[1] as usize / bs..=b[4] as usize / bs {
             for bx in b[0] as usize / bs..=b[3] as usize / bs {
-                pairs.push(((bx + nbx * by) as u32, g));
+                pairs.push(((bx + nbx * by) as u32, i as u32));
             }
         }
     }
@@ -101,12 +105,13 @@ fn splat_slab(job: Slab, slab: &mut [f32]) {
             rho.fill(0.0);
             num.fill(0.0);
             let id = bx + nbx * by;
-            for &g in &bcand[bstart[id] as usize..bstart[id + 1] as usize] {
-                let b = boxes[g as usize].unwrap();
+            for &i in &bcand[bstart[id] as usize..bstart[id + 1] as usize] {
+                let g = cands[i as usize] as usize;
+                let b = boxes[g].unwrap();
                 let zr = (b[2] as usize).max(z0)..=(b[5] as usize).min(z0 + nz - 1);
                 let yr = (b[1] as usize).max(y0)..=(b[4] as usize).min(y0 + ny - 1);
                 let xr = (b[0] as usize).max(x0)..=(b[3] as usize).min(x0 + nx - 1);
-                splat_box(&frames[g as usize], lattice, [x0, y0, z0], [xr, yr, zr], &mut rho, &mut num);
+                splat_box(&frames[g], lattice, [x0, y0, z0], [xr, yr, zr], &reach[i as usize], &mut rho, &mut num);
             }
             for k in 0..nz {
                 for j in 0..ny {
@@ -134,7 +139,7 @@ fn splat_slab(job: Slab, slab: &mut [f32]) {
 /// `xr`, plus its offset from it times the step. So each voxel gets the
 /// same bits as before.
 #[inline(always)]
-fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [std::ops::RangeInclusive<usize>; 3], rho: &mut [f32], num: &mut [f32]) {
+fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [std::ops::RangeInclusive<usize>; 3], reach: &Rows, rho: &mut [f32], num: &mut [f32]) {
     const W: usize = DECODE_BRICK;
     let a = f.scaled_axes();
     let (i0, i1) = (*xr.start(), *xr.end());
@@ -165,7 +170,8 @@ fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [st
     for k in zr {
         let dz = lattice.point(0, 0, k)[2] - f.mu[2];
         let at = |j: usize| (j - origin[1]) * W + (k - origin[2]) * W * W;
-        let mut rows = yr.clone();
+        let [lo, hi] = reach[k - origin[2]];
+        let mut rows = (*yr.start()).max(lo as usize)..=(*yr.end()).min(hi as usize);
         while let Some(j) = rows.next() {
             let cj = row_c(j, dz);
             match rows.next() {
@@ -188,6 +194,79 @@ fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [st
             }
         }
     }
+}
+
+/// Per plane of a slab, the first and last row a primitive's ellipsoid
+/// reaches (first > last: none).
+type Rows = [[u32; 2]; DECODE_BRICK];
+
+/// The rows of each plane `z0..z0 + nz` of a primitive's box (`b`) that
+/// may reach its cut-off ellipsoid. At every lane of a row whose line along
+/// x misses it, `d2` exceeds the cut-off, so the row adds +0 to `rho` (and
+/// +0 or -0 to `num`), which changes no sum: it is skipped with the same
+/// bits. Such rows are at least a fifth of the box's (the corners of its y-z
+/// face), more for a tilted or flat primitive.
+///
+/// Along a row, `u = a0 dx + c` with `c = a1 dy + a2 dz`, and the least
+/// `d2` over the line is `|P c|^2`, P the projection across `a0`: a
+/// quadratic in `dy` for each plane, solved in f64. The bound allows for
+/// the rounding of a lane's f32 `d2` (a few ulp of the squared size of its
+/// terms; 1e-5 of it, and 1 % of the cut-off), and a row more each side.
+fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize) -> Rows {
+    let a = f.scaled_axes();
+    let mut col = [[0f64; 3]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            col[c][r] = a[r][c] as f64;
+        }
+    }
+    let dot = |x: &[f64; 3], y: &[f64; 3]| x[0] * y[0] + x[1] * y[1] + x[2] * y[2];
+    let a0a0 = dot(&col[0], &col[0]);
+    let across = |v: &[f64; 3]| {
+        let k = if a0a0 > 0.0 { dot(v, &col[0]) / a0a0 } else { 0.0 };
+        [v[0] - k * col[0][0], v[1] - k * col[0][1], v[2] - k * col[0][2]]
+    };
+    let (p1, p2) = (across(&col[1]), across(&col[2]));
+    let (alpha, beta, gamma) = (dot(&p1, &p1), dot(&p1, &p2), dot(&p2, &p2));
+    // The largest |d| of the box's points (a step beyond) on each axis.
+    let mut reach = [0f64; 3];
+    for ax in 0..3 {
+        let (step, origin, mu) = (lattice.step[ax] as f64, lattice.origin[ax] as f64, f.mu[ax] as f64);
+        let d = |i: u32| (origin + i as f64 * step - mu).abs() + step.abs();
+        reach[ax] = d(b[ax]).max(d(b[ax + 3]));
+    }
+    let mut size = 0f64;
+    for r in 0..3 {
+        size += (col[0][r].abs() * reach[0] + col[1][r].abs() * reach[1] + col[2][r].abs() * reach[2]).powi(2);
+    }
+    let bound = CUTOFF_D2 as f64 * 1.01 + 1e-5 * size;
+    let (ystep, yorigin, ymu) = (lattice.step[1] as f64, lattice.origin[1] as f64, f.mu[1] as f64);
+    let row_of = |dy: f64| (dy + ymu - yorigin) / ystep;
+    let mut out = [[1, 0]; DECODE_BRICK];
+    for (k, o) in out.iter_mut().enumerate().take(nz) {
+        let dz = (lattice.point(0, 0, z0 + k)[2] - f.mu[2]) as f64;
+        // least(dy) = alpha dy^2 + 2 beta dz dy + gamma dz^2 <= bound
+        let c = gamma * dz * dz - bound;
+        let (lo, hi) = if alpha > 0.0 {
+            let disc = (beta * dz).powi(2) - alpha * c;
+            if disc < 0.0 {
+                continue;
+            }
+            let r = disc.sqrt();
+            ((-beta * dz - r) / alpha, (-beta * dz + r) / alpha)
+        } else if c <= 0.0 {
+            (f64::NEG_INFINITY, f64::INFINITY)
+        } else {
+            continue;
+        };
+        let (ra, rb) = (row_of(lo), row_of(hi));
+        let (jlo, jhi) = (ra.min(rb).floor() - 1.0, ra.max(rb).ceil() + 1.0);
+        let (first, last) = (jlo.max(b[1] as f64), jhi.min(b[4] as f64));
+        if first <= last {
+            *o = [first as u32, last as u32];
+        }
+    }
+    out
 }
 
 /// What every lane of a primitive's rows shares.
