@@ -229,15 +229,15 @@ fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize
     let (p1, p2) = (across(&col[1]), across(&col[2]));
     let (alpha, beta, gamma) = (dot(&p1, &p1), dot(&p1, &p2), dot(&p2, &p2));
     // The largest |d| of the box's points (a step beyond) on each axis.
-    let mut reach = [0f64; 3];
+    let mut far = [0f64; 3];
     for ax in 0..3 {
         let (step, origin, mu) = (lattice.step[ax] as f64, lattice.origin[ax] as f64, f.mu[ax] as f64);
         let d = |i: u32| (origin + i as f64 * step - mu).abs() + step.abs();
-        reach[ax] = d(b[ax]).max(d(b[ax + 3]));
+        far[ax] = d(b[ax]).max(d(b[ax + 3]));
     }
     let mut size = 0f64;
     for r in 0..3 {
-        size += (col[0][r].abs() * reach[0] + col[1][r].abs() * reach[1] + col[2][r].abs() * reach[2]).powi(2);
+        size += (col[0][r].abs() * far[0] + col[1][r].abs() * far[1] + col[2][r].abs() * far[2]).powi(2);
     }
     let bound = CUTOFF_D2 as f64 * 1.01 + 1e-5 * size;
     let (ystep, yorigin, ymu) = (lattice.step[1] as f64, lattice.origin[1] as f64, f.mu[1] as f64);

@@ -84,7 +84,6 @@ impl GpuBackend {
         }
         self.upload_params(params)?;
         let slabs = Slabs::new(lattice, params.len(), self.bin_chunk)?;
-        let slabs = &slabs;
         // Slabs to decode, in order; one whose lists overflowed goes back
         // to the front.
         let mut todo: VecDeque<usize> = (0..slabs.nbz).collect();
@@ -94,18 +93,18 @@ impl GpuBackend {
             let submit = match todo.pop_front() {
                 Some(bz) => {
                     // The primitives' frames are computed with the first slab.
-                    let slab = self.submit_slab(slabs, bz, submitted % IN_FLIGHT, submitted == 0)?;
+                    let slab = self.submit_slab(&slabs, bz, submitted % IN_FLIGHT, submitted == 0)?;
                     submitted += 1;
                     Some(slab)
                 }
                 None => None,
             };
             if let Some(slab) = pending {
-                if !self.read_slab(slabs, slab, out)? {
+                if !self.read_slab(&slabs, slab, out)? {
                     // The slab behind it ran with the same capacity: it is
                     // read too, and kept if its lists fitted.
                     if let Some(next) = submit {
-                        if !self.read_slab(slabs, next, out)? {
+                        if !self.read_slab(&slabs, next, out)? {
                             todo.push_front(next.bz);
                         }
                     }
