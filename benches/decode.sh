@@ -11,7 +11,7 @@
 # rm256_200k_full, hydrogen_4k_matched); a row whose model is missing is
 # named and skipped. The 512^3 and 1024^3 rows run LARGE times (default
 # once: 0.5 and 4.3 GB out;
-# hydrogen's 1024^3 row, the decode of benches/gpu.sh, about 65 s on two
+# hydrogen's 1024^3 row, the decode of benches/gpu.sh, about 55 s on two
 # cores with BACKEND=cpu).
 # Env: BACKEND (default cpu: `auto` would take a GPU where there is one);
 # ROWS selects rows by name; GSENC_BIN a build to time instead of this

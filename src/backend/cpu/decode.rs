@@ -83,14 +83,25 @@ fn splat_slab(job: Slab, slab: &mut [f32]) {
     let (nbx, nby) = (dims[0].div_ceil(bs), dims[1].div_ceil(bs));
     let nz = slab.len() / (dims[0] * dims[1]);
     let mut pairs = vec![];
-    // Per candidate, the rows of each of the slab's planes its ellipsoid
-    // reaches (`reached_rows`), found once for all the bricks of the slab.
-    let mut reach = Vec::with_capacity(cands.len());
+    // Per candidate and column of bricks its box overlaps, the rows of each
+    // of the slab's planes its ellipsoid reaches within the column
+    // (`reached_rows`, `Reach::rows_within`), found once for all the
+    // bricks of the column; a brick none of whose rows it reaches does not
+    // list it.
+    let mut columns: Vec<Rows> = Vec::with_capacity(cands.len());
+    let mut first_column = Vec::with_capacity(cands.len());
     for (i, &g) in cands.iter().enumerate() {
         let b = boxes[g as usize].unwrap();
-        reach.push(reached_rows(&frames[g as usize], &b, lattice, z0, nz));
-        for by in b[1] as usize / bs..=b[4] as usize / bs {
-            for bx in b[0] as usize / bs..=b[3] as usize / bs {
+        let reach = reached_rows(&frames[g as usize], &b, lattice, z0, nz);
+        first_column.push(columns.len() as u32);
+        for bx in b[0] as usize / bs..=b[3] as usize / bs {
+            let xr = ((b[0] as usize).max(bx * bs), (b[3] as usize).min(bx * bs + bs - 1));
+            let rows = reach.rows_within(lattice, &frames[g as usize].mu, &b, xr);
+            columns.push(rows);
+            if rows.iter().all(|&[first, last]| first > last) {
+                continue;
+            }
+            for by in b[1] as usize / bs..=b[4] as usize / bs {
                 pairs.push(((bx + nbx * by) as u32, i as u32));
             }
         }
@@ -111,7 +122,8 @@ fn splat_slab(job: Slab, slab: &mut [f32]) {
                 let zr = (b[2] as usize).max(z0)..=(b[5] as usize).min(z0 + nz - 1);
                 let yr = (b[1] as usize).max(y0)..=(b[4] as usize).min(y0 + ny - 1);
                 let xr = (b[0] as usize).max(x0)..=(b[3] as usize).min(x0 + nx - 1);
-                splat_box(&frames[g], lattice, [x0, y0, z0], [xr, yr, zr], &reach[i as usize], &mut rho, &mut num);
+                let rows = &columns[first_column[i as usize] as usize + bx - b[0] as usize / bs];
+                splat_box(&frames[g], lattice, [x0, y0, z0], [xr, yr, zr], rows, &mut rho, &mut num);
             }
             for k in 0..nz {
                 for j in 0..ny {
@@ -200,6 +212,28 @@ fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [st
 /// reaches (first > last: none).
 type Rows = [[u32; 2]; DECODE_BRICK];
 
+/// A primitive's reach in the planes of a slab (`reached_rows`): the rows
+/// of each plane that its cut-off ellipsoid reaches, and where along x
+/// each row's line meets it, so that each brick takes only the rows that
+/// reach its own columns (`rows_within`).
+struct Reach {
+    rows: Rows,
+    /// None where the coefficients are not finite: every brick then takes
+    /// all of `rows`.
+    chords: Option<Chords>,
+}
+
+/// Where the line along x of the row at `dy = t` in plane k meets the
+/// ellipse `d2 <= bound`, in `dx`: centred on `-(g1 t + m0[k])`, of
+/// half-width squared `w0[k] - w1[k] t - w2 t^2` (none where negative).
+struct Chords {
+    g1: f64,
+    w2: f64,
+    m0: [f64; DECODE_BRICK],
+    w0: [f64; DECODE_BRICK],
+    w1: [f64; DECODE_BRICK],
+}
+
 /// The rows of each plane `z0..z0 + nz` of a primitive's box (`b`) that
 /// may reach its cut-off ellipsoid. At every lane of a row whose line along
 /// x misses it, `d2` exceeds the cut-off, so the row adds +0 to `rho` (and
@@ -207,12 +241,13 @@ type Rows = [[u32; 2]; DECODE_BRICK];
 /// bits. Such rows are at least a fifth of the box's (the corners of its y-z
 /// face), more for a tilted or flat primitive.
 ///
-/// Along a row, `u = a0 dx + c` with `c = a1 dy + a2 dz`, and the least
-/// `d2` over the line is `|P c|^2`, P the projection across `a0`: a
-/// quadratic in `dy` for each plane, solved in f64. The bound allows for
-/// the rounding of a lane's f32 `d2` (a few ulp of the squared size of its
-/// terms; 1e-5 of it, and 1 % of the cut-off), and a row more each side.
-fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize) -> Rows {
+/// Along a row, `u = a0 dx + c` with `c = a1 dy + a2 dz`, and
+/// `d2 = A (dx - m)^2 + least`, with `A = |a0|^2`, the chord's centre
+/// `m = -a0.c / A` and `least = |P c|^2`, P the projection across `a0`: a
+/// quadratic in `dy` for each plane, solved in f64. The bound allows for the rounding of
+/// a lane's f32 `d2` (a few ulp of the squared size of its terms; 1e-5 of
+/// it, and 1 % of the cut-off), and a row more each side.
+fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize) -> Reach {
     let a = f.scaled_axes();
     let mut col = [[0f64; 3]; 3];
     for r in 0..3 {
@@ -240,11 +275,14 @@ fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize
         size += (col[0][r].abs() * far[0] + col[1][r].abs() * far[1] + col[2][r].abs() * far[2]).powi(2);
     }
     let bound = CUTOFF_D2 as f64 * 1.01 + 1e-5 * size;
-    let (ystep, yorigin, ymu) = (lattice.step[1] as f64, lattice.origin[1] as f64, f.mu[1] as f64);
-    let row_of = |dy: f64| (dy + ymu - yorigin) / ystep;
-    let mut out = [[1, 0]; DECODE_BRICK];
-    for (k, o) in out.iter_mut().enumerate().take(nz) {
+    let mut rows = [[1, 0]; DECODE_BRICK];
+    let (e1, e2) = (dot(&col[0], &col[1]), dot(&col[0], &col[2]));
+    let mut chords = Chords { g1: e1 / a0a0, w2: alpha / a0a0, m0: [0.0; DECODE_BRICK], w0: [0.0; DECODE_BRICK], w1: [0.0; DECODE_BRICK] };
+    for (k, o) in rows.iter_mut().enumerate().take(nz) {
         let dz = (lattice.point(0, 0, z0 + k)[2] - f.mu[2]) as f64;
+        chords.m0[k] = e2 * dz / a0a0;
+        chords.w0[k] = (bound - gamma * dz * dz) / a0a0;
+        chords.w1[k] = 2.0 * beta * dz / a0a0;
         // least(dy) = alpha dy^2 + 2 beta dz dy + gamma dz^2 <= bound
         let c = gamma * dz * dz - bound;
         let (lo, hi) = if alpha > 0.0 {
@@ -259,14 +297,103 @@ fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize
         } else {
             continue;
         };
-        let (ra, rb) = (row_of(lo), row_of(hi));
-        let (jlo, jhi) = (ra.min(rb).floor() - 1.0, ra.max(rb).ceil() + 1.0);
-        let (first, last) = (jlo.max(b[1] as f64), jhi.min(b[4] as f64));
+        let (first, last) = rows_of(lattice, f.mu[1], lo, hi);
+        let (first, last) = (first.max(b[1] as f64), last.min(b[4] as f64));
         if first <= last {
             *o = [first as u32, last as u32];
         }
     }
-    out
+    let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+    let usable = a0a0 > 0.0 && chords.w2 + chords.g1 * chords.g1 > 0.0 && finite(&[chords.g1, chords.w2]) && finite(&chords.m0) && finite(&chords.w0) && finite(&chords.w1);
+    Reach { rows, chords: usable.then_some(chords) }
+}
+
+/// The rows, widened by one each side, whose `dy` may lie in `lo..=hi`.
+#[inline(always)]
+fn rows_of(lattice: &Lattice, mu_y: f32, lo: f64, hi: f64) -> (f64, f64) {
+    let (ystep, yorigin) = (lattice.step[1] as f64, lattice.origin[1] as f64);
+    let row_of = |dy: f64| (dy + mu_y as f64 - yorigin) / ystep;
+    let (ra, rb) = (row_of(lo), row_of(hi));
+    (ra.min(rb).floor() - 1.0, ra.max(rb).ceil() + 1.0)
+}
+
+impl Reach {
+    /// Of `rows`, those whose line along x may meet the ellipse within the
+    /// voxels `x.0..=x.1` along x of a column of bricks, where the box
+    /// (`b`) goes on beyond them: the others add +0 at every lane of the
+    /// column's bricks (the same argument as `reached_rows`'s, the voxels
+    /// widened by one each side).
+    ///
+    /// Where the box goes on to the left, a row must reach the voxels'
+    /// left edge `e`: its chord's right end `m + sqrt(W)` is at least `e`.
+    /// That holds where the centre `m >= e`, a half-line in `t = dy`, and
+    /// else where `W >= (e - m)^2`, a quadratic in `t` whose roots bound
+    /// an interval; the rows are those of both sets' hull. The same with
+    /// the chord's left end on the right. In f64, once per primitive,
+    /// slab and column of bricks, not per brick: per brick it cost more
+    /// than the rows it saved (docs/BENCHMARKS.md "The CPU decode's rows
+    /// within a column of bricks").
+    #[inline(always)]
+    fn rows_within(&self, lattice: &Lattice, mu: &[f32; 3], b: &[u32; 6], x: (usize, usize)) -> Rows {
+        let Some(c) = &self.chords else { return self.rows };
+        let (left, right) = (x.0 > b[0] as usize, x.1 < b[3] as usize);
+        if !left && !right {
+            return self.rows;
+        }
+        let sx = lattice.step[0] as f64;
+        let dx = |i: usize| lattice.origin[0] as f64 + i as f64 * sx - mu[0] as f64;
+        let mut lo = [f64::NEG_INFINITY; DECODE_BRICK];
+        let mut hi = [f64::INFINITY; DECODE_BRICK];
+        if left {
+            c.narrow(dx(x.0) - sx.abs(), true, &mut lo, &mut hi);
+        }
+        if right {
+            c.narrow(dx(x.1) + sx.abs(), false, &mut lo, &mut hi);
+        }
+        let mut out = self.rows;
+        for k in 0..DECODE_BRICK {
+            let (first, last) = rows_of(lattice, mu[1], lo[k], hi[k]);
+            let (first, last) = (first.max(out[k][0] as f64), last.min(out[k][1] as f64));
+            out[k] = if lo[k] <= hi[k] && first <= last { [first as u32, last as u32] } else { [1, 0] };
+        }
+        out
+    }
+}
+
+impl Chords {
+    /// Narrows each plane's `lo..=hi` (in `dy`) to the rows whose chord
+    /// ends at or beyond `e`: its right end at or right of `e`
+    /// (`right_end`), or its left end at or left of it.
+    #[inline(always)]
+    fn narrow(&self, e: f64, right_end: bool, lo: &mut [f64; DECODE_BRICK], hi: &mut [f64; DECODE_BRICK]) {
+        const INF: f64 = f64::INFINITY;
+        let g1 = self.g1;
+        let qa = self.w2 + g1 * g1;
+        let half_over_qa = 0.5 / qa;
+        // The centre is beyond `e` where `g1 t <= -s` (right end) or
+        // `g1 t >= -s` (left end): which side of `t = -s / g1` depends on
+        // the sign of g1; where g1 is 0, on the sign of s alone.
+        let upper = (g1 > 0.0) == right_end;
+        let flat = g1 == 0.0;
+        let minus_over_g1 = if flat { 0.0 } else { -1.0 / g1 };
+        for k in 0..DECODE_BRICK {
+            let s = e + self.m0[k];
+            let r = s * minus_over_g1;
+            let (mut c_lo, mut c_hi) = if upper { (-INF, r) } else { (r, INF) };
+            if flat {
+                let all = if right_end { s <= 0.0 } else { s >= 0.0 };
+                (c_lo, c_hi) = if all { (-INF, INF) } else { (INF, -INF) };
+            }
+            // W(t) - (s + g1 t)^2 >= 0, i.e. qa t^2 + qb t - qc <= 0.
+            let qb = self.w1[k] + 2.0 * s * g1;
+            let qc = self.w0[k] - s * s;
+            let disc = qb * qb + 4.0 * qa * qc;
+            let root = disc.max(0.0).sqrt();
+            let (q_lo, q_hi) = if disc >= 0.0 { ((-qb - root) * half_over_qa, (-qb + root) * half_over_qa) } else { (INF, -INF) };
+            lo[k] = lo[k].max(c_lo.min(q_lo));
+            hi[k] = hi[k].min(c_hi.max(q_hi));
+        }
+    }
 }
 
 /// What every lane of a primitive's rows shares.
@@ -342,14 +469,26 @@ mod tests {
     }
 
     /// Brick rows computed as vectors of two rows, lanes outside a box
-    /// adding +0, give each voxel the bits of the plain loop: on lattices
-    /// whose sides are no multiple of the brick, with steps that differ per
-    /// axis, over a sub-box and beyond the primitives, where boxes start and
-    /// end at every offset in a brick and hold odd and even numbers of rows.
+    /// adding +0, and only the rows that reach a brick's columns, give each
+    /// voxel the bits of the plain loop: on lattices whose sides are no
+    /// multiple of the brick, with steps that differ per axis, over a
+    /// sub-box and beyond the primitives, where boxes start and end at every
+    /// offset in a brick and hold odd and even numbers of rows; for tilted
+    /// primitives, and for ones turned about x only or not at all, whose
+    /// chords along x keep their centre from row to row (`Chords::g1` is 0).
     #[test]
     fn the_vectorised_splat_gives_each_voxel_the_plain_loops_bits() {
+        use crate::math::kernel::layout::QUAT;
         let mut rng = Rng::new(21);
-        let params = crate::backend::cpu::tests::random_prims(&mut rng, 150);
+        let mut params = crate::backend::cpu::tests::random_prims(&mut rng, 150);
+        for (i, mut p) in crate::backend::cpu::tests::random_prims(&mut rng, 60).into_iter().enumerate() {
+            p[QUAT + 2] = 0.0;
+            p[QUAT + 3] = 0.0;
+            if i % 3 == 0 {
+                p[QUAT + 1] = 0.0;
+            }
+            params.push(p);
+        }
         let lattices = [
             Lattice::reference([6, 6, 6]),
             Lattice { dims: [21, 13, 10], origin: [-0.3, 0.1, 0.25], step: [0.31, 0.45, 0.6] },
