@@ -246,7 +246,8 @@ struct Chords {
 /// `m = -a0.c / A` and `least = |P c|^2`, P the projection across `a0`: a
 /// quadratic in `dy` for each plane, solved in f64. The bound allows for the rounding of
 /// a lane's f32 `d2` (a few ulp of the squared size of its terms; 1e-5 of
-/// it, and 1 % of the cut-off), and a row more each side.
+/// it, and 1 % of the cut-off), and the rows for the rounding of a lane's
+/// `dy` (`slack`).
 fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize) -> Reach {
     let a = f.scaled_axes();
     let mut col = [[0f64; 3]; 3];
@@ -308,13 +309,27 @@ fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize
     Reach { rows, chords: usable.then_some(chords) }
 }
 
-/// The rows, widened by one each side, whose `dy` may lie in `lo..=hi`.
+/// The rows whose `dy`, as a lane computes it in f32, may lie in
+/// `lo..=hi`: those within `slack` rows of it.
 #[inline(always)]
 fn rows_of(lattice: &Lattice, mu_y: f32, lo: f64, hi: f64) -> (f64, f64) {
     let (ystep, yorigin) = (lattice.step[1] as f64, lattice.origin[1] as f64);
     let row_of = |dy: f64| (dy + mu_y as f64 - yorigin) / ystep;
     let (ra, rb) = (row_of(lo), row_of(hi));
-    (ra.min(rb).floor() - 1.0, ra.max(rb).ceil() + 1.0)
+    let margin = slack(lattice, 1, mu_y);
+    ((ra.min(rb) - margin).ceil(), (ra.max(rb) + margin).floor())
+}
+
+/// How far, in steps of `axis`, a lane's f32 offset from the centre `mu`
+/// (`origin + i * step - mu`, and along x `t * step` added) may lie from
+/// the exact one: each of its three or four roundings is within half an
+/// f32 ulp of a term no larger than `|origin| + dims * |step| + |mu|`;
+/// four ulp of that, and a twentieth of a step.
+#[inline(always)]
+fn slack(lattice: &Lattice, axis: usize, mu: f32) -> f64 {
+    let (step, origin) = (lattice.step[axis].abs() as f64, lattice.origin[axis].abs() as f64);
+    let size = origin + lattice.dims[axis] as f64 * step + mu.abs() as f64;
+    0.05 + 4.0 * f32::EPSILON as f64 * size / step
 }
 
 impl Reach {
@@ -322,7 +337,7 @@ impl Reach {
     /// voxels `x.0..=x.1` along x of a column of bricks, where the box
     /// (`b`) goes on beyond them: the others add +0 at every lane of the
     /// column's bricks (the same argument as `reached_rows`'s, the voxels
-    /// widened by one each side).
+    /// widened each side by what rounding may move a lane, `slack`).
     ///
     /// Where the box goes on to the left, a row must reach the voxels'
     /// left edge `e`: its chord's right end `m + sqrt(W)` is at least `e`.
@@ -342,13 +357,14 @@ impl Reach {
         }
         let sx = lattice.step[0] as f64;
         let dx = |i: usize| lattice.origin[0] as f64 + i as f64 * sx - mu[0] as f64;
+        let widen = slack(lattice, 0, mu[0]) * sx.abs();
         let mut lo = [f64::NEG_INFINITY; DECODE_BRICK];
         let mut hi = [f64::INFINITY; DECODE_BRICK];
         if left {
-            c.narrow(dx(x.0) - sx.abs(), true, &mut lo, &mut hi);
+            c.narrow(dx(x.0) - widen, true, &mut lo, &mut hi);
         }
         if right {
-            c.narrow(dx(x.1) + sx.abs(), false, &mut lo, &mut hi);
+            c.narrow(dx(x.1) + widen, false, &mut lo, &mut hi);
         }
         let mut out = self.rows;
         for k in 0..DECODE_BRICK {
@@ -422,6 +438,7 @@ impl Lanes {
             rho[q] += wk;
             num[q] += wk * self.s;
         }
+
     }
 }
 
@@ -495,10 +512,21 @@ mod tests {
             Lattice { dims: [9, 17, 8], origin: [1.5, 2.0, 0.5], step: [0.23, 0.17, 0.35] },
             Lattice { dims: [12, 5, 11], origin: [-2.0, -1.0, -3.0], step: [1.1, 2.3, 1.0] },
         ];
-        for lattice in &lattices {
+        // Far from the origin, where a lane's f32 offsets round by more
+        // (`slack`): the primitives and a lattice moved there.
+        let far = [3000.0f32, -2000.0, 1000.0];
+        let mut moved = params.clone();
+        for p in &mut moved {
+            for a in 0..3 {
+                p[a] += far[a];
+            }
+        }
+        let far_lattice = Lattice { dims: [23, 15, 11], origin: [far[0] - 0.3, far[1] + 0.1, far[2] + 0.25], step: [0.29, 0.41, 0.53] };
+        let cases = lattices.iter().map(|l| (l, &params)).chain([(&far_lattice, &moved)]);
+        for (lattice, params) in cases {
             let mut got = vec![f32::NAN; lattice.len()];
-            CpuBackend::new().splat_lattice(&params, lattice, &mut got).unwrap();
-            let want = voxel_by_voxel(&params, lattice);
+            CpuBackend::new().splat_lattice(params, lattice, &mut got).unwrap();
+            let want = voxel_by_voxel(params, lattice);
             assert!(want.iter().any(|&v| v > 0.0), "{lattice:?}: nothing decoded");
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
             assert!(bits(&got) == bits(&want), "{lattice:?}: {} voxels differ", got.iter().zip(&want).filter(|(a, b)| a.to_bits() != b.to_bits()).count());
