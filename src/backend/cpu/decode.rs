@@ -244,10 +244,10 @@ struct Chords {
 /// Along a row, `u = a0 dx + c` with `c = a1 dy + a2 dz`, and
 /// `d2 = A (dx - m)^2 + least`, with `A = |a0|^2`, the chord's centre
 /// `m = -a0.c / A` and `least = |P c|^2`, P the projection across `a0`: a
-/// quadratic in `dy` for each plane, solved in f64. The bound allows for the rounding of
-/// a lane's f32 `d2` (a few ulp of the squared size of its terms; 1e-5 of
-/// it, and 1 % of the cut-off), and the rows for the rounding of a lane's
-/// `dy` (`slack`).
+/// quadratic in `dy` for each plane, solved in f64. The bound allows for
+/// the rounding of a lane's f32 `d2` (a few ulp of the squared size of its
+/// terms; 1e-5 of it, and 1 % of the cut-off), and the rows for the
+/// rounding of a lane's `dy` (`slack`).
 fn reached_rows(f: &Frame, b: &[u32; 6], lattice: &Lattice, z0: usize, nz: usize) -> Reach {
     let a = f.scaled_axes();
     let mut col = [[0f64; 3]; 3];
@@ -438,7 +438,6 @@ impl Lanes {
             rho[q] += wk;
             num[q] += wk * self.s;
         }
-
     }
 }
 
