@@ -149,9 +149,10 @@ fn splat_slab(job: Slab, slab: &mut [f32]) {
 /// voxels that rounding puts on the wrong side of the box's edge as the row
 /// loop had them. A lane's `dx` is that loop's: from the first voxel of
 /// `xr`, plus its offset from it times the step. So each voxel gets the
-/// same bits as before.
+/// same bits as before. Of each plane's rows, only those `reached` lists
+/// (`Reach::rows_within`) are computed.
 #[inline(always)]
-fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [std::ops::RangeInclusive<usize>; 3], reach: &Rows, rho: &mut [f32], num: &mut [f32]) {
+fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [std::ops::RangeInclusive<usize>; 3], reached: &Rows, rho: &mut [f32], num: &mut [f32]) {
     const W: usize = DECODE_BRICK;
     let a = f.scaled_axes();
     let (i0, i1) = (*xr.start(), *xr.end());
@@ -182,7 +183,7 @@ fn splat_box(f: &Frame, lattice: &Lattice, origin: [usize; 3], [xr, yr, zr]: [st
     for k in zr {
         let dz = lattice.point(0, 0, k)[2] - f.mu[2];
         let at = |j: usize| (j - origin[1]) * W + (k - origin[2]) * W * W;
-        let [lo, hi] = reach[k - origin[2]];
+        let [lo, hi] = reached[k - origin[2]];
         let mut rows = (*yr.start()).max(lo as usize)..=(*yr.end()).min(hi as usize);
         while let Some(j) = rows.next() {
             let cj = row_c(j, dz);
