@@ -301,6 +301,9 @@ pub(crate) struct Settings {
     pub preview: Option<View>,
     /// Where the encoder's threads run (before the environment's say).
     pub placement: ThreadPlacement,
+    /// Final job states the queue keeps for `gsenc_poll` (not in the C
+    /// config: [`gsenc::series::queue::KEPT_STATES`]; tests set fewer).
+    pub kept_states: usize,
 }
 
 impl Settings {
@@ -452,6 +455,7 @@ impl Settings {
             output,
             preview,
             placement: ThreadPlacement { cpus, priority },
+            kept_states: gsenc::series::queue::KEPT_STATES,
         })
     }
 }

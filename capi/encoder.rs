@@ -73,6 +73,24 @@ pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: 
     guard(|| unsafe { create_into(config, out, "gsenc_encoder_create", |s| gsenc_encoder::new(s, true)) })
 }
 
+/// `gsenc_encoder_create` with `tweak` applied to the settings first: for
+/// tests of settings the C config does not carry.
+///
+/// # Safety
+/// As for `gsenc_encoder_create`.
+#[cfg(test)]
+pub(crate) unsafe fn create_tweaked(config: *const gsenc_config, out: *mut *mut gsenc_encoder, tweak: impl FnOnce(&mut Settings)) -> gsenc_status {
+    // SAFETY: per this function's contract.
+    guard(|| {
+        unsafe {
+            create_into(config, out, "gsenc_encoder_create", |mut s| {
+                tweak(&mut s);
+                gsenc_encoder::new(s, true)
+            })
+        }
+    })
+}
+
 /// Creates an encoder by `make` from `*config` into `*out` (NULL on
 /// failure) and registers its handle.
 ///
@@ -246,6 +264,7 @@ impl gsenc_encoder {
                 threads: settings.threads,
                 backend: settings.backend,
                 placement: settings.placement.clone(),
+                kept_states: settings.kept_states,
             },
             sink,
         )?;

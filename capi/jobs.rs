@@ -77,8 +77,12 @@ pub struct gsenc_job {
 }
 
 /// Fills `*job` with the state of `field`'s step `step`, without waiting.
-/// `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
-/// for an HDF5 store are written here. Calls on one encoder run one at a time.
+/// `GSENC_STATUS_CALL_ORDER` when that step was never pushed, or when its
+/// state is no longer kept: an encoder keeps the states of the last 4,096
+/// steps (of all its fields) to finish, and every failure `gsenc_wait` has
+/// not reported, so that its memory does not grow with the length of the
+/// run. Models bound for an HDF5 store are written here. Calls on one
+/// encoder run one at a time.
 ///
 /// # Safety
 /// As for `gsenc_wait` (`field` NULL is refused here); `job` is NULL or a
@@ -93,6 +97,13 @@ pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c
             unsafe { check_sized(job.cast_const(), "gsenc_poll: job") }?;
             enc.flush(false);
             let Some(state) = enc.queue.poll(&field, step) else {
+                if enc.queue.dropped(&field, step) {
+                    let kept = enc.queue.config().kept_states;
+                    return fail(
+                        gsenc_status::CallOrder,
+                        format!("field '{field}' step {step}: no state kept (the encoder keeps the states of its last {kept} finished steps; or it was never pushed)"),
+                    );
+                }
                 return fail(gsenc_status::CallOrder, format!("field '{field}' step {step} was never pushed"));
             };
             let mut out = gsenc_job {
@@ -254,4 +265,57 @@ pub unsafe extern "C" fn gsenc_encoder_last_step(
             Ok(())
         })
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::{gsenc_config, gsenc_config_init, GSENC_BACKEND_CPU, GSENC_SCHEDULE_SHORT};
+    use crate::encoder::{create_tweaked, gsenc_encoder_destroy};
+    use crate::inputs::{f32_grid, gsenc_push_grid};
+    use crate::status::gsenc_last_error;
+    use std::ffi::CString;
+
+    fn last_error() -> String {
+        let mut buf = vec![0u8; 512];
+        // SAFETY: a writable buffer of its length.
+        let n = unsafe { gsenc_last_error(buf.as_mut_ptr().cast(), buf.len()) };
+        String::from_utf8_lossy(&buf[..n.min(buf.len() - 1)]).into_owned()
+    }
+
+    /// A poll of a step whose state the encoder no longer keeps says so,
+    /// apart from a step beyond every one pushed.
+    #[test]
+    fn a_poll_of_a_dropped_state_says_so() {
+        // SAFETY: the test's own config, grid, strings and handle.
+        unsafe {
+            let mut cfg: gsenc_config = std::mem::zeroed();
+            cfg.struct_size = std::mem::size_of::<gsenc_config>();
+            assert_eq!(gsenc_config_init(&mut cfg), gsenc_status::Ok);
+            (cfg.budget, cfg.schedule, cfg.iterations, cfg.points, cfg.backend) = (8, GSENC_SCHEDULE_SHORT, 10, 64, GSENC_BACKEND_CPU);
+            let mut enc = std::ptr::null_mut();
+            assert_eq!(create_tweaked(&cfg, &mut enc, |s| s.kept_states = 2), gsenc_status::Ok);
+            let field = CString::new("rho").unwrap();
+            let values: Vec<f32> = (0..120).map(|i| (i % 7) as f32 / 7.0).collect();
+            let grid = f32_grid(&values, [6, 5, 4], 0.1);
+            for step in [0, 2, 4, 6] {
+                assert_eq!(gsenc_push_grid(enc, field.as_ptr(), step, step as f64, &grid), gsenc_status::Ok);
+            }
+            assert_eq!(gsenc_wait(enc, std::ptr::null()), gsenc_status::Ok);
+            let mut job: gsenc_job = std::mem::zeroed();
+            job.struct_size = std::mem::size_of::<gsenc_job>();
+            for step in [4, 6] {
+                assert_eq!(gsenc_poll(enc, field.as_ptr(), step, &mut job), gsenc_status::Ok, "step {step}");
+                assert_eq!(job.state, GSENC_JOB_DONE, "step {step}");
+            }
+            for step in [0, 1, 2] {
+                assert_eq!(gsenc_poll(enc, field.as_ptr(), step, &mut job), gsenc_status::CallOrder, "step {step}");
+                let e = last_error();
+                assert!(e.contains(&format!("step {step}: no state kept")) && e.contains("last 2 finished steps"), "{e}");
+            }
+            assert_eq!(gsenc_poll(enc, field.as_ptr(), 7, &mut job), gsenc_status::CallOrder);
+            assert!(last_error().contains("step 7 was never pushed"), "{}", last_error());
+            gsenc_encoder_destroy(enc);
+        }
+    }
 }

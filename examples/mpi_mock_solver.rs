@@ -35,7 +35,7 @@ use gsenc::input::prepare::{prepare_cells, prepare_particles, Placement, RangeSp
 use gsenc::input::StepData;
 use gsenc::io::{read_step, write_atomic, ModelFolder};
 use gsenc::model::metrics::voxel_psnr;
-use gsenc::series::queue::{BackgroundEncoder, Job, QueueConfig, WhenFull};
+use gsenc::series::queue::{BackgroundEncoder, Job, QueueConfig, WhenFull, KEPT_STATES};
 use gsenc::series::{SeriesConfig, SeriesRange};
 use gsenc::Error;
 use mpi::traits::*;
@@ -281,7 +281,7 @@ fn main() {
     let mut ranks = Decomposition::new(&world, cfg).unwrap();
     // Each rank of a node takes its own GPU when there are several.
     let backend = gsenc::backend::select::BackendChoice::default().for_node_rank(ranks.node_rank());
-    let queue_cfg = QueueConfig { series, max_bytes: 1 << 30, when_full: WhenFull::Block, threads: 1, backend, placement: Default::default() };
+    let queue_cfg = QueueConfig { series, max_bytes: 1 << 30, when_full: WhenFull::Block, threads: 1, backend, placement: Default::default(), kept_states: KEPT_STATES };
     let queue = BackgroundEncoder::new(queue_cfg, Box::new(ModelFolder { dir: a.out.clone(), payload: Payload::Float32 })).unwrap();
 
     // Misuse, before the series: every rank must get an error, and go on.

@@ -870,8 +870,12 @@ gsenc_status gsenc_wait(gsenc_encoder *encoder, const char *field);
 
 /*
  Fills `*job` with the state of `field`'s step `step`, without waiting.
- `GSENC_STATUS_CALL_ORDER` when that step was never pushed. Models bound
- for an HDF5 store are written here. Calls on one encoder run one at a time.
+ `GSENC_STATUS_CALL_ORDER` when that step was never pushed, or when its
+ state is no longer kept: an encoder keeps the states of the last 4,096
+ steps (of all its fields) to finish, and every failure `gsenc_wait` has
+ not reported, so that its memory does not grow with the length of the
+ run. Models bound for an HDF5 store are written here. Calls on one
+ encoder run one at a time.
 
  # Safety
  As for `gsenc_wait` (`field` NULL is refused here); `job` is NULL or a

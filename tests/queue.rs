@@ -49,6 +49,7 @@ fn queue_config(max_jobs: usize, when_full: WhenFull) -> QueueConfig {
         threads: 1,
         backend: gsenc::backend::select::BackendChoice::cpu(),
         placement: Default::default(),
+        kept_states: gsenc::series::queue::KEPT_STATES,
     }
 }
 
@@ -184,6 +185,78 @@ fn a_failed_job_is_reported_once_and_later_steps_are_written() {
     // The failed store did not stop the series: step 2 warm-started from step 1's model.
     let last = q.last("rho").unwrap().0;
     assert_eq!(last.meta.step, 3);
+}
+
+/// Of the final jobs, only the last `kept_states` to finish keep their
+/// states (of every field together), so a long run's memory does not grow
+/// with its length; a failure `wait` has not reported is kept past its turn
+/// until it has.
+#[test]
+fn only_the_last_final_states_are_kept() {
+    let cfg = QueueConfig { kept_states: 3, ..queue_config(8, WhenFull::Block) };
+    assert!(matches!(BackgroundEncoder::new(QueueConfig { kept_states: 0, ..cfg.clone() }, Box::new(gsenc::series::queue::CallerStores)), Err(Error::InvalidArgument(_))));
+    let (q, open, stored) = gated(cfg, vec![2]);
+    for k in 0..6 {
+        open.send(()).unwrap();
+        q.push(job("rho", k)).unwrap();
+    }
+    // Until every step is final, without reporting the failure.
+    let t0 = std::time::Instant::now();
+    while !q.poll("rho", 5).is_some_and(|s| s.is_final()) {
+        assert!(t0.elapsed().as_secs() < 120, "the queue did not finish");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    for k in [0, 1] {
+        assert!(q.poll("rho", k).is_none() && q.dropped("rho", k), "step {k}: {:?}", q.poll("rho", k));
+    }
+    assert!(matches!(q.poll("rho", 2), Some(JobState::Failed(_))), "an unreported failure is kept: {:?}", q.poll("rho", 2));
+    for k in 3..6 {
+        assert!(matches!(q.poll("rho", k), Some(JobState::Written { .. })) && !q.dropped("rho", k), "step {k}: {:?}", q.poll("rho", k));
+    }
+    assert!(!q.dropped("rho", 6) && !q.dropped("T", 0), "never pushed");
+    let e = q.wait(None).unwrap_err();
+    assert!(e.to_string().contains("field 'rho' step 2"), "{e}");
+    assert!(q.poll("rho", 2).is_none() && q.dropped("rho", 2), "reported, and past its turn");
+    // Another field's steps take the oldest places.
+    for k in 0..2 {
+        open.send(()).unwrap();
+        q.push(job("T", k)).unwrap();
+    }
+    q.wait(None).unwrap();
+    assert!(q.poll("rho", 3).is_none() && q.poll("rho", 4).is_none());
+    assert!(q.poll("rho", 5).is_some() && q.poll("T", 0).is_some() && q.poll("T", 1).is_some());
+    assert_eq!(steps_stored(&stored), [0, 1, 3, 4, 5, 0, 1]);
+    // Step 6 of rho still warm-starts from step 5, whose state was kept
+    // only as long as its turn: the series' own record is apart.
+    open.send(()).unwrap();
+    q.push(job("rho", 6)).unwrap();
+    q.wait(None).unwrap();
+    assert_eq!(stored.lock().unwrap().last().unwrap().meta.schedule, "warm-coarse");
+}
+
+/// A model the caller stores after its state was dropped: a failure is
+/// still reported by `wait` (then dropped), a success leaves no state.
+#[test]
+fn a_caller_store_after_the_state_was_dropped() {
+    let cfg = QueueConfig { kept_states: 1, ..queue_config(8, WhenFull::Block) };
+    let q = BackgroundEncoder::new(cfg, Box::new(gsenc::series::queue::CallerStores)).unwrap();
+    for k in 0..3 {
+        q.push(job("rho", k)).unwrap();
+    }
+    q.wait(None).unwrap();
+    assert_eq!(q.take_finished().len(), 3);
+    assert!(q.poll("rho", 0).is_none() && q.poll("rho", 1).is_none() && q.dropped("rho", 1));
+    q.set_stored("rho", 0, Ok("store:/rho/0".into()));
+    assert!(q.poll("rho", 0).is_none(), "a success past its turn leaves no state");
+    q.set_stored("rho", 1, Err(Error::io("store.h5", std::io::Error::other("no space left"))));
+    assert!(matches!(q.poll("rho", 1), Some(JobState::Failed(_))));
+    q.set_stored("rho", 2, Ok("store:/rho/2".into()));
+    assert!(matches!(q.poll("rho", 2), Some(JobState::Written { location, .. }) if location == "store:/rho/2"));
+    let e = q.wait(None).unwrap_err();
+    assert!(e.to_string().contains("step 1") && e.to_string().contains("no space"), "{e}");
+    assert!(q.poll("rho", 1).is_none(), "dropped once reported");
+    assert!(matches!(q.poll("rho", 2), Some(JobState::Written { .. })), "the last to finish is kept");
+    q.wait(None).unwrap();
 }
 
 #[test]

@@ -14,7 +14,10 @@
 //!
 //! Every job has a [`JobState`] the caller can poll. A failed job records
 //! its error and the worker goes on with the next; `wait` reports each
-//! failure once. Nothing here does I/O: sinks are the caller's.
+//! failure once. Of the jobs that are final, the queue keeps the states of
+//! the last [`QueueConfig::kept_states`] (and every failure `wait` has not
+//! reported), so that a run of any length holds bounded memory and `wait`
+//! scans a bounded map. Nothing here does I/O: sinks are the caller's.
 
 use crate::backend::select::BackendChoice;
 use crate::backend::Backend;
@@ -28,7 +31,7 @@ use crate::series::placement::ThreadPlacement;
 use crate::series::{SeriesConfig, SeriesEncoder};
 use crossbeam_channel::{unbounded, Receiver, Sender};
 use parking_lot::{Condvar, Mutex};
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
@@ -62,7 +65,18 @@ pub struct QueueConfig {
     /// (`placement.rs`); `GSENC_ENCODER_CPUS` and `GSENC_ENCODER_PRIORITY`
     /// override it.
     pub placement: ThreadPlacement,
+    /// States of final jobs kept for `poll`, the most recently final ones
+    /// (at least 1; the C API's encoders keep [`KEPT_STATES`]).
+    /// Older ones are dropped, but for failures `wait` has not reported
+    /// yet.
+    pub kept_states: usize,
 }
+
+/// Final job states the C API's queues keep: about 200 bytes each with
+/// their place in the order, so under a megabyte, where keeping every
+/// state grew the queue by about 160 bytes a step for as long as a run
+/// lasted (docs/BENCHMARKS.md "A long series' job states").
+pub const KEPT_STATES: usize = 4096;
 
 /// One field of one step.
 pub struct Job {
@@ -148,6 +162,14 @@ struct State {
     unreported: Vec<Key>,
     /// Grid buffers of finished jobs, for the next pushes to copy into.
     recycled: Vec<Vec<f32>>,
+    /// Jobs in the order they became final, each once, for dropping the
+    /// oldest states beyond [`QueueConfig::kept_states`].
+    settled: VecDeque<Key>,
+    /// Jobs past their turn whose failure `wait` has not reported: dropped
+    /// once it has.
+    held: Vec<Key>,
+    /// Per field, the last step whose state was dropped.
+    dropped: BTreeMap<String, u64>,
 }
 
 impl State {
@@ -160,6 +182,37 @@ impl State {
     /// The kept grid buffer with room for `len` values, if any.
     fn kept_for(&self, len: usize) -> Option<usize> {
         self.recycled.iter().position(|b| b.capacity() >= len)
+    }
+
+    /// Records job `key`'s final `state`, then drops the oldest final
+    /// states beyond `kept`, holding a failure `wait` has not reported.
+    fn settle(&mut self, key: Key, state: JobState, kept: usize) {
+        debug_assert!(state.is_final());
+        self.jobs.insert(key.clone(), state);
+        self.settled.push_back(key);
+        while self.settled.len() > kept {
+            let Some(old) = self.settled.pop_front() else { break };
+            if self.unreported.contains(&old) {
+                self.held.push(old);
+            } else {
+                self.drop_state(old);
+            }
+        }
+    }
+
+    fn drop_state(&mut self, key: Key) {
+        self.jobs.remove(&key);
+        let last = self.dropped.entry(key.0).or_insert(key.1);
+        *last = (*last).max(key.1);
+    }
+
+    /// `wait` has reported `key`'s failure: a state held past its turn for
+    /// that goes now.
+    fn reported(&mut self, key: &Key) {
+        if let Some(i) = self.held.iter().position(|k| k == key) {
+            let key = self.held.swap_remove(i);
+            self.drop_state(key);
+        }
     }
 }
 
@@ -204,6 +257,9 @@ impl BackgroundEncoder {
         if cfg.max_bytes == 0 {
             return Err(Error::arg("the queue's memory budget must be positive"));
         }
+        if cfg.kept_states == 0 {
+            return Err(Error::arg("the queue must keep at least one final job state"));
+        }
         let cancel = Cancel::default();
         let mut series_cfg = cfg.series.clone();
         series_cfg.encode.cancel = Some(cancel.clone());
@@ -225,7 +281,7 @@ impl BackgroundEncoder {
         let shared = Arc::new(Shared { state: Mutex::new(State::default()), changed: Condvar::new(), cancel });
         let (tx, rx) = unbounded();
         let (placed_tx, placed) = crossbeam_channel::bounded(1);
-        let worker = Worker { shared: shared.clone(), series, pool, sink, backend };
+        let worker = Worker { shared: shared.clone(), kept_states: cfg.kept_states, series, pool, sink, backend };
         let handle = std::thread::Builder::new()
             .name("gsenc-queue".into())
             .spawn(move || {
@@ -313,7 +369,7 @@ impl BackgroundEncoder {
                 }
                 WhenFull::Skip => {
                     st.last_pushed.insert(job.field.clone(), job.step);
-                    st.jobs.insert(key, JobState::Skipped);
+                    st.settle(key, JobState::Skipped, self.cfg.kept_states);
                     return Ok(Pushed::Skipped);
                 }
                 WhenFull::Busy => return Ok(Pushed::Busy),
@@ -328,7 +384,7 @@ impl BackgroundEncoder {
         if !sent {
             // Only after a worker panic outside its guard: undo, and say so.
             let mut st = self.shared.state.lock();
-            st.jobs.insert(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))));
+            st.settle(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))), self.cfg.kept_states);
             st.in_flight -= 1;
             st.bytes -= bytes;
             return Err(Error::arg("the encode thread has stopped"));
@@ -336,9 +392,20 @@ impl BackgroundEncoder {
         Ok(Pushed::Queued)
     }
 
-    /// The state of `field`'s step `step`, if it was pushed.
+    /// The state of `field`'s step `step`, if it was pushed and its state
+    /// is kept (see [`QueueConfig::kept_states`] and [`Self::dropped`]).
     pub fn poll(&self, field: &str, step: u64) -> Option<JobState> {
         self.shared.state.lock().jobs.get(&(field.to_owned(), step)).cloned()
+    }
+
+    /// Whether `poll` finds no state for `field`'s step `step` because the
+    /// queue has dropped it (a step of the field up to one whose state was
+    /// dropped, and none kept): it was final before the last
+    /// [`QueueConfig::kept_states`] jobs that became final, or was never
+    /// pushed between steps that were.
+    pub fn dropped(&self, field: &str, step: u64) -> bool {
+        let st = self.shared.state.lock();
+        !st.jobs.contains_key(&(field.to_owned(), step)) && st.dropped.get(field).is_some_and(|&last| step <= last)
     }
 
     /// Blocks until every job (of `field`, or of every field) is final.
@@ -352,15 +419,16 @@ impl BackgroundEncoder {
         while pending(&st) {
             self.shared.changed.wait(&mut st);
         }
-        let State { unreported, jobs, .. } = &mut *st;
-        let Some(i) = unreported.iter().position(|(f, _)| field.is_none_or(|want| want == f)) else {
+        let Some(i) = st.unreported.iter().position(|(f, _)| field.is_none_or(|want| want == f)) else {
             return Ok(());
         };
-        let (f, step) = unreported.remove(i);
-        match jobs.get(&(f.clone(), step)) {
-            Some(JobState::Failed(e)) => Err(e.in_context(&format!("field '{f}' step {step}"))),
+        let key = st.unreported.remove(i);
+        let failed = match st.jobs.get(&key) {
+            Some(JobState::Failed(e)) => Err(e.in_context(&format!("field '{}' step {}", key.0, key.1))),
             _ => Ok(()),
-        }
+        };
+        st.reported(&key);
+        failed
     }
 
     /// Drops every queued job and stops the running one at its next
@@ -385,22 +453,31 @@ impl BackgroundEncoder {
         std::mem::take(&mut self.shared.state.lock().finished)
     }
 
-    /// Records what the caller did with a model from `take_finished`.
+    /// Records what the caller did with a model from `take_finished`. The
+    /// job keeps its place among the final states (it became final when it
+    /// was encoded); where its state was dropped already, a failure is still
+    /// recorded, for `wait` to report, and a success is not.
     pub fn set_stored(&self, field: &str, step: u64, stored: Result<String>) {
         let mut st = self.shared.state.lock();
         let key = (field.to_owned(), step);
-        let psnr = match st.jobs.get(&key) {
-            Some(JobState::Encoded { psnr }) => *psnr,
+        let kept = st.jobs.get(&key).map(|s| match s {
+            JobState::Encoded { psnr } => *psnr,
             _ => f64::NAN,
-        };
-        let state = match stored {
-            Ok(location) => JobState::Written { psnr, location },
-            Err(e) => {
-                st.unreported.push(key.clone());
-                JobState::Failed(Arc::new(e))
+        });
+        match (stored, kept) {
+            (Ok(location), Some(psnr)) => {
+                st.jobs.insert(key, JobState::Written { psnr, location });
             }
-        };
-        st.jobs.insert(key, state);
+            (Ok(_), None) => {}
+            (Err(e), kept) => {
+                st.unreported.push(key.clone());
+                st.jobs.insert(key.clone(), JobState::Failed(Arc::new(e)));
+                if kept.is_none() {
+                    // Past its turn already: dropped once reported.
+                    st.held.push(key);
+                }
+            }
+        }
         self.shared.changed.notify_all();
     }
 
@@ -461,6 +538,7 @@ impl Drop for BackgroundEncoder {
 /// The worker thread's side.
 struct Worker {
     shared: Arc<Shared>,
+    kept_states: usize,
     series: SeriesEncoder,
     pool: rayon::ThreadPool,
     sink: Box<dyn ModelSink>,
@@ -494,7 +572,7 @@ impl Worker {
             if matches!(state, JobState::Failed(_)) {
                 st.unreported.push(key.clone());
             }
-            st.jobs.insert(key, state);
+            st.settle(key, state, self.kept_states);
             st.in_flight -= 1;
             st.bytes -= bytes;
             self.shared.changed.notify_all();
