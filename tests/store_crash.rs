@@ -14,25 +14,39 @@ use common::disk::{says_full, SmallDisk};
 use common::store_model as model;
 use common::tmpdir;
 use gsenc::format::Payload;
-use gsenc::io::store::{EntryKey, Store};
+use gsenc::io::store::{EntryKey, Store, CACHE_BYTES};
 use std::io::{BufRead, BufReader, Write};
 use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
 const CHILD_ENV: &str = "GSENC_STORE_CRASH_CHILD";
+/// Small steps of field "warm" a child appends first: enough that its
+/// metadata cache evicts between appends before it is killed.
+const WARM_ENV: &str = "GSENC_STORE_CRASH_WARM";
 const CRASH_PRIMS: usize = 40_000;
+const WARM_PRIMS: usize = 20;
 
 /// Run by `writers_killed_mid_append_leave_earlier_steps_readable` in a child
 /// process: appends steps forever, saying when each append begins and when
-/// it is flushed (with how long it took).
+/// it is flushed (with how long it took); first, if asked, small steps of
+/// field "warm", then how many the store holds and the cache's bytes.
 #[test]
 #[ignore = "a child process of the crash test"]
 fn crash_writer_child() {
     let _serial = common::hdf5_serial();
     let path = PathBuf::from(std::env::var(CHILD_ENV).expect("run by the crash test"));
+    let warm: u64 = std::env::var(WARM_ENV).map_or(0, |w| w.parse().unwrap());
     let mut s = Store::open_append(&path).unwrap();
-    let first = s.entries().unwrap().iter().map(|e| e.key.step + 1).max().unwrap_or(0);
+    let entries = s.entries().unwrap();
+    let next = |field: &str| entries.iter().filter(|e| e.key.field == field).map(|e| e.key.step + 1).max().unwrap_or(0);
+    let (first, first_warm) = (next("rho"), next("warm"));
+    if warm > 0 {
+        for step in first_warm..first_warm + warm {
+            s.append(&model("warm", step, 0, WARM_PRIMS, 0.5), Payload::Float32).unwrap();
+        }
+        println!("\nwarm {} cache {}", first_warm + warm, s.cache_size().0);
+    }
     for step in first.. {
         let payload = Payload::ALL[step as usize % 3];
         let m = model("rho", step, 0, CRASH_PRIMS, 0.5);
@@ -56,15 +70,23 @@ fn writers_killed_mid_append_leave_earlier_steps_readable() {
     let path = dir.join("s.h5");
     let exe = std::env::current_exe().unwrap();
     let mut confirmed = std::collections::BTreeSet::new();
+    let mut warm_steps = 0;
     let mut append_us = 5000u64;
     let mut unconfirmed_rounds = 0;
     // Each round lets the writer finish 0, 1 or 2 appends, then kills it at
-    // a different fraction of the next one.
+    // a different fraction of the next one. In the last EVICTING rounds
+    // the writer first appends WARM small steps, so that its metadata cache
+    // has filled and evicts between appends (store.rs `unevicted`) when it
+    // is killed.
     const ROUNDS: u64 = 30;
-    for round in 0..ROUNDS {
+    const EVICTING: u64 = 5;
+    const WARM: u64 = 400;
+    for round in 0..ROUNDS + EVICTING {
+        let warm = if round >= ROUNDS { WARM } else { 0 };
         let mut child = Command::new(&exe)
             .args(["--exact", "crash_writer_child", "--ignored", "--nocapture", "--test-threads=1"])
             .env(CHILD_ENV, &path)
+            .env(WARM_ENV, warm.to_string())
             .stdout(Stdio::piped())
             .stderr(std::fs::File::create(dir.join("child.stderr")).unwrap())
             .spawn()
@@ -80,6 +102,13 @@ fn writers_killed_mid_append_leave_earlier_steps_readable() {
                 confirmed.insert(step);
                 append_us = us;
                 seen += 1;
+            } else if let Some(rest) = line.strip_prefix("warm ") {
+                let (steps, cache) = rest.split_once(" cache ").unwrap();
+                warm_steps = steps.parse().unwrap();
+                let cache: usize = cache.parse().unwrap();
+                // Without evictions between appends, 400 warm steps alone
+                // hold about 3.7 MB.
+                assert!(cache < CACHE_BYTES + CACHE_BYTES / 4, "round {round}: the writer's cache holds {cache} bytes");
             } else if line.starts_with("begin ") && seen == round % 3 {
                 break;
             }
@@ -101,8 +130,12 @@ fn writers_killed_mid_append_leave_earlier_steps_readable() {
                 s.read(&EntryKey::of(&want.meta)).unwrap_or_else(|e| panic!("round {round}: step {step} lost: {e}"));
             assert_eq!(got.params, payload.round_trip(&want).unwrap(), "round {round}: step {step}");
         }
+        for step in 0..warm_steps {
+            let want = model("warm", step, 0, WARM_PRIMS, 0.5);
+            assert_eq!(s.read(&EntryKey::of(&want.meta)).unwrap_or_else(|e| panic!("round {round}: warm step {step} lost: {e}")).0, want);
+        }
         // The append that was cut short is absent, whole, or listed as unreadable.
-        for e in entries.iter().filter(|e| !confirmed.contains(&e.key.step)) {
+        for e in entries.iter().filter(|e| e.key.field == "rho" && !confirmed.contains(&e.key.step)) {
             unconfirmed_rounds += 1;
             if e.content.is_ok() {
                 let want = model("rho", e.key.step, 0, CRASH_PRIMS, 0.5);
@@ -112,6 +145,7 @@ fn writers_killed_mid_append_leave_earlier_steps_readable() {
         }
     }
     assert!(confirmed.len() >= ROUNDS as usize, "the writer appended too little to test anything ({confirmed:?})");
+    assert_eq!(warm_steps, EVICTING * WARM);
     eprintln!("{} steps confirmed; {unconfirmed_rounds} kills left the cut-short step in the file", confirmed.len());
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -12,8 +12,12 @@
 //!   lands on bytes that an earlier step's metadata still points to;
 //! - a new entry is built unlinked and flushed; then one link, into a group
 //!   whose header was sized for it, commits it, and a second flush writes it;
-//! - the metadata cache never evicts, so nothing reaches the file between
-//!   those points.
+//! - the metadata cache does not evict while an append builds and commits
+//!   its entry, so nothing reaches the file between those points. Between
+//!   appends, when every entry is clean, it may: a cache that never
+//!   evicted kept every entry ever written, about 35 KB of memory an entry,
+//!   and each flush walked them all (docs/BENCHMARKS.md "A long series'
+//!   HDF5 store").
 //!
 //! `tests/store_crash.rs` kills writers at many points and checks every
 //! earlier step.
@@ -121,7 +125,7 @@ impl Store {
         regular_file(&path)?;
         super::global_heap::check(&path)?;
         let file = File::with_options()
-            .with_fapl(|p| p.mdc_config(&never_evict()).libver_v18())
+            .with_fapl(|p| p.mdc_config(&fixed_size_cache()).libver_v18())
             .open_rw(&path)
             .map_err(h5(&path))?;
         check_root(&file, &path)?;
@@ -148,6 +152,16 @@ impl Store {
         &self.path
     }
 
+    /// The bytes and entries HDF5's metadata cache holds for this store
+    /// now: about [`CACHE_BYTES`] at most between appends, whatever the
+    /// number of entries written (`tests/store.rs`).
+    pub fn cache_size(&self) -> (usize, usize) {
+        let (mut max, mut min_clean, mut cur, mut n) = (0, 0, 0, 0);
+        // SAFETY: an open file's id and four writable counters.
+        hdf5::sync::sync(|| unsafe { hdf5_sys::h5f::H5Fget_mdc_size(self.file.id(), &mut max, &mut min_clean, &mut cur, &mut n) });
+        (cur, n.max(0) as usize)
+    }
+
     /// Appends `model` as `/<field>/<step>/rank_<r>` with `payload`.
     /// Refuses an entry that already exists: earlier steps are never
     /// rewritten. The entry (and a new step or field group above it) is
@@ -162,10 +176,12 @@ impl Store {
         if groups.1.as_ref().is_some_and(|s| s.link_exists(&rank_name)) {
             return Err(Error::arg(format!("{} already holds a model; a store never rewrites a step", key.path())));
         }
-        // Everything new, unlinked: nothing existing changes until the commit.
-        let entry = anonymous_group(&self.file, 0).map_err(h5(&self.path))?;
-        write_entry(&entry, model, payload).map_err(h5(&self.path))?;
-        self.commit(groups, &key.field, key.step, model.meta.time, &rank_name, &entry)
+        self.unevicted(|s| {
+            // Everything new, unlinked: nothing existing changes until the commit.
+            let entry = anonymous_group(&s.file, 0).map_err(h5(&s.path))?;
+            write_entry(&entry, model, payload).map_err(h5(&s.path))?;
+            s.commit(groups, &key.field, key.step, model.meta.time, &rank_name, &entry)
+        })
     }
 
     /// Appends the step index of a decomposed step (the `.gsi` of an MPI
@@ -185,11 +201,53 @@ impl Store {
         if groups.1.as_ref().is_some_and(|s| s.link_exists(INDEX)) {
             return Err(Error::arg(format!("/{}/{} already holds a step index; a store never rewrites a step", index.field, index.step)));
         }
-        // With HDF5's Fletcher-32 checksum: a changed byte of an index would
-        // otherwise blend the step otherwise, unseen.
-        let ds = self.file.new_dataset::<u8>().shape(text.len()).chunk(text.len()).fletcher32().create(None).map_err(h5(&self.path))?;
-        ds.write_raw(text.as_bytes()).map_err(h5(&self.path))?;
-        self.commit(groups, &index.field, index.step, index.time, INDEX, &ds)
+        self.unevicted(|s| {
+            // With HDF5's Fletcher-32 checksum: a changed byte of an index
+            // would otherwise blend the step otherwise, unseen.
+            let ds = s.file.new_dataset::<u8>().shape(text.len()).chunk(text.len()).fletcher32().create(None).map_err(h5(&s.path))?;
+            ds.write_raw(text.as_bytes()).map_err(h5(&s.path))?;
+            s.commit(groups, &index.field, index.step, index.time, INDEX, &ds)
+        })
+    }
+
+    /// Runs `append` (the building and commit of an entry) with the
+    /// metadata cache's evictions off, so that nothing reaches the file but
+    /// by the commit's flushes, then turns them on again, also when
+    /// `append` failed: the cache then holds only clean entries, or the
+    /// dirty ones of an entry left unlinked, whose writing changes nothing
+    /// that exists. The cache is made a page larger while evictions are off
+    /// and given back its size with them: a cache whose size decreased is
+    /// brought within it at the next lookup (HDF5's `H5C_protect`), the
+    /// next append's, so it never holds much more than [`CACHE_BYTES`].
+    /// Evictions turned on alone evict nothing until the cache misses, and
+    /// the lookups of an append hit.
+    fn unevicted(&mut self, append: impl FnOnce(&mut Self) -> Result<()>) -> Result<()> {
+        self.set_cache(false, CACHE_BYTES + 4096)?;
+        let done = append(self);
+        let on = self.set_cache(true, CACHE_BYTES);
+        done.and(on)
+    }
+
+    /// Sets whether the metadata cache may evict, and its size.
+    fn set_cache(&self, evictions: bool, bytes: usize) -> Result<()> {
+        let id = self.file.id();
+        // SAFETY: an open file's id and a configuration of the version the
+        // library is asked for, filled by the library.
+        let ok = hdf5::sync::sync(|| unsafe {
+            let mut c = hdf5_sys::h5ac::H5AC_cache_config_t { version: hdf5_sys::h5ac::H5AC__CURR_CACHE_CONFIG_VERSION, ..Default::default() };
+            hdf5_sys::h5f::H5Fget_mdc_config(id, &mut c) >= 0 && {
+                c.evictions_enabled = evictions as _;
+                c.set_initial_size = true as _;
+                c.initial_size = bytes;
+                hdf5_sys::h5f::H5Fset_mdc_config(id, &mut c) >= 0
+            }
+        });
+        if ok {
+            Ok(())
+        } else {
+            let what = if evictions { "turn the metadata cache's evictions on" } else { "turn the metadata cache's evictions off" };
+            Err(Error::Hdf5 { path: self.path.display().to_string(), message: format!("cannot {what}") })
+        }
     }
 
     /// The groups of `field` and of its `step`, where they exist.
@@ -371,10 +429,16 @@ impl Store {
     }
 }
 
-/// A metadata cache that keeps every dirty entry until the next flush.
-fn never_evict() -> MetadataCacheConfig {
+/// The metadata cache's size between appends (HDF5's default).
+pub const CACHE_BYTES: usize = 1 << 21;
+
+/// A metadata cache of a fixed size, [`CACHE_BYTES`]: automatic resizing
+/// off, which HDF5 requires of a cache whose evictions are turned off
+/// ([`Store::unevicted`]).
+fn fixed_size_cache() -> MetadataCacheConfig {
     MetadataCacheConfig {
-        evictions_enabled: false,
+        set_initial_size: true,
+        initial_size: CACHE_BYTES,
         incr_mode: CacheIncreaseMode::Off,
         flash_incr_mode: FlashIncreaseMode::Off,
         decr_mode: CacheDecreaseMode::Off,
