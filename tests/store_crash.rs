@@ -1,6 +1,7 @@
 //! Writers of the HDF5 store stopped mid-append (cargo feature `hdf5`):
 //! killed, where every step appended before the kill must read back
-//! exactly; and on a disk that fills up and gets room again while the
+//! exactly (the last rounds' writers first append enough small steps that
+//! their metadata cache evicts between appends); and on a disk that fills up and gets room again while the
 //! writer keeps the store open, as an in-situ run's store does, where the
 //! append that does not fit fails with the disk's error, the steps before
 //! it stay readable, and once there is room the same open store takes that
