@@ -163,8 +163,9 @@ struct State {
     /// Grid buffers of finished jobs, for the next pushes to copy into.
     recycled: Vec<Vec<f32>>,
     /// Jobs in the order they became final, each once, for dropping the
-    /// oldest states beyond [`QueueConfig::kept_states`].
+    /// oldest states beyond `kept` ([`QueueConfig::kept_states`]).
     settled: VecDeque<Key>,
+    kept: usize,
     /// Jobs past their turn whose failure `wait` has not reported: dropped
     /// once it has.
     held: Vec<Key>,
@@ -186,11 +187,11 @@ impl State {
 
     /// Records job `key`'s final `state`, then drops the oldest final
     /// states beyond `kept`, holding a failure `wait` has not reported.
-    fn settle(&mut self, key: Key, state: JobState, kept: usize) {
+    fn settle(&mut self, key: Key, state: JobState) {
         debug_assert!(state.is_final());
         self.jobs.insert(key.clone(), state);
         self.settled.push_back(key);
-        while self.settled.len() > kept {
+        while self.settled.len() > self.kept {
             let Some(old) = self.settled.pop_front() else { break };
             if self.unreported.contains(&old) {
                 self.held.push(old);
@@ -278,10 +279,10 @@ impl BackgroundEncoder {
         // Every thread of the pool places itself (a broadcast runs on each
         // once), and so does the worker before it takes a job.
         pool.broadcast(|_| placement.apply()).into_iter().collect::<Result<()>>()?;
-        let shared = Arc::new(Shared { state: Mutex::new(State::default()), changed: Condvar::new(), cancel });
+        let shared = Arc::new(Shared { state: Mutex::new(State { kept: cfg.kept_states, ..State::default() }), changed: Condvar::new(), cancel });
         let (tx, rx) = unbounded();
         let (placed_tx, placed) = crossbeam_channel::bounded(1);
-        let worker = Worker { shared: shared.clone(), kept_states: cfg.kept_states, series, pool, sink, backend };
+        let worker = Worker { shared: shared.clone(), series, pool, sink, backend };
         let handle = std::thread::Builder::new()
             .name("gsenc-queue".into())
             .spawn(move || {
@@ -369,7 +370,7 @@ impl BackgroundEncoder {
                 }
                 WhenFull::Skip => {
                     st.last_pushed.insert(job.field.clone(), job.step);
-                    st.settle(key, JobState::Skipped, self.cfg.kept_states);
+                    st.settle(key, JobState::Skipped);
                     return Ok(Pushed::Skipped);
                 }
                 WhenFull::Busy => return Ok(Pushed::Busy),
@@ -384,7 +385,7 @@ impl BackgroundEncoder {
         if !sent {
             // Only after a worker panic outside its guard: undo, and say so.
             let mut st = self.shared.state.lock();
-            st.settle(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))), self.cfg.kept_states);
+            st.settle(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))));
             st.in_flight -= 1;
             st.bytes -= bytes;
             return Err(Error::arg("the encode thread has stopped"));
@@ -538,7 +539,6 @@ impl Drop for BackgroundEncoder {
 /// The worker thread's side.
 struct Worker {
     shared: Arc<Shared>,
-    kept_states: usize,
     series: SeriesEncoder,
     pool: rayon::ThreadPool,
     sink: Box<dyn ModelSink>,
@@ -572,7 +572,7 @@ impl Worker {
             if matches!(state, JobState::Failed(_)) {
                 st.unreported.push(key.clone());
             }
-            st.settle(key, state, self.kept_states);
+            st.settle(key, state);
             st.in_flight -= 1;
             st.bytes -= bytes;
             self.shared.changed.notify_all();
