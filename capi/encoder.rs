@@ -314,6 +314,23 @@ impl gsenc_encoder {
         Err(failure)
     }
 
+    /// Continues a field's series from the model the caller `read` (see
+    /// `gsenc_encoder_resume`). For an MPI encoder a model this rank could
+    /// not read is also its part of the ranks' resume, so that all of them
+    /// fail together instead of the others waiting for this one.
+    pub(crate) fn resume(&mut self, read: Result<Model, Failure>) -> Result<(), Failure> {
+        #[cfg(feature = "mpi")]
+        if let Some(ranks) = self.ranks.as_mut() {
+            let failure = match read {
+                Ok(model) => return Ok(ranks.resume(&self.queue, Ok(model))?),
+                Err(f) => f,
+            };
+            let _ = ranks.resume(&self.queue, Err(gsenc::Error::arg(&failure.1)));
+            return Err(failure);
+        }
+        Ok(self.queue.resume(read?)?)
+    }
+
     /// Queues a job: on this encoder alone, or across the ranks (then rank 0
     /// also writes the step's index: beside the models, or into the store).
     /// `finite`: the copy already found every value finite (`Copied`).

@@ -217,6 +217,12 @@ module gsenc
             type(c_ptr), value :: encoder
             integer(c_int64_t), value :: values
         end function
+        !> Continues `model`'s field from it after a restart (before the
+        !> field's first push; collective on an MPI encoder).
+        integer(c_int) function gsenc_encoder_resume(encoder, model) bind(c, name="gsenc_encoder_resume")
+            import :: c_int, c_ptr
+            type(c_ptr), value :: encoder, model
+        end function
         integer(c_int) function gsenc_encoder_write_model_c(encoder, field, path) &
                 bind(c, name="gsenc_encoder_write_model")
             import :: c_int, c_ptr, c_char
@@ -266,7 +272,7 @@ module gsenc
         end function
     end interface
 
-    public :: gsenc_version, gsenc_encoder_cancel, gsenc_encoder_reserve
+    public :: gsenc_version, gsenc_encoder_cancel, gsenc_encoder_reserve, gsenc_encoder_resume
     public :: gsenc_encoder_create_mpi_c, gsenc_encoder_create_mpi
     public :: gsenc_config_init_c, gsenc_encoder_create_c, gsenc_wait_c, gsenc_poll_c, gsenc_encoder_destroy_c, gsenc_push_grid_c, &
         gsenc_push_particles_c, gsenc_push_cells_c, gsenc_encoder_write_model_c, gsenc_encoder_last_step_c, &

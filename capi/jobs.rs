@@ -273,15 +273,8 @@ mod tests {
     use crate::config::{gsenc_config, gsenc_config_init, GSENC_BACKEND_CPU, GSENC_SCHEDULE_SHORT};
     use crate::encoder::{create_tweaked, gsenc_encoder_destroy};
     use crate::inputs::{f32_grid, gsenc_push_grid};
-    use crate::status::gsenc_last_error;
+    use crate::status::last_error_text as last_error;
     use std::ffi::CString;
-
-    fn last_error() -> String {
-        let mut buf = vec![0u8; 512];
-        // SAFETY: a writable buffer of its length.
-        let n = unsafe { gsenc_last_error(buf.as_mut_ptr().cast(), buf.len()) };
-        String::from_utf8_lossy(&buf[..n.min(buf.len() - 1)]).into_owned()
-    }
 
     /// A poll of a step whose state the encoder no longer keeps says so,
     /// apart from a step beyond every one pushed.

@@ -15,6 +15,7 @@
 //! - `encoder`: the encoder's life cycle (create, MPI create, destroy);
 //! - `inputs`: the grid, particle and cell forms and their pushes;
 //! - `jobs`: following the queue (wait, poll, cancel) and its results;
+//! - `resume`: a series taken up again after a restart;
 //! - `model`: read a model file, decode it, evaluate it.
 //!
 //! The Fortran module `gsenc` (capi/gsenc.f90) binds these functions.
@@ -30,6 +31,7 @@ mod log;
 pub mod inputs;
 pub mod jobs;
 pub mod model;
+pub mod resume;
 pub mod status;
 
 // The helpers the library's test suites share (tests/common/), once for

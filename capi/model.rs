@@ -60,7 +60,7 @@ pub const GSENC_WARM_TAKEN_FRESH: i32 = 3;
 
 /// Runs `f` on the live model `model`, which is not freed meanwhile (other
 /// calls may read it too).
-fn with_model<R>(model: *const gsenc_model, what: &str, f: impl FnOnce(&Model) -> Result<R, Failure>) -> Result<R, Failure> {
+pub(crate) fn with_model<R>(model: *const gsenc_model, what: &str, f: impl FnOnce(&Model) -> Result<R, Failure>) -> Result<R, Failure> {
     crate::handles::hold(model, Kind::Model, what, false, || {
         // SAFETY: a live handle from gsenc_model_read, held.
         f(unsafe { &(*model).model })

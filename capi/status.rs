@@ -145,6 +145,16 @@ pub unsafe extern "C" fn gsenc_last_error(buf: *mut c_char, len: usize) -> usize
     .unwrap_or(0)
 }
 
+/// The calling thread's last error message, for the crate's tests of
+/// calls that fail (through `gsenc_last_error`, as C reads it).
+#[cfg(test)]
+pub(crate) fn last_error_text() -> String {
+    let mut buf = vec![0u8; 512];
+    // SAFETY: a writable buffer of its length.
+    let n = unsafe { gsenc_last_error(buf.as_mut_ptr().cast(), buf.len()) };
+    String::from_utf8_lossy(&buf[..n.min(buf.len() - 1)]).into_owned()
+}
+
 /// A static, NUL-terminated name of a status ("GSENC_STATUS_IO"); never
 /// freed by the caller. Unknown values give "GSENC_STATUS_UNKNOWN". Thread-safe.
 #[no_mangle]

@@ -1034,6 +1034,38 @@ gsenc_status gsenc_model_evaluate(const gsenc_model *model,
                                   float *out);
 
 /*
+ Continues the series of `model`'s field from `model`, the step stored
+ last before the run stopped (a restart from a checkpoint): the field's
+ next push must come after that step and is warm-started from it, on its
+ lattice and value range, as the unbroken run would have (bit for bit
+ when the model was stored with `GSENC_PAYLOAD_F32`; with another payload
+ it starts from the stored, rounded parameters). Call it before the
+ field's first push, with the encoder configured as the run that stored
+ the model (its schedule, warm start, seeds and range settings);
+ `gsenc_encoder_last_step` and `gsenc_encoder_model_bytes` give the model
+ until a step is encoded. The model is copied: the caller may destroy
+ it at once. Refused with `GSENC_STATUS_INVALID_ARGUMENT`, the encoder
+ unchanged: a field pushed or resumed already, another rank's model, a
+ value range other than a fixed `value_min`/`value_max` or `transform`
+ configured; `GSENC_STATUS_INVALID_DATA`: a model with no Gaussians.
+
+ For an encoder of `gsenc_encoder_create_mpi` this call is
+ **collective**: every rank passes its own piece's model of the same
+ field and step (`FIELD_STEP_rRANK.gsm`, or its bytes), on the ranks,
+ `dims`, `bounds` and `halo` of the run that stored them. The ranks
+ gather each other's pieces, and the field's first push rebuilds from
+ them the lattice and pieces the series had, so that its models and step
+ indexes continue the unbroken run's; pieces that are not of one lattice
+ are that push's `GSENC_STATUS_MPI` on every rank. A rank whose `model`
+ is refused (NULL included) fails with its own error and the others
+ with `GSENC_STATUS_MPI`, none resumed.
+
+ # Safety
+ `encoder` and `model` may be any values: only live handles are used.
+ */
+gsenc_status gsenc_encoder_resume(gsenc_encoder *encoder, const gsenc_model *model);
+
+/*
  Copies the calling thread's last error message into `buf` (at most
  `len` bytes, always NUL-terminated when `len > 0`) and returns the
  message's full length without the NUL, so that `gsenc_last_error(NULL, 0)`

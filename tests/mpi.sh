@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The MPI layer under mpirun -n 1, 2 and 4 (oversubscribed on small machines):
-# the C API (tests/c/capi_mpi.c), the Fortran module (tests/fortran/mpi_test.f90),
+# the C API (tests/c/capi_mpi.c), a restarted run resumed from every rank's
+# models (tests/c/capi_mpi_resume.c), the Fortran module (tests/fortran/mpi_test.f90),
 # the step index decoded by the CLI, the store rank 0 wrote for every rank
 # against the folder's models, and the domain-decomposed mock solver
 # (examples/mpi_mock_solver.rs) against its single-rank run.
@@ -16,12 +17,15 @@ lib=target/release/libgsenc.a
 hdf5_libs=$(pkg-config --libs hdf5)
 
 mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi.c "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/capi_mpi"
+mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi_resume.c "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/capi_mpi_resume"
 mpif90 -std=f2008 -J "$out" -c capi/gsenc.f90 -o "$out/gsenc_mod.o"
 mpif90 -I"$out" tests/fortran/mpi_test.f90 "$out/gsenc_mod.o" "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/mpi_test"
 for n in 1 2 4; do
     mkdir -p "$out/c$n" "$out/f$n"
     run "$n" "$out/capi_mpi" "$out/c$n"
     run "$n" "$out/mpi_test" "$out/f$n"
+    mkdir -p "$out/r$n"
+    run "$n" "$out/capi_mpi_resume" "$out/r$n"
 done
 
 gsenc=target/release/gsenc

@@ -45,7 +45,7 @@ for want in 0.1:found 0.2:missing 1.0:missing; do
     check "[ '$found' = '$([ "${want#*:}" = found ] && echo 1 || echo 0)' ]" "find_package(gsenc $v) is ${want#*:}"
 done
 
-# The C examples: shared (minimal, version) and static (mock solver).
+# The C examples: shared (minimal, version, restart) and static (mock solver).
 quiet cmake -S examples_c -B "$work/exc" -DCMAKE_PREFIX_PATH="$prefix"
 quiet cmake --build "$work/exc"
 check "'$work/exc/version' > /dev/null" "version: header and library agree"
@@ -53,6 +53,10 @@ check "ldd '$work/exc/minimal' | grep '$prefix/lib/libgsenc.so.0' > /dev/null" "
 check "! ldd '$work/exc/mock_solver' | grep libgsenc > /dev/null" "mock_solver links the static library"
 mkdir -p "$work/minimal"
 check "(cd '$work/minimal' && '$work/exc/minimal' > out.txt) && [ \$(ls '$work/minimal'/field_*.gsm | wc -l) = 3 ]" "minimal writes 3 models"
+# Two runs of the restart example: the second resumes from the first's checkpoint.
+check "'$work/exc/restart' '$work/restart.ckpt' > '$work/restart1.txt' && '$work/exc/restart' '$work/restart.ckpt' > '$work/restart2.txt' \
+    && ! grep -q resumed '$work/restart1.txt' && grep -qx 'resumed from step 2' '$work/restart2.txt' && grep -q '^step 5: ' '$work/restart2.txt'" \
+    "restart resumes from its checkpoint"
 
 # The Fortran mock solver, with the installed module.
 quiet cmake -S examples_fortran -B "$work/exf" -DCMAKE_PREFIX_PATH="$prefix"

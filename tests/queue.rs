@@ -351,6 +351,57 @@ fn a_caller_stored_model_waits_for_the_caller() {
     assert!(e.to_string().contains("step 1") && e.to_string().contains("no space"), "{e}");
 }
 
+/// A series resumed from a stored model (a restart from a checkpoint)
+/// continues bit for bit as the unbroken series, and what cannot be
+/// resumed is refused at once.
+#[test]
+fn a_resumed_series_continues_as_the_unbroken_one() {
+    let caller = || BackgroundEncoder::new(queue_config(8, WhenFull::Block), Box::new(gsenc::series::queue::CallerStores)).unwrap();
+    let unbroken = caller();
+    for k in 0..3 {
+        unbroken.push(job("rho", k)).unwrap();
+    }
+    unbroken.wait(None).unwrap();
+    let models = unbroken.take_finished();
+    assert_eq!(models.len(), 3);
+    // Through the file format, as a restart reads it.
+    let stored = gsenc::format::read_model(&gsenc::format::write_model(&models[0]).unwrap()).unwrap();
+
+    let resumed = caller();
+    resumed.resume(stored.clone()).unwrap();
+    assert_eq!(resumed.last("rho").map(|(m, _)| m.meta.step), Some(0), "the resumed model is the field's last");
+    let e = resumed.push(job("rho", 0)).unwrap_err();
+    assert!(e.to_string().contains("does not follow step 0"), "{e}");
+    for k in 1..3 {
+        resumed.push(job("rho", k)).unwrap();
+    }
+    resumed.wait(None).unwrap();
+    let again = resumed.take_finished();
+    assert_eq!(again.len(), 2);
+    for (m, want) in again.iter().zip(&models[1..]) {
+        assert_eq!(m.meta.step, want.meta.step);
+        assert_eq!(m.params, want.params, "step {}: the resumed series differs from the unbroken one", m.meta.step);
+    }
+    // Refused: a field with steps pushed, another rank's model, another
+    // range, no primitives. Nothing of the encoder changes.
+    let e = resumed.resume(stored.clone()).unwrap_err();
+    assert!(e.to_string().contains("has begun on this encoder already (its last step 2)"), "{e}");
+    let fresh = caller();
+    let mut other = stored.clone();
+    other.meta.rank = 3;
+    assert!(fresh.resume(other).unwrap_err().to_string().contains("rank 3's piece"));
+    let mut other = stored.clone();
+    other.meta.range = ValueRange::new(0.0, 2.0, Transform::Linear).unwrap();
+    assert!(fresh.resume(other).unwrap_err().to_string().contains("not the configured [0, 1]"));
+    let mut other = stored.clone();
+    other.params.clear();
+    assert!(matches!(fresh.resume(other), Err(Error::InvalidData(_))));
+    assert!(fresh.last("rho").is_none());
+    fresh.push(job("rho", 0)).unwrap();
+    fresh.wait(None).unwrap();
+    assert_eq!(fresh.take_finished()[0].params, models[0].params, "a refused resume leaves the field as it was");
+}
+
 /// The ranks of an MPI run decide a full queue together: another rank's
 /// full queue makes this one skip or report busy although it has room, and
 /// under `Block` it queues (it waits only for its own room).

@@ -207,3 +207,54 @@ fn a_resumed_series_continues_exactly_as_an_unbroken_one() {
     assert!(matches!(&e, Err(Error::InvalidArgument(m)) if m.contains("box")), "{:?}", e.err());
     assert!(matches!(shifted.resume(stored), Err(Error::InvalidArgument(_))));
 }
+
+/// Particles without configured bounds: the unbroken series deposits every
+/// step in its first step's data box, which the stored model no longer
+/// holds; the resumed series deposits on the model's lattice all the same
+/// (though the lattice's own box gives another voxel size here), so its
+/// steps equal the unbroken series'.
+#[test]
+fn a_resumed_particle_series_keeps_its_first_steps_box() {
+    use gsenc::input::particles::Particles;
+    use gsenc::input::Placement;
+    let mut cpu = CpuBackend::new();
+    let n = 600;
+    let dims = [20, 14, 9];
+    // The first draw whose lattice's own box gives another voxel size.
+    let draw = |seed: u64| -> Vec<[f64; 3]> {
+        let mut rng = gsenc::math::rng::Rng::new(seed);
+        (0..n).map(|_| [rng.range(0.013, 0.977), rng.range(0.021, 0.69), rng.range(0.05, 0.5)]).collect()
+    };
+    let box_differs = |pos: &[[f64; 3]]| {
+        let lo: [f64; 3] = std::array::from_fn(|a| pos.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min));
+        let hi: [f64; 3] = std::array::from_fn(|a| pos.iter().map(|p| p[a]).fold(f64::NEG_INFINITY, f64::max));
+        let f = IndexFrame::from_bounds(dims, lo, hi).unwrap();
+        let w = f.world_box();
+        IndexFrame::from_bounds(dims, w.min, w.max).unwrap() != f
+    };
+    let base = (1..100).map(draw).find(|b| box_differs(b)).expect("a draw whose lattice's box gives another voxel size");
+    // Step k: drifted by 0.01 k along x, values of a bump that moves.
+    let step = |k: usize| -> (Vec<[f64; 3]>, Vec<f32>) {
+        let pos: Vec<[f64; 3]> = base.iter().map(|p| [p[0] + 0.01 * k as f64, p[1], p[2]]).collect();
+        let values = pos.iter().map(|p| (1.0 + (-(p[0] - 0.3 - 0.05 * k as f64).powi(2) / 0.02).exp()) as f32).collect();
+        (pos, values)
+    };
+    let (h, mass) = (vec![0.06; n], vec![1.0f32; n]);
+    let placement = Placement { dims, bounds: None };
+    let mut unbroken = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
+    let mut models = Vec::new();
+    for k in 0..3 {
+        let (pos, values) = step(k);
+        let particles = Particles { positions: &pos, smoothing_length: &h, mass: &mass, values: &values };
+        let r = unbroken.encode_step("gas", k as u64, None, Input::Particles { particles: &particles, placement }, &mut cpu, &mut |_| {}).unwrap();
+        models.push(r.encoded.model);
+    }
+    let stored = gsenc::format::read_model(&gsenc::format::write_model(&models[1]).unwrap()).unwrap();
+    let mut resumed = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
+    resumed.resume(stored).unwrap();
+    let (pos, values) = step(2);
+    let particles = Particles { positions: &pos, smoothing_length: &h, mass: &mass, values: &values };
+    let r = resumed.encode_step("gas", 2, None, Input::Particles { particles: &particles, placement }, &mut cpu, &mut |_| {}).unwrap();
+    assert_eq!(r.encoded.model.meta.frame, models[2].meta.frame);
+    assert_eq!(r.encoded.model.params, models[2].params, "the resumed step differs from the unbroken series'");
+}

@@ -14,11 +14,13 @@
 //! on drop (both collective).
 
 use crate::domain::halo::{self, Kind};
+use crate::domain::resume;
 use crate::error::{Error, Result};
 use crate::field::{Bounds, IndexBox, IndexFrame, Transform, ValueRange};
 use crate::format::StepIndex;
 use crate::input::StepData;
 use crate::memory;
+use crate::model::Model;
 use crate::series::queue::{BackgroundEncoder, Job, Pushed};
 use crate::series::SeriesRange;
 use mpi::collective::SystemOperation;
@@ -73,6 +75,10 @@ pub struct Decomposition {
     funneled: bool,
     cfg: DecompositionConfig,
     fields: BTreeMap<String, Layout>,
+    /// Fields resumed and not pushed since: every rank's piece and the
+    /// range, for the first push to rebuild the layout from
+    /// ([`Decomposition::resume`]).
+    resumed: BTreeMap<String, (Vec<IndexFrame>, ValueRange)>,
 }
 
 /// Checks that MPI is initialised, not finalised, and at
@@ -93,10 +99,11 @@ fn check_environment() -> Result<bool> {
     }
 }
 
-/// FNV-1a, to compare what the ranks pushed in one `u64`.
-fn fingerprint(field: &str, step: u64, kind: Kind) -> u64 {
+/// FNV-1a, to compare what the ranks pushed in one `u64`: a push of a
+/// `kind` (`Kind as u8`), or a resume ([`RESUME`]).
+fn fingerprint(field: &str, step: u64, what: u8) -> u64 {
     let mut h = 0xcbf2_9ce4_8422_2325u64;
-    for b in field.bytes().chain(step.to_le_bytes()).chain([kind as u8]) {
+    for b in field.bytes().chain(step.to_le_bytes()).chain([what]) {
         h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
     }
     h
@@ -107,8 +114,11 @@ fn fingerprint(field: &str, step: u64, kind: Kind) -> u64 {
 fn labels(field: &str, step: u64, kind: Kind) -> (String, String, u64) {
     let what = format!("field '{field}' step {step}");
     let pushed = format!("{what} as {}", kind_name(kind));
-    (what, pushed, fingerprint(field, step, kind))
+    (what, pushed, fingerprint(field, step, kind as u8))
 }
+
+/// A resume's mark in its [`fingerprint`], apart from every `Kind`.
+const RESUME: u8 = 0xff;
 
 fn kind_name(kind: Kind) -> &'static str {
     match kind {
@@ -156,7 +166,7 @@ impl Decomposition {
         let (rank, size) = (comm.rank() as usize, comm.size() as usize);
         // The ranks that share this node's memory, in rank order.
         let node_rank = comm.split_shared(rank as i32).rank() as usize;
-        Ok(Decomposition { comm: ManuallyDrop::new(comm), rank, size, node_rank, funneled, cfg, fields: BTreeMap::new() })
+        Ok(Decomposition { comm: ManuallyDrop::new(comm), rank, size, node_rank, funneled, cfg, fields: BTreeMap::new(), resumed: BTreeMap::new() })
     }
 
     pub fn rank(&self) -> usize {
@@ -249,9 +259,16 @@ impl Decomposition {
         self.check_thread()?;
         let kind = Kind::of(&job.data);
         let (what, pushed, key) = labels(&job.field, job.step, kind);
-        let local = queue.check(&job).and_then(|()| self.check_local(&job, kind));
-        let stats = self.agree(local, key, &pushed, &format!("its data for {what}"))?;
-        if !self.fields.contains_key(&job.field) {
+        // A resumed field's first push rebuilds its layout from the pieces.
+        let local = queue.check(&job).and_then(|()| self.resumed_layout(&job.field, kind)).and_then(|resumed| {
+            let stats = self.check_local(&job, kind, resumed.as_ref())?;
+            Ok((stats, resumed))
+        });
+        let (stats, resumed) = self.agree(local, key, &pushed, &format!("its data for {what}"))?;
+        if let Some(layout) = resumed {
+            self.resumed.remove(&job.field);
+            self.fields.insert(job.field.clone(), layout);
+        } else if !self.fields.contains_key(&job.field) {
             let layout = self.agree_layout(&job.data, kind, stats, &what)?;
             self.fields.insert(job.field.clone(), layout);
         }
@@ -305,11 +322,60 @@ impl Decomposition {
         }
     }
 
+    /// Continues `model`'s field from it on this rank, each rank with its
+    /// own piece's model of the same field and step (a restart from a
+    /// checkpoint, on the ranks, `dims`, `bounds` and `halo` of the run that
+    /// stored them): the ranks gather each other's pieces and range, from
+    /// which the field's first push rebuilds the layout the series had
+    /// ([`crate::domain::resume`]), so that its pieces, step indexes and
+    /// models continue the unbroken run's. `model` is `Err` on a rank that
+    /// could not read its own: every rank fails together then. Collective.
+    pub fn resume(&mut self, queue: &BackgroundEncoder, model: Result<Model>) -> Result<()> {
+        self.check_thread()?;
+        let local = model.and_then(|m| {
+            if self.fields.contains_key(&m.meta.field) || self.resumed.contains_key(&m.meta.field) {
+                return Err(Error::arg(format!("field '{}' has begun on this encoder already; resume a field before its first push", m.meta.field)));
+            }
+            queue.check_resume(&m)?;
+            Ok(m)
+        });
+        // A rank that failed reports its own error; the others name it.
+        let all = self.agree_all(local.is_ok(), "to resume its series");
+        let model = local?;
+        all?;
+        let (field, step) = (model.meta.field.clone(), model.meta.step);
+        let what = format!("field '{field}' step {step}");
+        self.agree(Ok(()), fingerprint(&field, step, RESUME), &format!("{what} to resume from"), "")?;
+        let mine = resume::to_wire(&model.meta.frame, &model.meta.range);
+        let mut all = vec![0f64; resume::WIRE_LEN * self.size];
+        self.comm.all_gather_into(&mine[..], &mut all[..]);
+        // Every rank checks the same gathered words: errors come on all.
+        // (The lattice is rebuilt and checked at the first push, whose form
+        // says how: a grid's, or that of particles and cells.)
+        let (frames, range) = resume::from_wire(&all).map_err(|e| e.in_context(&format!("resuming {what}")))?;
+        let resumed = queue.resume(model);
+        let all = self.agree_all(resumed.is_ok(), "to resume its series");
+        resumed?;
+        all?;
+        self.resumed.insert(field, (frames, range));
+        Ok(())
+    }
+
+    /// The layout of a resumed field not pushed since, rebuilt for its
+    /// first push, of `kind`; `None` for every other field.
+    fn resumed_layout(&self, field: &str, kind: Kind) -> Result<Option<Layout>> {
+        let Some((frames, range)) = self.resumed.get(field) else { return Ok(None) };
+        let (global, pieces) = resume::lattice_of_pieces(frames, kind == Kind::Grid, self.cfg.dims, self.cfg.bounds)
+            .map_err(|e| e.in_context(&format!("field '{field}' resumed")))?;
+        Ok(Some(Layout { kind, global, pieces, range: *range }))
+    }
+
     /// What this rank checks alone before the first collective: the form
-    /// matches the field's, a grid sits on the field's lattice; and the
-    /// local value range for the first step.
-    fn check_local(&self, job: &Job, kind: Kind) -> Result<[f64; 2]> {
-        if let Some(l) = self.fields.get(&job.field) {
+    /// matches the field's (its `layout`, or the one it has), a grid sits
+    /// on the field's lattice; and the local value range for the first
+    /// step.
+    fn check_local(&self, job: &Job, kind: Kind, layout: Option<&Layout>) -> Result<[f64; 2]> {
+        if let Some(l) = layout.or(self.fields.get(&job.field)) {
             if l.kind != kind {
                 return Err(Error::arg(format!(
                     "field '{}' came as {} at its first step, now as {}",

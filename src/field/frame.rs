@@ -76,6 +76,35 @@ impl IndexFrame {
         Bounds { min: self.bmin, max: std::array::from_fn(|a| self.bmin[a] + self.dims[a] as f64 / self.gamma) }
     }
 
+    /// World bounds from which [`IndexFrame::from_bounds`] gives back this
+    /// frame bit for bit, its `dims` over them; `None` where none is found.
+    /// One axis sets the voxel size: its upper bound is the frame's box
+    /// edge, moved by up to 64 units in the last place (`EXACT_ULPS`) until
+    /// the size recomputed from it is the frame's (the box edge itself may
+    /// round to another); the other axes end a little short of the box, so
+    /// that they do not set it. What a series restarted from a stored model
+    /// deposits particles and cells in, the bounds of its first step being
+    /// lost with it.
+    pub fn exact_bounds(&self) -> Option<Bounds> {
+        let edge = self.world_box().max;
+        for tight in 0..3 {
+            let mut max: [f64; 3] = std::array::from_fn(|a| self.bmin[a] + (edge[a] - self.bmin[a]) * (1.0 - 1e-9));
+            for k in 0..=EXACT_ULPS {
+                let (mut up, mut down) = (edge[tight], edge[tight]);
+                for _ in 0..k {
+                    (up, down) = (up.next_up(), down.next_down());
+                }
+                for m in [up, down] {
+                    max[tight] = m;
+                    if IndexFrame::from_bounds(self.dims, self.bmin, max).is_ok_and(|f| f == *self) {
+                        return Some(Bounds { min: self.bmin, max });
+                    }
+                }
+            }
+        }
+        None
+    }
+
     /// The frame of the voxels `b` of this lattice: the same voxel size, the
     /// origin moved by whole voxels.
     pub fn sub_frame(&self, b: &IndexBox) -> IndexFrame {
@@ -147,6 +176,9 @@ impl IndexBox {
     }
 }
 
+/// How far (units in the last place) [`IndexFrame::exact_bounds`] looks.
+const EXACT_ULPS: usize = 64;
+
 /// An axis-aligned box in world units.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds {
@@ -193,6 +225,27 @@ mod tests {
             let e = IndexFrame::for_grid([4; 3], origin, spacing).unwrap_err();
             assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("finite"), "{origin:?} {spacing}: {e}");
         }
+    }
+
+    /// The lattice of any bounds is given back by bounds of its own, though
+    /// its box's edges round to other voxel sizes (counted: the case is real).
+    #[test]
+    fn a_lattice_has_bounds_that_give_it_back() {
+        let mut rng = crate::math::rng::Rng::new(0x2545_f491);
+        let mut next = || rng.range(0.0, 1.0);
+        let mut edges_differ = 0;
+        for _ in 0..20_000 {
+            let dims = [1 + (next() * 300.0) as usize, 1 + (next() * 300.0) as usize, 1 + (next() * 300.0) as usize];
+            let scale = 10f64.powf(next() * 12.0 - 6.0);
+            let min: [f64; 3] = std::array::from_fn(|_| (next() - 0.5) * 4.0 * scale);
+            let max: [f64; 3] = std::array::from_fn(|a| min[a] + (0.01 + next()) * scale);
+            let f = IndexFrame::from_bounds(dims, min, max).unwrap();
+            let b = f.exact_bounds().unwrap_or_else(|| panic!("no bounds give {f:?} back"));
+            assert_eq!(IndexFrame::from_bounds(dims, b.min, b.max).unwrap(), f);
+            let w = f.world_box();
+            edges_differ += (IndexFrame::from_bounds(dims, w.min, w.max).unwrap() != f) as usize;
+        }
+        assert!(edges_differ > 100, "{edges_differ} frames whose own box gives another");
     }
 
     #[test]

@@ -127,8 +127,9 @@ impl SeriesEncoder {
     /// Continues a series from `model`, its last stored step (a restart from
     /// a checkpoint): the field's next step starts from it, on its lattice
     /// and value range, exactly as if the series had not stopped. Particles
-    /// and cells of later steps must be placed in the same box (give the
-    /// bounds), which the frame check of `encode_step` enforces.
+    /// and cells of later steps are deposited on the model's lattice, as
+    /// the first step's box put them (through bounds that give it back bit
+    /// for bit, [`IndexFrame::exact_bounds`]); a grid must come on it.
     pub fn resume(&mut self, model: Model) -> Result<()> {
         let field = model.meta.field.clone();
         if field.is_empty() {
@@ -141,7 +142,7 @@ impl SeriesEncoder {
             return Err(Error::data(format!("the model of field '{field}' holds no primitives")));
         }
         let (range, frame) = (model.meta.range, model.meta.frame);
-        self.fields.insert(field, FieldState { range, frame, bounds: None, validation: None, last: model, curve: None });
+        self.fields.insert(field, FieldState { range, frame, bounds: frame.exact_bounds(), validation: None, last: model, curve: None });
         Ok(())
     }
 

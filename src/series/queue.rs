@@ -17,7 +17,10 @@
 //! failure once. Of the jobs that are final, the queue keeps the states of
 //! the last [`QueueConfig::kept_states`] (and every failure `wait` has not
 //! reported), so that a run of any length holds bounded memory and `wait`
-//! scans a bounded map. Nothing here does I/O: sinks are the caller's.
+//! scans a bounded map. A series restarted from a checkpoint is taken up
+//! by `resume`, whose model reaches the worker through the same channel,
+//! ahead of the field's pushes. Nothing here does I/O: sinks are the
+//! caller's.
 
 use crate::backend::select::BackendChoice;
 use crate::backend::Backend;
@@ -28,7 +31,7 @@ use crate::format::check_field_name;
 use crate::input::StepData;
 use crate::model::Model;
 use crate::series::placement::ThreadPlacement;
-use crate::series::{SeriesConfig, SeriesEncoder};
+use crate::series::{SeriesConfig, SeriesEncoder, SeriesRange};
 use crossbeam_channel::{unbounded, Receiver, Sender};
 use parking_lot::{Condvar, Mutex};
 use std::collections::{BTreeMap, VecDeque};
@@ -241,8 +244,15 @@ struct Shared {
 pub struct BackgroundEncoder {
     shared: Arc<Shared>,
     cfg: QueueConfig,
-    jobs: Option<Sender<Job>>,
+    jobs: Option<Sender<Work>>,
     worker: Option<JoinHandle<()>>,
+}
+
+/// What the worker takes, in the order it was sent.
+enum Work {
+    Encode(Job),
+    /// A field's series continues from this model (`resume`).
+    Resume(Model),
 }
 
 impl BackgroundEncoder {
@@ -381,7 +391,7 @@ impl BackgroundEncoder {
         st.in_flight += 1;
         st.bytes += bytes;
         drop(st);
-        let sent = self.jobs.as_ref().is_some_and(|tx| tx.send(job).is_ok());
+        let sent = self.jobs.as_ref().is_some_and(|tx| tx.send(Work::Encode(job)).is_ok());
         if !sent {
             // Only after a worker panic outside its guard: undo, and say so.
             let mut st = self.shared.state.lock();
@@ -407,6 +417,68 @@ impl BackgroundEncoder {
     pub fn dropped(&self, field: &str, step: u64) -> bool {
         let st = self.shared.state.lock();
         !st.jobs.contains_key(&(field.to_owned(), step)) && st.dropped.get(field).is_some_and(|&last| step <= last)
+    }
+
+    /// What [`Self::resume`] refuses: a model without a field name or
+    /// primitives, another rank's, one whose value range is not the
+    /// configured one (a fixed range, or a transform), a field that has
+    /// begun already, or any model once the encode thread has stopped (so
+    /// that the ranks of an MPI run, which check first, resume together).
+    pub fn check_resume(&self, model: &Model) -> Result<()> {
+        let (field, step) = (&model.meta.field, model.meta.step);
+        check_field_name(field)?;
+        if model.params.is_empty() {
+            return Err(Error::data(format!("the model of field '{field}' step {step} holds no primitives")));
+        }
+        let rank = self.cfg.series.rank;
+        if model.meta.rank != rank {
+            return Err(Error::arg(format!("field '{field}' step {step}: the model is rank {}'s piece; this is rank {rank}", model.meta.rank)));
+        }
+        let range = model.meta.range;
+        let mismatch = match self.cfg.series.range {
+            SeriesRange::Fixed(r) => (r != range).then(|| format!("[{}, {}] ({})", r.vmin, r.vmax, r.transform.name())),
+            SeriesRange::FirstStep(t) => (t != range.transform).then(|| format!("a range of the {} transform", t.name())),
+        };
+        if let Some(want) = mismatch {
+            return Err(Error::arg(format!(
+                "field '{field}' step {step}: the model's value range [{}, {}] ({}) is not the configured {want}; a resumed series keeps its range",
+                range.vmin,
+                range.vmax,
+                range.transform.name()
+            )));
+        }
+        if let Some(&last) = self.shared.state.lock().last_pushed.get(field) {
+            return Err(Error::arg(format!("field '{field}' has begun on this encoder already (its last step {last}); resume a field before its first push")));
+        }
+        if self.worker.as_ref().is_none_or(|w| w.is_finished()) {
+            return Err(Error::arg("the encode thread has stopped"));
+        }
+        Ok(())
+    }
+
+    /// Continues `model`'s field from it, the last step stored before the
+    /// run stopped (a restart from a checkpoint): the field's next push
+    /// must come after its step, and is warm-started from it on its lattice
+    /// and value range, as if the series had not stopped (bit for bit when
+    /// the model was stored as float32). `last` gives it until a step is
+    /// encoded. Refuses what [`Self::check_resume`] refuses.
+    pub fn resume(&self, model: Model) -> Result<()> {
+        self.check_resume(&model)?;
+        let (field, step) = (model.meta.field.clone(), model.meta.step);
+        let psnr = model.meta.encode_psnr.unwrap_or(f64::NAN);
+        let mut st = self.shared.state.lock();
+        if st.last_pushed.contains_key(&field) {
+            // Pushed from another thread since the check.
+            return Err(Error::arg(format!("field '{field}' has begun on this encoder already; resume a field before its first push")));
+        }
+        // Sent under the lock, so that no push of the field can pass it.
+        let sent = self.jobs.as_ref().is_some_and(|tx| tx.send(Work::Resume(model.clone())).is_ok());
+        if !sent {
+            return Err(Error::arg("the encode thread has stopped"));
+        }
+        st.last_pushed.insert(field.clone(), step);
+        st.last.insert(field, (model, psnr));
+        Ok(())
     }
 
     /// Blocks until every job (of `field`, or of every field) is final.
@@ -546,8 +618,15 @@ struct Worker {
 }
 
 impl Worker {
-    fn run(mut self, jobs: Receiver<Job>) {
-        while let Ok(job) = jobs.recv() {
+    fn run(mut self, work: Receiver<Work>) {
+        while let Ok(work) = work.recv() {
+            let job = match work {
+                Work::Encode(job) => job,
+                Work::Resume(model) => {
+                    self.resume(model);
+                    continue;
+                }
+            };
             self.prepare_spare(&job.data);
             let key = (job.field.clone(), job.step);
             let bytes = job.data.bytes();
@@ -593,6 +672,19 @@ impl Worker {
         let mut st = self.shared.state.lock();
         if st.recycled.len() < RECYCLED_BUFFERS {
             st.recycled.push(spare);
+        }
+    }
+
+    /// Continues a field's series from `model` (`BackgroundEncoder::resume`
+    /// checked it). Should the series refuse it all the same, the failure
+    /// is the model's step's, for `wait` to report.
+    fn resume(&mut self, model: Model) {
+        let key = (model.meta.field.clone(), model.meta.step);
+        if let Err(e) = self.series.resume(model) {
+            let mut st = self.shared.state.lock();
+            st.unreported.push(key.clone());
+            st.settle(key, JobState::Failed(Arc::new(e)));
+            self.shared.changed.notify_all();
         }
     }
 

@@ -3,7 +3,8 @@
  * error paths of every function (NULL handles and pointers, bad sizes and
  * enum values, NaN data, wrong call order, unwritable folders, foreign
  * files); and the background queue: pushes copy, failures are reported
- * by wait and poll, a full queue under each policy, cancel. Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
+ * by wait and poll, a full queue under each policy, cancel; a restart
+ * resumed from a model's bytes. Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
 #define _POSIX_C_SOURCE 200112L /* setenv */
 #include <math.h>
 #include <stddef.h>
@@ -535,7 +536,36 @@ int main(void) {
     CHECK(strcmp(fname, "copy") == 0, "the field's name: '%s'", fname);
     EXPECT(gsenc_model_field(inmem, fname, sizeof fname, NULL), GSENC_STATUS_NULL_POINTER);
     EXPECT(gsenc_model_field(NULL, fname, sizeof fname, &flen), GSENC_STATUS_NULL_POINTER);
+    /* A restart from those bytes: a new encoder takes "copy" up at step 0;
+     * its step 0 again, the model twice, a NULL or
+     * destroyed model, a destroyed encoder: refused. */
+    {
+        gsenc_encoder *again = NULL;
+        EXPECT(gsenc_encoder_create(&cfg, &again), GSENC_STATUS_OK);
+        EXPECT(gsenc_encoder_resume(again, NULL), GSENC_STATUS_NULL_POINTER);
+        EXPECT(gsenc_encoder_resume(NULL, inmem), GSENC_STATUS_NULL_POINTER);
+        EXPECT(gsenc_encoder_resume(again, inmem), GSENC_STATUS_OK);
+        EXPECT(gsenc_encoder_resume(again, inmem), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(strstr(last_error(), "has begun on this encoder already") != NULL, "resumed twice: %s", last_error());
+        gsenc_model_info kept_info;
+        kept_info.struct_size = sizeof kept_info;
+        EXPECT(gsenc_model_info_get(inmem, &kept_info), GSENC_STATUS_OK);
+        uint64_t kept_step = 99;
+        double kept_psnr = 0;
+        EXPECT(gsenc_encoder_last_step(again, "copy", &kept_step, &kept_psnr), GSENC_STATUS_OK);
+        CHECK(kept_step == 0 && kept_psnr == kept_info.encode_psnr, "the resumed model is the field's last: step %llu, %g dB", (unsigned long long)kept_step, kept_psnr);
+        EXPECT(gsenc_push_grid(again, "copy", 0, 0.0, &grid), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(strstr(last_error(), "does not follow step 0") != NULL, "the resumed step again: %s", last_error());
+        gsenc_encoder_destroy(again);
+        EXPECT(gsenc_encoder_resume(again, inmem), GSENC_STATUS_INVALID_ARGUMENT);
+    }
     gsenc_model_destroy(inmem);
+    {
+        gsenc_encoder *again = NULL;
+        EXPECT(gsenc_encoder_create(&cfg, &again), GSENC_STATUS_OK);
+        EXPECT(gsenc_encoder_resume(again, inmem), GSENC_STATUS_INVALID_ARGUMENT);
+        gsenc_encoder_destroy(again);
+    }
     inmem = (gsenc_model *)1;
     EXPECT(gsenc_model_read_buffer(mbytes, nbytes / 2, &inmem), GSENC_STATUS_FORMAT);
     CHECK(inmem == NULL && strstr(last_error(), "bad format") != NULL, "half a model: %s", last_error());

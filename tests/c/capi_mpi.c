@@ -9,21 +9,12 @@
  * outputs, and a write that fails on rank 0 reported by every rank's wait. */
 #define _POSIX_C_SOURCE 200112L /* setenv */
 #include "gsenc.h"
+#include "mpi_checks.h"
 #include <math.h>
 #include <mpi.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-
-static int failures = 0, passes = 0, rank = 0;
-#define CHECK(cond, ...) do { if (cond) { passes++; } else { failures++; fprintf(stderr, "rank %d FAIL line %d: ", rank, __LINE__); fprintf(stderr, __VA_ARGS__); fputc('\n', stderr); } } while (0)
-#define EXPECT(call, status) do { gsenc_status s_ = (call); CHECK(s_ == (status), "%s gave %s, expected %s: %s", #call, gsenc_status_string(s_), gsenc_status_string(status), last_error()); } while (0)
-
-static const char *last_error(void) {
-    static char buf[1024];
-    gsenc_last_error(buf, sizeof buf);
-    return buf;
-}
 
 #define N 24
 
@@ -36,11 +27,6 @@ static long resident_bytes(void) {
         if (sscanf(line, "VmRSS: %ld kB", &kib) == 1) break;
     if (f) fclose(f);
     return kib < 0 ? -1 : kib * 1024;
-}
-
-static float blob(double x, double y, double z, int step) {
-    double dx = x - 0.4 - 0.05 * step, dy = y - 0.5, dz = z - 0.5;
-    return (float)exp(-(dx * dx + dy * dy + dz * dz) / 0.02);
 }
 
 int main(int argc, char **argv) {
@@ -84,32 +70,11 @@ int main(int argc, char **argv) {
     float *slab = malloc(sizeof(float) * (size_t)nx * N * N);
     double *pos = malloc(sizeof(double) * 3 * 4096), *hh = malloc(sizeof(double) * 4096), *val = malloc(sizeof(double) * 4096);
     for (int step = 1; step <= 2; step++) {
-        for (int k = 0; k < N; k++)
-            for (int j = 0; j < N; j++)
-                for (int i = 0; i < nx; i++)
-                    slab[i + nx * (j + N * k)] = blob((x0 + i + 0.5) / N, (j + 0.5) / N, (k + 0.5) / N, step);
+        fill_slab(slab, N, x0, nx, step);
         gsenc_grid g = {sizeof g, GSENC_DTYPE_FLOAT32, slab, {(uint64_t)nx, N, N}, {0, 0, 0}, {(double)x0 / N, 0, 0}, 1.0 / N};
         EXPECT(gsenc_push_grid(enc, "rho", (uint64_t)step, step * 0.1, &g), GSENC_STATUS_OK);
         /* Particles on a lattice, each rank its own x range. */
-        int np = 0;
-        for (int k = 0; k < 16; k++)
-            for (int j = 0; j < 16; j++)
-                for (int i = 0; i < 16; i++) {
-                    double x = (i + 0.5) / 16, y = (j + 0.5) / 16, z = (k + 0.5) / 16;
-                    if (x * size < rank || x * size >= rank + 1) continue;
-                    pos[3 * np] = x, pos[3 * np + 1] = y, pos[3 * np + 2] = z;
-                    hh[np] = 1.3 / 16;
-                    val[np] = blob(x, y, z, step);
-                    np++;
-                }
-        gsenc_particles p;
-        memset(&p, 0, sizeof p);
-        p.struct_size = sizeof p;
-        p.dtype = GSENC_DTYPE_FLOAT64;
-        p.count = (uint64_t)np;
-        p.positions = pos;
-        p.smoothing_length = hh;
-        p.values = val;
+        gsenc_particles p = lattice_particles(16, size, 0.0, step, pos, hh, val);
         EXPECT(gsenc_push_particles(enc, "tracer", (uint64_t)step, step * 0.1, &p), GSENC_STATUS_OK);
     }
     EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
@@ -218,10 +183,7 @@ int main(int argc, char **argv) {
              * model (every rank's wait fails, naming the entry). */
             EXPECT(gsenc_encoder_create_mpi(&h5, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
             for (int step = 1; step <= 2 - pass; step++) {
-                for (int k = 0; k < N; k++)
-                    for (int j = 0; j < N; j++)
-                        for (int i = 0; i < nx; i++)
-                            slab[i + nx * (j + N * k)] = blob((x0 + i + 0.5) / N, (j + 0.5) / N, (k + 0.5) / N, step);
+                fill_slab(slab, N, x0, nx, step);
                 gsenc_grid g = {sizeof g, GSENC_DTYPE_FLOAT32, slab, {(uint64_t)nx, N, N}, {0, 0, 0}, {(double)x0 / N, 0, 0}, 1.0 / N};
                 s = gsenc_push_grid(enc, "rho", (uint64_t)step, step * 0.1, &g);
                 if (pass == 1 && rank == 0)

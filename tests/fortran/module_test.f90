@@ -2,7 +2,8 @@
 ! (array sections passed through strides, both real kinds, the three input
 ! forms, decode and evaluate agreeing) and its error paths (NULL and
 ! destroyed handles, mismatched or misshapen arrays, NaN, a non-contiguous
-! output, an unwritable folder), each with its status and message.
+! output, an unwritable folder), each with its status and message; and a
+! restart that resumes a series from its stored model.
 ! usage: module_test SCRATCH_DIR   (exit status 0 when every check passes)
 program module_test
     use, intrinsic :: iso_c_binding
@@ -17,7 +18,7 @@ program module_test
     type(c_ptr) :: enc = c_null_ptr, copy, model = c_null_ptr
     character(len=1024) :: dir
     integer :: passed = 0, failed = 0, i, j, k, p
-    real(real32), allocatable :: wide(:, :, :), decoded(:, :, :), big(:, :, :), values4(:)
+    real(real32), allocatable :: wide(:, :, :), decoded(:, :, :), big(:, :, :), values4(:), again(:, :, :)
     real(real64), allocatable :: records(:, :), h(:), centres(:, :), edges(:, :), pts(:, :)
     real(real32), allocatable :: hex_points(:, :), hex_values(:), at(:)
     integer(c_int64_t), allocatable :: conn(:, :)
@@ -172,6 +173,27 @@ program module_test
     call gsenc_model_destroy(model)
     call check(.not. c_associated(model), 'model destroy nulls the handle')
     call expect(gsenc_model_read(trim(dir)//'/missing.gsm', model), GSENC_STATUS_IO, 'read a missing file')
+
+    ! A restart: a new encoder resumes the grid from its step 0 as stored,
+    ! and its step 1 is the unbroken run's.
+    call expect(gsenc_encoder_create(cfg, enc), GSENC_STATUS_OK, 'create the restarted encoder')
+    call expect(gsenc_model_read(trim(dir)//'/grid_000000.gsm', model), GSENC_STATUS_OK, 'read step 0')
+    call expect(gsenc_encoder_resume(enc, model), GSENC_STATUS_OK, 'resume from step 0')
+    call gsenc_model_destroy(model)
+    call expect(gsenc_encoder_resume(enc, c_null_ptr), GSENC_STATUS_NULL_POINTER, 'resume from a NULL model')
+    call expect(gsenc_push_grid(enc, 'grid', 0_int64, wide(1:2 * n:2, :, :), [0d0, 0d0, 0d0], 1d0 / n), &
+        GSENC_STATUS_INVALID_ARGUMENT, 'push the resumed step again')
+    call expect(gsenc_push_grid(enc, 'grid', 1_int64, wide(1:2 * n:2, :, :), [0d0, 0d0, 0d0], 1d0 / n), &
+        GSENC_STATUS_OK, 'push step 1 after the restart')
+    call expect(gsenc_wait(enc), GSENC_STATUS_OK, 'wait after the restart')
+    call expect(gsenc_encoder_write_model(enc, 'grid', trim(dir)//'/restarted.gsm'), GSENC_STATUS_OK, &
+        'write the restarted step 1')
+    call gsenc_encoder_destroy(enc)
+    allocate (again(n, n, n))
+    call expect(gsenc_model_read(trim(dir)//'/restarted.gsm', model), GSENC_STATUS_OK, 'read the restarted step 1')
+    call expect(gsenc_model_decode(model, again), GSENC_STATUS_OK, 'decode the restarted step 1')
+    call gsenc_model_destroy(model)
+    call check(all(again == decoded), 'the restarted step 1 decodes as the unbroken run''s')
 
     write (*, '(a, i0, a, i0, a)') 'fortran: ', passed, ' passed, ', failed, ' failed'
     if (failed > 0) error stop 1
