@@ -44,11 +44,11 @@ pub struct gsenc_encoder {
     /// The HDF5 store models go to, written on the caller's thread at the
     /// synchronising calls (`gsenc_wait`, `gsenc_poll`, destroy).
     #[cfg(feature = "hdf5")]
-    store: Option<gsenc::io::store::Store>,
+    pub(crate) store: Option<gsenc::io::store::Store>,
     /// Set by `gsenc_encoder_create_mpi`: pushes are collective, each rank
     /// encodes its piece of the domain.
     #[cfg(feature = "mpi")]
-    ranks: Option<gsenc::domain::mpi::Decomposition>,
+    pub(crate) ranks: Option<gsenc::domain::mpi::Decomposition>,
 }
 
 /// Keeps models in memory only (no output configured).

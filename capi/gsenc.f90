@@ -223,6 +223,13 @@ module gsenc
             import :: c_int, c_ptr
             type(c_ptr), value :: encoder, model
         end function
+        integer(c_int) function gsenc_encoder_resume_stored_c(encoder, field, step) &
+                bind(c, name="gsenc_encoder_resume_stored")
+            import :: c_int, c_ptr, c_char, c_int64_t
+            type(c_ptr), value :: encoder
+            character(kind=c_char), intent(in) :: field(*)
+            integer(c_int64_t), value :: step
+        end function
         integer(c_int) function gsenc_encoder_write_model_c(encoder, field, path) &
                 bind(c, name="gsenc_encoder_write_model")
             import :: c_int, c_ptr, c_char
@@ -273,6 +280,7 @@ module gsenc
     end interface
 
     public :: gsenc_version, gsenc_encoder_cancel, gsenc_encoder_reserve, gsenc_encoder_resume
+    public :: gsenc_encoder_resume_stored_c, gsenc_encoder_resume_stored
     public :: gsenc_encoder_create_mpi_c, gsenc_encoder_create_mpi
     public :: gsenc_config_init_c, gsenc_encoder_create_c, gsenc_wait_c, gsenc_poll_c, gsenc_encoder_destroy_c, gsenc_push_grid_c, &
         gsenc_push_particles_c, gsenc_push_cells_c, gsenc_encoder_write_model_c, gsenc_encoder_last_step_c, &
@@ -726,6 +734,16 @@ contains
         type(c_ptr), intent(in) :: encoder
         character(len=*), intent(in) :: field, path
         status = gsenc_encoder_write_model_c(encoder, c_string(field), c_string(path))
+    end function
+
+    !> Continues `field`'s series from its step `step` as the encoder's own
+    !> output (folder or store) holds it: a restart (before the field's first
+    !> push; collective on an MPI encoder).
+    integer(c_int) function gsenc_encoder_resume_stored(encoder, field, step) result(status)
+        type(c_ptr), intent(in) :: encoder
+        character(len=*), intent(in) :: field
+        integer(int64), intent(in) :: step
+        status = gsenc_encoder_resume_stored_c(encoder, c_string(field), int(step, c_int64_t))
     end function
 
     integer(c_int) function gsenc_encoder_last_step(encoder, field, step, psnr) result(status)

@@ -63,3 +63,54 @@ fn the_c_api_appends_every_step_to_an_hdf5_store() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A restarted encoder resumes from the store it writes: the step the
+/// stopped run appended, then its next step as the unbroken run's; a step
+/// the store does not hold is refused, naming the entry.
+#[test]
+fn a_restart_resumes_from_its_own_store() {
+    let _hdf5 = common::hdf5_serial();
+    let dir = common::tmpdir("capi-h5-resume");
+    let field = CString::new("rho").unwrap();
+    let dims = [12usize, 10, 8];
+    // SAFETY: the test's own config, handles, strings and grids.
+    unsafe {
+        let create = |path: &CString| {
+            let mut cfg: gsenc_config = std::mem::zeroed();
+            cfg.struct_size = std::mem::size_of::<gsenc_config>();
+            assert_eq!(gsenc_config_init(&mut cfg), gsenc_status::Ok);
+            (cfg.budget, cfg.schedule, cfg.iterations, cfg.warm_iterations, cfg.points) = (40, GSENC_SCHEDULE_SHORT, 40, 20, 256);
+            cfg.output_format = GSENC_OUTPUT_HDF5;
+            cfg.output_dir = path.as_ptr();
+            let mut enc = std::ptr::null_mut();
+            assert_eq!(gsenc_encoder_create(&cfg, &mut enc), gsenc_status::Ok);
+            enc
+        };
+        let push = |enc, step: u64| {
+            let g = blobs(dims, 90 + step, 3);
+            let grid = crate::inputs::f32_grid(&g.values, dims, 0.1);
+            assert_eq!(crate::inputs::gsenc_push_grid(enc, field.as_ptr(), step, 0.5 * step as f64, &grid), gsenc_status::Ok);
+        };
+        let (unbroken, stopped) = (dir.join("unbroken.h5"), dir.join("stopped.h5"));
+        let (unbroken_c, stopped_c) = (CString::new(unbroken.to_str().unwrap()).unwrap(), CString::new(stopped.to_str().unwrap()).unwrap());
+        let enc = create(&unbroken_c);
+        (0..3).for_each(|step| push(enc, step));
+        gsenc_encoder_destroy(enc);
+        let enc = create(&stopped_c);
+        (0..2).for_each(|step| push(enc, step));
+        gsenc_encoder_destroy(enc);
+
+        let enc = create(&stopped_c);
+        assert_eq!(crate::resume::gsenc_encoder_resume_stored(enc, field.as_ptr(), 5), gsenc_status::InvalidArgument);
+        assert!(crate::status::last_error_text().contains("holds no model /rho/5/rank_0"), "{}", crate::status::last_error_text());
+        assert_eq!(crate::resume::gsenc_encoder_resume_stored(enc, field.as_ptr(), 1), gsenc_status::Ok, "{}", crate::status::last_error_text());
+        push(enc, 2);
+        assert_eq!(gsenc_wait(enc, std::ptr::null()), gsenc_status::Ok);
+        gsenc_encoder_destroy(enc);
+        let key = EntryKey { field: "rho".into(), step: 2, rank: 0 };
+        let want = Store::open_read(&unbroken).unwrap().read(&key).unwrap().0;
+        let store = Store::open_read(&stopped).unwrap();
+        assert_eq!(store.entries().unwrap().iter().map(|e| e.key.step).collect::<Vec<_>>(), [0, 1, 2]);
+        assert_eq!(store.read(&key).unwrap().0.params, want.params, "the restarted run's step 2 differs from the unbroken run's");
+    }
+}

@@ -11,10 +11,13 @@
 //! `gsenc::series::queue::BackgroundEncoder::resume` and, over MPI,
 //! `gsenc::domain::mpi::Decomposition::resume`.
 
+use crate::config::OutputFormat;
 use crate::encoder::{with_encoder, gsenc_encoder};
+use crate::ffi::c_str;
 use crate::model::{gsenc_model, with_model};
-use crate::status::{gsenc_status, guard, Failure};
+use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::model::Model;
+use std::os::raw::c_char;
 
 /// Continues the series of `model`'s field from `model`, the step stored
 /// last before the run stopped (a restart from a checkpoint): the field's
@@ -53,6 +56,83 @@ pub unsafe extern "C" fn gsenc_encoder_resume(encoder: *mut gsenc_encoder, model
     })
 }
 
+/// `gsenc_encoder_resume` from the encoder's own output: the model of
+/// `field`'s step `step` that a run with the same `output_dir` and
+/// `output_format` stored, read from `output_dir/FIELD_STEP.gsm` (rank r's
+/// `FIELD_STEP_rR.gsm`) or from the HDF5 store (`/<field>/<step>/rank_<r>`),
+/// so that a restarted code needs only the step it restarts from. The
+/// steps it then pushes go into the same folder or store. A step the output
+/// does not hold is its read's error (`GSENC_STATUS_IO` for a missing
+/// file, `GSENC_STATUS_INVALID_ARGUMENT` for a missing store entry); an
+/// encoder with no output is `GSENC_STATUS_CALL_ORDER`. Collective for an
+/// encoder of `gsenc_encoder_create_mpi`, as `gsenc_encoder_resume`: each
+/// rank reads its own model file, or rank 0 reads every rank's from the
+/// store it alone has open and sends each its own. `field` is read during
+/// the call only.
+///
+/// # Safety
+/// `encoder` may be any value (only a live encoder handle is used);
+/// `field` is NULL or a NUL-terminated string.
+#[no_mangle]
+pub unsafe extern "C" fn gsenc_encoder_resume_stored(encoder: *mut gsenc_encoder, field: *const c_char, step: u64) -> gsenc_status {
+    guard(|| {
+        let what = "gsenc_encoder_resume_stored";
+        // SAFETY: NUL-terminated string or NULL (that rank's failure).
+        let field = unsafe { c_str(field, "field") };
+        with_encoder(encoder, what, |enc| {
+            let read = enc.read_stored(field, step);
+            enc.resume(read)
+        })
+    })
+}
+
+impl gsenc_encoder {
+    /// This rank's model of `field`'s step `step` in the encoder's output
+    /// (`gsenc_encoder_resume_stored`). Collective for an MPI encoder
+    /// writing a store, even where this rank has no `field`.
+    fn read_stored(&mut self, field: Result<String, Failure>, step: u64) -> Result<Model, Failure> {
+        let rank = self.settings.series.rank;
+        let Some(out) = self.settings.output.clone() else {
+            return fail(gsenc_status::CallOrder, "gsenc_encoder_resume_stored: this encoder writes no output to resume from; pass the model to gsenc_encoder_resume");
+        };
+        match self.settings.output_format {
+            OutputFormat::Folder => {
+                let path = out.join(gsenc::format::model_file_name(&field?, step, rank));
+                Ok(gsenc::io::read_model_file(&path)?.model)
+            }
+            OutputFormat::Hdf5 => self.read_from_store(field, step),
+        }
+    }
+
+    /// This rank's model of a step in the HDF5 store: read here, or over
+    /// MPI by rank 0, which alone has the store open, for every rank.
+    #[cfg(feature = "hdf5")]
+    fn read_from_store(&mut self, field: Result<String, Failure>, step: u64) -> Result<Model, Failure> {
+        use gsenc::io::store::EntryKey;
+        let store = self.store.as_ref();
+        let read = |f: &str, rank: u32| match store {
+            Some(s) => Ok(s.read(&EntryKey { field: f.to_owned(), step, rank })?.0),
+            None => Err(gsenc::Error::arg("this rank has no store open")),
+        };
+        #[cfg(feature = "mpi")]
+        if let Some(ranks) = self.ranks.as_mut() {
+            let mut each = |r: u32| match &field {
+                Ok(f) => read(f, r),
+                Err(why) => Err(gsenc::Error::arg(format!("rank 0 was given no field name ({})", why.1))),
+            };
+            let mine = ranks.models_from_root(Some(&mut each));
+            field?;
+            return Ok(mine?);
+        }
+        Ok(read(&field?, self.settings.series.rank)?)
+    }
+
+    #[cfg(not(feature = "hdf5"))]
+    fn read_from_store(&mut self, _: Result<String, Failure>, _: u64) -> Result<Model, Failure> {
+        fail(gsenc_status::InvalidArgument, "this gsenc was built without HDF5 (cargo feature hdf5)")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -65,16 +145,31 @@ mod tests {
     use std::ffi::CString;
 
     fn encoder() -> *mut gsenc_encoder {
-        // SAFETY: the test's own config and handle slot.
+        encoder_into(None)
+    }
+
+    /// An encoder writing model files into `dir`, or keeping them.
+    fn encoder_into(dir: Option<&CString>) -> *mut gsenc_encoder {
+        // SAFETY: the test's own config, string and handle slot.
         unsafe {
             let mut cfg: gsenc_config = std::mem::zeroed();
             cfg.struct_size = std::mem::size_of::<gsenc_config>();
             assert_eq!(gsenc_config_init(&mut cfg), gsenc_status::Ok);
             (cfg.budget, cfg.schedule, cfg.iterations, cfg.points, cfg.backend) = (12, GSENC_SCHEDULE_SHORT, 20, 128, GSENC_BACKEND_CPU);
+            cfg.output_dir = dir.map_or(std::ptr::null(), |d| d.as_ptr());
             let mut enc = std::ptr::null_mut();
             assert_eq!(gsenc_encoder_create(&cfg, &mut enc), gsenc_status::Ok);
             enc
         }
+    }
+
+    /// `field`'s step `step` of the test's series, pushed.
+    unsafe fn push(enc: *mut gsenc_encoder, field: &CString, step: u64) {
+        let v = values(step);
+        let grid = f32_grid(&v, [6, 5, 4], 0.1);
+        // SAFETY: a live encoder, the test's string and grid.
+        let status = unsafe { gsenc_push_grid(enc, field.as_ptr(), step, step as f64, &grid) };
+        assert_eq!(status, gsenc_status::Ok, "{}", last_error());
     }
 
     /// The step's grid: a bump that moves with the step.
@@ -101,11 +196,7 @@ mod tests {
         let field = CString::new("rho").unwrap();
         // SAFETY: the test's own handles, grids and buffers.
         unsafe {
-            let push = |enc, step: u64| {
-                let v = values(step);
-                let grid = f32_grid(&v, [6, 5, 4], 0.1);
-                assert_eq!(gsenc_push_grid(enc, field.as_ptr(), step, step as f64, &grid), gsenc_status::Ok, "{}", last_error());
-            };
+            let push = |enc, step| push(enc, &field, step);
             let unbroken = encoder();
             push(unbroken, 1);
             assert_eq!(gsenc_wait(unbroken, std::ptr::null()), gsenc_status::Ok);
@@ -139,6 +230,41 @@ mod tests {
             // A destroyed encoder.
             assert_eq!(gsenc_encoder_resume(restarted, model), gsenc_status::InvalidArgument);
             gsenc_model_destroy(model);
+        }
+    }
+
+    /// A restarted encoder resumes from its own folder: the step the stopped
+    /// run wrote there, then its next steps as the unbroken run's; no
+    /// output, a step not there, a NULL field: refused.
+    #[test]
+    fn a_restart_resumes_from_its_own_folder() {
+        let dir = crate::common::tmpdir("capi-resume-stored");
+        let out = CString::new(dir.to_str().unwrap()).unwrap();
+        let field = CString::new("rho").unwrap();
+        // SAFETY: the test's own handles, strings and grids.
+        unsafe {
+            let unbroken = encoder();
+            for step in 1..=2 {
+                push(unbroken, &field, step);
+            }
+            assert_eq!(gsenc_wait(unbroken, std::ptr::null()), gsenc_status::Ok);
+            let want = checkpoint(unbroken, &field);
+            assert_eq!(gsenc_encoder_resume_stored(unbroken, field.as_ptr(), 1), gsenc_status::CallOrder);
+            assert!(last_error().contains("writes no output"), "{}", last_error());
+            gsenc_encoder_destroy(unbroken);
+
+            let stopped = encoder_into(Some(&out));
+            push(stopped, &field, 1);
+            gsenc_encoder_destroy(stopped);
+            let restarted = encoder_into(Some(&out));
+            assert_eq!(gsenc_encoder_resume_stored(restarted, std::ptr::null(), 1), gsenc_status::NullPointer);
+            assert_eq!(gsenc_encoder_resume_stored(restarted, field.as_ptr(), 7), gsenc_status::Io);
+            assert!(last_error().contains("rho_000007.gsm"), "{}", last_error());
+            assert_eq!(gsenc_encoder_resume_stored(restarted, field.as_ptr(), 1), gsenc_status::Ok, "{}", last_error());
+            push(restarted, &field, 2);
+            assert_eq!(gsenc_wait(restarted, std::ptr::null()), gsenc_status::Ok);
+            gsenc_encoder_destroy(restarted);
+            assert_eq!(std::fs::read(dir.join("rho_000002.gsm")).unwrap(), want, "the restarted run's step 2 differs from the unbroken run's");
         }
     }
 }

@@ -1066,6 +1066,27 @@ gsenc_status gsenc_model_evaluate(const gsenc_model *model,
 gsenc_status gsenc_encoder_resume(gsenc_encoder *encoder, const gsenc_model *model);
 
 /*
+ `gsenc_encoder_resume` from the encoder's own output: the model of
+ `field`'s step `step` that a run with the same `output_dir` and
+ `output_format` stored, read from `output_dir/FIELD_STEP.gsm` (rank r's
+ `FIELD_STEP_rR.gsm`) or from the HDF5 store (`/<field>/<step>/rank_<r>`),
+ so that a restarted code needs only the step it restarts from. The
+ steps it then pushes go into the same folder or store. A step the output
+ does not hold is its read's error (`GSENC_STATUS_IO` for a missing
+ file, `GSENC_STATUS_INVALID_ARGUMENT` for a missing store entry); an
+ encoder with no output is `GSENC_STATUS_CALL_ORDER`. Collective for an
+ encoder of `gsenc_encoder_create_mpi`, as `gsenc_encoder_resume`: each
+ rank reads its own model file, or rank 0 reads every rank's from the
+ store it alone has open and sends each its own. `field` is read during
+ the call only.
+
+ # Safety
+ `encoder` may be any value (only a live encoder handle is used);
+ `field` is NULL or a NUL-terminated string.
+ */
+gsenc_status gsenc_encoder_resume_stored(gsenc_encoder *encoder, const char *field, uint64_t step);
+
+/*
  Copies the calling thread's last error message into `buf` (at most
  `len` bytes, always NUL-terminated when `len > 0`) and returns the
  message's full length without the NUL, so that `gsenc_last_error(NULL, 0)`

@@ -29,6 +29,27 @@ for n in 1 2 4; do
 done
 
 gsenc=target/release/gsenc
+# The step STEP of FIELD in STORE, extracted into WORK, against the models of
+# the same step in FOLDER written by N ranks: every rank's model (compared
+# as the float32 files of their decoded parameters, exact) and the step's
+# global field, decoded from the store's index and from the folder's.
+#   same_as_folder STORE FIELD STEP FOLDER N WORK
+same_as_folder() {
+    local store=$1 field=$2 step=$3 folder=$4 n=$5 x=$6 r m
+    local name
+    name=$(printf '%s_%06d' "$field" "$step")
+    mkdir "$x"
+    "$gsenc" store extract "$store" "$field/$step" -o "$x/" --payload f32 >/dev/null
+    for r in $(seq 0 $((n - 1))); do
+        m=$name.gsm
+        [ "$r" = 0 ] || m=${name}_r$r.gsm
+        "$gsenc" convert "$folder/$m" --payload f32 -o "$x/folder.gsm" >/dev/null
+        cmp "$x/$m" "$x/folder.gsm" || { echo "rank $r's $field step $step in $store ($n ranks) differs from $folder/$m" >&2; exit 1; }
+    done
+    "$gsenc" decode "$x/$name.gsi" -o "$x/store.raw" >/dev/null
+    "$gsenc" decode "$folder/$name.gsi" -o "$x/folder.raw" >/dev/null
+    cmp "$x/store.raw" "$x/folder.raw"
+}
 # The store rank 0 wrote holds every rank's models, checked, each the same
 # as that rank's model file of the folder run (the same pushes; packed at the
 # precision each rank's encode measured: compared as the float32 files of
@@ -45,19 +66,21 @@ seen = {i["item"] for i in items}
 assert seen == want, (sorted(seen), sorted(want))
 assert all(i["ok"] for i in items), items
 PY
-    mkdir "$out/x$n"
-    "$gsenc" store extract "$out/c$n/run.h5" rho/2 -o "$out/x$n/" --payload f32 >/dev/null
-    for r in $(seq 0 $((n - 1))); do
-        m=rho_000002.gsm
-        [ "$r" = 0 ] || m=rho_000002_r$r.gsm
-        "$gsenc" convert "$out/c$n/$m" --payload f32 -o "$out/folder.gsm" >/dev/null
-        cmp "$out/x$n/$m" "$out/folder.gsm" || { echo "rank $r's model in the store of $n ranks differs from its file" >&2; exit 1; }
-    done
-    "$gsenc" decode "$out/x$n/rho_000002.gsi" -o "$out/store.raw" >/dev/null
-    "$gsenc" decode "$out/c$n/rho_000002.gsi" -o "$out/folder.raw" >/dev/null
-    cmp "$out/store.raw" "$out/folder.raw"
+    same_as_folder "$out/c$n/run.h5" rho 2 "$out/c$n" "$n" "$out/x$n"
 done
 echo "cli-mpi-store: 3 passed"
+
+# The store of the run restarted from it (tests/c/capi_mpi_resume.c): its
+# steps 2 and 3, every rank's model and the step's global field, are the
+# unbroken run's.
+for n in 1 2 4; do
+    for field in rho tracer; do
+        for step in 2 3; do
+            same_as_folder "$out/r$n/restarted.h5" "$field" "$step" "$out/r$n/unbroken" "$n" "$out/rx$n-$field-$step"
+        done
+    done
+done
+echo "cli-mpi-resumed-store: 3 passed"
 
 # The CLI decodes a step index whole or one rank's piece; a missing piece is named.
 "$gsenc" decode "$out/c4/rho_000002.gsi" -o "$out/whole.raw" --json | grep -q '"dims":\[24,24,24\]'

@@ -1,5 +1,6 @@
 //! An MPI run's models stored by rank 0: one store file for every rank's
-//! models, written during the run (the exchange: cargo feature `mpi`).
+//! models, written during the run (the exchange: cargo feature `mpi`), and
+//! read back by rank 0 for every rank when a restarted run resumes.
 //!
 //! One process writes the store: the HDF5 most codes link (Debian's among
 //! them) is the serial build, and the store's crash safety (an entry built unlinked,
@@ -30,6 +31,11 @@ use mpi::traits::*;
 const TAG_MODELS: i32 = 0x6773;
 #[cfg(feature = "mpi")]
 const TAG_VERDICTS: i32 = 0x6774;
+#[cfg(feature = "mpi")]
+const TAG_RESUME: i32 = 0x6775;
+
+/// Reads rank `r`'s model of a stored step (on rank 0).
+pub type ReadOne<'a> = &'a mut dyn FnMut(u32) -> Result<Model>;
 
 /// Stores one model (on rank 0): where it went, or why it did not.
 pub type StoreOne<'a> = &'a mut dyn FnMut(&Model) -> Result<String>;
@@ -89,6 +95,48 @@ impl Decomposition {
             from.send_with_tag(&verdicts[..], TAG_VERDICTS);
         }
         Ok(own)
+    }
+}
+
+#[cfg(feature = "mpi")]
+impl Decomposition {
+    /// The other way, for a restart: rank 0 reads every rank's model of a
+    /// stored step with `read` (from the store it alone has open) and sends
+    /// each rank its own; returns this rank's, or why rank 0 could not read
+    /// or send it (with the error's kind: a missing entry is the same
+    /// status on every rank). Collective; `read` is used on rank 0 only
+    /// (without one there, every rank gets an error saying so).
+    pub fn models_from_root(&mut self, read: Option<ReadOne>) -> Result<Model> {
+        self.check_thread()?;
+        let comm = self.comm();
+        if self.rank() != 0 {
+            let root = comm.process_at_rank(0);
+            let (verdict, _) = root.receive_vec_with_tag::<u8>(TAG_RESUME);
+            let read = Verdict::read_all(&verdict, 1)?.pop().unwrap_or_else(|| Err(Error::Mpi("rank 0 sent no answer".into())));
+            read.map_err(|e| e.in_context("rank 0 reading this rank's model"))?;
+            let (wire, _) = root.receive_vec_with_tag::<u8>(TAG_RESUME);
+            return from_wire(&wire);
+        }
+        let mut read = read;
+        let mut get = |r: u32| match read.as_mut() {
+            Some(f) => f(r),
+            None => Err(Error::arg("rank 0 was given no store to read the ranks' models from")),
+        };
+        let own = get(0);
+        for r in 1..self.size() {
+            let to = comm.process_at_rank(r as i32);
+            let (verdict, wire) = match get(r as u32).and_then(|m| to_wire(&m)) {
+                Ok(wire) => (Ok(String::new()), Some(wire)),
+                Err(e) => (Err(e), None),
+            };
+            let mut answer = Vec::new();
+            Verdict::write(&mut answer, &verdict);
+            to.send_with_tag(&answer[..], TAG_RESUME);
+            if let Some(wire) = wire {
+                to.send_with_tag(&wire[..], TAG_RESUME);
+            }
+        }
+        own
     }
 }
 

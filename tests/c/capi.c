@@ -544,6 +544,9 @@ int main(void) {
         EXPECT(gsenc_encoder_create(&cfg, &again), GSENC_STATUS_OK);
         EXPECT(gsenc_encoder_resume(again, NULL), GSENC_STATUS_NULL_POINTER);
         EXPECT(gsenc_encoder_resume(NULL, inmem), GSENC_STATUS_NULL_POINTER);
+        EXPECT(gsenc_encoder_resume_stored(NULL, "copy", 0), GSENC_STATUS_NULL_POINTER);
+        EXPECT(gsenc_encoder_resume_stored(again, "copy", 0), GSENC_STATUS_CALL_ORDER);
+        CHECK(strstr(last_error(), "writes no output") != NULL, "no output to resume from: %s", last_error());
         EXPECT(gsenc_encoder_resume(again, inmem), GSENC_STATUS_OK);
         EXPECT(gsenc_encoder_resume(again, inmem), GSENC_STATUS_INVALID_ARGUMENT);
         CHECK(strstr(last_error(), "has begun on this encoder already") != NULL, "resumed twice: %s", last_error());

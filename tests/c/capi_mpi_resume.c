@@ -4,8 +4,11 @@
  * the first's) for steps 1 to 3; a second run resumes both from every
  * rank's step-1 model (gsenc_encoder_resume, collective) and pushes steps 2
  * and 3. Every rank's model and rank 0's step index of steps 2 and 3 must
- * be byte for byte the unbroken run's. Misuse is refused on every rank:
- * one rank's NULL model, another rank's model, a resume after a push.
+ * be byte for byte the unbroken run's. So must those of runs restarted
+ * from their own output (gsenc_encoder_resume_stored): a folder, and an
+ * HDF5 store (OUTPUT_DIR/restarted.h5, which tests/mpi.sh compares).
+ * Misuse is refused on every rank: one rank's NULL model, another rank's
+ * model, a resume after a push, a step the output does not hold.
  * usage: capi_mpi_resume OUTPUT_DIR */
 #include "gsenc.h"
 #include "mpi_checks.h"
@@ -89,11 +92,13 @@ int main(int argc, char **argv) {
     MPI_Init_thread(&argc, &argv, MPI_THREAD_FUNNELED, &provided);
     MPI_Comm_rank(MPI_COMM_WORLD, &rank);
     MPI_Comm_size(MPI_COMM_WORLD, &size);
-    char unbroken[900], restarted[900];
+    char unbroken[900], restarted[900], stored[900], store[900];
     snprintf(unbroken, sizeof unbroken, "%s/unbroken", argv[1]);
     snprintf(restarted, sizeof restarted, "%s/restarted", argv[1]);
+    snprintf(stored, sizeof stored, "%s/stored", argv[1]);
+    snprintf(store, sizeof store, "%s/restarted.h5", argv[1]);
     if (rank == 0) {
-        CHECK(mkdir(unbroken, 0755) == 0 && mkdir(restarted, 0755) == 0, "make the output folders in %s", argv[1]);
+        CHECK(mkdir(unbroken, 0755) == 0 && mkdir(restarted, 0755) == 0 && mkdir(stored, 0755) == 0, "make the output folders in %s", argv[1]);
     }
     MPI_Barrier(MPI_COMM_WORLD);
 
@@ -137,19 +142,46 @@ int main(int argc, char **argv) {
     EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
     gsenc_encoder_destroy(enc);
 
-    const char *fields[2] = {"rho", "tracer"};
-    for (int f = 0; f < 2; f++)
-        for (int step = 2; step <= 3; step++) {
-            char a[1024], b[1024];
-            model_path(a, sizeof a, unbroken, fields[f], step, rank);
-            model_path(b, sizeof b, restarted, fields[f], step, rank);
-            same_file(a, b);
-            if (rank == 0) {
-                snprintf(a, sizeof a, "%s/%s_%06d.gsi", unbroken, fields[f], step);
-                snprintf(b, sizeof b, "%s/%s_%06d.gsi", restarted, fields[f], step);
+    /* A restart from the run's own output (gsenc_encoder_resume_stored):
+     * a folder, where each rank reads its file, and an HDF5 store, which
+     * rank 0 reads for every rank (tests/mpi.sh compares its steps 2 and 3
+     * with the unbroken run's). The stopped run wrote step 1 there. */
+    for (int h5 = 0; h5 < 2; h5++) {
+        gsenc_config out = cfg;
+        out.output_dir = h5 ? store : stored;
+        out.output_format = h5 ? GSENC_OUTPUT_HDF5 : GSENC_OUTPUT_FOLDER;
+        EXPECT(gsenc_encoder_create_mpi(&out, MPI_Comm_c2f(MPI_COMM_WORLD), &enc), GSENC_STATUS_OK);
+        push_step(enc, 1);
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+        gsenc_encoder_destroy(enc);
+        EXPECT(gsenc_encoder_create_mpi(&out, MPI_Comm_c2f(MPI_COMM_WORLD), &enc), GSENC_STATUS_OK);
+        /* A step the output does not hold: every rank hears of it. */
+        gsenc_status s = gsenc_encoder_resume_stored(enc, "rho", 9);
+        if (h5)
+            CHECK(s == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "holds no model /rho/9/rank_") != NULL, "a step the store lacks: %s: %s", gsenc_status_string(s), last_error());
+        else
+            CHECK(s == GSENC_STATUS_IO && strstr(last_error(), "rho_000009") != NULL, "a step the folder lacks: %s: %s", gsenc_status_string(s), last_error());
+        EXPECT(gsenc_encoder_resume_stored(enc, "rho", 1), GSENC_STATUS_OK);
+        EXPECT(gsenc_encoder_resume_stored(enc, "tracer", 1), GSENC_STATUS_OK);
+        for (int step = 2; step <= 3; step++) push_step(enc, step);
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+        gsenc_encoder_destroy(enc);
+    }
+
+    const char *fields[2] = {"rho", "tracer"}, *again[2] = {restarted, stored};
+    for (int d = 0; d < 2; d++)
+        for (int f = 0; f < 2; f++)
+            for (int step = 2; step <= 3; step++) {
+                char a[1024], b[1024];
+                model_path(a, sizeof a, unbroken, fields[f], step, rank);
+                model_path(b, sizeof b, again[d], fields[f], step, rank);
                 same_file(a, b);
+                if (rank == 0) {
+                    snprintf(a, sizeof a, "%s/%s_%06d.gsi", unbroken, fields[f], step);
+                    snprintf(b, sizeof b, "%s/%s_%06d.gsi", again[d], fields[f], step);
+                    same_file(a, b);
+                }
             }
-        }
 
     int mine[2] = {passes, failures}, all[2] = {0, 0};
     MPI_Reduce(mine, all, 2, MPI_INT, MPI_SUM, 0, MPI_COMM_WORLD);

@@ -194,6 +194,18 @@ program module_test
     call expect(gsenc_model_decode(model, again), GSENC_STATUS_OK, 'decode the restarted step 1')
     call gsenc_model_destroy(model)
     call check(all(again == decoded), 'the restarted step 1 decodes as the unbroken run''s')
+    ! The same restart from the encoder's own folder, which holds step 0.
+    call expect(gsenc_encoder_create(cfg, enc, output_dir=trim(dir)), GSENC_STATUS_OK, 'create on the same folder')
+    call expect(gsenc_encoder_resume_stored(enc, 'grid', 9_int64), GSENC_STATUS_IO, 'resume from a step not stored')
+    call expect(gsenc_encoder_resume_stored(enc, 'grid', 0_int64), GSENC_STATUS_OK, 'resume from the stored step 0')
+    call expect(gsenc_push_grid(enc, 'grid', 1_int64, wide(1:2 * n:2, :, :), [0d0, 0d0, 0d0], 1d0 / n), &
+        GSENC_STATUS_OK, 'push step 1 after the stored restart')
+    call expect(gsenc_wait(enc), GSENC_STATUS_OK, 'wait after the stored restart')
+    call gsenc_encoder_destroy(enc)
+    call expect(gsenc_model_read(trim(dir)//'/grid_000001.gsm', model), GSENC_STATUS_OK, 'read its step 1')
+    call expect(gsenc_model_decode(model, again), GSENC_STATUS_OK, 'decode its step 1')
+    call gsenc_model_destroy(model)
+    call check(all(again == decoded), 'the step 1 of the stored restart decodes as the unbroken run''s')
 
     write (*, '(a, i0, a, i0, a)') 'fortran: ', passed, ' passed, ', failed, ' failed'
     if (failed > 0) error stop 1
