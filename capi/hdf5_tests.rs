@@ -64,9 +64,10 @@ fn the_c_api_appends_every_step_to_an_hdf5_store() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A restarted encoder resumes from the store it writes: the step the
-/// stopped run appended, then its next step as the unbroken run's; a step
-/// the store does not hold is refused, naming the entry.
+/// A restarted encoder resumes from the store it writes: a step the
+/// stopped run appended, then its next step as the unbroken run's, stored
+/// again where the stopped run had stored it; a step the store does not
+/// hold is refused, naming the entry.
 #[test]
 fn a_restart_resumes_from_its_own_store() {
     let _hdf5 = common::hdf5_serial();
@@ -96,8 +97,11 @@ fn a_restart_resumes_from_its_own_store() {
         let enc = create(&unbroken_c);
         (0..3).for_each(|step| push(enc, step));
         gsenc_encoder_destroy(enc);
+        // The stopped run stored steps 0 to 2; the restart goes on from
+        // step 1 (a checkpoint taken before it stopped) and stores step 2
+        // again: the same model, which the store takes as a no-op.
         let enc = create(&stopped_c);
-        (0..2).for_each(|step| push(enc, step));
+        (0..3).for_each(|step| push(enc, step));
         gsenc_encoder_destroy(enc);
 
         let enc = create(&stopped_c);

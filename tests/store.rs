@@ -107,8 +107,17 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     let m = model("rho", 3, 0, 200, 0.5);
     let mut s = Store::open_append(&path).unwrap();
     s.append(&m, Payload::Float32).unwrap();
+    // The same model again (a restarted run storing its steps again)
+    // changes nothing and is no error; any other model of the key is
+    // refused: other parameters, another time, another payload.
+    s.append(&m, Payload::Float32).unwrap();
     let mut other = model("rho", 3, 0, 50, 0.5);
-    assert!(matches!(s.append(&other, Payload::Float32), Err(Error::InvalidArgument(_))));
+    let e = s.append(&other, Payload::Float32).unwrap_err();
+    assert!(matches!(&e, Error::InvalidArgument(t) if t.contains("/rho/3/rank_0 already holds a model, another than this one")), "{e}");
+    let mut later = m.clone();
+    later.meta.time = Some(0.25);
+    assert!(matches!(s.append(&later, Payload::Float32), Err(Error::InvalidArgument(_))));
+    assert!(matches!(s.append(&m, Payload::Bits8(CentreCoding::Float16)), Err(Error::InvalidArgument(_))));
     other.meta.field = "a/b".into();
     assert!(matches!(s.append(&other, Payload::Float32), Err(Error::InvalidArgument(_))));
     other.meta.field = "ok".into();
@@ -511,9 +520,12 @@ fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_w
         for m in &pieces {
             s.append(m, Payload::Float32).unwrap();
         }
-        // A second index of the step is refused, as a second model is.
-        let e = s.append_step_index(&index).unwrap_err();
-        assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("already holds a step index"), "{e}");
+        // The same index again changes nothing; another index of the step
+        // is refused, as another model is.
+        s.append_step_index(&index).unwrap();
+        let moved = gsenc::format::StepIndex { time: Some(9.0), ..index.clone() };
+        let e = s.append_step_index(&moved).unwrap_err();
+        assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("already holds a step index, another than this one"), "{e}");
         // And one step without an index.
         s.append(&model("rho", 5, 0, 30, 0.5), Payload::Float32).unwrap();
     }

@@ -163,18 +163,25 @@ impl Store {
     }
 
     /// Appends `model` as `/<field>/<step>/rank_<r>` with `payload`.
-    /// Refuses an entry that already exists: earlier steps are never
-    /// rewritten. The entry (and a new step or field group above it) is
-    /// built unlinked and flushed first; one link then commits it, and a
-    /// second flush writes that link (see the module documentation).
+    /// Earlier steps are never rewritten: where the entry exists already,
+    /// the append changes nothing, and succeeds when the entry holds what
+    /// it would have stored (a run restarted from an earlier step stores
+    /// its next steps again, the same models where the simulation repeats
+    /// itself) and fails otherwise. The entry (and a new step or field
+    /// group above it) is built unlinked and flushed first; one link then
+    /// commits it, and a second flush writes that link (see the module
+    /// documentation).
     pub fn append(&mut self, model: &Model, payload: Payload) -> Result<()> {
         let key = EntryKey::of(&model.meta);
         check_field_name(&key.field)?;
-        payload.round_trip(model)?; // refuses unstorable parameters before touching the file
+        let params = payload.round_trip(model)?; // refuses unstorable parameters before touching the file
         let rank_name = format!("rank_{}", key.rank);
         let groups = self.groups(&key.field, key.step)?;
         if groups.1.as_ref().is_some_and(|s| s.link_exists(&rank_name)) {
-            return Err(Error::arg(format!("{} already holds a model; a store never rewrites a step", key.path())));
+            return match self.holds(&key, model, payload, &params)? {
+                true => Ok(()),
+                false => Err(Error::arg(format!("{} already holds a model, another than this one; a store never rewrites a step", key.path()))),
+            };
         }
         self.unevicted(|s| {
             // Everything new, unlinked: nothing existing changes until the commit.
@@ -199,7 +206,11 @@ impl Store {
         let text = stored.to_json();
         let groups = self.groups(&index.field, index.step)?;
         if groups.1.as_ref().is_some_and(|s| s.link_exists(INDEX)) {
-            return Err(Error::arg(format!("/{}/{} already holds a step index; a store never rewrites a step", index.field, index.step)));
+            // The same index again (a restarted run's) changes nothing.
+            if self.step_index(&index.field, index.step)?.is_some_and(|held| held.to_json() == text) {
+                return Ok(());
+            }
+            return Err(Error::arg(format!("/{}/{} already holds a step index, another than this one; a store never rewrites a step", index.field, index.step)));
         }
         self.unevicted(|s| {
             // With HDF5's Fletcher-32 checksum: a changed byte of an index
@@ -208,6 +219,18 @@ impl Store {
             ds.write_raw(text.as_bytes()).map_err(h5(&s.path))?;
             s.commit(groups, &index.field, index.step, index.time, INDEX, &ds)
         })
+    }
+
+    /// Whether the entry `key` holds `model` as appending it with `payload`
+    /// would store it (`params`: its parameters as read back): the same
+    /// payload, parameters and support, and the same metadata as a reader
+    /// gets it (compared through the entry's checksum of it).
+    fn holds(&self, key: &EntryKey, model: &Model, payload: Payload, params: &[Primitive]) -> Result<bool> {
+        let (held, held_payload) = self.read(key)?;
+        Ok(held_payload == payload
+            && held.params == params
+            && held.support == model.support
+            && entry_crc(&held.meta, payload, &held.params, held.support.as_ref())? == entry_crc(&model.meta, payload, params, model.support.as_ref())?)
     }
 
     /// Runs `append` (the building and commit of an entry) with the

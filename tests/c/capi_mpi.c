@@ -178,14 +178,16 @@ int main(int argc, char **argv) {
             CHECK(enc == NULL && strstr(last_error(), "different outputs") != NULL, "mixed outputs: %s", last_error());
         }
         for (int pass = 0; pass < 2; pass++) {
-            /* The second pass pushes step 1 into the same store: rank 0
-             * cannot write the step's index (its push fails) nor any rank's
-             * model (every rank's wait fails, naming the entry). */
+            /* The second pass pushes step 1 into the same store again, at
+             * another time (so another index and other models: the same
+             * ones would be taken as a restarted run's, and change nothing):
+             * rank 0 cannot write the step's index (its push fails) nor any
+             * rank's model (every rank's wait fails, naming the entry). */
             EXPECT(gsenc_encoder_create_mpi(&h5, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
             for (int step = 1; step <= 2 - pass; step++) {
                 fill_slab(slab, N, x0, nx, step);
                 gsenc_grid g = {sizeof g, GSENC_DTYPE_FLOAT32, slab, {(uint64_t)nx, N, N}, {0, 0, 0}, {(double)x0 / N, 0, 0}, 1.0 / N};
-                s = gsenc_push_grid(enc, "rho", (uint64_t)step, step * 0.1, &g);
+                s = gsenc_push_grid(enc, "rho", (uint64_t)step, step * 0.1 + pass, &g);
                 if (pass == 1 && rank == 0)
                     CHECK(s == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "already holds a step index") != NULL, "rank 0 pushing a stored step: %s: %s", gsenc_status_string(s), last_error());
                 else

@@ -145,13 +145,15 @@ int main(int argc, char **argv) {
     /* A restart from the run's own output (gsenc_encoder_resume_stored):
      * a folder, where each rank reads its file, and an HDF5 store, which
      * rank 0 reads for every rank (tests/mpi.sh compares its steps 2 and 3
-     * with the unbroken run's). The stopped run wrote step 1 there. */
+     * with the unbroken run's). The stopped run wrote steps 1 and 2 there,
+     * and the restart goes on from step 1, as from a checkpoint taken
+     * before the run stopped: it stores step 2 again, the same models. */
     for (int h5 = 0; h5 < 2; h5++) {
         gsenc_config out = cfg;
         out.output_dir = h5 ? store : stored;
         out.output_format = h5 ? GSENC_OUTPUT_HDF5 : GSENC_OUTPUT_FOLDER;
         EXPECT(gsenc_encoder_create_mpi(&out, MPI_Comm_c2f(MPI_COMM_WORLD), &enc), GSENC_STATUS_OK);
-        push_step(enc, 1);
+        for (int step = 1; step <= 2; step++) push_step(enc, step);
         EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
         gsenc_encoder_destroy(enc);
         EXPECT(gsenc_encoder_create_mpi(&out, MPI_Comm_c2f(MPI_COMM_WORLD), &enc), GSENC_STATUS_OK);
