@@ -139,8 +139,9 @@ pub fn lattice_of_pieces(frames: &[IndexFrame], grid: bool, dims: [usize; 3], bo
                     continue;
                 }
                 tried.push(gamma);
-                match pieces_of(&lattice(gamma)?) {
-                    Ok(pieces) => return Ok((lattice(gamma)?, pieces)),
+                let global = lattice(gamma)?;
+                match pieces_of(&global) {
+                    Ok(pieces) => return Ok((global, pieces)),
                     Err(r) => {
                         first_failure.get_or_insert(r);
                     }

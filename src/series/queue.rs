@@ -188,6 +188,14 @@ impl State {
         self.recycled.iter().position(|b| b.capacity() >= len)
     }
 
+    /// Refuses to resume `field` once a step of it was pushed or resumed.
+    fn not_begun(&self, field: &str) -> Result<()> {
+        match self.last_pushed.get(field) {
+            Some(last) => Err(Error::arg(format!("field '{field}' has begun on this encoder already (its last step {last}); resume a field before its first push"))),
+            None => Ok(()),
+        }
+    }
+
     /// Records job `key`'s final `state`, then drops the oldest final
     /// states beyond `kept`, holding a failure `wait` has not reported.
     fn settle(&mut self, key: Key, state: JobState) {
@@ -447,9 +455,7 @@ impl BackgroundEncoder {
                 range.transform.name()
             )));
         }
-        if let Some(&last) = self.shared.state.lock().last_pushed.get(field) {
-            return Err(Error::arg(format!("field '{field}' has begun on this encoder already (its last step {last}); resume a field before its first push")));
-        }
+        self.shared.state.lock().not_begun(field)?;
         if self.worker.as_ref().is_none_or(|w| w.is_finished()) {
             return Err(Error::arg("the encode thread has stopped"));
         }
@@ -467,10 +473,8 @@ impl BackgroundEncoder {
         let (field, step) = (model.meta.field.clone(), model.meta.step);
         let psnr = model.meta.encode_psnr.unwrap_or(f64::NAN);
         let mut st = self.shared.state.lock();
-        if st.last_pushed.contains_key(&field) {
-            // Pushed from another thread since the check.
-            return Err(Error::arg(format!("field '{field}' has begun on this encoder already; resume a field before its first push")));
-        }
+        // Pushed from another thread since the check?
+        st.not_begun(&field)?;
         // Sent under the lock, so that no push of the field can pass it.
         let sent = self.jobs.as_ref().is_some_and(|tx| tx.send(Work::Resume(model.clone())).is_ok());
         if !sent {
