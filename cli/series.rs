@@ -53,7 +53,8 @@ pub struct EncodeSeriesArgs {
     field: String,
     /// Continue a series that stopped: the first step warm-starts from this
     /// model (the series' last stored step, a .gsm file) on its lattice and
-    /// value range, exactly as an unbroken run would.
+    /// value range, exactly as an unbroken run would (a --range or --log10
+    /// other than the model's is refused).
     #[arg(long)]
     resume_from: Option<PathBuf>,
     /// Payload of every step's model: f32, 8bit, 8bit-u16 or packed.

@@ -205,7 +205,23 @@ fn a_resumed_series_continues_exactly_as_an_unbroken_one() {
     let moved = IndexFrame { bmin: [0.5, 0.0, 0.0], ..frame(DIMS) };
     let e = shifted.encode_step("rho", 2, None, Input::Grid { values: &steps[2], frame: moved }, &mut cpu, &mut |_| {});
     assert!(matches!(&e, Err(Error::InvalidArgument(m)) if m.contains("box")), "{:?}", e.err());
-    assert!(matches!(shifted.resume(stored), Err(Error::InvalidArgument(_))));
+    assert!(matches!(shifted.resume(stored.clone()), Err(Error::InvalidArgument(_))));
+    // A series configured with another range, transform or rank does not
+    // continue the model (it would encode on the model's range, not its own).
+    let range = stored.meta.range;
+    let other_range = ValueRange::new(range.vmin, range.vmax * 2.0, Transform::Linear).unwrap();
+    let mut rank1 = SeriesConfig::new(base(), WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
+    rank1.rank = 1;
+    for (cfg, says) in [
+        (SeriesConfig::new(base(), WarmStart::Coarse, SeriesRange::Fixed(other_range)), "keeps its range"),
+        (SeriesConfig::new(base(), WarmStart::Coarse, SeriesRange::FirstStep(Transform::Log10)), "keeps its range"),
+        (rank1, "rank 0's piece; this is rank 1"),
+    ] {
+        let e = SeriesEncoder::new(cfg).unwrap().resume(stored.clone());
+        assert!(matches!(&e, Err(Error::InvalidArgument(m)) if m.contains(says)), "{:?}", e.err());
+    }
+    // The range it was encoded with, given, is its own.
+    SeriesEncoder::new(SeriesConfig::new(base(), WarmStart::Coarse, SeriesRange::Fixed(range))).unwrap().resume(stored).unwrap();
 }
 
 /// Particles without configured bounds: the unbroken series deposits every

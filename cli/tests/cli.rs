@@ -957,6 +957,12 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
     let (code, _, err) = gsenc(&args);
     assert_eq!(code, 2);
     assert!(err.contains("must come after"), "{err}");
+    // So is a --range other than the series' (the model's).
+    let mut args = common.to_vec();
+    args.extend(["--steps", "2..3", "--range", "0,1e6", "--resume-from", step1.to_str().unwrap(), "-o", resumed.to_str().unwrap()]);
+    let (code, _, err) = gsenc(&args);
+    assert_eq!(code, 2);
+    assert!(err.contains("keeps its range"), "{err}");
 
     // A step the input does not hold is a clear error, before any work.
     let mut args = common.to_vec();

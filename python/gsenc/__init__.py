@@ -7,6 +7,9 @@ hexahedral cells into new models. A thin layer over the Rust library gsenc:
 the same readers, decoder and encode pipeline as the ``gsenc`` command-line
 tool and the C API, so a decode here is bit for bit the tool's.
 
+A time series goes through :class:`Series`: each step of a field starts
+from its previous step's model.
+
 Arrays are C order ``[z][y][x]`` (x varies fastest), as the tool writes
 them. Errors raise ``ValueError`` (bad arguments or data), ``OSError``
 (files), :class:`ModelError` (a ``ValueError``: a corrupted, foreign or
@@ -30,6 +33,7 @@ __all__ = [
     "Model",
     "ModelError",
     "PRIMITIVE_DTYPE",
+    "Series",
     "Store",
     "__version__",
     "encode_cells",
@@ -195,3 +199,68 @@ def encode_cells(centers, values, sizes=None, volumes=None, *, budget=None, targ
                  sample_seed, relocation, support, threads, backend)
     place = _place(dims, fit_dims, bounds)
     return _run(lambda report: _gsenc.encode_cells(centers, values, sizes, volumes, place, o, report), progress)
+
+
+class Series:
+    """A time series encoded step by step: each field's first step as
+    :func:`encode_grid` would (the same options), each later step
+    warm-started from the field's previous model on the first step's lattice
+    and value range (docs/METHOD.md "Warm start"), as ``gsenc
+    encode-series`` and the C API's encoders do. Fields are independent
+    series; a field's steps must increase and share its lattice (particles
+    and cells of later steps are deposited in the first step's box).
+
+    ``warm``: "auto" (the previous model, repaired where it misses, or a
+    fresh seeding, whichever validates best), "off" (each step on its own),
+    "coarse" (1000 iterations, no relocation) or "dense" (1500, relocation
+    on); ``warm_iterations`` caps a warm step's iterations. ``range``: (lo,
+    hi) for every step, default the first step's own (later steps clamp
+    values outside it: a model's ``info["clamped_values"]`` counts them).
+    ``rank`` labels the models. One backend is opened for the whole series.
+
+    A step returns its model as :func:`encode_grid` does (``info`` adds
+    ``warm_started``, ``clamped_values`` and ``outside_items``: particles
+    or cells outside the first step's box). Steps run one at a time; a
+    step that fails (bad data, Ctrl-C) leaves the series as it was."""
+
+    def __init__(self, budget=None, *, target_psnr=None, warm="auto", warm_iterations=None, schedule="matched", range=None, log10=False,
+                 payload="f32", rank=0, iterations=None, points=None, seed=0, sample_seed=1, relocation=True, support=True, threads=None,
+                 backend="auto"):
+        o = _options(budget, target_psnr, schedule, range, log10, payload, None, None, None, rank, iterations, points, seed,
+                     sample_seed, relocation, support, threads, backend)
+        self._series = _gsenc.Series(o, warm, warm_iterations)
+
+    def encode_grid(self, array, *, step, field="scalar", time=None, origin=(0.0, 0.0, 0.0), spacing=1.0, progress=None) -> Model:
+        """Encodes a 3D array ``[z][y][x]`` as ``field``'s step ``step``
+        (simulation time ``time``); ``array``, ``origin``, ``spacing`` and
+        ``progress`` as :func:`encode_grid`."""
+        origin = tuple(float(v) for v in origin)
+        return _run(lambda report: self._series.encode_grid(array, origin, float(spacing), field, step, time, report), progress)
+
+    def encode_particles(self, positions, smoothing_length, values, mass=None, *, step, field="scalar", time=None, dims=None,
+                         fit_dims=None, bounds=None, progress=None) -> Model:
+        """Encodes SPH particles as ``field``'s step ``step``; arguments as
+        :func:`encode_particles` (a later step's ``bounds`` are the first
+        step's, whatever is given)."""
+        place = _place(dims, fit_dims, bounds)
+        return _run(lambda report: self._series.encode_particles(positions, smoothing_length, values, mass, place, field, step, time,
+                                                                 report), progress)
+
+    def encode_cells(self, centers, values, sizes=None, volumes=None, *, step, field="scalar", time=None, dims=None, fit_dims=None,
+                     bounds=None, progress=None) -> Model:
+        """Encodes hexahedral cells as ``field``'s step ``step``; arguments
+        as :func:`encode_cells`."""
+        place = _place(dims, fit_dims, bounds)
+        return _run(lambda report: self._series.encode_cells(centers, values, sizes, volumes, place, field, step, time, report),
+                    progress)
+
+    def resume(self, model):
+        """Continues the series of ``model``'s field from it, the last step
+        stored before a run stopped: the field's next step (which must come
+        after it) starts from it, on its lattice and value range, as if the
+        series had not stopped. Before the field's first step only; the
+        model must be of this series' rank and range (a given ``range``,
+        or ``log10``). A model read from a float32 file, or returned by an
+        encode, continues bit for bit; one read from a rounded payload
+        starts from the parameters it stores."""
+        self._series.resume(model)

@@ -98,3 +98,68 @@ def encode_cells(
     backend: str = "auto",
     progress: _Progress = None,
 ) -> Model: ...
+
+class Series:
+    def __init__(
+        self,
+        budget: Optional[int] = None,
+        *,
+        target_psnr: Optional[float] = None,
+        warm: str = "auto",
+        warm_iterations: Optional[int] = None,
+        schedule: str = "matched",
+        range: Optional[Tuple[float, float]] = None,
+        log10: bool = False,
+        payload: str = "f32",
+        rank: int = 0,
+        iterations: Optional[int] = None,
+        points: Optional[int] = None,
+        seed: int = 0,
+        sample_seed: int = 1,
+        relocation: bool = True,
+        support: bool = True,
+        threads: Optional[int] = None,
+        backend: str = "auto",
+    ) -> None: ...
+    def encode_grid(
+        self,
+        array: np.ndarray,
+        *,
+        step: int,
+        field: str = "scalar",
+        time: Optional[float] = None,
+        origin: _Vec3 = (0.0, 0.0, 0.0),
+        spacing: float = 1.0,
+        progress: _Progress = None,
+    ) -> Model: ...
+    def encode_particles(
+        self,
+        positions: np.ndarray,
+        smoothing_length: np.ndarray,
+        values: np.ndarray,
+        mass: Optional[np.ndarray] = None,
+        *,
+        step: int,
+        field: str = "scalar",
+        time: Optional[float] = None,
+        dims: Optional[Tuple[int, int, int]] = None,
+        fit_dims: Optional[int] = None,
+        bounds: Optional[Tuple[_Vec3, _Vec3]] = None,
+        progress: _Progress = None,
+    ) -> Model: ...
+    def encode_cells(
+        self,
+        centers: np.ndarray,
+        values: np.ndarray,
+        sizes: Optional[np.ndarray] = None,
+        volumes: Optional[np.ndarray] = None,
+        *,
+        step: int,
+        field: str = "scalar",
+        time: Optional[float] = None,
+        dims: Optional[Tuple[int, int, int]] = None,
+        fit_dims: Optional[int] = None,
+        bounds: Optional[Tuple[_Vec3, _Vec3]] = None,
+        progress: _Progress = None,
+    ) -> Model: ...
+    def resume(self, model: Model) -> None: ...

@@ -80,3 +80,36 @@ def encode_particles(
 def encode_cells(
     centers: np.ndarray, values: np.ndarray, sizes: Optional[np.ndarray], volumes: Optional[np.ndarray], place: dict[str, Any], options: dict[str, Any], progress: _Progress = None
 ) -> Model: ...
+
+class Series:
+    """A time series' encoder (use it through gsenc.Series)."""
+
+    def __init__(self, options: dict[str, Any], warm: str, warm_iterations: Optional[int] = None) -> None: ...
+    def encode_grid(
+        self, array: np.ndarray, origin: Tuple[float, float, float], spacing: float, field: str, step: int, time: Optional[float] = None, progress: _Progress = None
+    ) -> Model: ...
+    def encode_particles(
+        self,
+        positions: np.ndarray,
+        smoothing_length: np.ndarray,
+        values: np.ndarray,
+        mass: Optional[np.ndarray],
+        place: dict[str, Any],
+        field: str,
+        step: int,
+        time: Optional[float] = None,
+        progress: _Progress = None,
+    ) -> Model: ...
+    def encode_cells(
+        self,
+        centers: np.ndarray,
+        values: np.ndarray,
+        sizes: Optional[np.ndarray],
+        volumes: Optional[np.ndarray],
+        place: dict[str, Any],
+        field: str,
+        step: int,
+        time: Optional[float] = None,
+        progress: _Progress = None,
+    ) -> Model: ...
+    def resume(self, model: Model) -> None: ...

@@ -1,36 +1,34 @@
 //! `gsenc.encode_grid`, `encode_particles` and `encode_cells`: numpy
-//! arrays into the library's inputs, then its one encode pipeline (as the
-//! command line and the C API run it), with the GIL released. Keyword
-//! options arrive as a dict from `gsenc/__init__.py`, which spells them
-//! out and documents them.
+//! arrays into the library's inputs (`inputs.rs`), then its one encode
+//! pipeline (as the command line and the C API run it), with the GIL
+//! released. Keyword options arrive as a dict from `gsenc/__init__.py`,
+//! which spells them out and documents them. `series.rs` runs a time
+//! series' steps through the same options, GIL release and models.
 
-use crate::arrays::{grid_values, triples, values, values_f64};
 use crate::errors::IntoPy;
+use crate::inputs::Arrays;
 use crate::model::{backend_choice, in_memory, Model};
 use gsenc::encode::pipeline::{self, Labels, Request, Start};
-use gsenc::encode::{with_threads, Cancel, EncodeConfig, Schedule, TargetPsnr};
-use gsenc::field::{Bounds, Grid, IndexFrame};
+use gsenc::encode::{with_threads, Cancel, EncodeConfig, Progress, Schedule, TargetPsnr};
 use gsenc::format::Payload;
-use gsenc::input::cells::{CellSize, Cells};
-use gsenc::input::particles::Particles;
-use gsenc::input::{Input, Placement, RangeSpec};
-use pyo3::exceptions::{PyTypeError, PyValueError};
+use gsenc::input::RangeSpec;
+use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// Options every encode takes (their defaults are `gsenc/__init__.py`'s).
-struct Options {
-    request: Request<'static>,
-    range: RangeSpec,
-    threads: Option<usize>,
-    backend: String,
+pub struct Options {
+    pub request: Request<'static>,
+    pub range: RangeSpec,
+    pub threads: Option<usize>,
+    pub backend: String,
 }
 
 const OPTIONS: [&str; 18] = [
     "budget", "target_psnr", "schedule", "range", "log10", "payload", "field", "step", "time", "rank", "iterations", "points", "seed", "sample_seed", "relocation", "support", "threads", "backend",
 ];
 
-fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
+pub fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
     for key in o.keys() {
         let key: String = key.extract()?;
         if !OPTIONS.contains(&key.as_str()) {
@@ -67,19 +65,19 @@ fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
     Ok(Options { request, range, threads: get(o, "threads")?, backend: get(o, "backend")?.unwrap_or_else(|| "auto".into()) })
 }
 
-/// Runs the pipeline on `input` without the GIL. `progress(iteration,
-/// iterations, loss)` is called every 10 iterations (and at the last);
-/// Ctrl-C, or an exception from `progress`, stops the encode between
-/// iterations and is raised.
-fn run(py: Python<'_>, input: Input<'_>, mut o: Options, progress: Option<Py<PyAny>>) -> PyResult<Model> {
-    let choice = backend_choice(&o.backend)?;
-    let cancel = Cancel::default();
-    o.request.config.cancel = Some(cancel.clone());
+/// Runs `encode` without the GIL, reporting its progress to `progress(iteration,
+/// iterations, loss)` every 10 iterations (and at the last). Ctrl-C, or an
+/// exception from `progress`, sets `cancel` (the encode stops between
+/// iterations) and is raised.
+pub fn detached<T: Send>(
+    py: Python<'_>,
+    cancel: &Cancel,
+    progress: Option<Py<PyAny>>,
+    encode: impl FnOnce(&mut (dyn FnMut(&Progress) + Send)) -> gsenc::Result<T> + Send,
+) -> PyResult<T> {
     let mut raised: Option<PyErr> = None;
-    let (request, range, threads) = (&o.request, &o.range, o.threads);
-    let encoded = py.detach(|| -> gsenc::Result<pipeline::Encoded> {
-        let mut backend = choice.open()?;
-        let mut report = |p: &gsenc::encode::refine::Progress| {
+    let result = py.detach(|| {
+        let mut report = |p: &Progress| {
             if !p.iteration.is_multiple_of(10) && p.iteration != p.iterations {
                 return;
             }
@@ -94,16 +92,18 @@ fn run(py: Python<'_>, input: Input<'_>, mut o: Options, progress: Option<Py<PyA
                 }
             })
         };
-        let (_, encoded) = with_threads(threads, || pipeline::encode(&input, range, request, backend.as_mut(), &mut report))??;
-        Ok(encoded)
+        encode(&mut report)
     });
-    if let Some(e) = raised {
-        return Err(e);
+    match raised {
+        Some(e) => Err(e),
+        None => result.py_err(),
     }
-    let mut encoded = encoded.py_err()?;
-    // The model as its payload stores it (what its PSNR scores, and what a
-    // reader of the written file gets), so that it decodes as the file will.
-    let payload = o.request.payload;
+}
+
+/// The encoded model as its payload stores it (what its PSNR scores, and
+/// what a reader of the written file gets), so that it decodes as the file
+/// will; `write` stores the float32 model it came from, as the tool would.
+pub fn finished(mut encoded: pipeline::Encoded, payload: Payload) -> PyResult<Model> {
     let unquantized = encoded.model.clone();
     encoded.model.params = payload.round_trip(&encoded.model).py_err()?;
     let mut model = in_memory(encoded.model, payload, Some(encoded.psnr), "gsenc model (encoded, not yet written)");
@@ -112,24 +112,26 @@ fn run(py: Python<'_>, input: Input<'_>, mut o: Options, progress: Option<Py<PyA
     Ok(model)
 }
 
+/// Runs the pipeline on `arrays` (see [`detached`]).
+fn run(py: Python<'_>, arrays: Arrays, mut o: Options, progress: Option<Py<PyAny>>) -> PyResult<Model> {
+    let choice = backend_choice(&o.backend)?;
+    let cancel = Cancel::default();
+    o.request.config.cancel = Some(cancel.clone());
+    let (request, range, threads) = (&o.request, &o.range, o.threads);
+    let encoded = detached(py, &cancel, progress, |report| {
+        let mut backend = choice.open()?;
+        let (_, encoded) = with_threads(threads, || arrays.with_input(|input| pipeline::encode(&input, range, request, backend.as_mut(), report)))??;
+        Ok(encoded)
+    })?;
+    finished(encoded, o.request.payload)
+}
+
 /// Encodes a 3D array `[z][y][x]` (see `gsenc.encode_grid`).
 #[pyfunction]
 #[pyo3(signature = (array, origin, spacing, options, progress=None))]
 pub fn encode_grid(py: Python<'_>, array: &Bound<'_, PyAny>, origin: [f64; 3], spacing: f64, options: &Bound<'_, PyDict>, progress: Option<Py<PyAny>>) -> PyResult<Model> {
     let o = self::options(options)?;
-    let (dims, values) = grid_values(array, "array")?;
-    let grid = Grid::new(dims, values).py_err()?;
-    let frame = IndexFrame::for_grid(dims, origin, spacing).py_err()?;
-    run(py, Input::Grid { values: &grid, frame }, o, progress)
-}
-
-/// Where particles or cells are deposited: `dims`, or `fit_dims` voxels
-/// along the longest axis of `bounds` (default the data's).
-fn placement(place: &Bound<'_, PyDict>, data_bounds: impl FnOnce() -> Bounds) -> PyResult<Placement> {
-    let dims: Option<[usize; 3]> = place.get_item("dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
-    let fit: Option<usize> = place.get_item("fit_dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
-    let bounds: Option<([f64; 3], [f64; 3])> = place.get_item("bounds")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
-    Placement::resolve(dims, fit, bounds.map(|(min, max)| Bounds { min, max }), data_bounds).py_err()
+    run(py, Arrays::grid(array, origin, spacing)?, o, progress)
 }
 
 /// Encodes SPH particles against their deposit (see `gsenc.encode_particles`).
@@ -147,16 +149,7 @@ pub fn encode_particles(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Model> {
     let o = self::options(options)?;
-    let positions = triples(positions, "positions")?;
-    let smoothing_length = values_f64(smoothing_length, "smoothing_length")?;
-    let values = self::values(values, "values")?;
-    let mass = match mass {
-        Some(m) => self::values(m, "mass")?,
-        None => vec![1.0; positions.len()],
-    };
-    let particles = Particles { positions: &positions, smoothing_length: &smoothing_length, mass: &mass, values: &values };
-    let placement = placement(place, || particles.bounds())?;
-    run(py, Input::Particles { particles: &particles, placement }, o, progress)
+    run(py, Arrays::particles(positions, smoothing_length, values, mass, place)?, o, progress)
 }
 
 /// Encodes hexahedral cells against their deposit (see `gsenc.encode_cells`).
@@ -174,15 +167,5 @@ pub fn encode_cells(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<Model> {
     let o = self::options(options)?;
-    let centres = triples(centers, "centers")?;
-    let values = self::values(values, "values")?;
-    let (edges, vols) = match (sizes, volumes) {
-        (Some(s), None) => (triples(s, "sizes")?, vec![]),
-        (None, Some(v)) => (vec![], values_f64(v, "volumes")?),
-        _ => return Err(PyValueError::new_err("give sizes (an (n, 3) array of cell edges) or volumes, one of them")),
-    };
-    let size = if vols.is_empty() { CellSize::Edges(&edges) } else { CellSize::Volumes(&vols) };
-    let cells = Cells { centres: &centres, size, values: &values };
-    let placement = placement(place, || cells.bounds())?;
-    run(py, Input::Cells { cells: &cells, placement }, o, progress)
+    run(py, Arrays::cells(centers, values, sizes, volumes, place)?, o, progress)
 }

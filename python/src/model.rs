@@ -35,7 +35,7 @@ pub struct Model {
 
 impl Model {
     /// The model of one piece, or a clear error for a step of several.
-    fn one(&self, what: &str) -> PyResult<&gsenc::model::Model> {
+    pub fn one(&self, what: &str) -> PyResult<&gsenc::model::Model> {
         match self.field.pieces() {
             [one] => Ok(one),
             pieces => Err(PyValueError::new_err(format!("{what} takes one model; this is a step of {} pieces (read each piece's .gsm)", pieces.len()))),

@@ -11,7 +11,7 @@ use crate::encode::config::Curve;
 use crate::encode::{EncodeConfig, Progress, Validation, WarmStart};
 use crate::error::{Error, Result};
 use crate::field::{Bounds, IndexFrame, Transform, ValueRange};
-use crate::format::Payload;
+use crate::format::{check_field_name, Payload};
 use crate::input::{prepare, Input, Prepared, RangeSpec};
 use crate::model::Model;
 use std::collections::BTreeMap;
@@ -54,6 +54,34 @@ pub struct SeriesConfig {
 impl SeriesConfig {
     pub fn new(encode: EncodeConfig, warm: WarmStart, range: SeriesRange) -> SeriesConfig {
         SeriesConfig { encode, warm, range, validation_points: 1 << 16, validation_every: 50, validation_seed: 0x7a11_da7e, warm_iterations: None, payload: Payload::Float32, rank: 0, store_support: true }
+    }
+
+    /// Whether a series of this configuration can continue from `model`:
+    /// it needs a field name and primitives, this rank's, and the
+    /// configured value range (a fixed range, or a transform).
+    pub fn check_resumable(&self, model: &Model) -> Result<()> {
+        let (field, step) = (&model.meta.field, model.meta.step);
+        check_field_name(field)?;
+        if model.params.is_empty() {
+            return Err(Error::data(format!("the model of field '{field}' step {step} holds no primitives")));
+        }
+        if model.meta.rank != self.rank {
+            return Err(Error::arg(format!("field '{field}' step {step}: the model is rank {}'s piece; this is rank {}", model.meta.rank, self.rank)));
+        }
+        let range = model.meta.range;
+        let mismatch = match self.range {
+            SeriesRange::Fixed(r) => (r != range).then(|| format!("[{}, {}] ({})", r.vmin, r.vmax, r.transform.name())),
+            SeriesRange::FirstStep(t) => (t != range.transform).then(|| format!("a range of the {} transform", t.name())),
+        };
+        match mismatch {
+            Some(want) => Err(Error::arg(format!(
+                "field '{field}' step {step}: the model's value range [{}, {}] ({}) is not the configured {want}; a resumed series keeps its range",
+                range.vmin,
+                range.vmax,
+                range.transform.name()
+            ))),
+            None => Ok(()),
+        }
     }
 }
 
@@ -130,16 +158,13 @@ impl SeriesEncoder {
     /// and cells of later steps are deposited on the model's lattice, as
     /// the first step's box put them (through bounds that give it back bit
     /// for bit, [`IndexFrame::exact_bounds`]); a grid must come on it.
+    /// Refuses what [`SeriesConfig::check_resumable`] refuses, and a field
+    /// with steps.
     pub fn resume(&mut self, model: Model) -> Result<()> {
+        self.cfg.check_resumable(&model)?;
         let field = model.meta.field.clone();
-        if field.is_empty() {
-            return Err(Error::arg("a resumed model needs a field name"));
-        }
         if self.fields.contains_key(&field) {
             return Err(Error::arg(format!("field '{field}' already has steps in this series; resume before the first")));
-        }
-        if model.params.is_empty() {
-            return Err(Error::data(format!("the model of field '{field}' holds no primitives")));
         }
         let (range, frame) = (model.meta.range, model.meta.frame);
         self.fields.insert(field, FieldState { range, frame, bounds: frame.exact_bounds(), validation: None, last: model, curve: None });

@@ -31,7 +31,7 @@ use crate::format::check_field_name;
 use crate::input::StepData;
 use crate::model::Model;
 use crate::series::placement::ThreadPlacement;
-use crate::series::{SeriesConfig, SeriesEncoder, SeriesRange};
+use crate::series::{SeriesConfig, SeriesEncoder};
 use crossbeam_channel::{unbounded, Receiver, Sender};
 use parking_lot::{Condvar, Mutex};
 use std::collections::{BTreeMap, VecDeque};
@@ -433,28 +433,8 @@ impl BackgroundEncoder {
     /// begun already, or any model once the encode thread has stopped (so
     /// that the ranks of an MPI run, which check first, resume together).
     pub fn check_resume(&self, model: &Model) -> Result<()> {
-        let (field, step) = (&model.meta.field, model.meta.step);
-        check_field_name(field)?;
-        if model.params.is_empty() {
-            return Err(Error::data(format!("the model of field '{field}' step {step} holds no primitives")));
-        }
-        let rank = self.cfg.series.rank;
-        if model.meta.rank != rank {
-            return Err(Error::arg(format!("field '{field}' step {step}: the model is rank {}'s piece; this is rank {rank}", model.meta.rank)));
-        }
-        let range = model.meta.range;
-        let mismatch = match self.cfg.series.range {
-            SeriesRange::Fixed(r) => (r != range).then(|| format!("[{}, {}] ({})", r.vmin, r.vmax, r.transform.name())),
-            SeriesRange::FirstStep(t) => (t != range.transform).then(|| format!("a range of the {} transform", t.name())),
-        };
-        if let Some(want) = mismatch {
-            return Err(Error::arg(format!(
-                "field '{field}' step {step}: the model's value range [{}, {}] ({}) is not the configured {want}; a resumed series keeps its range",
-                range.vmin,
-                range.vmax,
-                range.transform.name()
-            )));
-        }
+        self.cfg.series.check_resumable(model)?;
+        let field = &model.meta.field;
         self.shared.state.lock().not_begun(field)?;
         if self.worker.as_ref().is_none_or(|w| w.is_finished()) {
             return Err(Error::arg("the encode thread has stopped"));
