@@ -776,6 +776,10 @@ fn payloads_convert_info_and_sub_box_decode() {
     let d = gsenc::format::packed::Precision::DEFAULT;
     let default = serde_json::json!({"centre": d.centre, "scale": d.scale, "rotation": d.rotation, "value": d.value, "weight": d.weight});
     assert_eq!(info(&p("conv.gsm"))["precision"], default);
+    // A packed model written packed again is the same file, at its own precision.
+    let (code, _, err) = gsenc(&["convert", &packedm, "--payload", "packed", "-o", &p("again.gsm")]);
+    assert_eq!(code, 0, "{err}");
+    assert!(std::fs::read(&packedm).unwrap() == std::fs::read(p("again.gsm")).unwrap(), "a packed model repacked changed");
 
     // convert: f32 -> 8bit-u16 -> f32; the PSNR of a lossy conversion is no
     // longer known, and going back to f32 loses nothing more.
