@@ -557,6 +557,14 @@ int main(void) {
         double kept_psnr = 0;
         EXPECT(gsenc_encoder_last_step(again, "copy", &kept_step, &kept_psnr), GSENC_STATUS_OK);
         CHECK(kept_step == 0 && kept_psnr == kept_info.encode_psnr, "the resumed model is the field's last: step %llu, %g dB", (unsigned long long)kept_step, kept_psnr);
+        /* Written again, it is the checkpoint's bytes: a packed model read
+         * and packed again is the same file. */
+        size_t rbytes = 0;
+        EXPECT(gsenc_encoder_model_bytes(again, "copy", NULL, 0, &rbytes), GSENC_STATUS_OK);
+        unsigned char *resumed = malloc(rbytes + 1);
+        EXPECT(gsenc_encoder_model_bytes(again, "copy", resumed, rbytes, &rbytes), GSENC_STATUS_OK);
+        CHECK(rbytes == nbytes && memcmp(resumed, mbytes, nbytes) == 0, "the resumed model rewritten is the checkpoint (%zu, %zu bytes)", rbytes, nbytes);
+        free(resumed);
         EXPECT(gsenc_push_grid(again, "copy", 0, 0.0, &grid), GSENC_STATUS_INVALID_ARGUMENT);
         CHECK(strstr(last_error(), "does not follow step 0") != NULL, "the resumed step again: %s", last_error());
         gsenc_encoder_destroy(again);
