@@ -74,6 +74,21 @@ fn one_process_writes_another_reads() {
     assert_eq!(gsenc::format::read_model(&std::fs::read(&got).unwrap()).unwrap(), m);
 }
 
+/// A packed model file added to a store and extracted again is the same
+/// file: the store holds the model's payload, packed again from the model
+/// as read, and a packed model packed again is the same bytes.
+#[test]
+fn a_packed_model_stored_and_extracted_is_the_same_file() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("packed");
+    let (store, file, got) = (dir.join("s.h5"), dir.join("rho_000003.gsm"), dir.join("got.gsm"));
+    std::fs::write(&file, write_model_as(&model("rho", 3, 0, 400, 1.5), Payload::Packed).unwrap()).unwrap();
+    let out = Command::new(gsenc_bin()).args(["store", "add"]).arg(&store).arg(&file).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = Command::new(gsenc_bin()).args(["store", "extract"]).arg(&store).arg("rho/3/0").arg("-o").arg(&got).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::read(&file).unwrap() == std::fs::read(&got).unwrap(), "the extracted file differs from the one added");
+}
 
 /// `store add` of a run's folder: every `.gsm` in it (not its step indexes
 /// or other files), in name order; and nothing is touched until every model
