@@ -887,5 +887,3 @@ mod round_trip_tests {
         assert!(e.to_string().contains("beyond its class's lattice"), "{e}");
     }
 }
-
-
