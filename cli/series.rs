@@ -7,13 +7,13 @@ use crate::output::{peak_rss_bytes, print_result, progress_bar, target_json};
 use clap::Args;
 use gsenc::encode::{with_threads, WarmStart};
 use gsenc::format::{self, model_file_name, Payload};
-use gsenc::input::{Input, RangeSpec};
+use gsenc::input::Input;
 use gsenc::io::preview::write_preview;
 use gsenc::io::{raw, read_model_file, write_atomic, AtomicFile};
 use gsenc::render::{ColorMap, View, ViewKind, DEFAULT_OPACITY};
 use gsenc::model::metrics::occupied_psnr;
 use gsenc::model::Model;
-use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange};
+use gsenc::series::{SeriesConfig, SeriesEncoder};
 use gsenc::{Error, Result};
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -162,11 +162,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     let rows = usize::try_from(value_bytes / (count * dtype.size()).max(1) as u64).unwrap_or(usize::MAX);
     let steps = parse_steps(a.steps.as_deref(), rows)?;
     let (warm, payload) = (a.warm, a.payload);
-    let range = match a.values.spec()? {
-        RangeSpec::Fixed(r) => SeriesRange::Fixed(r),
-        RangeSpec::FromData(t) => SeriesRange::FirstStep(t),
-    };
-    let mut cfg = SeriesConfig::new(a.train.config()?, warm, range);
+    let mut cfg = SeriesConfig::new(a.train.config()?, warm, a.values.spec()?.into());
     cfg.validation_points = a.validation_points;
     cfg.validation_every = a.validation_every;
     cfg.payload = payload;

@@ -12,8 +12,7 @@ use crate::model::{backend_choice, Model};
 use gsenc::backend::Backend;
 use gsenc::encode::{with_threads, Cancel, WarmStart};
 use gsenc::format::Payload;
-use gsenc::input::RangeSpec;
-use gsenc::series::{SeriesConfig, SeriesEncoder, SeriesRange};
+use gsenc::series::{SeriesConfig, SeriesEncoder};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::sync::{Mutex, MutexGuard};
@@ -72,14 +71,10 @@ impl Series {
     fn new(py: Python<'_>, options: &Bound<'_, PyDict>, warm: &str, warm_iterations: Option<usize>) -> PyResult<Series> {
         let Options { request, range, threads, backend } = self::options(options)?;
         let warm = WarmStart::from_name(warm).py_err()?;
-        let range = match range {
-            RangeSpec::Fixed(r) => SeriesRange::Fixed(r),
-            RangeSpec::FromData(t) => SeriesRange::FirstStep(t),
-        };
         let cancel = Cancel::default();
         let mut encode = request.config;
         encode.cancel = Some(cancel.clone());
-        let mut cfg = SeriesConfig::new(encode, warm, range);
+        let mut cfg = SeriesConfig::new(encode, warm, range.into());
         cfg.validation_points = 0; // as the C API's: no per-iteration log
         cfg.warm_iterations = warm_iterations;
         cfg.payload = request.payload;

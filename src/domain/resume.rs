@@ -13,7 +13,7 @@
 //! layer gathers the frames.
 
 use crate::error::{Error, Result};
-use crate::field::{Bounds, IndexBox, IndexFrame, Transform, ValueRange};
+use crate::field::{ulps_apart, Bounds, IndexBox, IndexFrame, Transform, ValueRange};
 
 /// What one rank sends the others about its resumed model: its piece's
 /// frame and the series' range.
@@ -130,11 +130,7 @@ pub fn lattice_of_pieces(frames: &[IndexFrame], grid: bool, dims: [usize; 3], bo
     let mut first_failure = None;
     for k in 0..=ULPS {
         for &base in &bases {
-            let (mut up, mut down) = (base, base);
-            for _ in 0..k {
-                (up, down) = (up.next_up(), down.next_down());
-            }
-            for gamma in [up, down] {
+            for gamma in ulps_apart(base, k) {
                 if tried.contains(&gamma) {
                     continue;
                 }

@@ -90,11 +90,7 @@ impl IndexFrame {
         for tight in 0..3 {
             let mut max: [f64; 3] = std::array::from_fn(|a| self.bmin[a] + (edge[a] - self.bmin[a]) * (1.0 - 1e-9));
             for k in 0..=EXACT_ULPS {
-                let (mut up, mut down) = (edge[tight], edge[tight]);
-                for _ in 0..k {
-                    (up, down) = (up.next_up(), down.next_down());
-                }
-                for m in [up, down] {
+                for m in ulps_apart(edge[tight], k) {
                     max[tight] = m;
                     if IndexFrame::from_bounds(self.dims, self.bmin, max).is_ok_and(|f| f == *self) {
                         return Some(Bounds { min: self.bmin, max });
@@ -178,6 +174,16 @@ impl IndexBox {
 
 /// How far (units in the last place) [`IndexFrame::exact_bounds`] looks.
 const EXACT_ULPS: usize = 64;
+
+/// `x` moved `k` units in the last place up, and `k` down: where a search
+/// for a float that rounds as another computation did looks next.
+pub fn ulps_apart(x: f64, k: usize) -> [f64; 2] {
+    let (mut up, mut down) = (x, x);
+    for _ in 0..k {
+        (up, down) = (up.next_up(), down.next_down());
+    }
+    [up, down]
+}
 
 /// An axis-aligned box in world units.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -7,7 +7,7 @@ mod grid;
 mod prefetch;
 mod range;
 
-pub use frame::{Bounds, IndexBox, IndexFrame};
+pub use frame::{ulps_apart, Bounds, IndexBox, IndexFrame};
 pub(crate) use frame::LATTICE_TOLERANCE;
 pub use grid::Grid;
 pub use prefetch::prefetch;

@@ -26,6 +26,17 @@ pub enum SeriesRange {
     FirstStep(Transform),
 }
 
+impl From<RangeSpec> for SeriesRange {
+    /// A series' range from a single encode's: a fixed range for every
+    /// step, or, from the data, the first step's.
+    fn from(spec: RangeSpec) -> SeriesRange {
+        match spec {
+            RangeSpec::Fixed(r) => SeriesRange::Fixed(r),
+            RangeSpec::FromData(t) => SeriesRange::FirstStep(t),
+        }
+    }
+}
+
 #[derive(Clone, Debug)]
 pub struct SeriesConfig {
     /// Budget, schedule and seeds of the first step and of independent steps.
