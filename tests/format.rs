@@ -7,7 +7,7 @@ use gsenc::format::{read_model, read_model_file, write_model, write_model_as, Pa
 use gsenc::format::packed::Precision;
 use gsenc::format::support_coding;
 use gsenc::format::quantize::CentreCoding;
-use gsenc::model::{Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
+use gsenc::model::{Curve, Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
 use gsenc::math::rng::Rng;
 use gsenc::Error;
 
@@ -54,6 +54,7 @@ fn model_without_extras(n: usize, rng: &mut Rng) -> Model {
             fell_back: None,
             warm: None,
             precision: None,
+            curve: None,
         },
         // Centres inside the reference box, the rest spread like trained parameters.
         params: (0..n)
@@ -350,15 +351,16 @@ fn foreign_and_newer_files_are_rejected_with_clear_errors() {
 
 #[test]
 fn a_newer_minor_version_with_extra_header_fields_is_read() {
-    // A minor version past 1.4 carries the 1.4 fields (the support, the
-    // fall-back, the warm record), then its own.
+    // A minor version past 1.5 carries the 1.5 fields (the support, the
+    // fall-back, the warm record, the curve), then its own.
     let mut m = model_with_support(4);
     m.meta.fell_back = Some("device lost".into());
     m.meta.warm = Some(WarmRecord { taken: WarmTaken::Fresh, moved: 3 });
+    m.meta.curve = Some(Curve { per_budget_doubling: 2.25, per_iteration_doubling: 0.5 });
     let b = write_model(&m).unwrap();
     let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
     let mut out = b[..16 + header_len].to_vec();
-    out[10..12].copy_from_slice(&5u16.to_le_bytes());
+    out[10..12].copy_from_slice(&6u16.to_le_bytes());
     out.extend_from_slice(b"future fields");
     out[12..16].copy_from_slice(&((header_len + 13) as u32).to_le_bytes());
     out.extend_from_slice(&b[16 + header_len..b.len() - 4]);
@@ -521,14 +523,58 @@ fn a_warm_record_is_stored_in_version_1_4_and_a_foreign_one_refused() {
     // is refused (with a valid checksum, so the check is the code's).
     let mut m = model(3);
     m.meta.warm = Some(WarmRecord { taken: WarmTaken::Kept, moved: 0 });
-    let mut b = write_model(&m).unwrap();
-    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
-    b[16 + header_len - 5] = 3;
-    let n = b.len();
-    let crc = crc32fast::hash(&b[..n - 4]);
-    b[n - 4..].copy_from_slice(&crc.to_le_bytes());
-    let e = read_model(&b).unwrap_err();
+    let e = read_model(&with_header_tail(write_model(&m).unwrap(), 5, &[3])).unwrap_err();
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("unknown warm start 3"), "{e}");
+}
+
+/// `bytes` with the header's bytes from `from_end` before its end on
+/// replaced by `with`, and the checksum made valid again.
+fn with_header_tail(mut bytes: Vec<u8>, from_end: usize, with: &[u8]) -> Vec<u8> {
+    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let at = 16 + header_len - from_end;
+    bytes[at..at + with.len()].copy_from_slice(with);
+    let n = bytes.len();
+    let crc = crc32fast::hash(&bytes[..n - 4]);
+    bytes[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    bytes
+}
+
+#[test]
+fn a_target_curve_is_stored_in_version_1_5_and_a_foreign_one_refused() {
+    let curve = Curve { per_budget_doubling: 1.8125, per_iteration_doubling: 0.75 };
+    for payload in Payload::ALL {
+        for warm in [None, Some(WarmRecord { taken: WarmTaken::Kept, moved: 0 })] {
+            for mut m in [model(5), model_with_support(5)] {
+                m.meta.warm = warm;
+                m.meta.curve = Some(curve);
+                let file = read_model_file(&write_model_as(&m, payload).unwrap()).unwrap();
+                assert_eq!(file.version, (1, 5));
+                assert_eq!((file.model.meta.curve, file.model.meta.warm, file.model.meta.fell_back.as_deref()), (Some(curve), warm, None));
+                assert_eq!(file.model.support, m.support);
+            }
+        }
+    }
+    // Without a curve, what 1.4 (or before) wrote.
+    let mut m = model(3);
+    m.meta.warm = Some(WarmRecord { taken: WarmTaken::Kept, moved: 0 });
+    assert_eq!(read_model_file(&write_model(&m).unwrap()).unwrap().version, (1, 4));
+    // The header ends with the warm record (5 bytes) and the curve (16).
+    m.meta.warm = None;
+    m.meta.curve = Some(curve);
+    let b = write_model(&m).unwrap();
+    let nan = [f64::NAN.to_le_bytes(), f64::NAN.to_le_bytes()].concat();
+    assert_eq!(read_model(&with_header_tail(b.clone(), 16, &nan)).unwrap().meta.curve, None, "NaN, NaN: none");
+    for bad in [[f64::NAN, 0.5], [1.5, f64::INFINITY], [0.0, 0.5], [1.5, -0.25]] {
+        let e = read_model(&with_header_tail(b.clone(), 16, &[bad[0].to_le_bytes(), bad[1].to_le_bytes()].concat())).unwrap_err();
+        assert!(matches!(e, Error::Format(_)) && e.to_string().contains("target curve"), "{bad:?}: {e}");
+        m.meta.curve = Some(Curve { per_budget_doubling: bad[0], per_iteration_doubling: bad[1] });
+        assert!(matches!(write_model(&m), Err(Error::InvalidArgument(_))), "{bad:?} is not written");
+    }
+    // "No warm start" is a 1.5 code: a 1.4 header holding it is refused.
+    let mut m = model(3);
+    m.meta.warm = Some(WarmRecord { taken: WarmTaken::Kept, moved: 0 });
+    let e = read_model(&with_header_tail(write_model(&m).unwrap(), 5, &[0xff])).unwrap_err();
+    assert!(matches!(e, Error::Format(_)) && e.to_string().contains("unknown warm start 255"), "{e}");
 }
 
 /// The header of a 1.2 file with its support frame replaced by `frame`,

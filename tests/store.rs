@@ -13,7 +13,7 @@ use gsenc::format::{write_model_as, Payload};
 use gsenc::io::series::{write_decoded_series, xdmf_path, SeriesOptions};
 use gsenc::io::store::{EntryKey, Store, CACHE_BYTES};
 use gsenc::field::Grid;
-use gsenc::model::{Outside, Support, WarmRecord, WarmTaken};
+use gsenc::model::{Curve, Outside, Support, WarmRecord, WarmTaken};
 use gsenc::format::packed::Precision;
 use gsenc::format::quantize::CentreCoding;
 use gsenc::Error;
@@ -97,6 +97,45 @@ fn supports_round_trip_with_their_outsides() {
     }
     let e = Store::open_read(&path).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
     assert!(matches!(&e, Error::Format(w) if w.contains("outside")), "{e}");
+}
+
+/// A target PSNR's curve (layout 1.5) comes back as stored and is in the
+/// entry's checksum; a model without one writes no attribute, and one no
+/// encode makes is refused.
+#[test]
+fn a_target_curve_round_trips_within_the_checksum() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("curve");
+    let path = dir.join("s.h5");
+    let mut m = model("density", 3, 0, 50, 0.5);
+    m.meta.curve = Some(Curve { per_budget_doubling: 2.0625, per_iteration_doubling: 0.875 });
+    let none = model("density", 4, 0, 50, 0.5);
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        s.append(&m, Payload::Packed).unwrap();
+        s.append(&none, Payload::Float32).unwrap();
+    }
+    {
+        let s = Store::open_read(&path).unwrap();
+        for want in [&m, &none] {
+            assert_eq!(s.read(&EntryKey::of(&want.meta)).unwrap().0.meta.curve, want.meta.curve);
+        }
+        assert!(hdf5::File::open(&path).unwrap().group("density/4/rank_0").unwrap().attr("target_curve").is_err(), "no curve wrote an attribute");
+    }
+    let rewrite = |v: [f64; 2], crc: bool| {
+        let g = hdf5::File::open_rw(&path).unwrap().group("density/3/rank_0").unwrap();
+        g.delete_attr("target_curve").unwrap();
+        g.new_attr::<f64>().shape(2).create("target_curve").unwrap().write_raw(&v).unwrap();
+        if !crc && g.attr("crc32").is_ok() {
+            g.delete_attr("crc32").unwrap();
+        }
+        Store::open_read(&path).unwrap().read(&EntryKey::of(&m.meta)).map(|(back, _)| back.meta.curve)
+    };
+    let e = rewrite([2.0625, 0.75], true).unwrap_err();
+    assert!(matches!(&e, Error::Format(w) if w.contains("fails its checksum")), "{e}");
+    let e = rewrite([2.0625, f64::NAN], false).unwrap_err();
+    assert!(matches!(&e, Error::Format(w) if w.contains("target curve")), "{e}");
+    assert_eq!(rewrite([1.5, 0.25], false).unwrap(), Some(Curve { per_budget_doubling: 1.5, per_iteration_doubling: 0.25 }), "unchecked, as read");
 }
 
 #[test]

@@ -45,14 +45,19 @@ def read_gsm_f32(path):
     return body.reshape(count, 12).T.astype(np.float64)
 
 
-def write_gsm_f32(path, params, field, step, rank):
-    """A float32 model file (version 1.1) with the given parameters."""
+def write_gsm_f32(path, params, field, step, rank, curve=None):
+    """A float32 model file with the given parameters: version 1.1, or with
+    a target PSNR's `curve` (two slopes) 1.5: no support, no fall-back, no
+    warm start (0xff, 0 moved), the curve."""
     h = struct.pack("<IQ3I3dd2dI", 0, params.shape[0], 32, 32, 32, 0, 0, 0, 1.0, 0.0, 1.0, 0)
     h += struct.pack("<QIIQQ", step, 10, 100, 1, 2)
     for s in ("short", field):
         h += struct.pack("<H", len(s)) + s.encode()
     h += struct.pack("<dId", 0.5 * step, rank, float("nan"))
-    b = b"GSENCMDL" + struct.pack("<HHI", 1, 1, len(h)) + h + params.astype("<f4").tobytes()
+    if curve is not None:
+        h += struct.pack("<IHBI2d", 0, 0, 0xFF, 0, *curve)
+    minor = 1 if curve is None else 5
+    b = b"GSENCMDL" + struct.pack("<HHI", 1, minor, len(h)) + h + params.astype("<f4").tobytes()
     b += struct.pack("<I", zlib.crc32(b))
     open(path, "wb").write(b)
 
@@ -61,8 +66,9 @@ def entry_crc(g):
     """An f32 entry's checksum, following docs/FORMAT.md "The entry
     checksum": the model file's first header fields (payload code, count,
     frame, range, step, schedule, seeds, field, time, rank, encode PSNR),
-    then why it fell back (none), a warm start (none: 0xff), the support
-    (none here), and the parameters primitive by primitive, float32."""
+    then why it fell back (none), a warm start (none: 0xff), a target
+    PSNR's curve (where there is one), the support (none here), and the
+    parameters primitive by primitive, float32."""
     a = g.attrs
     assert a["payload"] == "f32" and a["transform"] == "linear" and "support" not in g
     assert "fell_back" not in a and "warm_start" not in a
@@ -74,6 +80,8 @@ def entry_crc(g):
         h += struct.pack("<H", len(text)) + text
     h += struct.pack("<dId", a["time"], int(a["rank"]), a["encode_psnr"])
     h += struct.pack("<Q", 0) + b"\xff"
+    if "target_curve" in a:
+        h += struct.pack("<2d", *a["target_curve"])
     return zlib.crc32(h + np.ascontiguousarray(g["params"][()].T).astype("<f4").tobytes())
 
 
@@ -86,10 +94,11 @@ def main():
             n = 500 + 13 * i
             p = np.column_stack([rng.uniform(0, 31, (n, 3)), rng.uniform(-2, 1, (n, 3)), rng.uniform(-3, 3, (n, 6))])
             m = os.path.join(d, f"m{i}.gsm")
-            write_gsm_f32(m, p, "rho", 10 + i, i)
+            # The float32 entry's model holds a target PSNR's curve.
+            write_gsm_f32(m, p, "rho", 10 + i, i, curve=(1.75, 0.625) if payload == "f32" else None)
             subprocess.run([gsenc, "store", "add", store, m, "--payload", payload], check=True, capture_output=True)
         with h5py.File(store, "r") as f:
-            assert f.attrs["gsenc_store"] == "1.4"
+            assert f.attrs["gsenc_store"] == "1.5"
             entries = [(field, step, rank) for field in f for step in f[field] for rank in f[field][step]]
             assert len(entries) == 3, entries
             for field, step, rank in entries:
@@ -105,6 +114,7 @@ def main():
                 print(f"h5py {field}/{step}/{rank} {g.attrs['payload']}: max relative difference {err:.2e}",
                       "ok" if ok else "FAILED")
                 if g.attrs["payload"] == "f32":
+                    assert list(g.attrs["target_curve"]) == [1.75, 0.625]
                     ours, stored = entry_crc(g), int(g.attrs["crc32"])
                     failures += ours != stored
                     print(f"h5py {field}/{step}/{rank} checksum: {ours:08x} computed, {stored:08x} stored",

@@ -2,14 +2,16 @@
 //! budget"): target-PSNR encodes of the repository's real data land within
 //! 1 dB of their targets, measured by decoding the model they return; a
 //! target out of reach ends at the cap and says so; bad targets are
-//! refused; a series changes its budget only at a step that misses.
+//! refused; a series changes its budget only at a step that misses, and
+//! does so alike when resumed after a restart.
 
 mod common;
 
 use common::{blobs, repo_data};
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::encode::pipeline::{encode, Encoded, Request};
-use gsenc::encode::target::{TargetReport, LANDS_ABOVE_DB, LANDS_BELOW_DB};
+use gsenc::encode::target::{TargetReport, DEFAULT_CURVE, LANDS_ABOVE_DB, LANDS_BELOW_DB};
+use gsenc::format::{read_model, write_model};
 use gsenc::encode::{EncodeConfig, Schedule, TargetPsnr, WarmStart};
 use gsenc::field::{Grid, IndexFrame, Transform};
 use gsenc::input::cells::{CellSize, Cells};
@@ -112,11 +114,12 @@ fn in_a_series_the_budget_changes_only_at_a_step_that_misses() {
     let mut cfg = SeriesConfig::new(config(db, 2000), WarmStart::Dense, SeriesRange::FirstStep(Transform::Linear));
     cfg.validation_points = 0;
     cfg.warm_iterations = Some(300);
-    let mut series = SeriesEncoder::new(cfg).unwrap();
-    let mut out = vec![];
+    let mut series = SeriesEncoder::new(cfg.clone()).unwrap();
+    let (mut out, mut models) = (vec![], vec![]);
     for (step, g) in steps.iter().enumerate() {
         let r = series.encode_step("f", step as u64, None, Input::Grid { values: g, frame }, &mut CpuBackend::new(), &mut |_| {}).unwrap();
         out.push((r.encoded.model.len(), r.encoded.psnr, r.encoded.target.clone().unwrap()));
+        models.push(r.encoded.model);
     }
     let [(n1, p1, r1), (n2, p2, r2), (n3, p3, r3)] = &out[..] else { unreachable!() };
     assert!(!r1.probes.is_empty() && r2.probes.is_empty() && r3.probes.is_empty(), "only the first step probes");
@@ -128,6 +131,26 @@ fn in_a_series_the_budget_changes_only_at_a_step_that_misses() {
     assert_eq!(r3.tries[0].budget, *n2, "step 3: {r3:?}");
     assert!(r3.tries[0].psnr < db - LANDS_BELOW_DB, "step 3 is meant to miss: {r3:?}");
     assert!(*n3 > *n2 && r3.landed && *p3 <= db + LANDS_ABOVE_DB, "step 3: {n3} primitives, {p3:.2} dB ({r3:?})");
-    // With the series' own slopes, not the defaults.
+    // With the series' own slopes, not the defaults, which every model keeps.
     assert_eq!(r3.curve, r1.curve);
+    assert_ne!(r1.curve, DEFAULT_CURVE);
+    assert!(models.iter().all(|m| m.meta.curve == Some(r1.curve)));
+
+    // Stopped after step 2 and resumed from its model file, the series
+    // corrects step 3 with the same slopes: the unbroken series' model, bit
+    // for bit. Without them (a model that lost its curve) the correction
+    // goes by the defaults and gives another budget.
+    let stored = read_model(&write_model(&models[1]).unwrap()).unwrap();
+    let mut lost = stored.clone();
+    lost.meta.curve = None;
+    let resumed = |model| {
+        let mut series = SeriesEncoder::new(cfg.clone()).unwrap();
+        series.resume(model).unwrap();
+        let r = series.encode_step("f", 2, None, Input::Grid { values: &steps[2], frame }, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+        (r.encoded.target.unwrap().curve, r.encoded.model)
+    };
+    assert_eq!(resumed(stored), (r1.curve, models[2].clone()), "the resumed step 3 differs from the unbroken series'");
+    let (curve, model) = resumed(lost);
+    assert_eq!(curve, DEFAULT_CURVE);
+    assert_ne!(model.params, models[2].params);
 }

@@ -186,13 +186,7 @@ impl TargetPsnr {
 /// Targets are in (0, MAX_TARGET_DB].
 pub const MAX_TARGET_DB: f64 = 120.0;
 
-/// What a search learned of a dataset: dB of PSNR per doubling of the
-/// budget (full-length encodes) and per doubling of the iterations.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Curve {
-    pub per_budget_doubling: f64,
-    pub per_iteration_doubling: f64,
-}
+pub use crate::model::Curve;
 
 /// A flag another thread sets to stop an encode.
 #[derive(Clone, Debug, Default)]

@@ -158,6 +158,7 @@ pub(crate) fn encode_budget(
         fell_back: output.fell_back.clone(),
         warm: output.warm,
         precision: None,
+        curve: None,
     };
     let support = request.store_support.then(|| Support::from_reference(&prepared.reference)).flatten();
     let mut model = Model { meta, params: output.params.clone(), support };

@@ -170,6 +170,8 @@ pub fn encode_to_target(
     let chosen = choose(&points(&search.tries), t.db);
     let mut encoded = models.swap_remove(chosen);
     let landed = lands(encoded.psnr, t.db);
+    // The model keeps the curve, for the series' next step, after a restart too.
+    encoded.model.meta.curve = Some(curve);
     tracing::info!(target = t.db, psnr = encoded.psnr, budget = encoded.model.len(), landed, "target PSNR");
     encoded.target = Some(TargetReport { target: t.db, landed, cap, probes: search.probes, tries: search.tries, chosen, curve, seconds: started.elapsed().as_secs_f64() });
     Ok(encoded)

@@ -50,6 +50,9 @@ pub fn meta_info(m: &Model) -> Map<String, Value> {
         // repair moved (null: not an `auto` warm step).
         "warm_start": meta.warm.map(|w| w.taken.name()),
         "warm_moved": meta.warm.map(|w| w.moved),
+        // What a target PSNR's search learned: dB per budget doubling and
+        // per iteration doubling (null: an encode to a budget).
+        "target_curve": meta.curve.map(|c| [c.per_budget_doubling, c.per_iteration_doubling]),
         // Reference voxels where the model holds data (null: every voxel).
         "support_voxels": m.support.as_ref().map(|s| s.count()),
         // What the decode gives outside the support: `[offset, gain]` of

@@ -1,10 +1,11 @@
-//! The model file (`.gsm`), version 1.4. All little-endian.
+//! The model file (`.gsm`), version 1.5. All little-endian.
 //!
 //! ```text
 //! 0   magic        8 bytes  "GSENCMDL"
 //! 8   major, minor u16, u16 (1, 2; 1, 1 when the model has no support;
 //!                           1, 3 when its encode fell back to the CPU;
-//!                           1, 4 when it is an `auto` warm start)
+//!                           1, 4 when it is an `auto` warm start;
+//!                           1, 5 when it holds a target PSNR's curve)
 //! 12  header_len   u32      bytes of the header that follows
 //! 16  header       header_len bytes:
 //!       payload u32 (0 float32, 1 8-bit with float16 centres,
@@ -20,8 +21,10 @@
 //!          `support_coding.rs` stores it; 0: no support
 //!       -- 1.3: fell_back (u16 length + UTF-8): the device error after
 //!          which the encode ran on the CPU (1.4: empty when it did not)
-//!       -- 1.4: warm start taken u8 (0 kept, 1 repaired, 2 fresh),
-//!          primitives moved u32
+//!       -- 1.4: warm start taken u8 (0 kept, 1 repaired, 2 fresh;
+//!          1.5: 0xff no warm start), primitives moved u32
+//!       -- 1.5: the target PSNR's curve: dB per budget doubling f64, dB
+//!          per iteration doubling f64 (NaN, NaN: none)
 //!       -- a newer minor version may append fields; readers skip them.
 //! ..  payload      float32: count x 12 x f32, mu[3] l[3] q[4] alpha beta;
 //!                  8-bit: one zstd frame of the body in `quantize.rs`;
@@ -34,14 +37,19 @@
 use crate::error::{by_name, Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::math::kernel::Primitive;
-use crate::model::{Model, ModelMeta, Support, WarmRecord, WarmTaken};
+use crate::model::{Curve, Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use crate::format::packed::{Packed, Precision};
 use crate::format::quantize::{self, CentreCoding};
 use crate::format::support_coding;
 
 pub const MAGIC: &[u8; 8] = b"GSENCMDL";
 pub const VERSION_MAJOR: u16 = 1;
-pub const VERSION_MINOR: u16 = 4;
+pub const VERSION_MINOR: u16 = 5;
+/// The minor version written for a model with a warm record and no curve:
+/// the file is then what gsenc 1.4 wrote.
+const MINOR_WARM: u16 = 4;
+/// The warm record's code of a model that is no `auto` warm start (1.5).
+const NO_WARM: u8 = u8::MAX;
 /// The minor version written for a model whose encode fell back to the CPU
 /// and that is no `auto` warm start: the file is then what gsenc 1.3 wrote.
 const MINOR_FELL_BACK: u16 = 3;
@@ -237,16 +245,25 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
             MINOR_WITH_SUPPORT
         }
     };
-    if m.fell_back.is_some() || m.warm.is_some() {
+    if m.fell_back.is_some() || m.warm.is_some() || m.curve.is_some() {
         if minor == MINOR_WITHOUT_SUPPORT {
             h.extend_from_slice(&0u32.to_le_bytes()); // no support
         }
         put_str(&mut h, clip(m.fell_back.as_deref().unwrap_or(""), u16::MAX as usize))?;
         minor = MINOR_FELL_BACK;
     }
-    if let Some(w) = m.warm {
-        h.push(w.taken.code());
-        h.extend_from_slice(&w.moved.to_le_bytes());
+    if m.warm.is_some() || m.curve.is_some() {
+        let (code, moved) = m.warm.map_or((NO_WARM, 0), |w| (w.taken.code(), w.moved));
+        h.push(code);
+        h.extend_from_slice(&moved.to_le_bytes());
+        minor = MINOR_WARM;
+    }
+    if let Some(c) = m.curve {
+        if !c.is_valid() {
+            return Err(Error::arg(format!("the model's target curve {c:?} is not one an encode makes")));
+        }
+        h.extend_from_slice(&c.per_budget_doubling.to_le_bytes());
+        h.extend_from_slice(&c.per_iteration_doubling.to_le_bytes());
         minor = VERSION_MINOR;
     }
 
@@ -365,9 +382,22 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
     };
     let fell_back = if minor >= 3 { Some(h.string()?).filter(|s| minor == 3 || !s.is_empty()) } else { None };
     let warm = if minor >= 4 {
-        let code = h.take(1)?[0];
-        let taken = WarmTaken::from_code(code).ok_or_else(|| Error::format(format!("unknown warm start {code}")))?;
-        Some(WarmRecord { taken, moved: h.u32()? })
+        let (code, moved) = (h.take(1)?[0], h.u32()?);
+        match WarmTaken::from_code(code) {
+            Some(taken) => Some(WarmRecord { taken, moved }),
+            None if code == NO_WARM && minor >= 5 => None,
+            None => return Err(Error::format(format!("unknown warm start {code}"))),
+        }
+    } else {
+        None
+    };
+    let curve = if minor >= 5 {
+        let c = Curve { per_budget_doubling: h.f64()?, per_iteration_doubling: h.f64()? };
+        match c.per_budget_doubling.is_nan() && c.per_iteration_doubling.is_nan() {
+            true => None,
+            false if c.is_valid() => Some(c),
+            false => return Err(Error::format(format!("model header holds a target curve that no encode makes: {c:?}"))),
+        }
     } else {
         None
     };
@@ -427,6 +457,7 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
             fell_back,
             warm,
             precision,
+            curve,
         },
         params,
         support,

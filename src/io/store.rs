@@ -30,7 +30,7 @@ use crate::format::Payload;
 use crate::io::atomic::Replacement;
 use crate::format::check_field_name;
 use crate::math::kernel::Primitive;
-use crate::model::{Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
+use crate::model::{Curve, Model, ModelMeta, Outside, Support, WarmRecord, WarmTaken};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
 use crate::format::step_index::StepIndex;
 use hdf5::plist::file_access::{CacheDecreaseMode, CacheIncreaseMode, FlashIncreaseMode, MetadataCacheConfig};
@@ -55,7 +55,7 @@ pub enum Verified {
 /// 1.1 adds the optional `support` dataset of an entry, 1.2 its optional
 /// `outside` attribute, 1.3 the optional `index` dataset of a step, 1.4 an
 /// entry's `crc32` attribute (`entry_crc`).
-pub const STORE_VERSION: &str = "1.4";
+pub const STORE_VERSION: &str = "1.5";
 /// An entry's checksum attribute (1.4).
 const CRC: &str = "crc32";
 /// The step index of a decomposed step, in the step's group (1.3).
@@ -588,8 +588,9 @@ fn maps_attrs(ds: &Dataset, maps: &[Affine]) -> hdf5::Result<()> {
 /// of its payload's code, count and metadata laid out as a model file's
 /// header starts (`put_header_start`), then the metadata the header keeps
 /// further on (why the encode fell back to the CPU, as a u64 length and
-/// UTF-8 bytes; a warm start's code and moved count, or 0xff), the
-/// support's bits and its outside (offset, gain), and last the float32
+/// UTF-8 bytes; a warm start's code and moved count, or 0xff; a target
+/// PSNR's curve, 1.5, only where there is one), the support's bits and its
+/// outside (offset, gain), and last the float32
 /// bits of every parameter as a reader gets them, little-endian, primitive
 /// by primitive. So whatever a reader makes of the entry is checked, and
 /// nothing in it depends on a compressor's version.
@@ -609,6 +610,10 @@ fn entry_crc(m: &ModelMeta, payload: Payload, params: &[Primitive], support: Opt
             h.extend_from_slice(&w.moved.to_le_bytes());
         }
         None => h.push(u8::MAX),
+    }
+    if let Some(c) = m.curve {
+        h.extend_from_slice(&c.per_budget_doubling.to_le_bytes());
+        h.extend_from_slice(&c.per_iteration_doubling.to_le_bytes());
     }
     let mut crc = crc32fast::Hasher::new();
     crc.update(&h);
@@ -683,6 +688,9 @@ fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
     if let Some(w) = &m.warm {
         scalar_str_attr(g, "warm_start", w.taken.name())?;
         scalar_attr(g, "warm_moved", &w.moved)?;
+    }
+    if let Some(c) = &m.curve {
+        array_attr(g, "target_curve", &[c.per_budget_doubling, c.per_iteration_doubling])?;
     }
     if let Some(support) = &model.support {
         // The packed bits, one per reference voxel (x fastest, least
@@ -768,6 +776,17 @@ fn read_info(g: &Group, key: &EntryKey, path: &Path, budget: u64) -> Result<Entr
             None
         },
         precision: None, // read with the parameters
+        // Only for a target PSNR's encode (1.5).
+        curve: if g.attr("target_curve").is_ok() {
+            let v = f64s("target_curve", 2)?;
+            let c = Curve { per_budget_doubling: v[0], per_iteration_doubling: v[1] };
+            if !c.is_valid() {
+                return Err(bad(format!("has a target curve that no encode makes: {c:?}")));
+            }
+            Some(c)
+        } else {
+            None
+        },
     };
     if EntryKey::of(&meta) != *key {
         return Err(bad(format!("says it is /{}/{}/rank_{}", meta.field, meta.step, meta.rank)));

@@ -47,6 +47,28 @@ pub struct ModelMeta {
     /// model, as its encode measured them (`encode::precision`) or as read
     /// from a packed file; `None`: not measured (packed at the default).
     pub precision: Option<Precision>,
+    /// What a target-PSNR encode learned of its data's curve (the one its
+    /// corrections went by): a series' warm steps correct their budget
+    /// with it, a resumed series too; `None` for an encode to a budget.
+    pub curve: Option<Curve>,
+}
+
+/// What a target-PSNR search learned of a dataset (`encode::target`): dB
+/// of PSNR per doubling of the budget (full-length encodes) and per
+/// doubling of the iterations.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Curve {
+    pub per_budget_doubling: f64,
+    pub per_iteration_doubling: f64,
+}
+
+impl Curve {
+    /// A curve as an encode makes one: both slopes finite, the budget's
+    /// positive and the iterations' not negative. A stored one that is not
+    /// was corrupted.
+    pub fn is_valid(&self) -> bool {
+        self.per_budget_doubling.is_finite() && self.per_budget_doubling > 0.0 && self.per_iteration_doubling.is_finite() && self.per_iteration_doubling >= 0.0
+    }
 }
 
 /// The start an `auto` warm-started step took (METHOD.md "Warm start").
@@ -114,6 +136,7 @@ impl ModelMeta {
             fell_back: None,
             warm: None,
             precision: None,
+            curve: None,
         }
     }
 }

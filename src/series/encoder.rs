@@ -7,7 +7,6 @@
 
 use crate::backend::Backend;
 use crate::encode::pipeline::{encode_prepared, Encoded, Labels, Request, Start};
-use crate::encode::config::Curve;
 use crate::encode::{EncodeConfig, Progress, Validation, WarmStart};
 use crate::error::{Error, Result};
 use crate::field::{Bounds, IndexFrame, Transform, ValueRange};
@@ -117,10 +116,10 @@ struct FieldState {
     /// Drawn on the first step encoded here (a resumed series draws the same
     /// points: they depend only on the lattice and the seed).
     validation: Option<Validation>,
+    /// The previous step's model; with a target PSNR its curve (how the
+    /// PSNR rises with the budget, as the first step's search measured it)
+    /// corrects the next warm step's budget.
     last: Model,
-    /// How the PSNR rises with the budget, measured by the target-PSNR
-    /// search of an earlier step.
-    curve: Option<Curve>,
 }
 
 /// Encodes steps of any number of fields, each warm-started from its own
@@ -178,7 +177,7 @@ impl SeriesEncoder {
             return Err(Error::arg(format!("field '{field}' already has steps in this series; resume before the first")));
         }
         let (range, frame) = (model.meta.range, model.meta.frame);
-        self.fields.insert(field, FieldState { range, frame, bounds: frame.exact_bounds(), validation: None, last: model, curve: None });
+        self.fields.insert(field, FieldState { range, frame, bounds: frame.exact_bounds(), validation: None, last: model });
         Ok(())
     }
 
@@ -248,7 +247,7 @@ impl SeriesEncoder {
         // A target's warm step corrects its budget with the slope measured before.
         let mut config = self.cfg.encode.clone();
         if let (Some(t), Some(s)) = (config.target.as_mut(), state) {
-            t.curve = s.curve;
+            t.curve = s.last.meta.curve;
         }
         let request = Request {
             config,
@@ -261,8 +260,7 @@ impl SeriesEncoder {
         let encoded = encode_prepared(&prepared, &request, backend, progress)?;
         let bounds = state.map_or(prepared.bounds, |s| s.bounds);
         let (range, frame, last) = (prepared.range, prepared.frame, encoded.model.clone());
-        let curve = encoded.target.as_ref().map(|r| r.curve).or(state.and_then(|s| s.curve));
-        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation, last, curve });
+        self.fields.insert(field.to_owned(), FieldState { range, frame, bounds, validation, last });
         Ok(StepResult { prepared, encoded })
     }
 }
