@@ -213,22 +213,29 @@ class Series:
     ``warm``: "auto" (the previous model, repaired where it misses, or a
     fresh seeding, whichever validates best), "off" (each step on its own),
     "coarse" (1000 iterations, no relocation) or "dense" (1500, relocation
-    on); ``warm_iterations`` caps a warm step's iterations. ``range``: (lo,
+    on); ``warm_iterations`` caps a warm step's iterations.
+    ``validation_points`` (default 0, as the C API's encoders) fixed points
+    of the first step's lattice score every step each ``validation_every``
+    iterations, as ``gsenc encode-series`` does (its default 65536 and 50:
+    the same options give its models byte for byte); an ``auto`` warm step
+    decides by them, or by 16,384 points of its own. ``range``: (lo,
     hi) for every step, default the first step's own (later steps clamp
     values outside it: a model's ``info["clamped_values"]`` counts them).
     ``rank`` labels the models. One backend is opened for the whole series.
 
     A step returns its model as :func:`encode_grid` does (``info`` adds
-    ``warm_started``, ``clamped_values`` and ``outside_items``: particles
-    or cells outside the first step's box). Steps run one at a time; a
+    ``warm_started``, ``clamped_values``, ``outside_items``: particles or
+    cells outside the first step's box, and ``validation``: [iteration,
+    PSNR] pairs of the validation scores, the rows of ``encode-series
+    --csv``). Steps run one at a time; a
     step that fails (bad data, Ctrl-C) leaves the series as it was."""
 
-    def __init__(self, budget=None, *, target_psnr=None, warm="auto", warm_iterations=None, schedule="matched", range=None, log10=False,
-                 payload="f32", rank=0, iterations=None, points=None, seed=0, sample_seed=1, relocation=True, support=True, threads=None,
-                 backend="auto"):
+    def __init__(self, budget=None, *, target_psnr=None, warm="auto", warm_iterations=None, validation_points=0, validation_every=50,
+                 schedule="matched", range=None, log10=False, payload="f32", rank=0, iterations=None, points=None, seed=0, sample_seed=1,
+                 relocation=True, support=True, threads=None, backend="auto"):
         o = _options(budget, target_psnr, schedule, range, log10, payload, None, None, None, rank, iterations, points, seed,
                      sample_seed, relocation, support, threads, backend)
-        self._series = _gsenc.Series(o, warm, warm_iterations)
+        self._series = _gsenc.Series(o, warm, warm_iterations, validation_points, validation_every)
 
     def encode_grid(self, array, *, step, field="scalar", time=None, origin=(0.0, 0.0, 0.0), spacing=1.0, progress=None) -> Model:
         """Encodes a 3D array ``[z][y][x]`` as ``field``'s step ``step``

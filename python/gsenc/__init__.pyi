@@ -107,6 +107,8 @@ class Series:
         target_psnr: Optional[float] = None,
         warm: str = "auto",
         warm_iterations: Optional[int] = None,
+        validation_points: int = 0,
+        validation_every: int = 50,
         schedule: str = "matched",
         range: Optional[Tuple[float, float]] = None,
         log10: bool = False,

@@ -84,7 +84,9 @@ def encode_cells(
 class Series:
     """A time series' encoder (use it through gsenc.Series)."""
 
-    def __init__(self, options: dict[str, Any], warm: str, warm_iterations: Optional[int] = None) -> None: ...
+    def __init__(
+        self, options: dict[str, Any], warm: str, warm_iterations: Optional[int] = None, validation_points: int = 0, validation_every: int = 50
+    ) -> None: ...
     def encode_grid(
         self, array: np.ndarray, origin: Tuple[float, float, float], spacing: float, field: str, step: int, time: Optional[float] = None, progress: _Progress = None
     ) -> Model: ...

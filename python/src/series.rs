@@ -52,8 +52,11 @@ impl Series {
         })?;
         let (prepared, warm_started) = (&result.prepared, result.encoded.warm_started);
         let (clamped, outside) = (prepared.clamped_values, prepared.outside_items());
+        // [iteration, PSNR] pairs, the rows of `encode-series --csv`.
+        let validation = serde_json::json!(result.encoded.output.validation);
         let mut model = finished(result.encoded, self.payload)?;
         model.info.insert("warm_started".into(), serde_json::json!(warm_started));
+        model.info.insert("validation".into(), validation);
         model.info.insert("clamped_values".into(), serde_json::json!(clamped));
         model.info.insert("outside_items".into(), serde_json::json!(outside));
         Ok(model)
@@ -65,17 +68,26 @@ impl Series {
     /// A series of the encode options `options` (those of `encode_grid`
     /// but the labels of a step), warm-starting each field's later steps
     /// as `warm` says ("auto", "off", "coarse", "dense"), in
-    /// `warm_iterations` iterations when given.
+    /// `warm_iterations` iterations when given, scoring each step on
+    /// `validation_points` fixed points every `validation_every`
+    /// iterations (0 points: none, as the C API's encoders).
     #[new]
-    #[pyo3(signature = (options, warm, warm_iterations=None))]
-    fn new(py: Python<'_>, options: &Bound<'_, PyDict>, warm: &str, warm_iterations: Option<usize>) -> PyResult<Series> {
+    #[pyo3(signature = (options, warm, warm_iterations=None, validation_points=0, validation_every=50))]
+    fn new(
+        py: Python<'_>,
+        options: &Bound<'_, PyDict>,
+        warm: &str,
+        warm_iterations: Option<usize>,
+        validation_points: usize,
+        validation_every: usize,
+    ) -> PyResult<Series> {
         let Options { request, range, threads, backend } = self::options(options)?;
         let warm = WarmStart::from_name(warm).py_err()?;
         let cancel = Cancel::default();
         let mut encode = request.config;
         encode.cancel = Some(cancel.clone());
         let mut cfg = SeriesConfig::new(encode, warm, range.into());
-        cfg.validation_points = 0; // as the C API's: no per-iteration log
+        (cfg.validation_points, cfg.validation_every) = (validation_points, validation_every);
         cfg.warm_iterations = warm_iterations;
         cfg.payload = request.payload;
         cfg.rank = request.labels.rank;

@@ -31,14 +31,17 @@ def particle_steps(steps=3, n=2000):
     return out
 
 
-def test_a_series_is_the_tools_encode_series(tmp_path, cli):
+@pytest.mark.parametrize("validation", [(0, 50), (2048, 10)])
+def test_a_series_is_the_tools_encode_series(tmp_path, cli, validation):
     steps = particle_steps()
     for name, col in (("p", 0), ("h", 1), ("v", 2)):
         np.concatenate([s[col].ravel() for s in steps]).tofile(tmp_path / f"{name}.raw")
+    points, every = validation
     cli("encode-series", "--positions", tmp_path / "p.raw", "--smoothing-length", tmp_path / "h.raw", "--values", tmp_path / "v.raw",
-        "--count", len(steps[0][2]), "--dims", "20,20,20", "--budget", 100, *CLI_QUICK, "--validation-points", 0, "--field", "rho",
-        "-o", tmp_path / "cli")
-    series = gsenc.Series(100, **QUICK)
+        "--count", len(steps[0][2]), "--dims", "20,20,20", "--budget", 100, *CLI_QUICK, "--validation-points", points,
+        "--validation-every", every, "--field", "rho", "--csv", tmp_path / "v.csv", "-o", tmp_path / "cli")
+    csv = np.loadtxt(tmp_path / "v.csv", delimiter=",", skiprows=1, usecols=(1, 3, 4), ndmin=2)
+    series = gsenc.Series(100, validation_points=points, validation_every=every, **QUICK)
     for t, (pos, h, v) in enumerate(steps):
         ours = series.encode_particles(pos, h, v, dims=(20, 20, 20), field="rho", step=t)
         assert ours.info["warm_started"] == (t > 0) and ours.info["step"] == t
@@ -46,6 +49,11 @@ def test_a_series_is_the_tools_encode_series(tmp_path, cli):
         ours.write(tmp_path / "py.gsm")
         assert (tmp_path / "py.gsm").read_bytes() == theirs.read_bytes(), f"step {t}"
         assert ours.psnr == pytest.approx(gsenc.read(theirs).psnr, abs=1e-9)
+        # The validation scores, as the tool's CSV rows (4 decimals there).
+        rows = csv[csv[:, 0] == t][:, 1:]
+        # Scored on the series' points, or an `auto` warm step's own.
+        assert len(rows) == len(ours.info["validation"]) and (len(rows) > 0) == (points > 0 or t > 0)
+        np.testing.assert_allclose(np.array(ours.info["validation"]).reshape(-1, 2), rows, atol=6e-5)
     # The first step's range holds: the later, larger values are clamped.
     assert ours.info["value_max"] == pytest.approx(float(steps[0][2].max()), rel=1e-6)
     assert ours.info["clamped_values"] > 0
