@@ -600,10 +600,13 @@ int main(void) {
     if (getenv("GSENC_CAPI_MEMCHECK")) {
         printf("capi: the target-PSNR search is checked by the native run, not under valgrind\n");
     } else {
-        cfg.target_psnr = 32.0;
-        cfg.budget = 0;
-        cfg.points = 256;
-        EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
+        gsenc_config aim = cfg;
+        aim.target_psnr = 32.0;
+        aim.budget = 0;
+        aim.points = 256;
+        aim.payload = GSENC_PAYLOAD_F32;
+        aim.warm_start = GSENC_WARM_COARSE;
+        EXPECT(gsenc_encoder_create(&aim, &enc), GSENC_STATUS_OK);
         fill_grid(a, 0);
         EXPECT(gsenc_push_grid(enc, "aimed", 0, 0.0, &grid), GSENC_STATUS_OK);
         EXPECT(gsenc_wait(enc, "aimed"), GSENC_STATUS_OK);
@@ -613,11 +616,32 @@ int main(void) {
         EXPECT(gsenc_model_info_get(model, &info), GSENC_STATUS_OK);
         CHECK(info.encode_psnr >= 32.0 - 0.5 && info.encode_psnr <= 32.0 + 3.0 && info.count >= 16 && info.count < 57, "target 32 dB: %.2f dB with %llu primitives",
               info.encode_psnr, (unsigned long long)info.count);
+        /* Step 1, unbroken and resumed from step 0's file: the same bytes.
+         * The file kept the slopes step 0's search measured, which step 1's
+         * model keeps in turn (without them the resumed step would go by
+         * the defaults: another header, and another budget where it
+         * misses; tests/target.rs). */
+        gsenc_encoder *again = NULL;
+        EXPECT(gsenc_encoder_create(&aim, &again), GSENC_STATUS_OK);
+        EXPECT(gsenc_encoder_resume(again, model), GSENC_STATUS_OK);
+        fill_grid(a, 1);
+        unsigned char *step1[2] = {NULL, NULL};
+        size_t step1_bytes[2] = {0, 0};
+        gsenc_encoder *both[2] = {enc, again};
+        for (int e = 0; e < 2; e++) {
+            EXPECT(gsenc_push_grid(both[e], "aimed", 1, 0.0, &grid), GSENC_STATUS_OK);
+            EXPECT(gsenc_wait(both[e], "aimed"), GSENC_STATUS_OK);
+            EXPECT(gsenc_encoder_model_bytes(both[e], "aimed", NULL, 0, &step1_bytes[e]), GSENC_STATUS_OK);
+            step1[e] = malloc(step1_bytes[e]);
+            EXPECT(gsenc_encoder_model_bytes(both[e], "aimed", step1[e], step1_bytes[e], &step1_bytes[e]), GSENC_STATUS_OK);
+        }
+        CHECK(step1_bytes[0] == step1_bytes[1] && memcmp(step1[0], step1[1], step1_bytes[0]) == 0, "the resumed target series' step 1 is the unbroken one's (%zu, %zu bytes)",
+              step1_bytes[0], step1_bytes[1]);
+        free(step1[0]);
+        free(step1[1]);
+        gsenc_encoder_destroy(again);
         gsenc_model_destroy(model);
         gsenc_encoder_destroy(enc);
-        cfg.target_psnr = 0.0;
-        cfg.budget = 120;
-        cfg.points = 1024;
     }
 
     /* A full queue (a long encode holds it) under each policy, then cancel. */
