@@ -67,11 +67,12 @@ if ! git diff --quiet -- include/gsenc.h; then
     exit 1
 fi
 
-# Clippy on every crate and target, with the store and MPI, warnings as
+# Clippy on every crate and target, with the store (the tool's store
+# commands and their tests too) and MPI, warnings as
 # errors (the workspace's [workspace.lints] says which style lints are off
 # and why). About 3 minutes on two cores. A newer toolchain's new lints fail
 # here first: fix them, or turn one off there with its reason.
-stage cargo clippy --workspace --all-targets --locked --features gsenc/hdf5,gsenc/mpi,gsenc-capi/hdf5,gsenc-capi/mpi -- -D warnings
+stage cargo clippy --workspace --all-targets --locked --features gsenc/hdf5,gsenc/mpi,gsenc-capi/hdf5,gsenc-capi/mpi,gsenc-cli/hdf5 -- -D warnings
 # The library's API documentation, with every feature's items, warnings as
 # errors (broken links); it reuses what clippy compiled of the dependencies.
 stage env RUSTDOCFLAGS="-D warnings" cargo doc --no-deps --locked --features gsenc/hdf5,gsenc/mpi

@@ -45,7 +45,7 @@ fn one_process_writes_another_reads() {
     for (_, m) in &files {
         let (back, payload) = s.read(&EntryKey::of(&m.meta)).unwrap();
         assert_eq!(payload, Payload::Bits8(CentreCoding::Fixed16));
-        assert_eq!(back.params, payload.round_trip(&m).unwrap());
+        assert_eq!(back.params, payload.round_trip(m).unwrap());
         assert_eq!(back.meta.encode_psnr, None, "a lossy payload cannot keep the float32 PSNR");
         assert_eq!(back.meta.fell_back, m.meta.fell_back);
         assert_eq!(back.meta.warm, m.meta.warm);
