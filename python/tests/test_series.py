@@ -3,6 +3,7 @@ encode-series models byte for byte; restarts, refusals, and a step stopped
 part way."""
 
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -167,3 +168,22 @@ def test_steps_from_two_threads_take_turns():
         for t in range(2):
             np.testing.assert_array_equal(done[field, t].params(), alone.encode_grid(moving(t), step=t, field=field).params())
     assert set(calls) == {"a", "b"}
+
+
+def test_a_one_thread_executor_is_a_background_queue():
+    # The README's pattern for a Python solver that must not wait: each step
+    # submitted with a copy of the solver's buffer, which the solver then
+    # overwrites; the steps run in order on the executor's thread, with the
+    # GIL released, and give the models of the same series run in line.
+    series, inline = gsenc.Series(80, **QUICK), gsenc.Series(80, **QUICK)
+    buffer = moving(0)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        futures = []
+        for t in range(3):
+            buffer[...] = moving(t)  # the solver's step t
+            futures.append(pool.submit(series.encode_grid, buffer.copy(), step=t, field="rho"))
+        buffer[...] = -1.0  # the solver goes on; the steps have their copies
+        models = [f.result(timeout=120) for f in futures]
+    for t, m in enumerate(models):
+        np.testing.assert_array_equal(m.params(), inline.encode_grid(moving(t), step=t, field="rho").params())
+        assert m.info["warm_started"] == (t > 0)
