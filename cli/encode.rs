@@ -2,12 +2,12 @@
 //! through the library's encode pipeline.
 
 use crate::args::{one_of, CellInput, GridInput, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
-use crate::output::{deposit_keys, gpu_host_seconds, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar, target_json, write_output};
+use crate::output::{deposit_keys, gpu_host_seconds, kernel_seconds, keys, peak_rss_bytes, print_result, progress_bar, write_output};
 use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
 use gsenc::encode::with_threads;
-use gsenc::format::info::precision_json;
+use gsenc::format::info::{precision_json, target_json};
 use gsenc::format::{read_model_file, write_model_as, Payload};
 use gsenc::input::{prepare, Input};
 use gsenc::model::metrics::{occupied_psnr, sampled_psnr};

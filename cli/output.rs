@@ -2,7 +2,6 @@
 //! output files (or standard output, `-`), grids written as `.vti` or raw
 //! float32, and the process's peak memory.
 
-use gsenc::encode::target::{TargetReport, Try};
 use gsenc::field::{Grid, ValueRange};
 use gsenc::input::Prepared;
 use gsenc::io::{raw, vti, AtomicFile};
@@ -116,25 +115,6 @@ pub fn print_result(json_out: bool, value: Value) {
         if e.kind() != std::io::ErrorKind::BrokenPipe {
             eprintln!("gsenc: writing the result: {e}");
         }
-    }
-}
-
-/// How a target-PSNR encode chose its budget (null without a target).
-pub fn target_json(report: Option<&TargetReport>) -> Value {
-    let tries = |v: &[Try]| v.iter().map(|t| json!({"budget": t.budget, "psnr": t.psnr, "iterations": t.iterations, "seconds": t.seconds})).collect::<Vec<_>>();
-    match report {
-        None => Value::Null,
-        Some(r) => json!({
-            "target_psnr": r.target,
-            "landed": r.landed,
-            "cap": r.cap,
-            "probes": tries(&r.probes),
-            "tries": tries(&r.tries),
-            "chosen": r.chosen,
-            "db_per_budget_doubling": r.curve.per_budget_doubling,
-            "db_per_iteration_doubling": r.curve.per_iteration_doubling,
-            "seconds": r.seconds,
-        }),
     }
 }
 

@@ -3,7 +3,8 @@
 //! with a CSV of validation PSNR against iterations for every step.
 
 use crate::args::{one_of, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
-use crate::output::{peak_rss_bytes, print_result, progress_bar, target_json};
+use crate::output::{peak_rss_bytes, print_result, progress_bar};
+use gsenc::format::info::target_json;
 use clap::Args;
 use gsenc::encode::{with_threads, WarmStart};
 use gsenc::format::{self, model_file_name, Payload};

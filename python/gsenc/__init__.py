@@ -143,7 +143,9 @@ def encode_grid(array, budget=None, *, target_psnr=None, schedule="matched", ran
     """Encodes a 3D array ``[z][y][x]`` into ``budget`` Gaussians, or into
     as many as reach ``target_psnr`` (dB, the voxel PSNR as stored; then
     ``budget`` is the most it may choose, default one per 32 voxels that
-    hold data; docs/METHOD.md "A quality instead of a budget").
+    hold data; docs/METHOD.md "A quality instead of a budget"), the search
+    reported in ``model.info["target"]`` as the tool's encode prints it
+    (whether it landed, the cap, every probe and try, the slopes).
 
     ``array``: any of uint8/int8/uint16/int16/uint32/int32/uint64/int64/
     float32/float64, any strides (read in place). ``schedule``: "short",

@@ -1,6 +1,7 @@
 """Encodes from numpy: the same models as the command-line tool from the same
 data, whatever the dtype and strides; progress, Ctrl-C and the GIL."""
 
+import json
 import threading
 import time
 
@@ -33,14 +34,23 @@ def test_a_target_psnr_chooses_the_tools_budget(tmp_path, cli):
     field = blobs().astype(np.float32)
     field.tofile(tmp_path / "f.raw")
     quick = dict(QUICK, iterations=300)
-    cli("encode", "grid", "--input", tmp_path / "f.raw", "--dims", "24,20,16", "--dtype", "f32", "--target-psnr", 38,
-        *CLI_QUICK[:2], "--iters", 300, *CLI_QUICK[4:], "-o", tmp_path / "cli.gsm")
+    out = json.loads(cli("encode", "grid", "--input", tmp_path / "f.raw", "--dims", "24,20,16", "--dtype", "f32", "--target-psnr", 38,
+                         *CLI_QUICK[:2], "--iters", 300, *CLI_QUICK[4:], "-o", tmp_path / "cli.gsm", "--json"))
     ours = gsenc.encode_grid(field, target_psnr=38, **quick)
     theirs = gsenc.read(tmp_path / "cli.gsm")
     assert len(ours) == len(theirs) and ours.psnr == pytest.approx(theirs.psnr, abs=1e-9)
     assert abs(ours.psnr - 38) <= 1.0, f"{len(ours)} Gaussians, {ours.psnr:.2f} dB"
-    # With a cap below what it needs, it stops there.
-    assert len(gsenc.encode_grid(field, 20, target_psnr=60, **quick)) <= 20
+    # The search's report is the tool's (but for its times), and the model
+    # keeps the slopes it went by.
+    drop_times = lambda r: {k: v for k, v in r.items() if k != "seconds"} | {
+        k: [{n: t[n] for n in ("budget", "psnr", "iterations")} for t in r[k]] for k in ("probes", "tries")}
+    assert drop_times(ours.info["target"]) == drop_times(out["target"]) and ours.info["target"]["landed"]
+    assert ours.info["target_curve"] == [out["target"]["db_per_budget_doubling"], out["target"]["db_per_iteration_doubling"]]
+    assert theirs.info["target_curve"] == ours.info["target_curve"]
+    # With a cap below what it needs, it stops there, and says so.
+    capped = gsenc.encode_grid(field, 20, target_psnr=60, **quick)
+    assert len(capped) <= 20 and capped.info["target"]["cap"] == 20 and not capped.info["target"]["landed"]
+    assert gsenc.encode_grid(field, 20, **quick).info["target"] is None
     with pytest.raises(ValueError, match="target PSNR"):
         gsenc.encode_grid(field, target_psnr=-1, **quick)
     with pytest.raises(TypeError, match="budget"):
