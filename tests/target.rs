@@ -143,14 +143,40 @@ fn in_a_series_the_budget_changes_only_at_a_step_that_misses() {
     let stored = read_model(&write_model(&models[1]).unwrap()).unwrap();
     let mut lost = stored.clone();
     lost.meta.curve = None;
+    // The resume logs a warning when the model has no curve.
     let resumed = |model| {
         let mut series = SeriesEncoder::new(cfg.clone()).unwrap();
-        series.resume(model).unwrap();
+        let log = warnings(|| series.resume(model).unwrap());
         let r = series.encode_step("f", 2, None, Input::Grid { values: &steps[2], frame }, &mut CpuBackend::new(), &mut |_| {}).unwrap();
-        (r.encoded.target.unwrap().curve, r.encoded.model)
+        (r.encoded.target.unwrap().curve, r.encoded.model, log)
     };
-    assert_eq!(resumed(stored), (r1.curve, models[2].clone()), "the resumed step 3 differs from the unbroken series'");
-    let (curve, model) = resumed(lost);
+    let (curve, model, log) = resumed(stored);
+    assert_eq!((curve, &model), (r1.curve, &models[2]), "the resumed step 3 differs from the unbroken series'");
+    assert_eq!(log, "");
+    let (curve, model, log) = resumed(lost);
     assert_eq!(curve, DEFAULT_CURVE);
     assert_ne!(model.params, models[2].params);
+    assert!(log.contains("WARN") && log.contains("holds no target curve"), "{log}");
+}
+
+/// What `f` logs at warning level and above, as text.
+fn warnings(f: impl FnOnce()) -> String {
+    use std::sync::{Arc, Mutex};
+    #[derive(Clone, Default)]
+    struct Buffer(Arc<Mutex<Vec<u8>>>);
+    impl std::io::Write for Buffer {
+        fn write(&mut self, b: &[u8]) -> std::io::Result<usize> {
+            self.0.lock().unwrap().extend_from_slice(b);
+            Ok(b.len())
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+    let buffer = Buffer::default();
+    let out = buffer.clone();
+    let subscriber = tracing_subscriber::fmt().with_max_level(tracing::Level::WARN).with_ansi(false).with_writer(move || out.clone()).finish();
+    tracing::subscriber::with_default(subscriber, f);
+    let bytes = buffer.0.lock().unwrap().clone();
+    String::from_utf8(bytes).unwrap()
 }

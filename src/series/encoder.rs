@@ -176,6 +176,10 @@ impl SeriesEncoder {
         if self.fields.contains_key(&field) {
             return Err(Error::arg(format!("field '{field}' already has steps in this series; resume before the first")));
         }
+        if self.cfg.encode.target.is_some() && model.meta.curve.is_none() {
+            // A model from before model file 1.5, or of an encode to a budget.
+            tracing::warn!(field = %field, step = model.meta.step, "the model holds no target curve: the next steps correct their budget with the default slopes, not the ones the series measured");
+        }
         let (range, frame) = (model.meta.range, model.meta.frame);
         self.fields.insert(field, FieldState { range, frame, bounds: frame.exact_bounds(), validation: None, last: model });
         Ok(())
