@@ -7,7 +7,8 @@ use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
 use gsenc::encode::with_threads;
-use gsenc::format::info::{precision_json, target_json};
+use gsenc::format::info::precision_json;
+use gsenc::encode::target::report_json;
 use gsenc::format::{read_model_file, write_model_as, Payload};
 use gsenc::input::{prepare, Input};
 use gsenc::model::metrics::{occupied_psnr, sampled_psnr};
@@ -170,7 +171,7 @@ fn run(input: Input, values: &ValueArgs, o: &EncodeOptions, t_total: Instant) ->
         "kernel_seconds": kernel_seconds(backend.as_ref()),
         "gpu_host_seconds": gpu_host_seconds(backend.as_ref()),
         "dims": reference.dims,
-        "target": target_json(encoded.target.as_ref()),
+        "target": report_json(encoded.target.as_ref()),
         "output": o.output.display().to_string(),
     }));
     match prepared.deposit {

@@ -4,7 +4,7 @@
 
 use crate::args::{one_of, OutputFlags, ParticleInput, TrainingArgs, ValueArgs};
 use crate::output::{peak_rss_bytes, print_result, progress_bar};
-use gsenc::format::info::target_json;
+use gsenc::encode::target::report_json;
 use clap::Args;
 use gsenc::encode::{with_threads, WarmStart};
 use gsenc::format::{self, model_file_name, Payload};
@@ -257,7 +257,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             "moved": e.model.meta.warm.map(|w| w.moved),
             "voxel_psnr": psnr,
             "primitives": e.model.len(),
-            "target": target_json(e.target.as_ref()),
+            "target": report_json(e.target.as_ref()),
             "occupied_psnr": occupied,
             "validation_psnr": e.output.validation.last().map(|v| v.1),
             "start_validation_psnr": e.output.validation.first().map(|v| v.1),

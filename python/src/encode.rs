@@ -109,7 +109,7 @@ pub fn finished(mut encoded: pipeline::Encoded, payload: Payload) -> PyResult<Mo
     let mut model = in_memory(encoded.model, payload, Some(encoded.psnr), "gsenc model (encoded, not yet written)");
     model.unquantized = Some(unquantized);
     model.info.insert("float32_psnr".into(), serde_json::json!(encoded.float32_psnr));
-    model.info.insert("target".into(), gsenc::format::info::target_json(encoded.target.as_ref()));
+    model.info.insert("target".into(), gsenc::encode::target::report_json(encoded.target.as_ref()));
     Ok(model)
 }
 

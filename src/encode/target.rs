@@ -55,6 +55,7 @@ use crate::format::Payload;
 use crate::input::Prepared;
 use crate::math::kernel::Primitive;
 use crate::math::loss::MASK_REF;
+use serde_json::{json, Value};
 use std::time::Instant;
 
 /// The search aims this far above the target.
@@ -340,6 +341,27 @@ impl Search<'_, '_> {
         let e = encode_budget(self.prepared, r, self.backend, self.progress)?;
         let t = Try { budget: e.model.len(), psnr: e.psnr, iterations: e.output.iterations, seconds: started.elapsed().as_secs_f64() };
         Ok((e, t))
+    }
+}
+
+
+/// How a target-PSNR encode chose its budget (null without a target), as
+/// the tool's encode output prints it and a Python encode's `info` holds it.
+pub fn report_json(report: Option<&TargetReport>) -> Value {
+    let tries = |v: &[Try]| v.iter().map(|t| json!({"budget": t.budget, "psnr": t.psnr, "iterations": t.iterations, "seconds": t.seconds})).collect::<Vec<_>>();
+    match report {
+        None => Value::Null,
+        Some(r) => json!({
+            "target_psnr": r.target,
+            "landed": r.landed,
+            "cap": r.cap,
+            "probes": tries(&r.probes),
+            "tries": tries(&r.tries),
+            "chosen": r.chosen,
+            "db_per_budget_doubling": r.curve.per_budget_doubling,
+            "db_per_iteration_doubling": r.curve.per_iteration_doubling,
+            "seconds": r.seconds,
+        }),
     }
 }
 

@@ -1,8 +1,6 @@
 //! Every header field of a model file as one JSON object: what `gsenc
-//! info --json` prints and the Python package's `Model.info` holds; and a
-//! target-PSNR search's report, which the tool's encodes print beside it.
+//! info --json` prints and the Python package's `Model.info` holds.
 
-use crate::encode::target::{TargetReport, Try};
 use crate::format::packed::{Precision, CENTRE_CLASSES, GROUPS};
 use crate::format::ModelFile;
 use crate::model::Model;
@@ -75,24 +73,4 @@ fn keys(v: Value) -> Map<String, Value> {
 pub fn precision_json(p: Precision) -> Value {
     let others = GROUPS.iter().enumerate().skip(CENTRE_CLASSES).map(|(g, name)| (name.to_string(), json!(p.get(g))));
     Value::Object([("centre".to_string(), json!(p.centre))].into_iter().chain(others).collect())
-}
-
-/// How a target-PSNR encode chose its budget (null without a target), as
-/// the tool's encode output prints it and a Python encode's `info` holds it.
-pub fn target_json(report: Option<&TargetReport>) -> Value {
-    let tries = |v: &[Try]| v.iter().map(|t| json!({"budget": t.budget, "psnr": t.psnr, "iterations": t.iterations, "seconds": t.seconds})).collect::<Vec<_>>();
-    match report {
-        None => Value::Null,
-        Some(r) => json!({
-            "target_psnr": r.target,
-            "landed": r.landed,
-            "cap": r.cap,
-            "probes": tries(&r.probes),
-            "tries": tries(&r.tries),
-            "chosen": r.chosen,
-            "db_per_budget_doubling": r.curve.per_budget_doubling,
-            "db_per_iteration_doubling": r.curve.per_iteration_doubling,
-            "seconds": r.seconds,
-        }),
-    }
 }
