@@ -413,7 +413,7 @@ mod imp {
                     "fell_back": i.meta.fell_back,
                     "warm_start": i.meta.warm.map(|w| w.taken.name()),
                     "warm_moved": i.meta.warm.map(|w| w.moved),
-                    "target_curve": i.meta.curve.map(|c| [c.per_budget_doubling, c.per_iteration_doubling]),
+                    "target_curve": i.meta.curve.as_ref().map(gsenc::model::Curve::slopes),
                 }),
                 Err(why) => json!({ "entry": e.key.path(), "error": why.to_string() }),
             })

@@ -3,7 +3,7 @@
 
 use crate::format::packed::{Precision, CENTRE_CLASSES, GROUPS};
 use crate::format::ModelFile;
-use crate::model::Model;
+use crate::model::{Curve, Model};
 use serde_json::{json, Map, Value};
 
 /// The fields of `file`, whose stored form takes `bytes` bytes.
@@ -52,7 +52,7 @@ pub fn meta_info(m: &Model) -> Map<String, Value> {
         "warm_moved": meta.warm.map(|w| w.moved),
         // What a target PSNR's search learned: dB per budget doubling and
         // per iteration doubling (null: an encode to a budget).
-        "target_curve": meta.curve.map(|c| [c.per_budget_doubling, c.per_iteration_doubling]),
+        "target_curve": meta.curve.as_ref().map(Curve::slopes),
         // Reference voxels where the model holds data (null: every voxel).
         "support_voxels": m.support.as_ref().map(|s| s.count()),
         // What the decode gives outside the support: `[offset, gain]` of

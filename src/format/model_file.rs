@@ -262,8 +262,7 @@ pub fn write_model_as(model: &Model, payload: Payload) -> Result<Vec<u8>> {
         if !c.is_valid() {
             return Err(Error::arg(format!("the model's target curve {c:?} is not one an encode makes")));
         }
-        h.extend_from_slice(&c.per_budget_doubling.to_le_bytes());
-        h.extend_from_slice(&c.per_iteration_doubling.to_le_bytes());
+        c.slopes().iter().for_each(|s| h.extend_from_slice(&s.to_le_bytes()));
         minor = VERSION_MINOR;
     }
 
@@ -392,8 +391,8 @@ pub fn read_model_file(bytes: &[u8]) -> Result<ModelFile> {
         None
     };
     let curve = if minor >= 5 {
-        let c = Curve { per_budget_doubling: h.f64()?, per_iteration_doubling: h.f64()? };
-        match c.per_budget_doubling.is_nan() && c.per_iteration_doubling.is_nan() {
+        let c = Curve::from_slopes([h.f64()?, h.f64()?]);
+        match c.slopes().iter().all(|s| s.is_nan()) {
             true => None,
             false if c.is_valid() => Some(c),
             false => return Err(Error::format(format!("model header holds a target curve that no encode makes: {c:?}"))),

@@ -63,6 +63,18 @@ pub struct Curve {
 }
 
 impl Curve {
+    /// The two slopes in the order every stored form keeps them (the model
+    /// file, the store's `target_curve`, `gsenc info`): per budget doubling,
+    /// then per iteration doubling.
+    pub fn slopes(&self) -> [f64; 2] {
+        [self.per_budget_doubling, self.per_iteration_doubling]
+    }
+
+    /// The curve of [`Curve::slopes`] as stored.
+    pub fn from_slopes([per_budget_doubling, per_iteration_doubling]: [f64; 2]) -> Curve {
+        Curve { per_budget_doubling, per_iteration_doubling }
+    }
+
     /// A curve as an encode makes one: both slopes finite, the budget's
     /// positive and the iterations' not negative. A stored one that is not
     /// was corrupted.

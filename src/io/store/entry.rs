@@ -93,8 +93,7 @@ pub(super) fn entry_crc(m: &ModelMeta, payload: Payload, params: &[Primitive], s
         None => h.push(u8::MAX),
     }
     if let Some(c) = m.curve {
-        h.extend_from_slice(&c.per_budget_doubling.to_le_bytes());
-        h.extend_from_slice(&c.per_iteration_doubling.to_le_bytes());
+        c.slopes().iter().for_each(|s| h.extend_from_slice(&s.to_le_bytes()));
     }
     let mut crc = crc32fast::Hasher::new();
     crc.update(&h);
@@ -171,7 +170,7 @@ pub(super) fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::R
         scalar_attr(g, "warm_moved", &w.moved)?;
     }
     if let Some(c) = &m.curve {
-        array_attr(g, "target_curve", &[c.per_budget_doubling, c.per_iteration_doubling])?;
+        array_attr(g, "target_curve", &c.slopes())?;
     }
     if let Some(support) = &model.support {
         // The packed bits, one per reference voxel (x fastest, least
@@ -260,7 +259,7 @@ pub(super) fn read_info(g: &Group, key: &EntryKey, path: &Path, budget: u64) -> 
         // Only for a target PSNR's encode (1.5).
         curve: if g.attr("target_curve").is_ok() {
             let v = f64s("target_curve", 2)?;
-            let c = Curve { per_budget_doubling: v[0], per_iteration_doubling: v[1] };
+            let c = Curve::from_slopes([v[0], v[1]]);
             if !c.is_valid() {
                 return Err(bad(format!("has a target curve that no encode makes: {c:?}")));
             }
