@@ -265,15 +265,13 @@ fn uniform_value(k: u16, lo: f64, hi: f64, bits: u8) -> f64 {
 fn smallest_three(unit: [f64; 4]) -> (u8, [f64; 3]) {
     let m = (0..4).fold(0, |m, i| if unit[i].abs() > unit[m].abs() { i } else { m });
     let sign = if unit[m] < 0.0 { -1.0 } else { 1.0 };
-    let mut rest = [0.0; 3];
-    let mut j = 0;
-    for (i, v) in unit.iter().enumerate() {
-        if i != m {
-            rest[j] = sign * v;
-            j += 1;
-        }
-    }
-    (m as u8, rest)
+    (m as u8, stored_components(m).map(|i| sign * unit[i]))
+}
+
+/// The three quaternion components stored when component `m` is dropped,
+/// in the order the payload keeps their codes.
+fn stored_components(m: usize) -> [usize; 3] {
+    std::array::from_fn(|j| if j < m { j } else { j + 1 })
 }
 
 /// One of the 24 rotations that take the coordinate axes onto one another
@@ -354,7 +352,7 @@ fn rotation_value(m: usize, codes: [u16; 3], bits: u8) -> [f64; 4] {
     let rest = codes.map(|k| uniform_value(k, -ROT_RANGE, ROT_RANGE, bits));
     let mut q = [0.0; 4];
     q[m] = (1.0 - rest.iter().map(|v| v * v).sum::<f64>()).max(0.0).sqrt();
-    (0..4).filter(|&k| k != m).zip(rest).for_each(|(k, v)| q[k] = v);
+    stored_components(m).into_iter().zip(rest).for_each(|(k, v)| q[k] = v);
     q
 }
 
@@ -379,8 +377,7 @@ fn codes_as_read(p: &Primitive, precision: &Precision) -> Option<(u8, [u16; 3])>
         return (q == [1.0, 0.0, 0.0, 0.0]).then_some((0, [0; 3]));
     }
     (0..4).find_map(|m| {
-        let others: Vec<usize> = (0..4).filter(|&k| k != m).collect();
-        let codes = [0, 1, 2].map(|j| uniform_code(q[others[j]] as f64, -ROT_RANGE, ROT_RANGE, bits));
+        let codes = stored_components(m).map(|k| uniform_code(q[k] as f64, -ROT_RANGE, ROT_RANGE, bits));
         (rotation_value(m, codes, bits).map(|v| v as f32) == q).then_some((m as u8, codes))
     })
 }
