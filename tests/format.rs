@@ -312,7 +312,7 @@ fn a_version_1_0_file_is_read_with_unknown_extras() {
     // A 1.0 header is the 1.1 header without its last 20 bytes (time, rank, PSNR).
     let m = model(4);
     let b = write_model(&m).unwrap();
-    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let header_len = header_len(&b);
     let mut out = b[..16 + header_len - 20].to_vec();
     out[10..12].copy_from_slice(&0u16.to_le_bytes());
     out[12..16].copy_from_slice(&((header_len - 20) as u32).to_le_bytes());
@@ -342,9 +342,7 @@ fn foreign_and_newer_files_are_rejected_with_clear_errors() {
     assert!(e.contains("not a gsenc model"), "{e}");
     let mut b = write_model(&model(2)).unwrap();
     b[8..10].copy_from_slice(&2u16.to_le_bytes());
-    let n = b.len();
-    let crc = crc32fast::hash(&b[..n - 4]);
-    b[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    fix_checksum(&mut b);
     let e = read_model(&b).unwrap_err();
     assert!(matches!(e, Error::Version(_)) && e.to_string().contains("version 2.1 is newer"), "{e}");
 }
@@ -358,7 +356,7 @@ fn a_newer_minor_version_with_extra_header_fields_is_read() {
     m.meta.warm = Some(WarmRecord { taken: WarmTaken::Fresh, moved: 3 });
     m.meta.curve = Some(Curve { per_budget_doubling: 2.25, per_iteration_doubling: 0.5 });
     let b = write_model(&m).unwrap();
-    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let header_len = header_len(&b);
     let mut out = b[..16 + header_len].to_vec();
     out[10..12].copy_from_slice(&6u16.to_le_bytes());
     out.extend_from_slice(b"future fields");
@@ -375,9 +373,7 @@ fn a_huge_count_behind_a_valid_checksum_is_refused_before_allocating() {
     for (count, why) in [(1u64 << 31, "cannot hold"), (1 << 40, "claims")] {
         let mut b = write_model_as(&model(3), Payload::Bits8(CentreCoding::Float16)).unwrap();
         b[20..28].copy_from_slice(&count.to_le_bytes());
-        let n = b.len();
-        let crc = crc32fast::hash(&b[..n - 4]);
-        b[n - 4..].copy_from_slice(&crc.to_le_bytes());
+        fix_checksum(&mut b);
         let e = read_model(&b).unwrap_err();
         assert!(matches!(e, Error::Format(_)) && e.to_string().contains(why), "{e}");
     }
@@ -386,12 +382,10 @@ fn a_huge_count_behind_a_valid_checksum_is_refused_before_allocating() {
 #[test]
 fn non_finite_parameters_behind_a_valid_checksum_are_refused() {
     let mut b = write_model(&model(2)).unwrap();
-    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let header_len = header_len(&b);
     let at = 16 + header_len + 4 * 7; // the first primitive's q[1]
     b[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
-    let n = b.len();
-    let crc = crc32fast::hash(&b[..n - 4]);
-    b[n - 4..].copy_from_slice(&crc.to_le_bytes());
+    fix_checksum(&mut b);
     let e = read_model(&b).unwrap_err();
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("non-finite"), "{e}");
 }
@@ -527,15 +521,25 @@ fn a_warm_record_is_stored_in_version_1_4_and_a_foreign_one_refused() {
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("unknown warm start 3"), "{e}");
 }
 
-/// `bytes` with the header's bytes from `from_end` before its end on
-/// replaced by `with`, and the checksum made valid again.
-fn with_header_tail(mut bytes: Vec<u8>, from_end: usize, with: &[u8]) -> Vec<u8> {
-    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
-    let at = 16 + header_len - from_end;
-    bytes[at..at + with.len()].copy_from_slice(with);
+/// The header's length, as a file's prefix says.
+fn header_len(bytes: &[u8]) -> usize {
+    u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize
+}
+
+/// Makes the checksum of a changed file valid again.
+fn fix_checksum(bytes: &mut [u8]) {
     let n = bytes.len();
     let crc = crc32fast::hash(&bytes[..n - 4]);
     bytes[n - 4..].copy_from_slice(&crc.to_le_bytes());
+}
+
+/// `bytes` with the header's bytes from `from_end` before its end on
+/// replaced by `with`, and the checksum made valid again.
+fn with_header_tail(mut bytes: Vec<u8>, from_end: usize, with: &[u8]) -> Vec<u8> {
+    let header_len = header_len(&bytes);
+    let at = 16 + header_len - from_end;
+    bytes[at..at + with.len()].copy_from_slice(with);
+    fix_checksum(&mut bytes);
     bytes
 }
 
@@ -581,7 +585,7 @@ fn a_target_curve_is_stored_in_version_1_5_and_a_foreign_one_refused() {
 /// with a valid checksum.
 fn with_support_frame(frame: &[u8]) -> Vec<u8> {
     let b = write_model(&model_with_support(2)).unwrap();
-    let header_len = u32::from_le_bytes(b[12..16].try_into().unwrap()) as usize;
+    let header_len = header_len(&b);
     let old_len = u32::from_le_bytes(b[16 + header_len - 4 - support_bytes(&b)..][..4].try_into().unwrap()) as usize;
     let cut = 16 + header_len - old_len - 4;
     let mut out = b[..cut].to_vec();
@@ -643,7 +647,7 @@ fn a_corrupted_support_behind_a_valid_checksum_is_refused() {
 #[test]
 fn a_corrupted_packed_payload_behind_a_valid_checksum_is_refused() {
     let bytes = write_model_as(&model(50), Payload::Packed).unwrap();
-    let header_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let header_len = header_len(&bytes);
     let start = 16 + header_len;
     let resealed = |edit: &dyn Fn(&mut Vec<u8>)| {
         let mut b = bytes[..bytes.len() - 4].to_vec();
@@ -684,7 +688,7 @@ fn packed_models_of_the_first_layout_still_read() {
     for (old, zstd_streams) in [(&include_bytes!("../fuzz/seeds/packed.gsm")[..], true), (&include_bytes!("../fuzz/seeds/packed-range.gsm")[..], false)] {
         let file = read_model_file(old).unwrap();
         assert_eq!(file.payload, Payload::Packed);
-        let start = 16 + u32::from_le_bytes(old[12..16].try_into().unwrap()) as usize;
+        let start = 16 + header_len(old);
         assert!(old[start] <= 8, "the first layout opens with its centre bits");
         let precision = file.model.meta.precision.unwrap();
         assert_eq!(precision, precision.with_centres(old[start]), "every class on the one lattice");
