@@ -129,6 +129,10 @@ def test_refusals_leave_the_series_as_it_was():
         gsenc.Series(100, log10=True, **QUICK).resume(first)
     with pytest.raises(ValueError, match="warm start"):
         gsenc.Series(100, warm="lukewarm", **QUICK)
+    with pytest.raises(ValueError, match="validation needs a positive interval"):
+        gsenc.Series(100, validation_points=1024, validation_every=0, **QUICK)
+    with pytest.raises(OverflowError):
+        gsenc.Series(100, validation_points=-1, **QUICK)
     with pytest.raises(TypeError, match="budget"):
         gsenc.Series(**QUICK)
 
