@@ -392,29 +392,15 @@ mod imp {
         let list: Vec<serde_json::Value> = entries
             .iter()
             .map(|e| match &e.content {
-                Ok(i) => json!({
-                    "entry": e.key.path(),
-                    "payload": i.payload.name(),
-                    "primitives": i.count,
-                    "stored_bytes": i.stored_bytes,
-                    "time": i.meta.time,
-                    "encode_psnr": i.meta.encode_psnr,
-                    "dims": i.meta.frame.dims,
-                    "bounds_min": i.meta.frame.bmin,
-                    "gamma": i.meta.frame.gamma,
-                    "value_min": i.meta.range.vmin,
-                    "value_max": i.meta.range.vmax,
-                    "transform": i.meta.range.transform.name(),
-                    "schedule": i.meta.schedule,
-                    "iterations": i.meta.iterations,
-                    "points": i.meta.points,
-                    "seed_init": i.meta.seed_init,
-                    "seed_sample": i.meta.seed_sample,
-                    "fell_back": i.meta.fell_back,
-                    "warm_start": i.meta.warm.map(|w| w.taken.name()),
-                    "warm_moved": i.meta.warm.map(|w| w.moved),
-                    "target_curve": i.meta.curve.as_ref().map(gsenc::model::Curve::slopes),
-                }),
+                Ok(i) => {
+                    let mut entry = serde_json::Map::new();
+                    entry.insert("entry".into(), json!(e.key.path()));
+                    entry.insert("payload".into(), json!(i.payload.name()));
+                    entry.insert("primitives".into(), json!(i.count));
+                    entry.insert("stored_bytes".into(), json!(i.stored_bytes));
+                    entry.extend(gsenc::format::info::metadata_info(&i.meta));
+                    serde_json::Value::Object(entry)
+                }
                 Err(why) => json!({ "entry": e.key.path(), "error": why.to_string() }),
             })
             .collect();

@@ -72,6 +72,17 @@ fn one_process_writes_another_reads() {
     let out = Command::new(gsenc_bin()).args(["store", "extract"]).arg(&path).arg("rho/7/1").arg("-o").arg(&got).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(gsenc::format::read_model(&std::fs::read(&got).unwrap()).unwrap(), m);
+    // The store lists an entry's metadata as `gsenc info` shows the model's file.
+    let out = Command::new(gsenc_bin()).args(["info", "--json"]).arg(&got).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let file: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let listed = entries[2].as_object().unwrap();
+    for key in ["field", "step", "rank", "precision", "dims", "value_max", "seed_sample", "target_curve"] {
+        assert!(listed.contains_key(key), "the store's listing has no '{key}'");
+    }
+    for (key, value) in listed.iter().filter(|(k, _)| !["entry", "stored_bytes"].contains(&k.as_str())) {
+        assert_eq!(&file[key], value, "'{key}' listed by the store and shown by `gsenc info` of its model");
+    }
 }
 
 /// A packed model file added to a store and extracted again is the same

@@ -3,7 +3,7 @@
 
 use crate::format::packed::{Precision, CENTRE_CLASSES, GROUPS};
 use crate::format::ModelFile;
-use crate::model::{Curve, Model};
+use crate::model::{Curve, Model, ModelMeta};
 use serde_json::{json, Map, Value};
 
 /// The fields of `file`, whose stored form takes `bytes` bytes.
@@ -22,9 +22,22 @@ pub fn model_info(file: &ModelFile, bytes: u64) -> Value {
     Value::Object(info)
 }
 
-/// What a model's header holds beyond its payload: its metadata.
+/// What a model's header holds beyond its payload: its metadata, and its
+/// support's.
 pub fn meta_info(m: &Model) -> Map<String, Value> {
-    let meta = &m.meta;
+    let mut info = metadata_info(&m.meta);
+    info.extend(keys(json!({
+        // Reference voxels where the model holds data (null: every voxel).
+        "support_voxels": m.support.as_ref().map(|s| s.count()),
+        // What the decode gives outside the support: `[offset, gain]` of
+        // `clamp(offset + gain min(V, 0.005), 0, 0.005)` (null: no support).
+        "support_outside": m.support.as_ref().map(|s| [s.outside().offset, s.outside().gain]),
+    })));
+    info
+}
+
+/// A model's metadata (what a store entry lists too, without its support).
+pub fn metadata_info(meta: &ModelMeta) -> Map<String, Value> {
     keys(json!({
         // Bits per parameter group of the packed payload (null: another payload).
         "precision": meta.precision.map(precision_json),
@@ -53,11 +66,6 @@ pub fn meta_info(m: &Model) -> Map<String, Value> {
         // What a target PSNR's search learned: dB per budget doubling and
         // per iteration doubling (null: an encode to a budget).
         "target_curve": meta.curve.as_ref().map(Curve::slopes),
-        // Reference voxels where the model holds data (null: every voxel).
-        "support_voxels": m.support.as_ref().map(|s| s.count()),
-        // What the decode gives outside the support: `[offset, gain]` of
-        // `clamp(offset + gain min(V, 0.005), 0, 0.005)` (null: no support).
-        "support_outside": m.support.as_ref().map(|s| [s.outside().offset, s.outside().gain]),
     }))
 }
 
