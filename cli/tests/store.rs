@@ -54,9 +54,7 @@ fn one_process_writes_another_reads() {
     // This process appends; the tool reads it back in another process.
     let m = model("rho", 7, 1, 100, 0.5);
     Store::open_append(&path).unwrap().append(&m, Payload::Float32).unwrap();
-    let out = Command::new(gsenc_bin()).args(["info", "--json"]).arg(&path).output().unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let v = info_json(&path);
     let entries = v["entries"].as_array().unwrap();
     let names: Vec<&str> = entries.iter().map(|e| e["entry"].as_str().unwrap()).collect();
     assert_eq!(names, ["/rho/5/rank_1", "/rho/6/rank_1", "/rho/7/rank_1"]);
@@ -72,16 +70,24 @@ fn one_process_writes_another_reads() {
     let out = Command::new(gsenc_bin()).args(["store", "extract"]).arg(&path).arg("rho/7/1").arg("-o").arg(&got).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(gsenc::format::read_model(&std::fs::read(&got).unwrap()).unwrap(), m);
-    // The store lists an entry's metadata as `gsenc info` shows the model's file.
-    let out = Command::new(gsenc_bin()).args(["info", "--json"]).arg(&got).output().unwrap();
+    assert_listed_as_file(&entries[2], &got);
+}
+
+fn info_json(path: &std::path::Path) -> serde_json::Value {
+    let out = Command::new(gsenc_bin()).args(["info", "--json"]).arg(path).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let file: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let listed = entries[2].as_object().unwrap();
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
+/// The store lists an entry's metadata as `gsenc info` shows the model's file.
+fn assert_listed_as_file(listed: &serde_json::Value, file: &std::path::Path) {
+    let shown = info_json(file);
+    let listed = listed.as_object().unwrap();
     for key in ["field", "step", "rank", "precision", "dims", "value_max", "seed_sample", "target_curve"] {
         assert!(listed.contains_key(key), "the store's listing has no '{key}'");
     }
     for (key, value) in listed.iter().filter(|(k, _)| !["entry", "stored_bytes"].contains(&k.as_str())) {
-        assert_eq!(&file[key], value, "'{key}' listed by the store and shown by `gsenc info` of its model");
+        assert_eq!(&shown[key], value, "'{key}' listed by the store and shown by `gsenc info` of its model");
     }
 }
 
@@ -99,6 +105,10 @@ fn a_packed_model_stored_and_extracted_is_the_same_file() {
     let out = Command::new(gsenc_bin()).args(["store", "extract"]).arg(&store).arg("rho/3/0").arg("-o").arg(&got).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(std::fs::read(&file).unwrap() == std::fs::read(&got).unwrap(), "the extracted file differs from the one added");
+    // Listed with the precision its payload was packed at.
+    let listing = info_json(&store);
+    assert!(listing["entries"][0]["precision"]["scale"].is_u64(), "{listing}");
+    assert_listed_as_file(&listing["entries"][0], &file);
 }
 
 /// `store add` of a run's folder: every `.gsm` in it (not its step indexes

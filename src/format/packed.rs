@@ -72,6 +72,8 @@ const AXIS_BITS: u32 = 21;
 /// lattices). The first layout began with its one centre bit count,
 /// 0..=8, and still reads.
 const LAYOUT_CLASSES: u8 = 0x82;
+/// The most bytes a stored payload's precision takes (its layout byte first).
+pub const PRECISION_BYTES: usize = 1 + CENTRE_CLASSES + 4;
 /// One octave of scale as a fraction of the scale band `[ln 0.4, ln 8]`,
 /// in units of 2^-16: `round(2^16 ln 2 / ln 20)`. Integer, so that every
 /// reader puts a primitive in the same class.
@@ -617,24 +619,32 @@ impl Packed {
         ]
     }
 
+    /// A stored payload's precision, from at most its first
+    /// [`PRECISION_BYTES`], and where its fixed fields begin.
+    pub fn read_precision(stored: &[u8]) -> Result<(Precision, usize)> {
+        let short = || Error::format("packed payload is truncated");
+        // The first layout: five precision bytes, its centre bits first.
+        let (bits, at) = match stored.first() {
+            Some(&b) if b <= MAX_CENTRE_BITS => ([[b; CENTRE_CLASSES].as_slice(), stored.get(1..5).ok_or_else(short)?].concat(), 5),
+            Some(&LAYOUT_CLASSES) => (stored.get(1..PRECISION_BYTES).ok_or_else(short)?.to_vec(), PRECISION_BYTES),
+            Some(&b) => return Err(Error::format(format!("packed payload: unknown layout (first byte {b:#04x})"))),
+            None => return Err(short()),
+        };
+        Ok(((0..GROUPS.len()).fold(Precision::FINEST, |p, g| p.with(g, bits[g])).check()?, at))
+    }
+
     /// Parses a stored payload of `n` primitives, in either layout (the
     /// first, of one centre lattice, reads as all classes on it). `unpack`
     /// inflates a zstd frame to exactly the length it is given, or fails.
     pub fn from_bytes(stored: &[u8], n: usize, unpack: &dyn Fn(&[u8], usize) -> Result<Vec<u8>>) -> Result<Packed> {
         let short = || Error::format("packed payload is truncated");
+        let (precision, at) = Packed::read_precision(stored)?;
         // The first layout: five precision bytes, its centre bits first.
-        let first_layout = stored.first().is_some_and(|&b| b <= MAX_CENTRE_BITS);
-        let (bits, at) = match stored.first() {
-            Some(_) if first_layout => ([[stored[0]; CENTRE_CLASSES].as_slice(), stored.get(1..5).ok_or_else(short)?].concat(), 5),
-            Some(&LAYOUT_CLASSES) => (stored.get(1..1 + CENTRE_CLASSES + 4).ok_or_else(short)?.to_vec(), 1 + CENTRE_CLASSES + 4),
-            Some(&b) => return Err(Error::format(format!("packed payload: unknown layout (first byte {b:#04x})"))),
-            None => return Err(short()),
-        };
+        let first_layout = at == 5;
         let fixed = at + 24 + 8;
         if stored.len() < fixed {
             return Err(short());
         }
-        let precision = (0..GROUPS.len()).fold(Precision::FINEST, |p, g| p.with(g, bits[g])).check()?;
         let f64_at = |at: usize| f64::from_le_bytes(stored[at..at + 8].try_into().unwrap());
         let f32_at = |at: usize| f32::from_le_bytes(stored[at..at + 4].try_into().unwrap());
         let origin = [f64_at(at), f64_at(at + 8), f64_at(at + 16)];

@@ -9,7 +9,7 @@ use super::{EntryInfo, EntryKey};
 use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::format::model_file::{packed_payload, put_header_start, read_packed_payload};
-use crate::format::packed::Precision;
+use crate::format::packed::{Packed, Precision, PRECISION_BYTES};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
 use crate::format::Payload;
 use crate::math::kernel::Primitive;
@@ -255,7 +255,7 @@ pub(super) fn read_info(g: &Group, key: &EntryKey, path: &Path, budget: u64) -> 
         } else {
             None
         },
-        precision: None, // read with the parameters
+        precision: None, // a packed payload's, below
         // Only for a target PSNR's encode (1.5).
         curve: if g.attr("target_curve").is_ok() {
             let v = f64s("target_curve", 2)?;
@@ -280,6 +280,14 @@ pub(super) fn read_info(g: &Group, key: &EntryKey, path: &Path, budget: u64) -> 
     let mut stored_bytes = 0;
     for name in names {
         stored_bytes += g.dataset(name).map_err(|_| bad(format!("has no dataset '{name}'")))?.storage_size();
+    }
+    let mut meta = meta;
+    if payload == Payload::Packed {
+        // From the payload's first bytes: a listing reads no more of it.
+        let ds = g.dataset("packed").map_err(|_| bad("has no dataset 'packed'".into()))?;
+        let head = ds.read_slice_1d::<u8, _>(..ds.size().min(PRECISION_BYTES)).map_err(|e| bad(format!("dataset packed: {e}")))?;
+        let (precision, _) = Packed::read_precision(&head.to_vec()).map_err(|e| bad(e.to_string()))?;
+        meta.precision = Some(precision);
     }
     Ok(EntryInfo { meta, payload, count, stored_bytes })
 }
