@@ -2,7 +2,7 @@
 //! writes them): the model file `.gsm` ([`model_file`], docs/FORMAT.md) and
 //! its fields as JSON ([`info`]), its payloads: the 8-bit export
 //! ([`quantize`]) and the packed one ([`packed`], its streams coded by
-//! [`packed_streams`] on the range coder of [`range`] or zstd, its centres'
+//! [`packed::streams`] on the range coder of [`range`] or zstd, its centres'
 //! low bits on the bit stream of [`bits`]), the stored support
 //! ([`support_coding`]), the step index `.gsi` of a decomposed step
 //! ([`step_index`]), and how models are named on disk ([`names`]).
@@ -12,7 +12,6 @@ pub mod info;
 pub mod model_file;
 pub mod names;
 pub mod packed;
-pub mod packed_streams;
 pub mod quantize;
 pub mod range;
 pub mod step_index;

@@ -28,7 +28,7 @@
 //!       -- a newer minor version may append fields; readers skip them.
 //! ..  payload      float32: count x 12 x f32, mu[3] l[3] q[4] alpha beta;
 //!                  8-bit: one zstd frame of the body in `quantize.rs`;
-//!                  packed: the layout in `packed.rs`
+//!                  packed: the layout in `packed/mod.rs`
 //! ..  crc32        u32 over every byte before it
 //! ```
 //! Readers reject a foreign magic, a newer major version, any size mismatch
@@ -88,7 +88,7 @@ pub enum Payload {
     /// The paper's 8-bit export, then zstd (METHOD.md "Payloads").
     Bits8(CentreCoding),
     /// Each parameter group at the bits its model's encode measured it
-    /// needs, in Morton order (`packed.rs`, METHOD.md "Payloads").
+    /// needs, in Morton order (`packed/`, METHOD.md "Payloads").
     Packed,
 }
 

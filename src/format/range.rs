@@ -1,7 +1,7 @@
 //! An adaptive binary range coder (the one of LZMA: 11-bit probabilities,
 //! each moved a 32nd of the way to the bit it saw) and symbols coded on it
 //! as bit trees under a context: the packed payload
-//! ([`crate::format::packed_streams`]) codes its symbol streams with it
+//! ([`crate::format::packed::streams`]) codes its symbol streams with it
 //! where that is smaller than zstd. Integer arithmetic only, so the bytes
 //! are the same on every machine.
 
