@@ -26,6 +26,8 @@ pub fn rotation_bits(scale: [u16; 3], scale_bits: u8, bits: u8) -> u8 {
     bits - spare
 }
 
+/// The range of the stored components: beside a unit quaternion's largest
+/// component, each of the others lies within ±1/√2.
 const ROT_RANGE: f64 = std::f64::consts::FRAC_1_SQRT_2;
 
 /// The dropped component's index and the other three's codes at `bits`
