@@ -301,6 +301,12 @@ fn unstorable_parameters_are_refused_on_write() {
     assert!((twin[0] - 70000.0).abs() <= 1.0 / 32.0 + 0.004, "{}", twin[0]);
     let back = read_model(&write_model_as(&far, Payload::Bits8(CentreCoding::Fixed16)).unwrap()).unwrap();
     assert!((back.params[2][0] - 70000.0).abs() < 1.0);
+    // A centre whose code would be exactly 2^21 (131,072 voxels from the
+    // origin at 1/16 voxel) needs the next coarser lattice.
+    let origin = far.params.iter().enumerate().filter(|&(i, _)| i != 2).map(|(_, p)| p[0]).fold(f32::INFINITY, f32::min).floor();
+    far.params[2][0] = origin + 131072.0;
+    let packed = read_model_file(&write_model_as(&far, Payload::Packed).unwrap()).unwrap();
+    assert_eq!(packed.model.meta.precision, Some(Precision::DEFAULT.with_centres(3)));
     // ...down to whole voxels; beyond 2^21 voxels it is refused.
     far.params[2][0] = 3.0e6;
     let e = write_model_as(&far, Payload::Packed).unwrap_err();
