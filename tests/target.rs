@@ -2,8 +2,8 @@
 //! budget"): target-PSNR encodes of the repository's real data land within
 //! 1 dB of their targets, measured by decoding the model they return; a
 //! target out of reach ends at the cap and says so; bad targets are
-//! refused; a series changes its budget only at a step that misses, and
-//! does so alike when resumed after a restart.
+//! refused; a series changes its budget only at a step that misses (and
+//! not beyond its cap), and does so alike when resumed after a restart.
 
 mod common;
 
@@ -92,6 +92,26 @@ fn a_target_beyond_reach_ends_at_the_cap_and_says_so() {
     // The best of what it tried.
     assert!(r.tries.iter().all(|t| t.psnr <= e.psnr), "{r:?}");
     assert!(decoded_psnr(&prepared, &e) < 110.0 - LANDS_BELOW_DB);
+}
+
+/// A series' step at the cap that falls short stops there: one try, no
+/// growth beyond the cap and none of zero primitives.
+#[test]
+fn a_series_step_at_the_cap_does_not_grow() {
+    let grid = blobs([20; 3], 3, 6);
+    let frame = IndexFrame::for_grid(grid.dims, [0.0; 3], 1.0).unwrap();
+    let mut cfg = SeriesConfig::new(config(110.0, 40), WarmStart::Dense, SeriesRange::FirstStep(Transform::Linear));
+    cfg.validation_points = 0;
+    cfg.warm_iterations = Some(300);
+    let mut series = SeriesEncoder::new(cfg).unwrap();
+    let mut reports = Vec::new();
+    for step in 0..2u64 {
+        let r = series.encode_step("f", step, None, Input::Grid { values: &grid, frame }, &mut CpuBackend::new(), &mut |_| {}).unwrap();
+        assert_eq!(r.encoded.model.len(), 40, "step {step}");
+        reports.push(r.encoded.target.unwrap());
+    }
+    assert!(!reports[0].landed && reports[0].tries.iter().any(|t| t.budget == 40), "{:?}", reports[0]);
+    assert!(!reports[1].landed && reports[1].tries.len() == 1 && reports[1].tries[0].budget == 40, "{:?}", reports[1]);
 }
 
 #[test]
