@@ -234,6 +234,29 @@ fn only_the_last_final_states_are_kept() {
     assert_eq!(stored.lock().unwrap().last().unwrap().meta.schedule, "warm-coarse");
 }
 
+/// A failure reported after later steps' states were dropped leaves them
+/// dropped: `dropped` goes by the latest step dropped, not the last.
+#[test]
+fn a_failure_reported_late_keeps_the_later_steps_dropped() {
+    let cfg = QueueConfig { kept_states: 1, ..queue_config(8, WhenFull::Block) };
+    let (q, open, _) = gated(cfg, vec![0]);
+    for k in 0..3 {
+        open.send(()).unwrap();
+        q.push(job("rho", k)).unwrap();
+    }
+    let t0 = std::time::Instant::now();
+    while !q.poll("rho", 2).is_some_and(|s| s.is_final()) {
+        assert!(t0.elapsed().as_secs() < 120, "the queue did not finish");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+    assert!(q.poll("rho", 1).is_none() && q.dropped("rho", 1), "{:?}", q.poll("rho", 1));
+    assert!(q.wait(None).unwrap_err().to_string().contains("field 'rho' step 0"));
+    for k in [0, 1] {
+        assert!(q.poll("rho", k).is_none() && q.dropped("rho", k), "step {k}: {:?}", q.poll("rho", k));
+    }
+    assert!(!q.dropped("rho", 2));
+}
+
 /// A model the caller stores after its state was dropped: a failure is
 /// still reported by `wait` (then dropped), a success leaves no state.
 #[test]
