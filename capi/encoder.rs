@@ -109,7 +109,7 @@ unsafe fn create_into(
     // SAFETY: non-null pointer to the caller's handle slot.
     unsafe { *out = std::ptr::null_mut() };
     // SAFETY: the caller passes a config of at least its struct_size bytes.
-    let settings = unsafe { Settings::from_c(config) }?;
+    let settings = unsafe { Settings::from_c(config) }.map_err(|Failure(status, why)| Failure(status, format!("{what}: {why}")))?;
     let raw = Box::into_raw(Box::new(make(settings)?));
     crate::handles::register(raw, Kind::Encoder);
     // SAFETY: as above.

@@ -150,7 +150,7 @@ unsafe fn push_step(
     guard(|| {
         with_encoder(encoder, what, |enc| {
             // SAFETY: a NUL-terminated string or NULL (refused).
-            let field = unsafe { c_str(field, "field") };
+            let field = unsafe { c_str(field, &format!("{what}: field")) };
             let name = field.as_ref().map_or(String::new(), Clone::clone);
             let made = field.and_then(|_| make(enc));
             enc.push_made(&name, step, time, kind, made)

@@ -26,7 +26,7 @@ pub unsafe extern "C" fn gsenc_wait(encoder: *mut gsenc_encoder, field: *const c
     guard(|| {
         with_encoder(encoder, "gsenc_wait", |enc| {
             // SAFETY: NULL or a NUL-terminated string.
-            let field = if field.is_null() { Ok(None) } else { unsafe { c_str(field, "field") }.map(Some) };
+            let field = if field.is_null() { Ok(None) } else { unsafe { c_str(field, "gsenc_wait: field") }.map(Some) };
             let field = field.and_then(|f| {
                 if let Some(name) = &f {
                     gsenc::format::check_field_name(name)?;
@@ -92,7 +92,7 @@ pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c
     guard(|| {
         with_encoder(encoder, "gsenc_poll", |enc| {
             // SAFETY: a NUL-terminated string or NULL (refused).
-            let field = unsafe { c_str(field, "field") }?;
+            let field = unsafe { c_str(field, "gsenc_poll: field") }?;
             // SAFETY: NULL or the caller's gsenc_job.
             unsafe { check_sized(job.cast_const(), "gsenc_poll: job") }?;
             enc.flush(false);
@@ -178,7 +178,7 @@ pub unsafe extern "C" fn gsenc_encoder_write_model(encoder: *mut gsenc_encoder, 
     guard(|| {
         with_encoder(encoder, "gsenc_encoder_write_model", |enc| {
             // SAFETY: NUL-terminated strings or NULL (refused).
-            let (field, path) = unsafe { (c_str(field, "field")?, c_str(path, "path")?) };
+            let (field, path) = unsafe { (c_str(field, "gsenc_encoder_write_model: field")?, c_str(path, "gsenc_encoder_write_model: path")?) };
             let Some((model, _)) = enc.queue.last(&field) else {
                 return fail(gsenc_status::CallOrder, format!("field '{field}' has no encoded step yet"));
             };
@@ -210,7 +210,7 @@ pub unsafe extern "C" fn gsenc_encoder_model_bytes(
     guard(|| {
         with_encoder(encoder, "gsenc_encoder_model_bytes", |enc| {
             // SAFETY: NUL-terminated string or NULL (refused).
-            let field = unsafe { c_str(field, "field") }?;
+            let field = unsafe { c_str(field, "gsenc_encoder_model_bytes: field") }?;
             if size.is_null() {
                 return fail(gsenc_status::NullPointer, "gsenc_encoder_model_bytes: size is NULL");
             }
@@ -250,7 +250,7 @@ pub unsafe extern "C" fn gsenc_encoder_last_step(
     guard(|| {
         with_encoder(encoder, "gsenc_encoder_last_step", |enc| {
             // SAFETY: NUL-terminated string or NULL (refused).
-            let field = unsafe { c_str(field, "field") }?;
+            let field = unsafe { c_str(field, "gsenc_encoder_last_step: field") }?;
             if step.is_null() || psnr.is_null() {
                 return fail(gsenc_status::NullPointer, "gsenc_encoder_last_step: step or psnr is NULL");
             }

@@ -42,6 +42,8 @@ mod common;
 #[cfg(all(test, feature = "hdf5"))]
 mod hdf5_tests;
 #[cfg(test)]
+mod null_tests;
+#[cfg(test)]
 mod thread_tests;
 
 pub use ffi::{GSENC_DTYPE_FLOAT32, GSENC_DTYPE_FLOAT64};

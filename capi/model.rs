@@ -82,7 +82,7 @@ pub unsafe extern "C" fn gsenc_model_read(path: *const c_char, out: *mut *mut gs
         // SAFETY: non-null pointer to the caller's handle slot.
         unsafe { *out = std::ptr::null_mut() };
         // SAFETY: NUL-terminated string or NULL (refused).
-        let path = unsafe { c_str(path, "path") }?;
+        let path = unsafe { c_str(path, "gsenc_model_read: path") }?;
         let model = gsenc::io::read_model_file(std::path::Path::new(&path))?.model;
         // SAFETY: as above.
         unsafe { *out = new_handle(model) };

@@ -78,7 +78,7 @@ pub unsafe extern "C" fn gsenc_encoder_resume_stored(encoder: *mut gsenc_encoder
     guard(|| {
         let what = "gsenc_encoder_resume_stored";
         // SAFETY: NUL-terminated string or NULL (that rank's failure).
-        let field = unsafe { c_str(field, "field") };
+        let field = unsafe { c_str(field, &format!("{what}: field")) };
         with_encoder(encoder, what, |enc| {
             let read = enc.read_stored(field, step);
             enc.resume(read)
@@ -93,6 +93,9 @@ impl gsenc_encoder {
     fn read_stored(&mut self, field: Result<String, Failure>, step: u64) -> Result<Model, Failure> {
         let rank = self.settings.series.rank;
         let Some(out) = self.settings.output.clone() else {
+            // Nothing collective without an output: a bad field is this
+            // call's error first.
+            field?;
             return fail(gsenc_status::CallOrder, "gsenc_encoder_resume_stored: this encoder writes no output to resume from; pass the model to gsenc_encoder_resume");
         };
         match self.settings.output_format {
