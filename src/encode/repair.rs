@@ -270,6 +270,29 @@ mod tests {
         assert_eq!(r.params, prev);
     }
 
+    /// Beyond the vanished, the high-residual share moves the primitives
+    /// of least effective support (`w prod exp(l)`), smallest first.
+    #[test]
+    fn data_the_model_misses_take_the_primitives_of_least_support() {
+        let (a, b) = (ball(24, [8.0, 8.0, 8.0], 2.5), ball(24, [17.0, 17.0, 17.0], 2.5));
+        let values = a.values.iter().zip(&b.values).map(|(x, y)| x.max(*y)).collect();
+        let reference = Grid::new([24; 3], values).unwrap();
+        let target = Target { reference: &reference, samples: &reference };
+        // On the first ball only, each wider than the one before, in an
+        // order the support's is not.
+        let mut prev = model_of([8.0, 8.0, 8.0], 30);
+        for (k, p) in prev.iter_mut().enumerate() {
+            let sigma = 1.0 + 0.03 * ((k * 7) % 30) as f32;
+            p[layout::LOG_SCALE..layout::LOG_SCALE + 3].fill(sigma.ln());
+        }
+        let r = repair(&target, &prev, 0, &mut CpuBackend::new()).unwrap();
+        assert_eq!(r.vanished, 0);
+        assert!(!r.moved.is_empty() && r.moved.len() < 30, "{} moved", r.moved.len());
+        let mut by_support: Vec<usize> = (0..30).collect();
+        by_support.sort_by(|&i, &j| effective_support(&prev[i]).total_cmp(&effective_support(&prev[j])));
+        assert_eq!(r.moved, by_support[..r.moved.len()], "the least supported move, in that order");
+    }
+
     #[test]
     fn vanished_looks_around_the_centre() {
         let reference = ball(24, [12.0, 12.0, 12.0], 1.0);
