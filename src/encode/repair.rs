@@ -165,13 +165,23 @@ pub fn choose_start(target: &Target, prev: &[Primitive], seed_init: u64, validat
     let fresh = seed(target.samples, target.reference.dims, prev.len(), seed_init)?.params;
     let fresh_psnr = validation.psnr(backend, &fresh)?;
     tracing::info!(kept, repaired, fresh = fresh_psnr, moved, vanished = r.vanished, high_share = r.high_share, "auto warm start");
-    Ok(if fresh_psnr > kept.max(repaired) {
-        (fresh, WarmRecord { taken: WarmTaken::Fresh, moved })
-    } else if repaired > kept {
-        (r.params, WarmRecord { taken: WarmTaken::Repaired, moved })
-    } else {
-        (prev.to_vec(), WarmRecord { taken: WarmTaken::Kept, moved: 0 })
+    Ok(match best_start(kept, repaired, fresh_psnr) {
+        WarmTaken::Fresh => (fresh, WarmRecord { taken: WarmTaken::Fresh, moved }),
+        WarmTaken::Repaired => (r.params, WarmRecord { taken: WarmTaken::Repaired, moved }),
+        WarmTaken::Kept => (prev.to_vec(), WarmRecord { taken: WarmTaken::Kept, moved: 0 }),
     })
+}
+
+/// The start of the highest validation PSNR; on a tie the earlier of
+/// kept, repaired, fresh.
+fn best_start(kept: f64, repaired: f64, fresh: f64) -> WarmTaken {
+    if fresh > kept.max(repaired) {
+        WarmTaken::Fresh
+    } else if repaired > kept {
+        WarmTaken::Repaired
+    } else {
+        WarmTaken::Kept
+    }
 }
 
 /// True when no voxel within `VANISHED_RADIUS` of the primitive's centre
@@ -268,6 +278,26 @@ mod tests {
         assert_eq!(r.vanished, 0, "no primitive of a model on its own data has vanished");
         assert!(r.moved.is_empty());
         assert_eq!(r.params, prev);
+    }
+
+    #[test]
+    fn the_best_start_scores_highest_and_ties_go_to_the_earlier() {
+        use WarmTaken::*;
+        for (scores, want) in [
+            ([3.0, 2.0, 1.0], Kept),
+            ([1.0, 3.0, 2.0], Repaired),
+            ([2.0, 3.0, 1.0], Repaired),
+            ([1.0, 2.0, 3.0], Fresh),
+            ([2.0, 1.0, 3.0], Fresh),
+            ([1.0, 3.0, 2.5], Repaired),
+            ([2.0, 2.0, 1.0], Kept),
+            ([1.0, 2.0, 2.0], Repaired),
+            ([2.0, 1.0, 2.0], Kept),
+            ([1.0, f64::NEG_INFINITY, 2.0], Fresh), // nothing to repair
+            ([1.0, f64::NEG_INFINITY, 0.5], Kept),
+        ] {
+            assert_eq!(best_start(scores[0], scores[1], scores[2]), want, "{scores:?}");
+        }
     }
 
     /// Beyond the vanished, the high-residual share moves the primitives
