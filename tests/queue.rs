@@ -187,6 +187,15 @@ fn a_failed_job_is_reported_once_and_later_steps_are_written() {
     assert_eq!(last.meta.step, 3);
 }
 
+/// Polls until `field`'s step `step` is final (which `wait` would report).
+fn until_final(q: &BackgroundEncoder, field: &str, step: u64) {
+    let t0 = std::time::Instant::now();
+    while !q.poll(field, step).is_some_and(|s| s.is_final()) {
+        assert!(t0.elapsed().as_secs() < 120, "the queue did not finish");
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    }
+}
+
 /// Of the final jobs, only the last `kept_states` to finish keep their
 /// states (of every field together), so a long run's memory does not grow
 /// with its length; a failure `wait` has not reported is kept past its turn
@@ -201,11 +210,7 @@ fn only_the_last_final_states_are_kept() {
         q.push(job("rho", k)).unwrap();
     }
     // Until every step is final, without reporting the failure.
-    let t0 = std::time::Instant::now();
-    while !q.poll("rho", 5).is_some_and(|s| s.is_final()) {
-        assert!(t0.elapsed().as_secs() < 120, "the queue did not finish");
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
+    until_final(&q, "rho", 5);
     for k in [0, 1] {
         assert!(q.poll("rho", k).is_none() && q.dropped("rho", k), "step {k}: {:?}", q.poll("rho", k));
     }
@@ -244,11 +249,7 @@ fn a_failure_reported_late_keeps_the_later_steps_dropped() {
         open.send(()).unwrap();
         q.push(job("rho", k)).unwrap();
     }
-    let t0 = std::time::Instant::now();
-    while !q.poll("rho", 2).is_some_and(|s| s.is_final()) {
-        assert!(t0.elapsed().as_secs() < 120, "the queue did not finish");
-        std::thread::sleep(std::time::Duration::from_millis(10));
-    }
+    until_final(&q, "rho", 2);
     assert!(q.poll("rho", 1).is_none() && q.dropped("rho", 1), "{:?}", q.poll("rho", 1));
     assert!(q.wait(None).unwrap_err().to_string().contains("field 'rho' step 0"));
     for k in [0, 1] {
