@@ -386,6 +386,25 @@ fn a_huge_count_behind_a_valid_checksum_is_refused_before_allocating() {
 }
 
 #[test]
+fn an_invalid_index_frame_behind_a_valid_checksum_is_refused() {
+    // dims (3 x u32) at bytes 28..40, bmin (3 x f64) at 40..64, gamma at 64..72.
+    let changes: [(usize, Vec<u8>); 5] = [
+        (64, 0f64.to_le_bytes().to_vec()),
+        (64, (-2f64).to_le_bytes().to_vec()),
+        (64, f64::NAN.to_le_bytes().to_vec()),
+        (32, 0u32.to_le_bytes().to_vec()),
+        (56, f64::INFINITY.to_le_bytes().to_vec()),
+    ];
+    for (at, value) in changes {
+        let mut b = write_model(&model(3)).unwrap();
+        b[at..at + value.len()].copy_from_slice(&value);
+        fix_checksum(&mut b);
+        let e = read_model(&b).unwrap_err();
+        assert!(matches!(e, Error::Format(_)) && e.to_string().contains("invalid index frame"), "bytes {at}: {e}");
+    }
+}
+
+#[test]
 fn non_finite_parameters_behind_a_valid_checksum_are_refused() {
     let mut b = write_model(&model(2)).unwrap();
     let header_len = header_len(&b);
