@@ -9,7 +9,7 @@ use super::{EntryInfo, EntryKey};
 use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::format::model_file::{packed_payload, put_header_start, read_packed_payload};
-use crate::format::packed::{Packed, Precision, PRECISION_BYTES};
+use crate::format::packed::{Packed, PRECISION_BYTES};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
 use crate::format::Payload;
 use crate::math::kernel::Primitive;
@@ -328,18 +328,16 @@ fn read_maps(ds: &Dataset, len: usize, budget: u64, bad: &dyn Fn(String) -> Erro
     Ok(lo.into_iter().zip(hi).map(|(lo, hi)| Affine { lo, hi }).collect())
 }
 
-/// The entry's primitives, and the packed payload's precision when it has one.
-pub(super) fn read_params(g: &Group, info: &EntryInfo, path: &Path, budget: u64) -> Result<(Vec<Primitive>, Option<Precision>)> {
+/// The entry's primitives (a packed payload's precision is `read_info`'s).
+pub(super) fn read_params(g: &Group, info: &EntryInfo, path: &Path, budget: u64) -> Result<Vec<Primitive>> {
     let key = EntryKey::of(&info.meta);
     let bad = |what: String| Error::format(format!("{}:{} {what}", path.display(), key.path()));
     let n = usize::try_from(info.count).map_err(|_| bad("count exceeds this machine's memory".into()))?;
-    let mut precision = None;
     let params = match info.payload {
         Payload::Packed => {
             let ds = g.dataset("packed").map_err(|_| bad("has no dataset 'packed'".into()))?;
             let bytes: Vec<u8> = read_all(&ds, "dataset packed", budget, &bad)?;
             let packed = read_packed_payload(&bytes, n).map_err(|e| bad(e.to_string()))?;
-            precision = Some(packed.precision);
             packed.params().map_err(|e| bad(e.to_string()))?
         }
         Payload::Float32 => {
@@ -367,5 +365,5 @@ pub(super) fn read_params(g: &Group, info: &EntryInfo, path: &Path, budget: u64)
     if params.iter().any(|p: &Primitive| p.iter().any(|v| !v.is_finite())) {
         return Err(bad("holds non-finite parameters".into()));
     }
-    Ok((params, precision))
+    Ok(params)
 }

@@ -355,7 +355,7 @@ impl Store {
         let g = self.entry_group(key)?;
         let budget = super::budget::whole_read_budget(1)?;
         let info = read_info(&g, key, &self.path, budget)?;
-        let (params, precision) = read_params(&g, &info, &self.path, budget)?;
+        let params = read_params(&g, &info, &self.path, budget)?;
         let support = read_support(&g, &info, &self.path, budget)?;
         // 1.4: the entry as read against its checksum (older entries have none).
         if let Ok(a) = g.attr(CRC) {
@@ -366,7 +366,7 @@ impl Store {
                 return Err(Error::format(format!("{at} fails its checksum (its {CRC} is {want:08x}, its content gives {got:08x}): it changed after it was written")));
             }
         }
-        Ok((Model { meta: ModelMeta { precision, ..info.meta }, params, support }, info.payload))
+        Ok((Model { meta: info.meta, params, support }, info.payload))
     }
 
     fn entry_group(&self, key: &EntryKey) -> Result<Group> {
