@@ -53,6 +53,12 @@ pub fn read_whole(path: &std::path::Path) -> crate::Result<Vec<u8>> {
     budget::read_within(path, &file, file_len(&file), budget::whole_read_budget(1)?, |e| crate::Error::io(path, e))
 }
 
+/// A text made safe inside an XML attribute or element (the `.vti` and
+/// XDMF writers); the `.vti` reader's attribute lookup undoes it.
+pub(crate) fn xml_escape(s: &str) -> String {
+    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;").replace('\'', "&apos;")
+}
+
 /// The length of a regular file (not of a pipe, whose metadata says 0).
 fn file_len(file: &std::fs::File) -> Option<u64> {
     file.metadata().ok().filter(|m| m.is_file()).map(|m| m.len())

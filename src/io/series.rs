@@ -8,6 +8,7 @@
 use crate::backend::Backend;
 use crate::error::{Error, Result};
 use crate::io::atomic::{write_atomic, Replacement};
+use crate::io::xml_escape;
 use crate::domain::global::GlobalField;
 use crate::io::store::{Entry, EntryKey, Store};
 use crate::field::{IndexBox, ValueRange};
@@ -203,10 +204,6 @@ fn write_grid(
     attr("spacing", &spacing).map_err(h5err)?;
     attr("time", &[model.meta.time.unwrap_or(f64::NAN)]).map_err(h5err)?;
     Ok(piece)
-}
-
-fn xml_escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;").replace('\'', "&apos;")
 }
 
 /// An XDMF 3 temporal collection with one spatial collection per step.

@@ -370,7 +370,7 @@ pub fn write_vti_bytes(grid: &Grid, origin: [f64; 3], spacing: [f64; 3], name: &
 /// and the UInt64 byte count of the appended block. Values, then
 /// [`VTI_SUFFIX`], complete it, so that a decode can stream into the file.
 pub fn vti_prefix(d: [usize; 3], origin: [f64; 3], spacing: [f64; 3], name: &str) -> Vec<u8> {
-    let name = xml_escape(name);
+    let name = super::xml_escape(name);
     let xml = format!(
         "<?xml version=\"1.0\"?>\n<VTKFile type=\"ImageData\" version=\"1.0\" byte_order=\"LittleEndian\" header_type=\"UInt64\">\n  <ImageData WholeExtent=\"0 {} 0 {} 0 {}\" Origin=\"{} {} {}\" Spacing=\"{} {} {}\">\n    <Piece Extent=\"0 {} 0 {} 0 {}\">\n      <PointData Scalars=\"{name}\">\n        <DataArray type=\"Float32\" Name=\"{name}\" format=\"appended\" offset=\"0\"/>\n      </PointData>\n      <CellData>\n      </CellData>\n    </Piece>\n  </ImageData>\n  <AppendedData encoding=\"raw\">\n   _",
         d[0] - 1, d[1] - 1, d[2] - 1, origin[0], origin[1], origin[2], spacing[0], spacing[1], spacing[2],
@@ -383,11 +383,6 @@ pub fn vti_prefix(d: [usize; 3], origin: [f64; 3], spacing: [f64; 3], name: &str
 
 /// The end of a `.vti` file after its values.
 pub const VTI_SUFFIX: &[u8] = b"\n  </AppendedData>\n</VTKFile>\n";
-
-/// A name made safe inside an XML attribute.
-fn xml_escape(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
-}
 
 #[cfg(test)]
 mod tests {
@@ -486,6 +481,63 @@ mod tests {
         }
         assert!(parse_vti(b"hello", None).is_err());
         assert!(parse_vti(b"<VTKFile type=\"PolyData\">", None).is_err());
+    }
+
+    /// Each file the reader cannot take is refused with a message naming
+    /// what is wrong: every change below, of a file that reads, is one.
+    #[test]
+    fn unreadable_files_are_refused_with_the_reason() {
+        let base = String::from_utf8(wrap("", "", "")).unwrap();
+        assert_eq!(parse_vti(base.as_bytes(), None).unwrap().grid.values, vec![9.0; 12]);
+        let refused = |f: &str, what: &str| {
+            let e = parse_vti(f.as_bytes(), None).unwrap_err();
+            assert!(matches!(&e, Error::Format(m) if m.contains(what)), "wanted '{what}', got {e}");
+        };
+        let array = "<DataArray type=\"Float32\" Name=\"a\" format=\"ascii\">9 9 9 9 9 9 9 9 9 9 9 9</DataArray>";
+        for (from, to, what) in [
+            ("version=\"0.1\"", "version=\"0.1\" compressor=\"vtkLZ4DataCompressor\"", "compressor vtkLZ4DataCompressor is not supported"),
+            ("<ImageData ", "<ImageDatum ", "no ImageData element"),
+            ("WholeExtent=\"0 2 0 1 0 1\"", "", "no WholeExtent"),
+            ("WholeExtent=\"0 2 0 1 0 1\"", "WholeExtent=\"0 2 0 1 0\"", "6 ordered numbers"),
+            ("WholeExtent=\"0 2 0 1 0 1\"", "WholeExtent=\"0 2 1 0 0 1\"", "6 ordered numbers"),
+            ("Origin=\"0 0 0\"", "Origin=\"0 0\"", "Origin and Spacing need 3 numbers"),
+            ("Spacing=\"1 1 1\"", "Spacing=\"1 x 1\"", "bad number 'x' in Spacing"),
+            ("</Piece>", "</Piece><Piece Extent=\"0 2 0 1 0 1\"></Piece>", "several pieces"),
+            (array, "", "no point or cell data array"),
+            ("Name=\"a\"", "Name=\"a\" NumberOfComponents=\"3\"", "array has 3 components"),
+            ("type=\"Float32\" Name=\"a\"", "Name=\"a\"", "DataArray without type"),
+            ("type=\"Float32\" Name=\"a\"", "type=\"Bit\" Name=\"a\"", "unsupported data type Bit"),
+            ("9 9 9 9 9 9 9 9 9 9 9 9", "9 9 9 9 9 9 9 9 9 9 9", "ascii array holds 11 values, extent needs 12"),
+            ("9 9 9 9 9 9 9 9 9 9 9 9", "9 9 9 9 9 9 9 9 9 9 9 z", "bad number 'z' in ascii DataArray"),
+            ("format=\"ascii\"", "format=\"hex\"", "unknown DataArray format 'hex'"),
+        ] {
+            assert_eq!(base.matches(from).count(), 1, "{from}");
+            refused(&base.replace(from, to), what);
+        }
+        let appended = |tag: &str, data: &str| {
+            let a = format!("<DataArray type=\"Float32\" Name=\"b\" format=\"appended\"{tag}/>");
+            String::from_utf8(wrap("", &a, data)).unwrap()
+        };
+        refused(&appended("", "<AppendedData encoding=\"raw\">_</AppendedData>"), "appended array without offset");
+        refused(&appended(" offset=\"0\"", "<AppendedData encoding=\"raw\"></AppendedData>"), "AppendedData without '_'");
+        refused(&appended(" offset=\"0\"", ""), "no AppendedData");
+    }
+
+    /// Attributes and elements are matched by their whole names: `type`
+    /// is not read out of a `header_type` before it, nor `ImageData` out of
+    /// an element whose name begins so; the arrays of a section are those
+    /// before its end (an empty `PointData`, as VTK writes beside cell data,
+    /// does not take the `CellData` array after it); and a name the writer
+    /// escapes reads back as given.
+    #[test]
+    fn names_are_matched_whole() {
+        let cells = "<VTKFile header_type=\"UInt32\" type=\"ImageData\"><ImageDataX/><ImageData WholeExtent=\"0 2 0 1 0 1\"><Piece Extent=\"0 2 0 1 0 1\"><PointData>\n</PointData><CellData><DataArray type=\"Float32\" Name=\"c\" format=\"ascii\">1 2</DataArray></CellData></Piece></ImageData></VTKFile>";
+        let v = parse_vti(cells.as_bytes(), None).unwrap();
+        assert_eq!((v.grid.dims, v.grid.values, v.name.as_str()), ([2, 1, 1], vec![1.0, 2.0], "c"));
+        let name = "a<b & \"c\" 'd'>";
+        let bytes = write_vti_bytes(&grid(), [0.0; 3], [1.0; 3], name);
+        assert_eq!(parse_vti(&bytes, None).unwrap().name, name);
+        assert_eq!(parse_vti(&bytes, Some(name)).unwrap().grid, grid());
     }
 
     /// The fuzzing seeds (`fuzz/vti-seeds`, written by Python's zlib and
