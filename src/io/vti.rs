@@ -433,6 +433,9 @@ mod tests {
         assert_eq!(parse_vti(&f, None).unwrap().grid, g);
         assert_eq!(parse_vti(&f, Some("a")).unwrap().grid.values, vec![9.0; 12]);
         assert!(parse_vti(&f, Some("zz")).is_err());
+        // An empty compressor attribute means none.
+        let none = String::from_utf8(f.clone()).unwrap().replace("version=\"0.1\"", "version=\"0.1\" compressor=\"\"");
+        assert_eq!(parse_vti(none.as_bytes(), None).unwrap().grid, g);
         // inline base64, UInt32 header encoded separately from the data.
         let f = wrap(
             "byte_order=\"LittleEndian\"",
@@ -625,6 +628,9 @@ mod tests {
         };
         refused(&zlib_file(&data, 10, Some([vec![3, 1 << 60, 4], csizes.clone()].concat()), extent), "claims");
         refused(&zlib_file(&data, 10, Some([vec![3, 10, 4], vec![csizes[0], u64::MAX - 8, csizes[2]]].concat()), extent), "truncated");
+        // A block count whose header alone would outgrow the file (and whose
+        // header size, 8 bytes a block, overflows).
+        refused(&zlib_file(&data, 10, Some([vec![1 << 61, 10, 4], csizes.clone()].concat()), extent), "compressed header is corrupted");
         // A block whose stream expands beyond its header's size stops there.
         let bomb = vec![7u8; 1 << 20];
         let f = zlib_file(&bomb, 1 << 20, Some(vec![1, 24, 24, 0]), extent);
