@@ -156,8 +156,9 @@ mod tests {
     }
 
     /// A step's models are checked against its index: a model of another
-    /// voxel size or transform than the index says is refused by name, as a
-    /// model of another box is, and the models the index names read.
+    /// voxel size, transform or value range than the index says is refused
+    /// by name, as a model of another box or of another rank is, and the
+    /// models the index names read.
     #[test]
     fn a_step_reads_only_the_models_its_index_names() {
         let dir = std::env::temp_dir().join(format!("gsenc-read-step-{}", std::process::id()));
@@ -168,14 +169,15 @@ mod tests {
         let names = vec![model_file_name("rho", 3, 0), model_file_name("rho", 3, 1)];
         let index = StepIndex::new("rho", 3, None, &range, &global, &boxes, 1, names.clone());
         std::fs::write(dir.join("rho_000003.gsi"), index.to_json()).unwrap();
-        let piece = |rank: usize, frame: IndexFrame, range: ValueRange| {
+        // The model of `rank`, written where the index names `file`'s.
+        let piece = |rank: usize, file: usize, frame: IndexFrame, range: ValueRange| {
             let mut meta = ModelMeta::new(frame, range);
             (meta.field, meta.step, meta.rank) = ("rho".into(), 3, rank as u32);
             let model = Model { meta, params: vec![crate::math::kernel::isotropic([1.0; 3], 1.0, 0.5, 0.5)], support: None };
-            std::fs::write(dir.join(&names[rank]), write_model(&model).unwrap()).unwrap();
+            std::fs::write(dir.join(&names[file]), write_model(&model).unwrap()).unwrap();
         };
         for (rank, b) in boxes.iter().enumerate() {
-            piece(rank, global.sub_frame(b), range);
+            piece(rank, rank, global.sub_frame(b), range);
         }
         let (read, models) = read_step(&dir.join("rho_000003.gsi")).unwrap();
         assert_eq!((read, models.len()), (index.clone(), 2));
@@ -183,8 +185,16 @@ mod tests {
         let finer = IndexFrame { gamma: 8.0, ..global.sub_frame(&boxes[1]) };
         let logged = ValueRange { transform: Transform::Log10, ..range };
         let shifted = global.sub_frame(&IndexBox { lo: [2, 0, 0], hi: [7, 4, 4] });
-        for (frame, range, says) in [(finer, range, "8.0 voxels a world unit"), (global.sub_frame(&boxes[1]), logged, "transform log10"), (shifted, range, "covers voxels [2, 0, 0]")] {
-            piece(1, frame, range);
+        let wider = ValueRange::new(0.0, 2.5, Transform::Linear).unwrap();
+        let own = global.sub_frame(&boxes[1]);
+        for (rank, frame, range, says) in [
+            (1, finer, range, "8.0 voxels a world unit"),
+            (1, own, logged, "transform log10"),
+            (1, shifted, range, "covers voxels [2, 0, 0]"),
+            (1, own, wider, "another value range"),
+            (0, own, range, "rank 0, the index names field 'rho' step 3 rank 1"),
+        ] {
+            piece(rank, 1, frame, range);
             let e = read_step(&dir.join("rho_000003.gsi")).map(|_| ()).unwrap_err();
             assert!(matches!(&e, Error::InvalidData(m) if m.contains("rank 1") && m.contains(says)), "{says}: {e}");
         }
