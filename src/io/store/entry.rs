@@ -112,17 +112,17 @@ pub(super) fn entry_crc(m: &ModelMeta, payload: Payload, params: &[Primitive], s
     Ok(crc.finalize())
 }
 
-pub(super) fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::Result<()> {
+/// Writes `model`'s datasets and attributes into `g`; `read_back` is what a
+/// reader will make of its parameters (`Payload::round_trip`, which the
+/// append computed to check them), the checksum's parameters.
+pub(super) fn write_entry(g: &Group, model: &Model, payload: Payload, read_back: &[Primitive]) -> hdf5::Result<()> {
     let m = &model.meta;
     let n = model.params.len();
     let lib = |e: Error| hdf5::Error::from(e.to_string());
-    // The parameters a reader gets back, for the checksum: from what is
-    // written, as `read_params` makes them.
-    let read_back: Vec<Primitive> = match payload {
+    match payload {
         Payload::Float32 => {
             let rows: Vec<f32> = (0..12).flat_map(|k| model.params.iter().map(move |p| p[k])).collect();
             rows_dataset(g, "params", 12, &rows, false)?;
-            model.params.clone()
         }
         Payload::Bits8(coding) => {
             let q = Quantized::of(&model.params, coding);
@@ -134,16 +134,14 @@ pub(super) fn write_entry(g: &Group, model: &Model, payload: Payload) -> hdf5::R
                 Centres::Fixed16 { maps, codes } => maps_attrs(&rows_dataset(g, "centres", 3, codes, true)?, maps)?,
             }
             maps_attrs(&rows_dataset(g, "codes", 9, &q.codes, true)?, &q.maps)?;
-            q.dequantize().map_err(lib)?
         }
         Payload::Packed => {
             // The model file's packed payload as it is (already entropy-coded).
             let bytes = packed_payload(model).map_err(lib)?;
             g.new_dataset::<u8>().shape(bytes.len()).create("packed")?.write_raw(&bytes)?;
-            read_packed_payload(&bytes, n).and_then(|p| p.params()).map_err(lib)?
         }
-    };
-    scalar_attr(g, CRC, &entry_crc(m, payload, &read_back, model.support.as_ref()).map_err(lib)?)?;
+    }
+    scalar_attr(g, CRC, &entry_crc(m, payload, read_back, model.support.as_ref()).map_err(lib)?)?;
     scalar_str_attr(g, "payload", payload.name())?;
     scalar_attr(g, "count", &(n as u64))?;
     scalar_str_attr(g, "field", &m.field)?;

@@ -183,7 +183,7 @@ impl Store {
         self.unevicted(|s| {
             // Everything new, unlinked: nothing existing changes until the commit.
             let entry = anonymous_group(&s.file, 0).map_err(h5(&s.path))?;
-            write_entry(&entry, model, payload).map_err(h5(&s.path))?;
+            write_entry(&entry, model, payload, &params).map_err(h5(&s.path))?;
             s.commit(groups, &key.field, key.step, model.meta.time, &rank_name, &entry)
         })
     }
