@@ -139,10 +139,12 @@ fn pieces_off_one_lattice_are_refused() {
 /// One model re-expressed in two overlapping pieces' frames: each piece
 /// decodes to the whole model there, so the blend must reproduce the
 /// model's own decode exactly (weights sum to one), at the reference dims
-/// and resampled, whole and in slabs.
+/// and resampled (coarser, and finer, whose voxels within half a voxel of
+/// the domain's faces lie outside every piece's voxel centres), whole, in
+/// slabs and at the voxels' centres as points.
 #[test]
 fn blend_of_a_model_cut_into_pieces_is_the_model() {
-    use gsenc::domain::pieces::blend;
+    use gsenc::domain::pieces::{blend, blend_points};
     let whole = blobs(DIMS, 7, 5);
     let model = encode_model(&whole, 0, 200);
     let global = model.meta.frame;
@@ -158,11 +160,16 @@ fn blend_of_a_model_cut_into_pieces_is_the_model() {
             m
         })
         .collect();
-    for dims in [DIMS, [33, 17, 11]] {
+    for dims in [DIMS, [33, 17, 11], [81, 49, 41]] {
         let direct = model.decode(&mut CpuBackend::new(), Some(dims)).unwrap();
         let blended = blend(&global, &pieces, &boxes, 4, dims, IndexBox::whole(dims), &mut CpuBackend::new()).unwrap();
         let worst = direct.values.iter().zip(&blended.values).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
         assert!(worst < 1e-5, "dims {dims:?}: blend differs from the model by {worst}");
+        let step: [f64; 3] = std::array::from_fn(|a| DIMS[a] as f64 / dims[a] as f64 / global.gamma);
+        let centres: Vec<[f64; 3]> = (0..direct.values.len()).map(|i| std::array::from_fn(|a| global.bmin[a] + (direct.coords(i)[a] as f64 + 0.5) * step[a])).collect();
+        let at = blend_points(&global, &pieces, &boxes, 4, &centres, &mut CpuBackend::new()).unwrap();
+        let worst = direct.values.iter().zip(&at).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+        assert!(worst < 1e-5, "dims {dims:?}: the blend at points differs from the model by {worst}");
         // A slab of z layers is the same voxels of the whole.
         let slab = IndexBox { lo: [3, 2, 4], hi: [dims[0] - 1, dims[1], 7] };
         let part = blend(&global, &pieces, &boxes, 4, dims, slab, &mut CpuBackend::new()).unwrap();

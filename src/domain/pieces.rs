@@ -124,12 +124,17 @@ pub fn blend(
     let step: [f64; 3] = std::array::from_fn(|a| global.dims[a] as f64 / out_dims[a] as f64);
     let centre = |a: usize, i: usize| (i as f64 + 0.5) * step[a] - 0.5;
     for (piece, b) in pieces.iter().zip(boxes) {
-        // Output voxels whose centres lie in the piece's box [lo - 0.5, hi - 0.5].
+        // Output voxels whose centres lie in the piece's box, its voxels'
+        // extent [lo - 0.5, hi - 0.5] in global index coordinates (the
+        // ramp's domain): centre(i) >= lo - 0.5 from i = ceil(lo / s - 0.5),
+        // centre(i) <= hi - 0.5 to i = floor(hi / s - 0.5). Together the
+        // boxes cover every output voxel, those of a finer lattice within
+        // half a voxel of the domain's faces too.
         let mut lo = [0usize; 3];
         let mut hi = [0usize; 3];
         for a in 0..3 {
-            let first = ((b.lo[a] as f64 + 0.5) / step[a] - 0.5).ceil().max(region.lo[a] as f64) as usize;
-            let end = (((b.hi[a] as f64 + 0.5) / step[a] - 0.5).floor() + 1.0).min(region.hi[a] as f64).max(0.0) as usize;
+            let first = (b.lo[a] as f64 / step[a] - 0.5).ceil().max(region.lo[a] as f64) as usize;
+            let end = ((b.hi[a] as f64 / step[a] - 0.5).floor() + 1.0).min(region.hi[a] as f64).max(0.0) as usize;
             (lo[a], hi[a]) = (first, end.max(first));
         }
         let dims = [hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]];
@@ -191,8 +196,11 @@ pub fn blend_points(
     let mut sum = vec![0f64; points.len()];
     let mut weight = vec![0f64; points.len()];
     for (piece, b) in pieces.iter().zip(boxes) {
-        // A lattice decode gives a piece the voxel centres u with lo <= u <= hi.
-        let inside: Vec<usize> = (0..points.len()).filter(|&i| (0..3).all(|a| u[i][a] >= b.lo[a] as f64 && u[i][a] <= b.hi[a] as f64)).collect();
+        // A lattice decode gives a piece the voxel centres u within its
+        // voxels' extent, lo - 0.5 <= u <= hi - 0.5.
+        let inside: Vec<usize> = (0..points.len())
+            .filter(|&i| (0..3).all(|a| u[i][a] >= b.lo[a] as f64 - 0.5 && u[i][a] <= b.hi[a] as f64 - 0.5))
+            .collect();
         if inside.is_empty() {
             continue;
         }
