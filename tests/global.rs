@@ -181,7 +181,8 @@ fn blend_of_a_model_cut_into_pieces_is_the_model() {
 }
 
 /// Two different pieces: where only one has weight the blend is that
-/// piece's own decode; halfway across the overlap it is between them.
+/// piece's own decode; across the overlap it is the two weighted by their
+/// ramps (docs/METHOD.md), computed here from the formula.
 #[test]
 fn blend_uses_each_piece_only_inside_its_box() {
     use gsenc::domain::pieces::blend;
@@ -199,10 +200,17 @@ fn blend_uses_each_piece_only_inside_its_box() {
             assert_eq!(g.values[g.index(5, j, k)], da.values[da.index(5, j, k)]);
             // Only b's box: b alone.
             assert_eq!(g.values[g.index(CUT + 10, j, k)], db.values[db.index(CUT + 10 - (CUT - 6), j, k)]);
-            // In the overlap, between the two.
-            let (va, vb) = (da.values[da.index(CUT, j, k)], db.values[db.index(6, j, k)]);
-            let v = g.values[g.index(CUT, j, k)];
-            assert!(v >= va.min(vb) - 1e-6 && v <= va.max(vb) + 1e-6, "{v} not between {va} and {vb}");
+            // In the overlap, the two by their ramps: a's falls from 1 to 0
+            // across the 6 voxels before its box's end (the extent's edge
+            // CUT + 5.5), b's rises from 0 after its box's start (CUT - 6.5).
+            for x in CUT - 6..CUT + 6 {
+                let (va, vb) = (da.values[da.index(x, j, k)] as f64, db.values[db.index(x - (CUT - 6), j, k)] as f64);
+                let wa = ((CUT as f64 + 5.5 - x as f64) / 6.0).clamp(0.0, 1.0);
+                let wb = ((x as f64 - (CUT as f64 - 6.5)) / 6.0).clamp(0.0, 1.0);
+                let want = (wa * va + wb * vb) / (wa + wb);
+                let v = g.values[g.index(x, j, k)] as f64;
+                assert!((v - want).abs() < 1e-6, "x {x}: {v}, want {want} of {va} (weight {wa}) and {vb} (weight {wb})");
+            }
         }
     }
 }
