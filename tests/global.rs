@@ -105,6 +105,12 @@ fn merging_moves_each_piece_into_the_global_frame_exactly() {
     let pb = encode_model(&b, 70, 80); // 70 voxels along x from piece A's origin
     let global = merge(&[pa.clone(), pb.clone()]).unwrap();
     assert_eq!(global.meta.frame.dims, [82, 12, 10]);
+    // In either order the same frame; the merged model is rank 0's and
+    // keeps no piece's encode PSNR (it scored only its piece).
+    let mut ranked = pb.clone();
+    (ranked.meta.rank, ranked.meta.encode_psnr) = (1, Some(30.0));
+    let swapped = merge(&[ranked, pa.clone()]).unwrap();
+    assert_eq!((swapped.meta.frame, swapped.meta.rank, swapped.meta.encode_psnr), (global.meta.frame, 0, None));
     let mut cpu = CpuBackend::new();
     for p in [&pa, &pb] {
         let region = global.meta.frame.box_of(&p.meta.frame).unwrap();
