@@ -451,6 +451,16 @@ int main(void) {
     g2 = grid;
     g2.spacing = -1.0;
     EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    g2 = grid;
+    g2.origin[1] = NAN;
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "origin") != NULL, "NaN origin: %s", last_error());
+    g2 = grid;
+    g2.strides[1] = 0; /* one zero stride: every row the same, not the default */
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "strides") != NULL, "a zero stride: %s", last_error());
+    g2.strides[1] = -(NX + 2 * G);
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
     /* A step on another lattice: it fails in the background, reported once
      * by wait (naming field and step) and by poll; the series goes on. */
     g2 = grid;
