@@ -142,43 +142,45 @@ fn pieces_off_one_lattice_are_refused() {
     assert_eq!(merge(std::slice::from_ref(&p)).unwrap().params, p.params);
 }
 
-/// One model re-expressed in two overlapping pieces' frames: each piece
-/// decodes to the whole model there, so the blend must reproduce the
-/// model's own decode exactly (weights sum to one), at the reference dims
-/// and resampled (coarser, and finer, whose voxels within half a voxel of
-/// the domain's faces lie outside every piece's voxel centres), whole, in
-/// slabs and at the voxels' centres as points.
+/// One model re-expressed in two pieces' frames, overlapping (halo 4) or
+/// abutting (halo 0): each piece decodes to the whole model there, so the
+/// blend must reproduce the model's own decode exactly (weights sum to
+/// one), at the reference dims and resampled (coarser; finer, whose voxels
+/// within half a voxel of the domain's faces lie outside every piece's
+/// voxel centres; odd, with a voxel centre on the abutting pieces' common
+/// face), whole, in slabs and at the voxels' centres as points.
 #[test]
 fn blend_of_a_model_cut_into_pieces_is_the_model() {
     use gsenc::domain::pieces::{blend, blend_points};
     let whole = blobs(DIMS, 7, 5);
     let model = encode_model(&whole, 0, 200);
     let global = model.meta.frame;
-    let boxes = [IndexBox { lo: [0, 0, 0], hi: [CUT + 4, DIMS[1], DIMS[2]] }, IndexBox { lo: [CUT - 4, 0, 0], hi: DIMS }];
-    let pieces: Vec<Model> = boxes
-        .iter()
-        .map(|b| {
-            let mut m = model.clone();
-            m.meta.frame = global.sub_frame(b);
-            for q in &mut m.params {
-                q[0] -= b.lo[0] as f32;
-            }
-            m
-        })
-        .collect();
-    for dims in [DIMS, [33, 17, 11], [81, 49, 41]] {
+    let cut = |halo: usize| [IndexBox { lo: [0, 0, 0], hi: [CUT + halo, DIMS[1], DIMS[2]] }, IndexBox { lo: [CUT - halo, 0, 0], hi: DIMS }];
+    for (halo, dims) in [(4, DIMS), (4, [33, 17, 11]), (4, [81, 49, 41]), (0, DIMS), (0, [41, 24, 20]), (0, [81, 49, 41])] {
+        let boxes = cut(halo);
+        let pieces: Vec<Model> = boxes
+            .iter()
+            .map(|b| {
+                let mut m = model.clone();
+                m.meta.frame = global.sub_frame(b);
+                for q in &mut m.params {
+                    q[0] -= b.lo[0] as f32;
+                }
+                m
+            })
+            .collect();
         let direct = model.decode(&mut CpuBackend::new(), Some(dims)).unwrap();
-        let blended = blend(&global, &pieces, &boxes, 4, dims, IndexBox::whole(dims), &mut CpuBackend::new()).unwrap();
+        let blended = blend(&global, &pieces, &boxes, halo, dims, IndexBox::whole(dims), &mut CpuBackend::new()).unwrap();
         let worst = direct.values.iter().zip(&blended.values).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-        assert!(worst < 1e-5, "dims {dims:?}: blend differs from the model by {worst}");
+        assert!(worst < 1e-5, "halo {halo}, dims {dims:?}: blend differs from the model by {worst}");
         let step: [f64; 3] = std::array::from_fn(|a| DIMS[a] as f64 / dims[a] as f64 / global.gamma);
         let centres: Vec<[f64; 3]> = (0..direct.values.len()).map(|i| std::array::from_fn(|a| global.bmin[a] + (direct.coords(i)[a] as f64 + 0.5) * step[a])).collect();
-        let at = blend_points(&global, &pieces, &boxes, 4, &centres, &mut CpuBackend::new()).unwrap();
+        let at = blend_points(&global, &pieces, &boxes, halo, &centres, &mut CpuBackend::new()).unwrap();
         let worst = direct.values.iter().zip(&at).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-        assert!(worst < 1e-5, "dims {dims:?}: the blend at points differs from the model by {worst}");
+        assert!(worst < 1e-5, "halo {halo}, dims {dims:?}: the blend at points differs from the model by {worst}");
         // A slab of z layers is the same voxels of the whole.
         let slab = IndexBox { lo: [3, 2, 4], hi: [dims[0] - 1, dims[1], 7] };
-        let part = blend(&global, &pieces, &boxes, 4, dims, slab, &mut CpuBackend::new()).unwrap();
+        let part = blend(&global, &pieces, &boxes, halo, dims, slab, &mut CpuBackend::new()).unwrap();
         for (i, &v) in part.values.iter().enumerate() {
             let [x, y, z] = part.coords(i);
             assert!((v - blended.values[blended.index(x + 3, y + 2, z + 4)]).abs() < 1e-6);

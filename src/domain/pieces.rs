@@ -94,7 +94,8 @@ pub fn merge(pieces: &[Model]) -> Result<Model> {
 /// box and the pieces blended by a partition of unity: piece `p`'s weight is
 /// 1 in its rank's own region and falls linearly to 0 across its halo
 /// (`halo` voxels of the global lattice; no fall on sides that are the
-/// domain's edge), and the value is `sum w_p V_p / sum w_p`.
+/// domain's edge; with no halo, 1 over its box), and the value is
+/// `sum w_p V_p / sum w_p`.
 ///
 /// Why not the additive decode of [`merge`]: a piece's kernels reach up to
 /// five standard deviations past its box, into neighbours' regions it never
@@ -166,10 +167,17 @@ pub fn blend(
 }
 
 /// A piece's blend weight along axis `a` at global index coordinate `u`
-/// (voxel centres at whole numbers): 1 inside its box, falling to 0 across
-/// the halo at a side that borders another rank (not at the domain's edge).
+/// (voxel centres at whole numbers) within its voxels' extent: 1 inside
+/// its rank's region, falling to 0 across the halo at a side that borders
+/// another rank (not at the domain's edge). Pieces without a halo only
+/// abut: each weighs 1 over its whole extent, so that a point on their
+/// common face (an output voxel's centre, at some resolutions) takes the
+/// mean of the two instead of the weight 0 of both ramps there.
 fn ramp(b: &IndexBox, global_dims: [usize; 3], halo: usize, a: usize, u: f64) -> f64 {
-    let t = halo.max(1) as f64;
+    if halo == 0 {
+        return 1.0;
+    }
+    let t = halo as f64;
     let low = if b.lo[a] == 0 { 1.0 } else { ((u - (b.lo[a] as f64 - 0.5)) / t).clamp(0.0, 1.0) };
     let high = if b.hi[a] == global_dims[a] { 1.0 } else { (((b.hi[a] as f64 - 0.5) - u) / t).clamp(0.0, 1.0) };
     low.min(high)
