@@ -293,3 +293,49 @@ fn merged_and_blended_pieces_keep_their_supports() {
     }
     assert!(empty > 1000, "{empty} empty voxels");
 }
+
+/// A step whose lattice reaches past its pieces (particles in configured
+/// bounds wider than they fill): the field is on the index's lattice. Its
+/// frame is the index's (what a decode's default dims and a `.vti`'s
+/// placement come from), each piece's box is the index's, and the decode
+/// is the model's own wherever a piece reaches and 0 beyond, additive or
+/// blended. A piece off the index's lattice is refused.
+#[test]
+fn a_step_whose_lattice_reaches_past_its_pieces_is_on_the_index_lattice() {
+    use gsenc::domain::global::GlobalField;
+    use gsenc::format::StepIndex;
+    let whole = blobs(DIMS, 7, 5);
+    let model = encode_model(&whole, 0, 200);
+    let global = model.meta.frame;
+    let boxes = [IndexBox { lo: [4, 2, 0], hi: [24, 20, 16] }, IndexBox { lo: [16, 2, 0], hi: [30, 20, 16] }];
+    let cut = |b: &IndexBox| {
+        let mut m = model.clone();
+        m.meta.frame = global.sub_frame(b);
+        for q in &mut m.params {
+            (0..3).for_each(|a| q[a] -= b.lo[a] as f32);
+        }
+        m
+    };
+    let pieces: Vec<Model> = boxes.iter().map(cut).collect();
+    let index = StepIndex::new("rho", 0, None, &range(), &global, &boxes, 4, vec!["a.gsm".into(), "b.gsm".into()]);
+    let field = GlobalField::of_step(index.clone(), pieces.clone()).unwrap();
+    assert_eq!(field.merged().meta.frame, global);
+    for (i, b) in boxes.iter().enumerate() {
+        assert_eq!(field.piece_box(i).unwrap(), *b);
+    }
+    let direct = model.decode(&mut CpuBackend::new(), None).unwrap();
+    for additive in [false, true] {
+        let decoded = field.decode(&mut CpuBackend::new(), DIMS, IndexBox::whole(DIMS), additive).unwrap();
+        for (i, (&got, &want)) in decoded.iter().zip(&direct.values).enumerate() {
+            let c = direct.coords(i);
+            let covered = boxes.iter().any(|b| (0..3).all(|a| c[a] >= b.lo[a] && c[a] < b.hi[a]));
+            if !additive || covered {
+                let want = if covered { want } else { 0.0 };
+                assert!((got - want).abs() < 1e-5, "additive {additive}, voxel {c:?}: {got}, want {want}");
+            }
+        }
+    }
+    let mut off = pieces.clone();
+    off[1].meta.frame.bmin[0] += 0.25; // half a voxel
+    assert!(matches!(GlobalField::of_step(index, off).map(|_| ()), Err(Error::InvalidArgument(m)) if m.contains("piece 1")));
+}

@@ -4,7 +4,7 @@
 //! through [`GlobalField::decode_streaming`], so they give the same values.
 
 use crate::backend::Backend;
-use crate::domain::pieces::{blend, blend_points, merge};
+use crate::domain::pieces::{blend, blend_points, merge, merge_onto};
 use crate::error::{Error, Result};
 use crate::field::IndexBox;
 use crate::format::StepIndex;
@@ -35,9 +35,10 @@ impl GlobalField {
     }
 
     /// The field of a step index and the models it names (rank order,
-    /// checked against it by [`crate::io::read_step`]).
+    /// checked against it by [`crate::io::read_step`]), on the index's
+    /// lattice (which may reach past the pieces).
     pub fn of_step(index: StepIndex, pieces: Vec<Model>) -> Result<GlobalField> {
-        let merged = Some(merge(&pieces)?);
+        let merged = Some(merge_onto(&pieces, &index.frame())?);
         Ok(GlobalField { index: Some(index), pieces, merged })
     }
 

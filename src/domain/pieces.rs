@@ -21,6 +21,19 @@ use crate::model::{Model, Support};
 /// primitive of every piece. Pieces must be of the same field and step,
 /// share the value range and the voxel size, and sit on one lattice.
 pub fn merge(pieces: &[Model]) -> Result<Model> {
+    merge_on(pieces, None)
+}
+
+/// [`merge`] onto the lattice `global` (a step index's), which may reach
+/// past its pieces (particles in configured bounds wider than they fill):
+/// the merged model's frame is `global`, each piece at its box of it, so
+/// that the field's frame, its pieces' boxes and its decode's placement are
+/// the index's. A piece off that lattice or reaching past it is refused.
+pub fn merge_onto(pieces: &[Model], global: &IndexFrame) -> Result<Model> {
+    merge_on(pieces, Some(global))
+}
+
+fn merge_on(pieces: &[Model], global: Option<&IndexFrame>) -> Result<Model> {
     let first = pieces.first().ok_or_else(|| Error::arg("no models to merge"))?;
     let gamma = first.meta.frame.gamma;
     for (i, p) in pieces.iter().enumerate() {
@@ -44,11 +57,18 @@ pub fn merge(pieces: &[Model]) -> Result<Model> {
             )));
         }
     }
-    let bmin: [f64; 3] = std::array::from_fn(|a| pieces.iter().map(|p| p.meta.frame.bmin[a]).fold(f64::INFINITY, f64::min));
-    let mut dims = [0usize; 3];
+    let bmin: [f64; 3] = match global {
+        Some(g) => g.bmin,
+        None => std::array::from_fn(|a| pieces.iter().map(|p| p.meta.frame.bmin[a]).fold(f64::INFINITY, f64::min)),
+    };
+    let mut dims = global.map_or([0usize; 3], |g| g.dims);
     let mut offsets = Vec::with_capacity(pieces.len());
     for (i, p) in pieces.iter().enumerate() {
         let f = &p.meta.frame;
+        if let Some(g) = global {
+            offsets.push(g.box_of(f).map_err(|e| Error::arg(format!("piece {i}: {e}")))?.lo);
+            continue;
+        }
         let mut offset = [0usize; 3];
         for a in 0..3 {
             let voxels = (f.bmin[a] - bmin[a]) * gamma;
@@ -63,7 +83,7 @@ pub fn merge(pieces: &[Model]) -> Result<Model> {
         offsets.push(offset);
     }
     let mut meta = first.meta.clone();
-    meta.frame = IndexFrame { dims, bmin, gamma };
+    meta.frame = IndexFrame { dims, bmin, gamma: global.map_or(gamma, |g| g.gamma) };
     meta.rank = 0;
     meta.encode_psnr = None;
     let mut params = Vec::with_capacity(pieces.iter().map(|p| p.params.len()).sum());
