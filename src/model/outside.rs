@@ -157,6 +157,11 @@ mod tests {
         let o = Outside::fit([(0.2f32, 0.001f32), (0.3, 0.003)].into_iter());
         assert_eq!(o.gain, 0.0);
         assert!((o.offset - 0.002).abs() < 1e-9);
+        // One value of v a thousand times, whose sums leave a spread of
+        // rounding noise (3e-16 here), not a spread: no gain either.
+        let o = Outside::fit((0..1000).map(|i| (0.0047f32, 0.001 * (i % 3) as f32)));
+        assert_eq!(o.gain, 0.0);
+        assert!((o.offset - 0.000999).abs() < 1e-6, "{o:?}");
     }
 
     /// `choose` on the empty pairs, plus one voxel inside the support whose
