@@ -98,7 +98,13 @@ if "$gsenc" decode "$out/c4/rho_000002.gsi" -o "$out/x.raw" 2>"$out/err"; then
     exit 1
 fi
 grep -q "the index names field 'rho' step 2 rank 2" "$out/err" || { cat "$out/err" >&2; exit 1; }
-echo "cli-mpi: 4 passed"
+# Particles in configured bounds wider than they fill (capi_mpi.c's "cloud"):
+# the step decodes on the configured lattice (24^3 over -1..2), placed there.
+for n in 1 2 4; do
+    "$gsenc" decode "$out/c$n/cloud_000001.gsi" -o "$out/cloud.vti" --json | grep -q '"dims":\[24,24,24\]'
+    grep -aq 'Origin="-0.9375 -0.9375 -0.9375" Spacing="0.125 0.125 0.125"' "$out/cloud.vti" || { echo "cloud ($n ranks): not on the configured lattice" >&2; exit 1; }
+done
+echo "cli-mpi: 5 passed"
 
 # MPI at MPI_THREAD_SINGLE, and after MPI_Finalize: clear errors, no handle.
 mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi_levels.c "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/capi_mpi_levels"

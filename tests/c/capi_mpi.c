@@ -158,6 +158,20 @@ int main(int argc, char **argv) {
     }
     gsenc_encoder_destroy(enc);
 
+    /* Particles in configured bounds wider than they fill: the pieces (the
+     * data's box and halo) stop short of the lattice's faces, and the step
+     * keeps the configured lattice (tests/mpi.sh decodes it). */
+    {
+        gsenc_config wide = cfg;
+        wide.has_bounds = 1;
+        for (int a = 0; a < 3; a++) wide.bounds_min[a] = -1.0, wide.bounds_max[a] = 2.0;
+        EXPECT(gsenc_encoder_create_mpi(&wide, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
+        gsenc_particles p = lattice_particles(16, size, 0.0, 1, pos, hh, val);
+        EXPECT(gsenc_push_particles(enc, "cloud", 1, 0.1, &p), GSENC_STATUS_OK);
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+        gsenc_encoder_destroy(enc);
+    }
+
     /* One HDF5 store for every rank, written by rank 0 (tests/mpi.sh reads it). */
     {
         char store[1024];
