@@ -101,7 +101,8 @@ grep -q "the index names field 'rho' step 2 rank 2" "$out/err" || { cat "$out/er
 # Particles in configured bounds wider than they fill (capi_mpi.c's "cloud"):
 # the step decodes on the configured lattice (24^3 over -1..2), placed there.
 for n in 1 2 4; do
-    "$gsenc" decode "$out/c$n/cloud_000001.gsi" -o "$out/cloud.vti" --json | grep -q '"dims":\[24,24,24\]'
+    "$gsenc" decode "$out/c$n/cloud_000001.gsi" -o "$out/cloud.vti" --json > "$out/cloud.json"
+    grep -q '"dims":\[24,24,24\]' "$out/cloud.json" || { echo "cloud ($n ranks): decoded $(cat "$out/cloud.json")" >&2; exit 1; }
     grep -aq 'Origin="-0.9375 -0.9375 -0.9375" Spacing="0.125 0.125 0.125"' "$out/cloud.vti" || { echo "cloud ($n ranks): not on the configured lattice" >&2; exit 1; }
 done
 echo "cli-mpi: 5 passed"
