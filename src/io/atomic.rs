@@ -184,6 +184,12 @@ mod tests {
         assert!(write_atomic(dir.join("missing/m.gsm"), b"x").is_err());
         write_atomic(&p, b"second").unwrap();
         assert_eq!(std::fs::read(&p).unwrap(), b"second");
+        // A file dropped uncommitted (its writer failed on the way) leaves
+        // the old one, and no temporary file.
+        let mut f = AtomicFile::create(&p).unwrap();
+        f.write(&[7; 3 << 20]).unwrap();
+        drop(f);
+        assert_eq!(std::fs::read(&p).unwrap(), b"second");
         let leftovers: Vec<_> = std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).collect();
         assert_eq!(leftovers.len(), 1, "temporary files left behind");
         std::fs::remove_dir_all(&dir).unwrap();
