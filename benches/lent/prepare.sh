@@ -10,7 +10,7 @@
 #   bin/gsenc            the release tool (stripped)
 #   bin/gsenc-profiled   the same with the feature task-profile (benches/scaling_model.sh)
 #   bin/insitu           benches/insitu.c linked against libgsenc.a (benches/insitu.sh)
-#   bin/gpu-tests        tests/gpu.rs (run there with GSENC_REQUIRE_GPU=1)
+#   bin/gpu-tests        tests/gpu/ (run there with GSENC_REQUIRE_GPU=1)
 #   bin/device_churn     examples/device_churn.rs (benches/lent/tests.sh), with
 #                        KIT_CHURN=1 only
 #   bin/fork_cost        examples/fork_cost.rs (benches/fork_cost.sh)

@@ -23,7 +23,7 @@
 #      passes (benches/fork_cost.sh, 2 to 16 threads, about 10 s), then the
 #      scaling model's prediction for the same machine
 #      (benches/scaling_model.sh), to set beside stage 2;
-#   4. the GPU tests (tests/gpu.rs, one test thread, GSENC_REQUIRE_GPU=1);
+#   4. the GPU tests (tests/gpu/, one test thread, GSENC_REQUIRE_GPU=1);
 #   5. how the point passes are cut into workgroups (benches/gpu_split.sh,
 #      at most a minute): the kernels' times with other splits, the same
 #      models (checked), for choosing the defaults;
@@ -131,10 +131,10 @@ if [ "$(left)" -gt 90 ]; then
 fi
 pack
 
-stage "4. the GPU tests (tests/gpu.rs)"
+stage "4. the GPU tests (tests/gpu/)"
 if [ "$(left)" -gt 30 ]; then
     GSENC_REQUIRE_GPU=1 timeout $(( $(left) - 5 )) "$kit/bin/gpu-tests" --test-threads 1 > bench-out/gpu-tests.txt 2>&1
-    echo "tests/gpu.rs: exit $?"
+    echo "tests/gpu/: exit $?"
     tail -5 bench-out/gpu-tests.txt
 fi
 pack

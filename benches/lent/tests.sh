@@ -8,7 +8,7 @@
 # 1. examples/device_churn: rounds that list the adapters, open and drop the
 #    backend, and open, evaluate and drop it, each reporting whether the
 #    adapter is still seen and the process's open files, threads, memory;
-# 2. tests/gpu.rs in one process, one test thread, the process's open files
+# 2. tests/gpu/ in one process, one test thread, the process's open files
 #    and threads sampled as the tests run;
 # 3. each test in a process of its own.
 # Output in $OUT/tests.log (bench-out/lent/ without OUT).
@@ -34,7 +34,7 @@ else
     echo "not in the kit: KIT_CHURN=1 bash benches/lent/prepare.sh builds it"
 fi
 
-echo "== 2. tests/gpu.rs in one process"
+echo "== 2. tests/gpu/ in one process"
 export GSENC_REQUIRE_GPU=1
 "$kit/bin/gpu-tests" --test-threads 1 > "$dest/gpu-tests-one.txt" 2>&1 &
 pid=$!
@@ -43,7 +43,7 @@ while kill -0 "$pid" 2> /dev/null; do
     sleep 0.5
 done | uniq
 wait "$pid"
-echo "tests/gpu.rs in one process: exit $?"
+echo "tests/gpu/ in one process: exit $?"
 grep -E '\.\.\. |test result' "$dest/gpu-tests-one.txt"
 
 echo "== 3. each test in a process of its own"

@@ -179,7 +179,7 @@ fn backend_choice_end_to_end() {
         assert!(!missing.exists());
     }
     // On a toy field this small a different summation order alone moves the
-    // final PSNR by a dB or two (tests/gpu.rs compares encodes on real
+    // final PSNR by a dB or two (tests/gpu/encode.rs compares encodes on real
     // data); here, the GPU model must be sound and decode alike on both.
     assert!(g["voxel_psnr"].as_f64().unwrap() > 25.0, "{g}");
     let eval = |backend: &str| {
