@@ -335,9 +335,18 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
         }
         other => return Err(Error::format(format!("vti: unknown DataArray format '{other}'"))),
     };
+    // `Origin` is the position of point index (0, 0, 0), which an extent
+    // need not start at (ParaView keeps a subset's extent); a cell's sample
+    // point is its centre, half a spacing on along every axis the cells
+    // span (none along an axis of one point: a flat image's cells are flat
+    // there).
+    let first = |a: usize| {
+        let half = if is_cell && point_dims[a] > 1 { 0.5 } else { 0.0 };
+        origin[a] + (extent[2 * a] as f64 + half) * spacing[a]
+    };
     Ok(VtiGrid {
         grid: Grid::new(dims, values)?,
-        origin: [origin[0], origin[1], origin[2]],
+        origin: [first(0), first(1), first(2)],
         spacing: [spacing[0], spacing[1], spacing[2]],
         name,
     })
@@ -541,6 +550,28 @@ mod tests {
         let bytes = write_vti_bytes(&grid(), [0.0; 3], [1.0; 3], name);
         assert_eq!(parse_vti(&bytes, None).unwrap().name, name);
         assert_eq!(parse_vti(&bytes, Some(name)).unwrap().grid, grid());
+    }
+
+    /// Point data sit at the points (`Origin` + index x `Spacing`, from
+    /// where the extent starts), cell data at their cells' centres, half a
+    /// spacing on, except along an axis of one point, where cells are flat.
+    #[test]
+    fn samples_sit_where_vtk_places_them() {
+        let at = |section: &str, extent: &str, n: usize| {
+            let values = vec!["1"; n].join(" ");
+            let f = format!("<VTKFile type=\"ImageData\"><ImageData WholeExtent=\"{extent}\" Origin=\"1 2 3\" Spacing=\"0.5 0.5 0.25\"><{section}><DataArray type=\"Float32\" Name=\"v\" format=\"ascii\">{values}</DataArray></{section}></ImageData></VTKFile>");
+            let v = parse_vti(f.as_bytes(), None).unwrap();
+            (v.grid.dims, v.origin)
+        };
+        assert_eq!(at("PointData", "0 2 0 1 0 1", 12), ([3, 2, 2], [1.0, 2.0, 3.0]));
+        assert_eq!(at("CellData", "0 2 0 1 0 1", 2), ([2, 1, 1], [1.25, 2.25, 3.125]));
+        assert_eq!(at("CellData", "0 2 0 1 0 0", 2), ([2, 1, 1], [1.25, 2.25, 3.0]));
+        assert_eq!(at("PointData", "4 6 0 1 -2 -1", 12), ([3, 2, 2], [3.0, 2.0, 2.5]));
+        assert_eq!(at("CellData", "4 6 0 1 -2 -1", 2), ([2, 1, 1], [3.25, 2.25, 2.625]));
+        // What gsenc writes reads back where it was.
+        let g = grid();
+        let back = parse_vti(&write_vti_bytes(&g, [-1.5, 0.25, 7.0], [0.5; 3], "v"), None).unwrap();
+        assert_eq!(back.origin, [-1.5, 0.25, 7.0]);
     }
 
     /// The fuzzing seeds (`fuzz/vti-seeds`, written by Python's zlib and
