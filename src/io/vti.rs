@@ -239,6 +239,14 @@ pub fn parse_vti(bytes: &[u8], array: Option<&str>) -> Result<VtiGrid> {
     if origin.len() != 3 || spacing.len() != 3 {
         return Err(Error::format("vti: Origin and Spacing need 3 numbers"));
     }
+    // VTK 9 writes the axes' directions (the identity, unless the image is
+    // rotated); gsenc's lattices are axis-aligned.
+    if let Some(d) = attr(img, "Direction") {
+        let d: Vec<f64> = numbers(&d, "Direction")?;
+        if d != [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0] {
+            return Err(Error::format(format!("vti: Direction {d:?} is not the identity; gsenc reads axis-aligned images only (resample it first)")));
+        }
+    }
     let too_large = || Error::format(format!("vti: WholeExtent {extent:?} is too large"));
     let mut point_dims = [0usize; 3];
     for a in 0..3 {
@@ -514,6 +522,7 @@ mod tests {
             ("WholeExtent=\"0 2 0 1 0 1\"", "WholeExtent=\"0 2 1 0 0 1\"", "6 ordered numbers"),
             ("Origin=\"0 0 0\"", "Origin=\"0 0\"", "Origin and Spacing need 3 numbers"),
             ("Spacing=\"1 1 1\"", "Spacing=\"1 x 1\"", "bad number 'x' in Spacing"),
+            ("Spacing=\"1 1 1\"", "Spacing=\"1 1 1\" Direction=\"0 1 0 1 0 0 0 0 1\"", "Direction [0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0] is not the identity"),
             ("</Piece>", "</Piece><Piece Extent=\"0 2 0 1 0 1\"></Piece>", "several pieces"),
             (array, "", "no point or cell data array"),
             ("Name=\"a\"", "Name=\"a\" NumberOfComponents=\"3\"", "array has 3 components"),
@@ -568,6 +577,9 @@ mod tests {
         assert_eq!(at("CellData", "0 2 0 1 0 0", 2), ([2, 1, 1], [1.25, 2.25, 3.0]));
         assert_eq!(at("PointData", "4 6 0 1 -2 -1", 12), ([3, 2, 2], [3.0, 2.0, 2.5]));
         assert_eq!(at("CellData", "4 6 0 1 -2 -1", 2), ([2, 1, 1], [3.25, 2.25, 2.625]));
+        // VTK 9's identity Direction changes nothing.
+        let f = String::from_utf8(wrap("", "", "")).unwrap().replace("Spacing=\"1 1 1\"", "Spacing=\"1 1 1\" Direction=\"1 0 0 0 1 0 0 0 1\"");
+        assert_eq!(parse_vti(f.as_bytes(), None).unwrap().grid.values, vec![9.0; 12]);
         // What gsenc writes reads back where it was.
         let g = grid();
         let back = parse_vti(&write_vti_bytes(&g, [-1.5, 0.25, 7.0], [0.5; 3], "v"), None).unwrap();
