@@ -39,7 +39,7 @@ use crate::field::{IndexFrame, Transform, ValueRange};
 use crate::math::kernel::Primitive;
 use crate::model::{Curve, Model, ModelMeta, Support, WarmRecord, WarmTaken};
 use crate::format::packed::{Packed, Precision};
-use crate::format::quantize::{self, CentreCoding};
+use crate::format::quantize::{self, CentreCoding, Quantized};
 use crate::format::support_coding;
 
 pub const MAGIC: &[u8; 8] = b"GSENCMDL";
@@ -126,17 +126,47 @@ impl Payload {
     /// The parameters of `model` as a reader of this payload will see them
     /// (in the order stored), so that an encoder can score what it stores.
     pub fn round_trip(self, model: &Model) -> Result<Vec<Primitive>> {
+        self.coded(model)?.params()
+    }
+
+    /// `model`'s parameters coded by this payload, once, for a writer that
+    /// needs both the codes and what a reader makes of them; fails on
+    /// parameters the payload cannot store.
+    pub fn coded(self, model: &Model) -> Result<Coded<'_>> {
         let params = &model.params;
+        if self != Payload::Float32 {
+            check_storable(params, self)?;
+        }
+        Ok(match self {
+            Payload::Float32 => Coded::Float32(params),
+            Payload::Bits8(c) => Coded::Bits8(Quantized::of(params, c)),
+            Payload::Packed => Coded::Packed(Packed::of(params, packed_precision(model))?),
+        })
+    }
+}
+
+/// A model's parameters as a payload codes them ([`Payload::coded`]).
+pub enum Coded<'a> {
+    Float32(&'a [Primitive]),
+    Bits8(Quantized),
+    Packed(Packed),
+}
+
+impl Coded<'_> {
+    pub fn payload(&self) -> Payload {
         match self {
-            Payload::Float32 => Ok(params.to_vec()),
-            Payload::Bits8(c) => {
-                check_storable(params, self)?;
-                quantize::dequantize(&quantize::quantize(params, c), params.len(), c)
-            }
-            Payload::Packed => {
-                check_storable(params, self)?;
-                Packed::of(params, packed_precision(model))?.params()
-            }
+            Coded::Float32(_) => Payload::Float32,
+            Coded::Bits8(q) => Payload::Bits8(q.coding()),
+            Coded::Packed(_) => Payload::Packed,
+        }
+    }
+
+    /// The parameters a reader makes of the codes ([`Payload::round_trip`]).
+    pub fn params(&self) -> Result<Vec<Primitive>> {
+        match self {
+            Coded::Float32(p) => Ok(p.to_vec()),
+            Coded::Bits8(q) => q.dequantize(),
+            Coded::Packed(p) => p.params(),
         }
     }
 }
@@ -485,7 +515,13 @@ fn read_8bit_payload(stored: &[u8], count: usize, centres: CentreCoding) -> Resu
 /// The packed payload of `model` (at its measured precision, else the
 /// default), as a model file and an HDF5 store hold it.
 pub fn packed_payload(model: &Model) -> Result<Vec<u8>> {
-    Packed::of(&model.params, packed_precision(model))?.to_bytes(ZSTD_LEVEL)
+    packed_bytes(&Packed::of(&model.params, packed_precision(model))?)
+}
+
+/// A packed payload's bytes (entropy-coded), as a model file and an HDF5
+/// store hold them.
+pub fn packed_bytes(packed: &Packed) -> Result<Vec<u8>> {
+    packed.to_bytes(ZSTD_LEVEL)
 }
 
 /// The packed payload's codes; each symbol frame must unpack to

@@ -8,7 +8,7 @@
 use super::{EntryInfo, EntryKey};
 use crate::error::{Error, Result};
 use crate::field::{IndexFrame, Transform, ValueRange};
-use crate::format::model_file::{packed_payload, put_header_start, read_packed_payload};
+use crate::format::model_file::{packed_bytes, put_header_start, read_packed_payload, Coded};
 use crate::format::packed::{Packed, PRECISION_BYTES};
 use crate::format::quantize::{Affine, CentreCoding, Centres, Quantized};
 use crate::format::Payload;
@@ -112,20 +112,20 @@ pub(super) fn entry_crc(m: &ModelMeta, payload: Payload, params: &[Primitive], s
     Ok(crc.finalize())
 }
 
-/// Writes `model`'s datasets and attributes into `g`; `read_back` is what a
-/// reader will make of its parameters (`Payload::round_trip`, which the
-/// append computed to check them), the checksum's parameters.
-pub(super) fn write_entry(g: &Group, model: &Model, payload: Payload, read_back: &[Primitive]) -> hdf5::Result<()> {
+/// Writes `model`'s datasets and attributes into `g`: its parameters as
+/// `coded` (its payload's codes, made once by the append), and `read_back`,
+/// what a reader makes of them ([`Coded::params`]), in the checksum.
+pub(super) fn write_entry(g: &Group, model: &Model, coded: &Coded, read_back: &[Primitive]) -> hdf5::Result<()> {
     let m = &model.meta;
     let n = model.params.len();
+    let payload = coded.payload();
     let lib = |e: Error| hdf5::Error::from(e.to_string());
-    match payload {
-        Payload::Float32 => {
-            let rows: Vec<f32> = (0..12).flat_map(|k| model.params.iter().map(move |p| p[k])).collect();
+    match coded {
+        Coded::Float32(params) => {
+            let rows: Vec<f32> = (0..12).flat_map(|k| params.iter().map(move |p| p[k])).collect();
             rows_dataset(g, "params", 12, &rows, false)?;
         }
-        Payload::Bits8(coding) => {
-            let q = Quantized::of(&model.params, coding);
+        Coded::Bits8(q) => {
             match &q.centres {
                 Centres::Float16(bits) => {
                     let half: Vec<half::f16> = bits.iter().map(|&b| half::f16::from_bits(b)).collect();
@@ -135,9 +135,9 @@ pub(super) fn write_entry(g: &Group, model: &Model, payload: Payload, read_back:
             }
             maps_attrs(&rows_dataset(g, "codes", 9, &q.codes, true)?, &q.maps)?;
         }
-        Payload::Packed => {
+        Coded::Packed(packed) => {
             // The model file's packed payload as it is (already entropy-coded).
-            let bytes = packed_payload(model).map_err(lib)?;
+            let bytes = packed_bytes(packed).map_err(lib)?;
             g.new_dataset::<u8>().shape(bytes.len()).create("packed")?.write_raw(&bytes)?;
         }
     }

@@ -171,7 +171,9 @@ impl Store {
     pub fn append(&mut self, model: &Model, payload: Payload) -> Result<()> {
         let key = EntryKey::of(&model.meta);
         check_field_name(&key.field)?;
-        let params = payload.round_trip(model)?; // refuses unstorable parameters before touching the file
+        // Coded once, refusing unstorable parameters before the file is touched.
+        let coded = payload.coded(model)?;
+        let params = coded.params()?;
         let rank_name = format!("rank_{}", key.rank);
         let groups = self.groups(&key.field, key.step)?;
         if groups.1.as_ref().is_some_and(|s| s.link_exists(&rank_name)) {
@@ -183,7 +185,7 @@ impl Store {
         self.unevicted(|s| {
             // Everything new, unlinked: nothing existing changes until the commit.
             let entry = anonymous_group(&s.file, 0).map_err(h5(&s.path))?;
-            write_entry(&entry, model, payload, &params).map_err(h5(&s.path))?;
+            write_entry(&entry, model, &coded, &params).map_err(h5(&s.path))?;
             s.commit(groups, &key.field, key.step, model.meta.time, &rank_name, &entry)
         })
     }
