@@ -50,6 +50,17 @@ fn encode_model(g: &Grid, x0: usize, budget: usize) -> Model {
     Model { meta, params: out.params, support: None }
 }
 
+/// `model` (of the lattice `global`) re-expressed in the frame of its box
+/// `b`: the same primitives, their centres moved by the box's corner.
+fn in_piece(model: &Model, global: &IndexFrame, b: &IndexBox) -> Model {
+    let mut m = model.clone();
+    m.meta.frame = global.sub_frame(b);
+    for q in &mut m.params {
+        (0..3).for_each(|a| q[a] -= b.lo[a] as f32);
+    }
+    m
+}
+
 fn mse(a: &[f32], b: &[f32]) -> f64 {
     a.iter().zip(b).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.len() as f64
 }
@@ -158,17 +169,7 @@ fn blend_of_a_model_cut_into_pieces_is_the_model() {
     let cut = |halo: usize| [IndexBox { lo: [0, 0, 0], hi: [CUT + halo, DIMS[1], DIMS[2]] }, IndexBox { lo: [CUT - halo, 0, 0], hi: DIMS }];
     for (halo, dims) in [(4, DIMS), (4, [33, 17, 11]), (4, [81, 49, 41]), (0, DIMS), (0, [41, 24, 20]), (0, [81, 49, 41])] {
         let boxes = cut(halo);
-        let pieces: Vec<Model> = boxes
-            .iter()
-            .map(|b| {
-                let mut m = model.clone();
-                m.meta.frame = global.sub_frame(b);
-                for q in &mut m.params {
-                    q[0] -= b.lo[0] as f32;
-                }
-                m
-            })
-            .collect();
+        let pieces: Vec<Model> = boxes.iter().map(|b| in_piece(&model, &global, b)).collect();
         let direct = model.decode(&mut CpuBackend::new(), Some(dims)).unwrap();
         let blended = blend(&global, &pieces, &boxes, halo, dims, IndexBox::whole(dims), &mut CpuBackend::new()).unwrap();
         let worst = direct.values.iter().zip(&blended.values).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
@@ -308,15 +309,7 @@ fn a_step_whose_lattice_reaches_past_its_pieces_is_on_the_index_lattice() {
     let model = encode_model(&whole, 0, 200);
     let global = model.meta.frame;
     let boxes = [IndexBox { lo: [4, 2, 0], hi: [24, 20, 16] }, IndexBox { lo: [16, 2, 0], hi: [30, 20, 16] }];
-    let cut = |b: &IndexBox| {
-        let mut m = model.clone();
-        m.meta.frame = global.sub_frame(b);
-        for q in &mut m.params {
-            (0..3).for_each(|a| q[a] -= b.lo[a] as f32);
-        }
-        m
-    };
-    let pieces: Vec<Model> = boxes.iter().map(cut).collect();
+    let pieces: Vec<Model> = boxes.iter().map(|b| in_piece(&model, &global, b)).collect();
     let index = StepIndex::new("rho", 0, None, &range(), &global, &boxes, 4, vec!["a.gsm".into(), "b.gsm".into()]);
     let field = GlobalField::of_step(index.clone(), pieces.clone()).unwrap();
     assert_eq!(field.merged().meta.frame, global);
