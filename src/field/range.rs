@@ -55,6 +55,11 @@ impl ValueRange {
         if !(vmin.is_finite() && vmax.is_finite()) || vmax <= vmin {
             return Err(Error::arg(format!("value range [{vmin:?}, {vmax:?}] must be finite with max > min")));
         }
+        // A width past f64's range (e.g. [-1e308, 1e308]) would normalise
+        // every value to 0 and decode it as 0 x inf, NaN.
+        if !(vmax - vmin).is_finite() {
+            return Err(Error::arg(format!("value range [{vmin:?}, {vmax:?}] is wider than a float64 can hold")));
+        }
         Ok(ValueRange { vmin, vmax, transform })
     }
 
@@ -255,5 +260,20 @@ mod tests {
         assert!(ValueRange::from_data(&[1.0, 0.0], Transform::Log10).is_err());
         let l = ValueRange::from_data(&[1.0, 1000.0], Transform::Log10).unwrap();
         assert_eq!((l.vmin, l.vmax), (0.0, 3.0));
+    }
+
+    /// A range is refused unless its ends and its width are finite and its
+    /// width positive; the widest accepted one decodes its ends finitely.
+    #[test]
+    fn a_range_needs_a_finite_positive_width() {
+        for (lo, hi) in [(1.0, 1.0), (2.0, 1.0), (f64::NAN, 1.0), (0.0, f64::INFINITY), (-1e308, 1e308), (-f64::MAX, 0.0 + f64::MAX)] {
+            let e = ValueRange::new(lo, hi, Transform::Linear).unwrap_err().to_string();
+            assert!(e.contains("value range"), "[{lo}, {hi}]: {e}");
+        }
+        let wide = ValueRange::new(-f64::MAX / 2.0, f64::MAX / 2.0, Transform::Linear).unwrap();
+        for v in [0.0, 0.5, 1.0] {
+            assert!(wide.denormalize(v).is_finite(), "{v}");
+        }
+        assert_eq!(wide.normalize(&[f32::MAX, 0.0]).unwrap().values, vec![0.5, 0.5]);
     }
 }
