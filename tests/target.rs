@@ -10,7 +10,7 @@ mod common;
 use common::{blobs, repo_data};
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::encode::pipeline::{encode, Encoded, Request};
-use gsenc::encode::target::{TargetReport, DEFAULT_CURVE, LANDS_ABOVE_DB, LANDS_BELOW_DB};
+use gsenc::encode::target::{TargetReport, DEFAULT_CURVE, LANDS_ABOVE_DB, LANDS_BELOW_DB, MIN_BUDGET};
 use gsenc::format::{read_model, write_model};
 use gsenc::encode::{EncodeConfig, Schedule, TargetPsnr, WarmStart};
 use gsenc::field::{Grid, IndexFrame, Transform};
@@ -112,6 +112,34 @@ fn a_series_step_at_the_cap_does_not_grow() {
     }
     assert!(!reports[0].landed && reports[0].tries.iter().any(|t| t.budget == 40), "{:?}", reports[0]);
     assert!(!reports[1].landed && reports[1].tries.len() == 1 && reports[1].tries[0].budget == 40, "{:?}", reports[1]);
+}
+
+/// A series' step whose model is larger than the step's own cap (the
+/// default cap follows the occupied voxels, which a later step can have
+/// far fewer of) and that falls short keeps its model: it neither grows
+/// nor is cut (before, the growth of "the cap minus the model" overflowed).
+#[test]
+fn a_series_step_past_its_own_cap_keeps_its_budget() {
+    let dims = [20; 3];
+    let frame = IndexFrame::for_grid(dims, [0.0; 3], 1.0).unwrap();
+    let wide = blobs(dims, 3, 12);
+    // A bump on 5^3 voxels: a default cap of MIN_BUDGET.
+    let mut small = Grid::new(dims, vec![0.0; 8000]).unwrap();
+    for (k, j, i) in (0..5).flat_map(|k| (0..5).flat_map(move |j| (0..5).map(move |i| (k, j, i)))) {
+        small.values[(8 + i) + 20 * ((8 + j) + 20 * (8 + k))] = 0.3 + 0.1 * (i + j + k) as f32 / 4.0;
+    }
+    let mut cfg = SeriesConfig::new(config(110.0, 0), WarmStart::Dense, SeriesRange::FirstStep(Transform::Linear));
+    cfg.validation_points = 0;
+    cfg.warm_iterations = Some(200);
+    let mut series = SeriesEncoder::new(cfg).unwrap();
+    let mut step = |n: u64, g: &Grid| series.encode_step("f", n, None, Input::Grid { values: g, frame }, &mut CpuBackend::new(), &mut |_| {}).unwrap().encoded;
+    let first = step(0, &wide);
+    let r = first.target.clone().unwrap();
+    assert!(!r.landed && first.model.len() > MIN_BUDGET, "{r:?}");
+    let second = step(1, &small);
+    let r = second.target.unwrap();
+    assert_eq!(r.cap, MIN_BUDGET, "{r:?}");
+    assert!(!r.landed && r.tries.len() == 1 && second.model.len() == first.model.len(), "{r:?}");
 }
 
 #[test]

@@ -152,8 +152,10 @@ pub fn encode_to_target(
                 }
                 let least = (n as f64 * MIN_GROWTH).ceil() as usize;
                 let want = search.budget_for(n, p, slope).clamp(least.min(cap), ((n as f64 * MAX_FACTOR) as usize).max(n));
-                if want == n {
-                    break; // at the cap
+                if want <= n {
+                    // At the cap, or past it: a later step's default cap
+                    // follows its occupied voxels, which may be far fewer.
+                    break;
                 }
                 let seed = request.config.seed_init ^ CORRECTION_SEED ^ round as u64;
                 let params = grow(&prepared.target(), &last.model.params, want - n, seed, search.backend)?;
