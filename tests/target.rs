@@ -10,7 +10,7 @@ mod common;
 use common::{blobs, repo_data};
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::encode::pipeline::{encode, Encoded, Request};
-use gsenc::encode::target::{TargetReport, DEFAULT_CURVE, LANDS_ABOVE_DB, LANDS_BELOW_DB, MIN_BUDGET};
+use gsenc::encode::target::{TargetReport, Try, AIM_DB, DEFAULT_CURVE, LANDS_ABOVE_DB, LANDS_BELOW_DB, MIN_BUDGET, MIN_SLOPE_DB};
 use gsenc::format::{read_model, write_model};
 use gsenc::encode::{EncodeConfig, Schedule, TargetPsnr, WarmStart};
 use gsenc::field::{Grid, IndexFrame, Transform};
@@ -51,7 +51,24 @@ fn check(name: &str, prepared: &Prepared, e: &Encoded, db: f64) -> TargetReport 
     assert!((psnr - db).abs() <= 1.0, "{name}: target {db} dB, reached {psnr:.2} dB with {} primitives ({r:?})", e.model.len());
     assert!(r.landed, "{name}: {r:?}");
     assert!(r.probes.len() == 4, "{name}: a seeded search probes two budgets twice");
+    assert_eq!(r.tries[0].budget, predicted_budget(&r, 600), "{name}: the first try is not the probes' prediction ({r:?})");
     r
+}
+
+/// The first try's budget computed again from the probes of a schedule of
+/// `schedule` iterations, as METHOD.md "A quality instead of a budget"
+/// says (its steps 1 and 2).
+fn predicted_budget(r: &TargetReport, schedule: usize) -> usize {
+    let [a0, a1, b0, b1] = &r.probes[..] else { panic!("four probes: {r:?}") };
+    assert!(a0.budget == a1.budget && b0.budget == b1.budget && a0.iterations == schedule / 4 && a1.iterations == schedule / 2, "{r:?}");
+    let full = |short: &Try, long: &Try| long.psnr + (long.psnr - short.psnr).max(0.0) * (schedule as f64 / long.iterations as f64).log2();
+    let (pa, pb) = (full(a0, a1), full(b0, b1));
+    let aim = r.target + AIM_DB;
+    // Towards the aim: four times the first budget, or a quarter of it.
+    assert_eq!(b0.budget, if pa < aim { 4 * a0.budget } else { a0.budget / 4 }, "{r:?}");
+    let slope = ((pb - pa) / (b0.budget as f64 / a0.budget as f64).log2()).max(MIN_SLOPE_DB);
+    let (n, p) = if (pb - aim).abs() < (pa - aim).abs() { (b0.budget, pb) } else { (a0.budget, pa) };
+    ((n as f64 * 2f64.powf((aim - p) / slope)).round() as usize).clamp(MIN_BUDGET, r.cap)
 }
 
 #[test]

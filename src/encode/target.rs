@@ -147,16 +147,9 @@ pub fn encode_to_target(
         let next = match request.start {
             // A series' step grows by insertion, or keeps its budget.
             Start::Warm { .. } if p < t.db => {
-                if !growth_pays(&search.tries) {
+                let Some(want) = growth(&search.tries, n, search.budget_for(n, p, slope), cap) else {
                     break;
-                }
-                let least = (n as f64 * MIN_GROWTH).ceil() as usize;
-                let want = search.budget_for(n, p, slope).clamp(least.min(cap), ((n as f64 * MAX_FACTOR) as usize).max(n));
-                if want <= n {
-                    // At the cap, or past it: a later step's default cap
-                    // follows its occupied voxels, which may be far fewer.
-                    break;
-                }
+                };
                 let seed = request.config.seed_init ^ CORRECTION_SEED ^ round as u64;
                 let params = grow(&prepared.target(), &last.model.params, want - n, seed, search.backend)?;
                 search.grown(&params, search.correction_iterations())?
@@ -211,6 +204,21 @@ fn growth_pays(tries: &[Try]) -> bool {
         [.., before, last] => last.psnr >= before.psnr,
         _ => true,
     }
+}
+
+/// The budget a series' step of `n` primitives that fell short grows to,
+/// from the `predicted` one (what the slope says, within the cap): by
+/// `MIN_GROWTH` to `MAX_FACTOR` times, not past `cap`. `None` where it does
+/// not grow: after a growth that lost PSNR ([`growth_pays`]), or at the
+/// cap or past it (a later step's default cap follows its occupied voxels,
+/// which may be far fewer than its predecessor's).
+fn growth(tries: &[Try], n: usize, predicted: usize, cap: usize) -> Option<usize> {
+    if !growth_pays(tries) {
+        return None;
+    }
+    let least = (n as f64 * MIN_GROWTH).ceil() as usize;
+    let want = predicted.clamp(least.min(cap), ((n as f64 * MAX_FACTOR) as usize).max(n));
+    (want > n).then_some(want)
 }
 
 /// The budget the slope (dB per doubling) says reaches `aim` from `p` dB at
@@ -397,6 +405,20 @@ mod tests {
         assert!(growth_pays(&[t(45, 54.3), t(60, 54.3)]));
         assert!(!growth_pays(&[t(45, 54.3), t(60, 53.8)]), "a growth that lost");
         assert!(!growth_pays(&[t(16, 50.0), t(45, 54.3), t(60, 53.8)]));
+    }
+
+    #[test]
+    fn a_growth_is_by_its_least_to_its_most_factor_within_the_cap() {
+        let one = [Try { budget: 100, psnr: 40.0, iterations: 750, seconds: 0.0 }];
+        assert_eq!(growth(&one, 100, 300, 10_000), Some(300));
+        assert_eq!(growth(&one, 100, 101, 10_000), Some(115), "at least MIN_GROWTH times");
+        assert_eq!(growth(&one, 100, 90, 10_000), Some(115), "a prediction below the model");
+        assert_eq!(growth(&one, 100, 5000, 10_000), Some(400), "at most MAX_FACTOR times");
+        assert_eq!(growth(&one, 100, 110, 110), Some(110), "the cap is above the model but below its least growth");
+        assert_eq!(growth(&one, 100, 100, 100), None, "at the cap");
+        assert_eq!(growth(&one, 100, 16, 16), None, "past the cap");
+        let lost = [one[0], Try { budget: 130, psnr: 39.0, ..one[0] }];
+        assert_eq!(growth(&lost, 130, 400, 10_000), None, "after a growth that lost");
     }
 
     #[test]
