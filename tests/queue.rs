@@ -169,6 +169,25 @@ fn busy_queues_nothing_and_the_step_can_be_pushed_again() {
     assert_eq!(steps_stored(&stored), [0, 1]);
 }
 
+/// A step larger than the whole budget is still taken into an empty queue
+/// (else it could never be encoded), and counts against the budget while
+/// it is there: the next push finds the queue full.
+#[test]
+fn a_step_larger_than_the_budget_is_taken_into_an_empty_queue() {
+    let cfg = QueueConfig { max_bytes: DIMS.iter().product::<usize>() * 4 / 2, ..queue_config(1, WhenFull::Busy) };
+    let (q, open, stored) = gated(cfg, vec![]);
+    assert_eq!(q.push(job("rho", 0)).unwrap(), Pushed::Queued);
+    assert!(q.queued_bytes() > q.config().max_bytes);
+    assert_eq!(q.push(job("rho", 1)).unwrap(), Pushed::Busy);
+    open.send(()).unwrap();
+    q.wait(None).unwrap();
+    assert_eq!(q.queued_bytes(), 0);
+    open.send(()).unwrap();
+    assert_eq!(q.push(job("rho", 1)).unwrap(), Pushed::Queued);
+    q.wait(None).unwrap();
+    assert_eq!(steps_stored(&stored), [0, 1]);
+}
+
 #[test]
 fn a_failed_job_is_reported_once_and_later_steps_are_written() {
     let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![1]);
