@@ -206,6 +206,22 @@ fn a_failed_job_is_reported_once_and_later_steps_are_written() {
     assert_eq!(last.meta.step, 3);
 }
 
+/// `wait` for one field reports that field's failures only; another
+/// field's stays for its own `wait` (or one for every field).
+#[test]
+fn a_wait_for_one_field_reports_only_its_failures() {
+    let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![1]);
+    for (field, k) in [("rho", 0), ("rho", 1), ("u", 5), ("u", 6)] {
+        open.send(()).unwrap();
+        q.push(job(field, k)).unwrap();
+    }
+    q.wait(Some("u")).unwrap();
+    let e = q.wait(Some("rho")).unwrap_err();
+    assert!(e.to_string().contains("field 'rho' step 1"), "{e}");
+    q.wait(None).unwrap();
+    assert_eq!(steps_stored(&stored), [0, 5, 6]);
+}
+
 /// Polls until `field`'s step `step` is final (which `wait` would report).
 fn until_final(q: &BackgroundEncoder, field: &str, step: u64) {
     let t0 = std::time::Instant::now();
