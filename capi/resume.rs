@@ -123,7 +123,7 @@ impl gsenc_encoder {
                 Ok(f) => read(f, r),
                 Err(why) => Err(gsenc::Error::arg(format!("rank 0 was given no field name ({})", why.1))),
             };
-            let mine = ranks.models_from_root(Some(&mut each));
+            let mine = ranks.models_from_root(&mut each);
             field?;
             return Ok(mine?);
         }

@@ -104,9 +104,9 @@ impl Decomposition {
     /// stored step with `read` (from the store it alone has open) and sends
     /// each rank its own; returns this rank's, or why rank 0 could not read
     /// or send it (with the error's kind: a missing entry is the same
-    /// status on every rank). Collective; `read` is used on rank 0 only
-    /// (without one there, every rank gets an error saying so).
-    pub fn models_from_root(&mut self, read: Option<ReadOne>) -> Result<Model> {
+    /// status on every rank). Collective; `read` is used on rank 0 only (a
+    /// rank 0 without a store gives one that says so, for every rank).
+    pub fn models_from_root(&mut self, read: ReadOne) -> Result<Model> {
         self.check_thread()?;
         let comm = self.comm();
         if self.rank() != 0 {
@@ -117,15 +117,10 @@ impl Decomposition {
             let (wire, _) = root.receive_vec_with_tag::<u8>(TAG_RESUME);
             return from_wire(&wire);
         }
-        let mut read = read;
-        let mut get = |r: u32| match read.as_mut() {
-            Some(f) => f(r),
-            None => Err(Error::arg("rank 0 was given no store to read the ranks' models from")),
-        };
-        let own = get(0);
+        let own = read(0);
         for r in 1..self.size() {
             let to = comm.process_at_rank(r as i32);
-            let (verdict, wire) = match get(r as u32).and_then(|m| to_wire(&m)) {
+            let (verdict, wire) = match read(r as u32).and_then(|m| to_wire(&m)) {
                 Ok(wire) => (Ok(String::new()), Some(wire)),
                 Err(e) => (Err(e), None),
             };
