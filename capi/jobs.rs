@@ -166,7 +166,8 @@ pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gs
 /// Writes the last encoded model of `field` to `path` (through a temporary
 /// file beside the file `path` names and a rename: a symbolic link stays a
 /// link; a device or a pipe is written in place), with the configured
-/// payload. Does not wait for
+/// payload. That is the last step encoded also when its store failed (a
+/// full disk): this call can write it elsewhere. Does not wait for
 /// queued steps (call `gsenc_wait` first for the newest). Strings are read
 /// during the call only. Calls on one encoder run one at a time.
 ///

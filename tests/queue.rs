@@ -206,6 +206,32 @@ fn a_failed_job_is_reported_once_and_later_steps_are_written() {
     assert_eq!(last.meta.step, 3);
 }
 
+/// A step whose store failed (a full disk) is the field's last model all
+/// the same: the series goes on from it, and the caller can write it
+/// elsewhere; it is the model the next step warm-starts from.
+#[test]
+fn a_step_whose_store_failed_is_the_fields_last_model() {
+    let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![1]);
+    for k in 0..2 {
+        open.send(()).unwrap();
+        q.push(job("rho", k)).unwrap();
+    }
+    assert!(q.wait(None).is_err());
+    let (last, psnr) = q.last("rho").unwrap();
+    assert_eq!(last.meta.step, 1);
+    assert!(psnr > 10.0 && last.meta.encode_psnr == Some(psnr), "{psnr}");
+    // The series encoder, given the same steps, encodes step 1 to this model.
+    let mut direct = SeriesEncoder::new(series_config()).unwrap();
+    let mut cpu = CpuBackend::new();
+    let mut model = None;
+    for k in 0..2 {
+        let g = step_grid(k);
+        model = Some(direct.encode_step("rho", k, None, Input::Grid { values: &g, frame: frame() }, &mut cpu, &mut |_| {}).unwrap().encoded.model);
+    }
+    assert_eq!(last.params, model.unwrap().params);
+    assert_eq!(steps_stored(&stored), [0]);
+}
+
 /// `wait` for one field reports that field's failures only; another
 /// field's stays for its own `wait` (or one for every field).
 #[test]
