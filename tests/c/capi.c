@@ -493,6 +493,26 @@ int main(void) {
     EXPECT(gsenc_encoder_create(&cfg, &enc), GSENC_STATUS_OK);
     EXPECT(gsenc_push_grid(enc, "rho", 0, 0.0, &grid), GSENC_STATUS_OK);
     EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_IO);
+    /* The step whose store failed is the field's last model all the same,
+     * and can be written elsewhere. */
+    {
+        uint64_t last = 7;
+        double last_psnr = 0.0;
+        EXPECT(gsenc_encoder_last_step(enc, "rho", &last, &last_psnr), GSENC_STATUS_OK);
+        CHECK(last == 0 && last_psnr > 10.0, "the failed store's step is the last: %llu, %g dB", (unsigned long long)last, last_psnr);
+        snprintf(path, sizeof path, "%s/gsenc_capi_rescued.gsm", dir);
+        EXPECT(gsenc_encoder_write_model(enc, "rho", path), GSENC_STATUS_OK);
+        gsenc_model *rescued = NULL;
+        EXPECT(gsenc_model_read(path, &rescued), GSENC_STATUS_OK);
+        gsenc_model_info ri;
+        memset(&ri, 0, sizeof ri);
+        ri.struct_size = sizeof ri;
+        EXPECT(gsenc_model_info_get(rescued, &ri), GSENC_STATUS_OK);
+        CHECK(ri.step == 0 && ri.count == 120 && ri.encode_psnr == last_psnr, "the rescued model: step %llu, %llu Gaussians",
+              (unsigned long long)ri.step, (unsigned long long)ri.count);
+        gsenc_model_destroy(rescued);
+        remove(path);
+    }
     gsenc_encoder_destroy(enc);
 
     /* Pushes copy: the solver overwrites its array right after the push and
