@@ -28,6 +28,9 @@ impl IndexFrame {
     /// `gamma = min_a D_a / (bmax_a - bmin_a)`: isotropic voxels (METHOD.md
     /// "Frames and units").
     pub fn from_bounds(dims: [usize; 3], bmin: [f64; 3], bmax: [f64; 3]) -> Result<IndexFrame> {
+        if dims.contains(&0) {
+            return Err(Error::arg(format!("dims must be positive, got {dims:?}")));
+        }
         let mut gamma = f64::INFINITY;
         for a in 0..3 {
             let ext = bmax[a] - bmin[a];
@@ -35,6 +38,11 @@ impl IndexFrame {
                 return Err(Error::arg(format!("bounds on axis {a} are empty or not finite: [{}, {}]", bmin[a], bmax[a])));
             }
             gamma = gamma.min(dims[a] as f64 / ext);
+        }
+        // Extents so narrow that a voxel's size is not a float64 (below
+        // 1e-308 or so) would put every item at an infinite index.
+        if !(gamma.is_finite() && gamma > 0.0) {
+            return Err(Error::arg(format!("bounds [{bmin:?}, {bmax:?}] are too narrow for {dims:?} voxels of a size float64 can hold")));
         }
         Ok(IndexFrame { dims, bmin, gamma })
     }
@@ -252,6 +260,17 @@ mod tests {
             edges_differ += (IndexFrame::from_bounds(dims, w.min, w.max).unwrap() != f) as usize;
         }
         assert!(edges_differ > 100, "{edges_differ} frames whose own box gives another");
+    }
+
+    #[test]
+    fn bounds_are_refused_unless_their_voxels_have_a_size() {
+        for (min, max) in [([0.0; 3], [1.0, 1.0, 0.0]), ([0.0; 3], [1.0, f64::INFINITY, 1.0]), ([f64::NAN, 0.0, 0.0], [1.0; 3]), ([0.0; 3], [1e-310; 3])] {
+            let e = IndexFrame::from_bounds([16; 3], min, max).unwrap_err().to_string();
+            assert!(e.contains("bounds"), "{min:?}..{max:?}: {e}");
+        }
+        let f = IndexFrame::from_bounds([16; 3], [0.0; 3], [1e-300; 3]).unwrap();
+        assert!(f.is_valid() && f.gamma == 16.0 / 1e-300);
+        assert!(IndexFrame::from_bounds([0, 16, 16], [0.0; 3], [1.0; 3]).unwrap_err().to_string().contains("dims must be positive"));
     }
 
     #[test]
