@@ -57,8 +57,8 @@ impl IndexFrame {
             bmin: [origin[0] - 0.5 * spacing, origin[1] - 0.5 * spacing, origin[2] - 0.5 * spacing],
             gamma: 1.0 / spacing,
         };
-        if !frame.bmin.iter().all(|b| b.is_finite()) || !frame.gamma.is_finite() {
-            return Err(Error::arg(format!("grid origin {origin:?} and spacing {spacing:?} must be finite (and the first voxel's corner too)")));
+        if !frame.bmin.iter().all(|b| b.is_finite()) || !frame.gamma.is_finite() || !frame.world_box().max.iter().all(|b| b.is_finite()) {
+            return Err(Error::arg(format!("grid origin {origin:?} and spacing {spacing:?} must be finite (and the first and last voxels' corners too)")));
         }
         Ok(frame)
     }
@@ -235,7 +235,7 @@ mod tests {
         let f = IndexFrame::for_grid([4; 3], [1.0, 2.0, 3.0], 0.5).unwrap();
         assert_eq!((f.bmin, f.gamma), ([0.75, 1.75, 2.75], 2.0));
         assert!(f.is_valid());
-        for (origin, spacing) in [([f64::NAN, 0.0, 0.0], 1.0), ([0.0, f64::INFINITY, 0.0], 1.0), ([-f64::MAX, 0.0, 0.0], 1e300), ([0.0; 3], 1e-320)] {
+        for (origin, spacing) in [([f64::NAN, 0.0, 0.0], 1.0), ([0.0, f64::INFINITY, 0.0], 1.0), ([-f64::MAX, 0.0, 0.0], 1e300), ([0.0; 3], 1e-320), ([f64::MAX / 2.0, 0.0, 0.0], f64::MAX / 4.0), ([0.0; 3], f64::MAX / 2.0)] {
             let e = IndexFrame::for_grid([4; 3], origin, spacing).unwrap_err();
             assert!(matches!(e, Error::InvalidArgument(_)) && e.to_string().contains("finite"), "{origin:?} {spacing}: {e}");
         }
