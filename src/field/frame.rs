@@ -18,11 +18,15 @@ pub struct IndexFrame {
 }
 
 impl IndexFrame {
-    /// Whether a frame read from a file can be decoded on: no empty axis, a
-    /// finite corner, a finite positive voxel size. The readers of model
+    /// Whether a frame read from a file can be decoded on: no empty axis,
+    /// finite corners, a finite positive voxel size. The readers of model
     /// headers, store entries and step indexes check it.
     pub fn is_valid(&self) -> bool {
-        !self.dims.contains(&0) && self.gamma.is_finite() && self.gamma > 0.0 && self.bmin.iter().all(|b| b.is_finite())
+        !self.dims.contains(&0)
+            && self.gamma.is_finite()
+            && self.gamma > 0.0
+            && self.bmin.iter().all(|b| b.is_finite())
+            && self.world_box().max.iter().all(|b| b.is_finite())
     }
 
     /// `gamma = min_a D_a / (bmax_a - bmin_a)`: isotropic voxels (METHOD.md
@@ -270,6 +274,9 @@ mod tests {
         }
         let f = IndexFrame::from_bounds([16; 3], [0.0; 3], [1e-300; 3]).unwrap();
         assert!(f.is_valid() && f.gamma == 16.0 / 1e-300);
+        // A frame read from a file whose far corner overflows is not valid.
+        assert!(!IndexFrame { dims: [16; 3], bmin: [0.0; 3], gamma: 1e-308 }.is_valid());
+        assert!(IndexFrame { dims: [16; 3], bmin: [0.0; 3], gamma: 1e-300 }.is_valid());
         assert!(IndexFrame::from_bounds([0, 16, 16], [0.0; 3], [1.0; 3]).unwrap_err().to_string().contains("dims must be positive"));
     }
 
