@@ -66,7 +66,9 @@ fn owner(x: &[f64; 3]) -> usize {
 /// edge falls exactly on a voxel boundary can round to the other side in a
 /// piece's frame (its corner is the global one moved by whole voxels, in
 /// floating point).
-fn check_pieces(parts: Vec<StepData>, global_ref: &Grid, global: &IndexFrame, halo: usize, allowed: f64, prepare: &dyn Fn(&StepData) -> Grid) {
+/// A piece reaches past the half of the lattice by at most `reach` voxels
+/// along x (its halo, and what its data's box overhangs the quarter).
+fn check_pieces(parts: Vec<StepData>, global_ref: &Grid, global: &IndexFrame, halo: usize, reach: usize, allowed: f64, prepare: &dyn Fn(&StepData) -> Grid) {
     let pieces: Vec<IndexBox> = parts
         .iter()
         .map(|d| {
@@ -92,7 +94,7 @@ fn check_pieces(parts: Vec<StepData>, global_ref: &Grid, global: &IndexFrame, ha
         println!("piece {p}: {differing} voxels ({fraction:.4}) differ from the serial deposit");
         assert!(fraction <= allowed, "piece {p} ({:?}..{:?}): {differing} voxels differ from the serial deposit", piece.lo, piece.hi);
         // The halo reaches past the rank's own quarter, into its neighbours'.
-        assert!(piece.dims()[0] > global.dims[0] / 2 && piece.dims()[0] <= global.dims[0] / 2 + halo + 1, "piece {p}: {:?}", piece);
+        assert!(piece.dims()[0] > global.dims[0] / 2 && piece.dims()[0] <= global.dims[0] / 2 + reach, "piece {p}: {:?}", piece);
     }
 }
 
@@ -120,7 +122,7 @@ fn particle_pieces_deposit_the_serial_reference() {
             }
         })
         .collect();
-    check_pieces(parts, &serial.reference, &serial.frame, 3, 0.0, &|d| match d {
+    check_pieces(parts, &serial.reference, &serial.frame, 3, 4, 0.0, &|d| match d {
         StepData::Particles { positions, smoothing_length, mass, values, placement } => {
             let p = Particles { positions, smoothing_length, mass, values };
             prepare_particles(&p, placement, &RangeSpec::Fixed(range)).unwrap().reference
@@ -170,7 +172,7 @@ fn cell_pieces_deposit_the_serial_reference() {
             })
             .collect();
         assert_eq!(Kind::of(&parts[0]), if by_volume { Kind::CellVolumes } else { Kind::CellBoxes });
-        check_pieces(parts, &serial.reference, &serial.frame, 3, 0.08, &|d| match d {
+        check_pieces(parts, &serial.reference, &serial.frame, 3, 4, 0.08, &|d| match d {
             StepData::Cells { centres, edges, volumes, values, placement } => {
                 let c = Cells { centres, size: size(by_volume, edges, volumes), values };
                 prepare_cells(&c, placement, &RangeSpec::Fixed(range)).unwrap().reference
@@ -178,6 +180,44 @@ fn cell_pieces_deposit_the_serial_reference() {
             _ => unreachable!(),
         });
     }
+}
+
+/// Cells of random sizes (0.6 voxel to four) at random places, so that no
+/// stamp's edge falls on a voxel boundary: every piece's deposit is the
+/// serial one on every voxel. A cell must be sent as far as its stamp
+/// reaches: its edge and half a voxel of rounding. (Cells under half a
+/// voxel are left out: one within half a voxel inside a piece's face
+/// towards another piece can stamp only the voxel beyond the face, and
+/// the piece then puts it into its nearest voxel instead, which the
+/// serial deposit does not.)
+#[test]
+fn cell_pieces_off_the_lattice_deposit_the_serial_reference() {
+    let centres = points(3000);
+    let edges: Vec<[f64; 3]> = points(6000)[3000..].iter().map(|r| [0.03 + 0.15 * r[0]; 3]).collect();
+    let values: Vec<f32> = centres.iter().map(|&c| field(c)).collect();
+    let range = ValueRange::from_data(&values, Transform::Linear).unwrap();
+    let cells = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &values };
+    let placement = Placement { dims: [24; 3], bounds: None };
+    let serial = prepare_cells(&cells, &placement, &RangeSpec::Fixed(range)).unwrap();
+    let parts: Vec<StepData> = (0..4)
+        .map(|r| {
+            let mine: Vec<usize> = (0..centres.len()).filter(|&j| owner(&centres[j]) == r).collect();
+            StepData::Cells {
+                centres: mine.iter().map(|&j| centres[j]).collect(),
+                edges: mine.iter().map(|&j| edges[j]).collect(),
+                volumes: Vec::new(),
+                values: mine.iter().map(|&j| values[j]).collect(),
+                placement,
+            }
+        })
+        .collect();
+    check_pieces(parts, &serial.reference, &serial.frame, 1, 6, 0.0, &|d| match d {
+        StepData::Cells { centres, edges, values, placement, .. } => {
+            let c = Cells { centres, size: CellSize::Edges(edges), values };
+            prepare_cells(&c, placement, &RangeSpec::Fixed(range)).unwrap().reference
+        }
+        _ => unreachable!(),
+    });
 }
 
 #[test]
