@@ -405,7 +405,7 @@ impl gsenc_encoder {
     }
 
     pub(crate) fn placement(&self) -> Placement {
-        Placement { dims: self.settings.dims, bounds: self.settings.bounds }
+        Placement::new(self.settings.dims, self.settings.bounds)
     }
 }
 

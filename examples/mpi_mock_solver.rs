@@ -203,7 +203,7 @@ fn step_data(form: &str, a: &Args, step: u64, rank: usize, n: usize, want_refere
             let mass = vec![1.0f32; pos.len()];
             let reference = want_reference.then(|| {
                 let p = Particles { positions: &pos, smoothing_length: &h, mass: &mass, values: &val };
-                let prep = prepare_particles(&p, &Placement { dims, bounds: None }, &RangeSpec::FromData(Transform::Linear)).unwrap();
+                let prep = prepare_particles(&p, &Placement::new(dims, None), &RangeSpec::FromData(Transform::Linear)).unwrap();
                 (prep.reference, prep.frame)
             });
             let mine: Vec<usize> = (0..pos.len()).filter(|&j| owns(&lo, &hi, &pos[j])).collect();
@@ -212,7 +212,7 @@ fn step_data(form: &str, a: &Args, step: u64, rank: usize, n: usize, want_refere
                 smoothing_length: mine.iter().map(|&j| h[j]).collect(),
                 mass: mine.iter().map(|&j| mass[j]).collect(),
                 values: mine.iter().map(|&j| val[j]).collect(),
-                placement: Placement { dims, bounds: None },
+                placement: Placement::new(dims, None),
             };
             (data, reference)
         }
@@ -220,7 +220,7 @@ fn step_data(form: &str, a: &Args, step: u64, rank: usize, n: usize, want_refere
             let (centres, edges, values) = global_cells(step);
             let reference = want_reference.then(|| {
                 let c = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &values };
-                let prep = prepare_cells(&c, &Placement { dims, bounds: None }, &RangeSpec::FromData(Transform::Linear)).unwrap();
+                let prep = prepare_cells(&c, &Placement::new(dims, None), &RangeSpec::FromData(Transform::Linear)).unwrap();
                 (prep.reference, prep.frame)
             });
             let mine: Vec<usize> = (0..centres.len()).filter(|&j| owns(&lo, &hi, &centres[j])).collect();
@@ -229,7 +229,7 @@ fn step_data(form: &str, a: &Args, step: u64, rank: usize, n: usize, want_refere
                 edges: mine.iter().map(|&j| edges[j]).collect(),
                 volumes: Vec::new(),
                 values: mine.iter().map(|&j| values[j]).collect(),
-                placement: Placement { dims, bounds: None },
+                placement: Placement::new(dims, None),
             };
             (data, reference)
         }

@@ -35,7 +35,7 @@ impl Parts {
 
 /// A world box [0, 2] x [0, 1.5] x [0, 1] on a 32 x 24 x 16 lattice: gamma = 16.
 fn placement() -> Placement {
-    Placement { dims: [32, 24, 16], bounds: Some(Bounds { min: [0.0; 3], max: [2.0, 1.5, 1.0] }) }
+    Placement::new([32, 24, 16], Some(Bounds { min: [0.0; 3], max: [2.0, 1.5, 1.0] }))
 }
 
 fn unit_range() -> RangeSpec {
@@ -173,7 +173,7 @@ fn particles_outside_the_bounds_are_counted() {
 #[test]
 fn computed_bounds_enclose_the_data() {
     let p = random_parts(9, 50, (0.05, 0.1));
-    let prep = prepare_particles(&p.view(), &Placement { dims: [16, 16, 16], bounds: None }, &unit_range()).unwrap();
+    let prep = prepare_particles(&p.view(), &Placement::new([16, 16, 16], None), &unit_range()).unwrap();
     assert_eq!(prep.deposit.unwrap().outside, 0);
     let (lo, hi) = p.pos.iter().fold(([f64::MAX; 3], [f64::MIN; 3]), |(lo, hi), x| {
         ([0, 1, 2].map(|a| lo[a].min(x[a])), [0, 1, 2].map(|a| hi[a].max(x[a])))
@@ -195,7 +195,7 @@ fn fitted_dims_follow_the_box() {
 
 /// A box [0, 16]^3 on 16^3 voxels: gamma = 1, u = x - 0.5.
 fn cell_placement() -> Placement {
-    Placement { dims: [16, 16, 16], bounds: Some(Bounds { min: [0.0; 3], max: [16.0; 3] }) }
+    Placement::new([16, 16, 16], Some(Bounds { min: [0.0; 3], max: [16.0; 3] }))
 }
 
 fn box_of(values: &[f32], dims: [usize; 3], pred: impl Fn(f32) -> bool) -> ([usize; 3], [usize; 3]) {
@@ -303,7 +303,7 @@ fn cell_deposits_do_not_depend_on_the_units() {
     let centres: Vec<[f64; 3]> = (0..300).map(|_| [rng.range(0.0, 16.0), rng.range(0.0, 16.0), rng.range(0.0, 16.0)]).collect();
     let vols: Vec<f64> = (0..300).map(|_| rng.range(0.5, 9.0)).collect();
     let vals: Vec<f32> = (0..300).map(|_| rng.range(0.0, 10.0) as f32).collect();
-    let placement = Placement { dims: [16; 3], bounds: None };
+    let placement = Placement::new([16; 3], None);
     let deposit = |centres: &[[f64; 3]], vols: &[f64]| {
         let c = Cells { centres, size: CellSize::Volumes(vols), values: &vals };
         prepare_cells(&c, &placement, &unit_range()).unwrap()
@@ -356,11 +356,11 @@ fn bad_particle_inputs_give_clear_errors() {
     // All particles on one plane: computed bounds are flat.
     let mut p = good.clone();
     p.pos.iter_mut().for_each(|x| x[2] = 0.5);
-    data_err(prepare_particles(&p.view(), &Placement { dims: [8; 3], bounds: None }, &r), "give bounds explicitly");
+    data_err(prepare_particles(&p.view(), &Placement::new([8; 3], None), &r), "give bounds explicitly");
     // Every particle outside the given bounds.
-    let far = Placement { dims: [8; 3], bounds: Some(Bounds { min: [10.0; 3], max: [11.0; 3] }) };
+    let far = Placement::new([8; 3], Some(Bounds { min: [10.0; 3], max: [11.0; 3] }));
     data_err(prepare_particles(&good.view(), &far, &r), "inside the bounds");
-    data_err(prepare_particles(&good.view(), &Placement { dims: [0, 8, 8], bounds: None }, &r), "dims");
+    data_err(prepare_particles(&good.view(), &Placement::new([0, 8, 8], None), &r), "dims");
 }
 
 #[test]
@@ -455,7 +455,7 @@ mod real_data {
         assert_eq!(pos.len(), 42_042);
         let p = Particles { positions: &pos, smoothing_length: &hh, mass: &mass, values: &speed };
         let dims = p.bounds().fitted_dims(64).unwrap();
-        let prep = prepare_particles(&p, &Placement { dims, bounds: None }, &RangeSpec::FromData(Transform::Linear)).unwrap();
+        let prep = prepare_particles(&p, &Placement::new(dims, None), &RangeSpec::FromData(Transform::Linear)).unwrap();
         assert_eq!(prep.samples.as_ref().unwrap().q.len(), pos.len());
         // A smooth field: the seeded mixture is already a Shepard
         // interpolation of the particles' speeds (32.1 dB over the occupied
@@ -472,7 +472,7 @@ mod real_data {
         let edges = triples(read("enzo_amr_cells.sizes.float32.zst", 3));
         let rho = f32s(read("enzo_amr_cells.density.float32.zst", 1));
         let c = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &rho };
-        let prep = prepare_cells(&c, &Placement { dims: [40; 3], bounds: None }, &RangeSpec::FromData(Transform::Log10)).unwrap();
+        let prep = prepare_cells(&c, &Placement::new([40; 3], None), &RangeSpec::FromData(Transform::Log10)).unwrap();
         assert_eq!(prep.deposit.unwrap().empty_voxels, 0, "AMR leaves tile the box");
         let [(seeded, _), (encoded, _)] = encode_prepared(&prep, false, 150);
         assert!(encoded > 41.0 && encoded > seeded + 5.0, "seeded {seeded:.2} dB, encoded {encoded:.2} dB");

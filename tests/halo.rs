@@ -109,7 +109,7 @@ fn particle_pieces_deposit_the_serial_reference() {
     let values: Vec<f32> = pos.iter().map(|&p| field(p)).collect();
     let range = ValueRange::from_data(&values, Transform::Linear).unwrap();
     let p = Particles { positions: &pos, smoothing_length: &h, mass: &mass, values: &values };
-    let serial = prepare_particles(&p, &Placement { dims: [24; 3], bounds: None }, &RangeSpec::Fixed(range)).unwrap();
+    let serial = prepare_particles(&p, &Placement::new([24; 3], None), &RangeSpec::Fixed(range)).unwrap();
     let parts: Vec<StepData> = (0..4)
         .map(|r| {
             let mine: Vec<usize> = (0..pos.len()).filter(|&j| owner(&pos[j]) == r).collect();
@@ -118,7 +118,7 @@ fn particle_pieces_deposit_the_serial_reference() {
                 smoothing_length: mine.iter().map(|&j| h[j]).collect(),
                 mass: mine.iter().map(|&j| mass[j]).collect(),
                 values: mine.iter().map(|&j| values[j]).collect(),
-                placement: Placement { dims: [24; 3], bounds: None },
+                placement: Placement::new([24; 3], None),
             }
         })
         .collect();
@@ -155,7 +155,7 @@ fn cell_pieces_deposit_the_serial_reference() {
             if by_volume { CellSize::Volumes(volumes) } else { CellSize::Edges(edges) }
         }
         let cells = Cells { centres: &centres, size: size(by_volume, &edges, &volumes), values: &values };
-        let serial = prepare_cells(&cells, &Placement { dims: [24; 3], bounds: None }, &RangeSpec::Fixed(range)).unwrap();
+        let serial = prepare_cells(&cells, &Placement::new([24; 3], None), &RangeSpec::Fixed(range)).unwrap();
         let parts: Vec<StepData> = (0..4)
             .map(|r| {
                 let mine: Vec<usize> = (0..centres.len()).filter(|&j| owner(&centres[j]) == r).collect();
@@ -167,7 +167,7 @@ fn cell_pieces_deposit_the_serial_reference() {
                     edges: if by_volume { Vec::new() } else { pick(&edges, &mine) },
                     volumes: if by_volume { pick(&volumes, &mine) } else { Vec::new() },
                     values: pick(&values, &mine),
-                    placement: Placement { dims: [24; 3], bounds: None },
+                    placement: Placement::new([24; 3], None),
                 }
             })
             .collect();
@@ -182,22 +182,21 @@ fn cell_pieces_deposit_the_serial_reference() {
     }
 }
 
-/// Cells of random sizes (0.6 voxel to four) at random places, so that no
+/// Cells of random sizes (0.16 voxel to three, most under one) at random places, so that no
 /// stamp's edge falls on a voxel boundary: every piece's deposit is the
 /// serial one on every voxel. A cell must be sent as far as its stamp
-/// reaches: its edge and half a voxel of rounding. (Cells under half a
-/// voxel are left out: one within half a voxel inside a piece's face
-/// towards another piece can stamp only the voxel beyond the face, and
-/// the piece then puts it into its nearest voxel instead, which the
-/// serial deposit does not.)
+/// reaches: its edge and half a voxel of rounding. A cell under half a
+/// voxel within half a voxel inside a piece's face towards another piece
+/// can stamp only the voxel beyond the face: the piece must not put it
+/// into its nearest voxel, as it would at the domain's edge.
 #[test]
 fn cell_pieces_off_the_lattice_deposit_the_serial_reference() {
-    let centres = points(3000);
-    let edges: Vec<[f64; 3]> = points(6000)[3000..].iter().map(|r| [0.03 + 0.15 * r[0]; 3]).collect();
+    let centres = points(6000);
+    let edges: Vec<[f64; 3]> = points(12000)[6000..].iter().map(|r| [0.008 + 0.15 * r[0].powi(3); 3]).collect();
     let values: Vec<f32> = centres.iter().map(|&c| field(c)).collect();
     let range = ValueRange::from_data(&values, Transform::Linear).unwrap();
     let cells = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &values };
-    let placement = Placement { dims: [24; 3], bounds: None };
+    let placement = Placement::new([24; 3], None);
     let serial = prepare_cells(&cells, &placement, &RangeSpec::Fixed(range)).unwrap();
     let parts: Vec<StepData> = (0..4)
         .map(|r| {

@@ -116,7 +116,7 @@ fn particles_run_the_longer_full_schedule_and_a_warm_start_its_regime() {
     let values: Vec<f32> = positions.iter().map(|p| (1.0 + (-(p[0] - 0.5).powi(2) / 0.05).exp()) as f32).collect();
     let (h, mass) = (vec![0.08; n], vec![1.0f32; n]);
     let particles = Particles { positions: &positions, smoothing_length: &h, mass: &mass, values: &values };
-    let input = Input::Particles { particles: &particles, placement: Placement { dims: [8; 3], bounds: None } };
+    let input = Input::Particles { particles: &particles, placement: Placement::new([8; 3], None) };
     let range = RangeSpec::FromData(Transform::Linear);
     let prepared = prepare(&input, &range).unwrap();
     assert_eq!(prepared.form, Form::Particles);

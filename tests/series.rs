@@ -256,7 +256,7 @@ fn a_resumed_particle_series_keeps_its_first_steps_box() {
         (pos, values)
     };
     let (h, mass) = (vec![0.06; n], vec![1.0f32; n]);
-    let placement = Placement { dims, bounds: None };
+    let placement = Placement::new(dims, None);
     let mut unbroken = series(WarmStart::Coarse, SeriesRange::FirstStep(Transform::Linear));
     let mut models = Vec::new();
     for k in 0..3 {

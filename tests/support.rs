@@ -85,7 +85,7 @@ fn a_ball_of_particles_decodes_to_zero_outside_its_support_at_any_resolution() {
     let (h, mass) = (vec![hh; positions.len()], vec![1.0f32; positions.len()]);
     let particles = Particles { positions: &positions, smoothing_length: &h, mass: &mass, values: &values };
     let bounds = Bounds { min: [0.0; 3], max: [1.0; 3] };
-    let input = Input::Particles { particles: &particles, placement: Placement { dims: [24; 3], bounds: Some(bounds) } };
+    let input = Input::Particles { particles: &particles, placement: Placement::new([24; 3], Some(bounds)) };
     let (prepared, stored, paper) = both(&input, RangeSpec::FromData(Transform::Linear), quick(300, 120));
     check_reference_lattice(&prepared, &stored, &paper, 0.02);
 
@@ -250,13 +250,13 @@ fn without_the_support_the_models_are_the_papers_byte_for_byte() {
     let (pos, hh) = (triples(items(&n("positions"), 3)), items(&n("smoothing_length"), 1));
     let (mass, speed) = (f32s(items(&n("mass"), 1)), f32s(items(&n("speed"), 1)));
     let p = Particles { positions: &pos, smoothing_length: &hh, mass: &mass, values: &speed };
-    let placement = Placement { dims: p.bounds().fitted_dims(40).unwrap(), bounds: None };
+    let placement = Placement::new(p.bounds().fitted_dims(40).unwrap(), None);
     golden("dambreak40.gsm", &encode(&Input::Particles { particles: &p, placement }, RangeSpec::FromData(Transform::Linear), 300));
 
     let (c, edges) = (triples(items("enzo_amr_cells.centers.float32.zst", 3)), triples(items("enzo_amr_cells.sizes.float32.zst", 3)));
     let rho = f32s(items("enzo_amr_cells.density.float32.zst", 1));
     let cells = Cells { centres: &c, size: CellSize::Edges(&edges), values: &rho };
-    let placement = Placement { dims: [24; 3], bounds: None };
+    let placement = Placement::new([24; 3], None);
     golden("enzo24.gsm", &encode(&Input::Cells { cells: &cells, placement }, RangeSpec::FromData(Transform::Log10), 300));
 
     // A dense warm start: hydrogen, then hydrogen shifted by three voxels.

@@ -92,7 +92,7 @@ fn a_target_psnr_encode_of_the_enzo_cells_lands_within_a_db() {
     let (centres, edges) = (triples(items("enzo_amr_cells.centers.float32.zst", 3)), triples(items("enzo_amr_cells.sizes.float32.zst", 3)));
     let rho: Vec<f32> = items("enzo_amr_cells.density.float32.zst", 1).into_iter().map(|v| v as f32).collect();
     let cells = Cells { centres: &centres, size: CellSize::Edges(&edges), values: &rho };
-    let input = Input::Cells { cells: &cells, placement: Placement { dims: [32; 3], bounds: None } };
+    let input = Input::Cells { cells: &cells, placement: Placement::new([32; 3], None) };
     let db = 42.0;
     let (prepared, e) = encode_to(&input, RangeSpec::FromData(Transform::Log10), config(db, 0));
     check("enzo cells 32^3 at 42 dB", &prepared, &e, db);

@@ -17,9 +17,14 @@ use crate::field::{Bounds, Grid, IndexBox, IndexFrame};
 use crate::input::cells::{CellSize, Cells};
 use crate::input::{Placement, StepData};
 
-/// Where the items of a piece are deposited: exactly the piece's lattice.
-pub fn placement_of(frame: &IndexFrame) -> Placement {
-    Placement { dims: frame.dims, bounds: Some(frame.world_box()) }
+/// Where the items of `piece` (a box of the lattice of `global`) are
+/// deposited: exactly the piece's lattice, which goes on past each face
+/// that is not the global lattice's, so that the piece's deposit is the
+/// global one on its voxels (`Placement::continues`).
+pub fn placement_of(global: &IndexFrame, piece: &IndexBox) -> Placement {
+    let frame = global.sub_frame(piece);
+    let continues = std::array::from_fn(|a| [piece.lo[a] > 0, piece.hi[a] < global.dims[a]]);
+    Placement { continues, ..Placement::new(frame.dims, Some(frame.world_box())) }
 }
 
 /// The box of a grid whose voxel centres are `frame`'s in the lattice of
@@ -270,7 +275,7 @@ pub fn join(kind: Kind, received: &[&[f64]], global: &IndexFrame, piece: &IndexB
     }
     let width = kind.record_len();
     let records = received.iter().flat_map(|b| b.chunks_exact(width));
-    let placement = placement_of(&frame);
+    let placement = placement_of(global, piece);
     let centres = records.clone().map(|r| [r[0], r[1], r[2]]).collect();
     let values = records.clone().map(|r| r[width - 1] as f32).collect();
     Ok(match kind {

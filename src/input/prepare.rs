@@ -22,9 +22,21 @@ use std::time::Instant;
 pub struct Placement {
     pub dims: [usize; 3],
     pub bounds: Option<Bounds>,
+    /// Per axis, whether the lattice goes on past its low and its high face
+    /// (a domain piece's faces towards other pieces: `domain::halo`). An
+    /// item near such a face whose deposit misses this lattice lies beyond
+    /// the face, in the larger lattice, and is not put into this lattice's
+    /// nearest voxel as an item at the lattice's own edge is.
+    pub continues: [[bool; 2]; 3],
 }
 
 impl Placement {
+    /// A lattice of `dims` over `bounds` (the data's when `None`) that is
+    /// the whole of its domain.
+    pub fn new(dims: [usize; 3], bounds: Option<Bounds>) -> Placement {
+        Placement { dims, bounds, continues: [[false; 2]; 3] }
+    }
+
     /// The placement from `dims`, or from `fit_dims` voxels along the longest
     /// axis of `bounds` (those of the data, asked for only then); exactly one
     /// of the two must be given.
@@ -35,7 +47,7 @@ impl Placement {
             (None, Some(n)) => bounds.unwrap_or_else(data_bounds).fitted_dims(n)?,
             (None, None) => return Err(Error::arg("give the dims (x, y, z) or the voxels along the longest axis (fit dims)")),
         };
-        Ok(Placement { dims, bounds })
+        Ok(Placement::new(dims, bounds))
     }
 }
 
@@ -186,6 +198,22 @@ pub fn prepare(input: &Input, range: &RangeSpec) -> Result<Prepared> {
     }
 }
 
+/// `frame` grown by one voxel past each face where the lattice goes on
+/// (`Placement::continues`), or `None` where it goes on past none. An item
+/// smaller than a voxel within half a voxel of a face deposits at most one
+/// voxel past it, so one voxel of the larger lattice is enough to tell
+/// whether its deposit lies there.
+fn widened(frame: &IndexFrame, continues: [[bool; 2]; 3]) -> Option<IndexFrame> {
+    if continues == [[false; 2]; 3] {
+        return None;
+    }
+    Some(IndexFrame {
+        dims: std::array::from_fn(|a| frame.dims[a] + continues[a][0] as usize + continues[a][1] as usize),
+        bmin: std::array::from_fn(|a| frame.bmin[a] - continues[a][0] as u8 as f64 / frame.gamma),
+        gamma: frame.gamma,
+    })
+}
+
 /// Scales the deposit's weights (masses, volumes) by the power of two that
 /// brings the largest near 1. The deposit uses them only through ratios
 /// (`num / den`), and a power of two changes no bit of those, but their
@@ -203,17 +231,18 @@ fn scale_weights(splats: &mut [Splat]) {
 pub fn prepare_particles(p: &Particles, placement: &Placement, range: &RangeSpec) -> Result<Prepared> {
     p.validate()?;
     let bounds = placement.bounds.unwrap_or_else(|| p.bounds());
-    prepare_items(Form::Particles, p, p.values, placement.dims, bounds, range)
+    prepare_items(Form::Particles, p, p.values, placement, bounds, range)
 }
 
 /// Samples and volume-weighted deposit of hexahedral cells.
 pub fn prepare_cells(c: &Cells, placement: &Placement, range: &RangeSpec) -> Result<Prepared> {
     c.validate()?;
     let bounds = placement.bounds.unwrap_or_else(|| c.bounds());
-    prepare_items(Form::Cells, c, c.values, placement.dims, bounds, range)
+    prepare_items(Form::Cells, c, c.values, placement, bounds, range)
 }
 
-fn prepare_items(form: Form, items: &dyn Conversion, values: &[f32], dims: [usize; 3], bounds: Bounds, range: &RangeSpec) -> Result<Prepared> {
+fn prepare_items(form: Form, items: &dyn Conversion, values: &[f32], placement: &Placement, bounds: Bounds, range: &RangeSpec) -> Result<Prepared> {
+    let dims = placement.dims;
     lattice_len(dims)?;
     let frame = IndexFrame::from_bounds(dims, bounds.min, bounds.max).map_err(|e| match e {
         Error::InvalidArgument(m) => Error::arg(format!("{m}; give bounds explicitly when the data are flat on an axis")),
@@ -222,7 +251,19 @@ fn prepare_items(form: Form, items: &dyn Conversion, values: &[f32], dims: [usiz
     let range = range.resolve(values)?;
     let norm = range.normalize(values)?;
     let started = Instant::now();
-    let converted: Vec<Item> = (0..items.item_count()).into_par_iter().map(|j| items.item(j, &frame, norm.values[j])).collect();
+    let beyond = widened(&frame, placement.continues);
+    let converted: Vec<Item> = (0..items.item_count())
+        .into_par_iter()
+        .map(|j| {
+            let it = items.item(j, &frame, norm.values[j]);
+            match &beyond {
+                // A fallback whose deposit lands on the widened lattice lies
+                // past a face where the lattice goes on: none here.
+                Some(wide) if it.nearest && !items.item(j, wide, norm.values[j]).nearest => Item { splat: None, nearest: false, ..it },
+                _ => it,
+            }
+        })
+        .collect();
 
     let mut stats = DepositStats { items: converted.len(), ..Default::default() };
     let max_importance = converted.iter().filter(|it| it.inside).fold(0f64, |a, it| a.max(it.importance));
