@@ -22,11 +22,13 @@ impl IndexFrame {
     /// finite corners, a finite positive voxel size. The readers of model
     /// headers, store entries and step indexes check it.
     pub fn is_valid(&self) -> bool {
-        !self.dims.contains(&0)
-            && self.gamma.is_finite()
-            && self.gamma > 0.0
-            && self.bmin.iter().all(|b| b.is_finite())
-            && self.world_box().max.iter().all(|b| b.is_finite())
+        !self.dims.contains(&0) && self.gamma > 0.0 && self.is_finite()
+    }
+
+    /// Whether the voxel size and both corners of the lattice's box are
+    /// finite.
+    fn is_finite(&self) -> bool {
+        self.gamma.is_finite() && self.bmin.iter().chain(&self.world_box().max).all(|b| b.is_finite())
     }
 
     /// `gamma = min_a D_a / (bmax_a - bmin_a)`: isotropic voxels (METHOD.md
@@ -61,7 +63,7 @@ impl IndexFrame {
             bmin: [origin[0] - 0.5 * spacing, origin[1] - 0.5 * spacing, origin[2] - 0.5 * spacing],
             gamma: 1.0 / spacing,
         };
-        if !frame.bmin.iter().all(|b| b.is_finite()) || !frame.gamma.is_finite() || !frame.world_box().max.iter().all(|b| b.is_finite()) {
+        if !frame.is_finite() {
             return Err(Error::arg(format!("grid origin {origin:?} and spacing {spacing:?} must be finite (and the first and last voxels' corners too)")));
         }
         Ok(frame)

@@ -697,14 +697,13 @@ impl Worker {
         // On the pool too: a sink may compute (a preview's decode and
         // rendering), and it must use the encoder's threads, not the solver's.
         let (pool, sink) = (&self.pool, &mut self.sink);
-        let state = match pool.install(|| sink.store(&model)) {
-            Ok(Some(location)) => Ok(JobState::Written { psnr, location }),
-            Ok(None) => {
+        let state = pool.install(|| sink.store(&model)).map(|stored| match stored {
+            Some(location) => JobState::Written { psnr, location },
+            None => {
                 self.shared.state.lock().finished.push(model.clone());
-                Ok(JobState::Encoded { psnr })
+                JobState::Encoded { psnr }
             }
-            Err(e) => Err(e),
-        };
+        });
         // The field's last model also when the store failed (a full disk):
         // the series goes on from it, and the caller can still write it
         // elsewhere (`gsenc_encoder_write_model`).
