@@ -55,6 +55,11 @@ fn points(n: usize) -> Vec<[f64; 3]> {
     (0..n).map(|_| [next(), next(), next()]).collect()
 }
 
+/// The items of `all` at the indices `mine` (one rank's part).
+fn pick<T: Copy>(all: &[T], mine: &[usize]) -> Vec<T> {
+    mine.iter().map(|&j| all[j]).collect()
+}
+
 /// Rank r of 4 owns the quarter (x < 1/2 or not, y < 1/2 or not).
 fn owner(x: &[f64; 3]) -> usize {
     (x[0] >= 0.5) as usize + 2 * (x[1] >= 0.5) as usize
@@ -114,10 +119,10 @@ fn particle_pieces_deposit_the_serial_reference() {
         .map(|r| {
             let mine: Vec<usize> = (0..pos.len()).filter(|&j| owner(&pos[j]) == r).collect();
             StepData::Particles {
-                positions: mine.iter().map(|&j| pos[j]).collect(),
-                smoothing_length: mine.iter().map(|&j| h[j]).collect(),
-                mass: mine.iter().map(|&j| mass[j]).collect(),
-                values: mine.iter().map(|&j| values[j]).collect(),
+                positions: pick(&pos, &mine),
+                smoothing_length: pick(&h, &mine),
+                mass: pick(&mass, &mine),
+                values: pick(&values, &mine),
                 placement: Placement::new([24; 3], None),
             }
         })
@@ -159,9 +164,6 @@ fn cell_pieces_deposit_the_serial_reference() {
         let parts: Vec<StepData> = (0..4)
             .map(|r| {
                 let mine: Vec<usize> = (0..centres.len()).filter(|&j| owner(&centres[j]) == r).collect();
-                fn pick<T: Copy>(all: &[T], mine: &[usize]) -> Vec<T> {
-                    mine.iter().map(|&j| all[j]).collect()
-                }
                 StepData::Cells {
                     centres: pick(&centres, &mine),
                     edges: if by_volume { Vec::new() } else { pick(&edges, &mine) },
@@ -202,10 +204,10 @@ fn cell_pieces_off_the_lattice_deposit_the_serial_reference() {
         .map(|r| {
             let mine: Vec<usize> = (0..centres.len()).filter(|&j| owner(&centres[j]) == r).collect();
             StepData::Cells {
-                centres: mine.iter().map(|&j| centres[j]).collect(),
-                edges: mine.iter().map(|&j| edges[j]).collect(),
+                centres: pick(&centres, &mine),
+                edges: pick(&edges, &mine),
                 volumes: Vec::new(),
-                values: mine.iter().map(|&j| values[j]).collect(),
+                values: pick(&values, &mine),
                 placement,
             }
         })

@@ -87,6 +87,19 @@ fn steps_stored(stored: &Mutex<Vec<Model>>) -> Vec<u64> {
     stored.lock().unwrap().iter().map(|m| m.meta.step).collect()
 }
 
+/// The models the series encoder itself makes of the steps `0..steps` of
+/// `job`'s field.
+fn series_models(steps: u64) -> Vec<Model> {
+    let mut direct = SeriesEncoder::new(series_config()).unwrap();
+    let mut cpu = CpuBackend::new();
+    (0..steps)
+        .map(|k| {
+            let g = step_grid(k);
+            direct.encode_step("rho", k, None, Input::Grid { values: &g, frame: frame() }, &mut cpu, &mut |_| {}).unwrap().encoded.model
+        })
+        .collect()
+}
+
 #[test]
 fn queued_models_equal_the_series_encoders() {
     let (q, open, stored) = gated(queue_config(8, WhenFull::Block), vec![]);
@@ -95,15 +108,11 @@ fn queued_models_equal_the_series_encoders() {
         assert_eq!(q.push(job("rho", k)).unwrap(), Pushed::Queued);
     }
     q.wait(None).unwrap();
-    let mut direct = SeriesEncoder::new(series_config()).unwrap();
-    let mut cpu = CpuBackend::new();
     let queued = stored.lock().unwrap().clone();
     assert_eq!(queued.len(), 3);
-    for (k, m) in queued.iter().enumerate() {
-        let g = step_grid(k as u64);
-        let r = direct.encode_step("rho", k as u64, None, Input::Grid { values: &g, frame: frame() }, &mut cpu, &mut |_| {}).unwrap();
-        assert_eq!(m.params, r.encoded.model.params, "step {k}: the queue's model differs from the series encoder's");
-        assert_eq!(m.meta.schedule, r.encoded.model.meta.schedule);
+    for (k, (m, direct)) in queued.iter().zip(series_models(3)).enumerate() {
+        assert_eq!(m.params, direct.params, "step {k}: the queue's model differs from the series encoder's");
+        assert_eq!(m.meta.schedule, direct.meta.schedule);
     }
     match q.poll("rho", 2) {
         Some(JobState::Written { psnr, location }) => {
@@ -221,14 +230,7 @@ fn a_step_whose_store_failed_is_the_fields_last_model() {
     assert_eq!(last.meta.step, 1);
     assert!(psnr > 10.0 && last.meta.encode_psnr == Some(psnr), "{psnr}");
     // The series encoder, given the same steps, encodes step 1 to this model.
-    let mut direct = SeriesEncoder::new(series_config()).unwrap();
-    let mut cpu = CpuBackend::new();
-    let mut model = None;
-    for k in 0..2 {
-        let g = step_grid(k);
-        model = Some(direct.encode_step("rho", k, None, Input::Grid { values: &g, frame: frame() }, &mut cpu, &mut |_| {}).unwrap().encoded.model);
-    }
-    assert_eq!(last.params, model.unwrap().params);
+    assert_eq!(last.params, series_models(2)[1].params);
     assert_eq!(steps_stored(&stored), [0]);
 }
 
