@@ -5,6 +5,7 @@
 mod common;
 use common::disk::{says_full, SmallDisk};
 use std::path::{Path, PathBuf};
+#[cfg(feature = "hdf5")]
 use std::process::Command;
 
 // A full disk (`common::disk`: a small tmpfs, or a file size limit where
