@@ -196,8 +196,14 @@ pub fn check_finite(values: &[f32]) -> Result<()> {
     Ok(())
 }
 
+/// Names the value and its index; an infinity may have been a finite
+/// float64 input that float32, the precision of every field, cannot hold
+/// (a raw f64 file, a C or Python caller's double array), so the message
+/// says so.
 fn not_finite(values: &[f32], pos: usize) -> Error {
-    Error::data(format!("value {} at index {pos} is not finite", values[pos]))
+    let v = values[pos];
+    let why = if v.is_infinite() { format!(" (as float32: an input beyond ±{:e} is infinite)", f32::MAX) } else { String::new() };
+    Error::data(format!("value {v} at index {pos} is not finite{why}"))
 }
 
 #[cfg(test)]
@@ -244,6 +250,8 @@ mod tests {
                 }
                 for e in [check_finite_serial(&w).unwrap_err(), check_finite(&w).unwrap_err()] {
                     assert!(e.to_string().contains(&format!("at index {at} ")), "{bad} at {at}: {e}");
+                    // An infinity says what float32 holds; a NaN does not.
+                    assert_eq!(e.to_string().contains("as float32: an input beyond ±3.4028235e38 is infinite"), bad.is_infinite(), "{e}");
                 }
             }
         }
