@@ -39,6 +39,8 @@ pub mod status;
 #[cfg(test)]
 #[path = "../tests/common/mod.rs"]
 mod common;
+#[cfg(test)]
+mod fortran_binding_tests;
 #[cfg(all(test, feature = "hdf5"))]
 mod hdf5_tests;
 #[cfg(test)]
