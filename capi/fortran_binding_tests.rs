@@ -17,9 +17,9 @@
 //!   same value, and every C function is bound but those the README names
 //!   C only.
 
+use crate::header_text::{c_header, CDecl, CHeader};
 use std::collections::BTreeMap;
 
-const HEADER: &str = include_str!("../include/gsenc.h");
 const MODULE: &str = include_str!("gsenc.f90");
 
 /// C functions the Fortran module does not bind, and why.
@@ -33,20 +33,8 @@ const C_ONLY: [(&str, &str); 5] = [
 /// Header constants that are not values of the API.
 const NOT_CONSTANTS: [&str; 4] = ["GSENC_H", "GSENC_VERSION_MAJOR", "GSENC_VERSION_MINOR", "GSENC_VERSION_PATCH"];
 
-/// A scalar's size class: C's and Fortran's names of the same bits.
-fn c_kind(base: &str) -> String {
-    match base {
-        "int32_t" | "uint32_t" | "int" | "gsenc_status" => "i32",
-        "int64_t" | "uint64_t" => "i64",
-        "size_t" => "usize",
-        "double" => "f64",
-        "float" => "f32",
-        "char" => "char",
-        other => other,
-    }
-    .to_string()
-}
-
+/// A Fortran kind's size class, named as [`crate::header_text::c_kind`]
+/// names C's.
 fn f_kind(kind: &str) -> String {
     match kind {
         "c_int" | "c_int32_t" => "i32",
@@ -59,94 +47,6 @@ fn f_kind(kind: &str) -> String {
         other => other,
     }
     .to_string()
-}
-
-/// A C declaration (`const gsenc_config *config`, `uint32_t dims[3]`).
-#[derive(Debug, PartialEq)]
-struct CDecl {
-    name: String,
-    kind: String,
-    stars: usize,
-    len: usize,
-}
-
-fn c_decl(text: &str) -> CDecl {
-    let text = text.trim();
-    let (text, len) = match text.strip_suffix(']') {
-        Some(t) => {
-            let (t, n) = t.split_once('[').unwrap_or_else(|| panic!("C declaration '{text}'"));
-            (t, n.trim().parse().unwrap_or_else(|_| panic!("C array length in '{text}'")))
-        }
-        None => (text, 1),
-    };
-    let stars = text.matches('*').count();
-    let words: Vec<&str> = text.split(|c: char| c.is_whitespace() || c == '*').filter(|w| !w.is_empty() && *w != "const").collect();
-    let [base @ .., name] = words.as_slice() else { panic!("C declaration '{text}'") };
-    assert_eq!(base.len(), 1, "C declaration '{text}'");
-    CDecl { name: name.to_string(), kind: c_kind(base[0]), stars, len }
-}
-
-/// The header without comments and preprocessor lines, and its `#define`s.
-fn header() -> (String, BTreeMap<String, i64>) {
-    let mut text = String::new();
-    let mut rest = HEADER;
-    while let Some(at) = rest.find("/*") {
-        text.push_str(&rest[..at]);
-        rest = &rest[at + rest[at..].find("*/").expect("an open comment") + 2..];
-    }
-    text.push_str(rest);
-    let mut defines = BTreeMap::new();
-    let mut code = String::new();
-    for line in text.lines() {
-        let line = line.split("//").next().unwrap();
-        if let Some(d) = line.trim().strip_prefix("#define ") {
-            let mut it = d.split_whitespace();
-            if let (Some(name), Some(Ok(v))) = (it.next(), it.next().map(str::parse::<i64>)) {
-                defines.insert(name.to_string(), v);
-            }
-        } else if !line.trim_start().starts_with('#') {
-            code.push_str(line);
-            code.push('\n');
-        }
-    }
-    (code.replace("extern \"C\" {", ""), defines)
-}
-
-/// The header's structs (fields in order), enums' values, and functions
-/// (result, then arguments).
-#[allow(clippy::type_complexity)]
-fn c_api() -> (BTreeMap<String, Vec<CDecl>>, BTreeMap<String, i64>, BTreeMap<String, (CDecl, Vec<CDecl>)>) {
-    let (mut code, mut constants) = header();
-    let mut structs = BTreeMap::new();
-    // `typedef struct|enum { ... } name;`, taken out of the code.
-    while let Some(at) = code.find("typedef struct {").or_else(|| code.find("typedef enum {")) {
-        let open = at + code[at..].find('{').unwrap();
-        let close = open + code[open..].find('}').expect("a closed typedef");
-        let semi = close + code[close..].find(';').unwrap();
-        let name = code[close + 1..semi].trim().to_string();
-        let body = code[open + 1..close].to_string();
-        if code[at..open].contains("enum") {
-            for entry in body.split(',').map(str::trim).filter(|e| !e.is_empty()) {
-                let (k, v) = entry.split_once('=').unwrap_or_else(|| panic!("enum entry '{entry}' without its value"));
-                constants.insert(k.trim().to_string(), v.trim().parse().unwrap());
-            }
-        } else {
-            structs.insert(name, body.split(';').map(str::trim).filter(|f| !f.is_empty()).map(c_decl).collect());
-        }
-        code.replace_range(at..=semi, "");
-    }
-    let mut functions = BTreeMap::new();
-    for statement in code.split(';').map(|s| s.split_whitespace().collect::<Vec<_>>().join(" ")) {
-        let Some(open) = statement.find('(') else { continue };
-        if statement.starts_with("typedef") {
-            continue;
-        }
-        let result = c_decl(&statement[..open]);
-        let args = &statement[open + 1..statement.rfind(')').unwrap()];
-        let args = if args.trim() == "void" { vec![] } else { args.split(',').map(c_decl).collect() };
-        functions.insert(result.name.clone(), (result, args));
-    }
-    (structs, constants, functions)
 }
 
 /// Splits at commas outside parentheses.
@@ -276,7 +176,7 @@ fn same_argument(f: &FDecl, c: &CDecl) -> bool {
 
 #[test]
 fn the_fortran_types_are_the_c_structs() {
-    let (structs, _, _) = c_api();
+    let structs = c_header().structs;
     let (types, _, _) = fortran_api();
     assert_eq!(types.keys().collect::<Vec<_>>(), structs.keys().collect::<Vec<_>>(), "the bind(c) types and the header's structs");
     for (name, fields) in &types {
@@ -291,12 +191,12 @@ fn the_fortran_types_are_the_c_structs() {
 
 #[test]
 fn the_fortran_interfaces_are_the_c_prototypes() {
-    let (_, _, functions) = c_api();
+    let functions = c_header().functions;
     let (_, interfaces, _) = fortran_api();
     assert!(interfaces.len() >= 20, "the interfaces were not found: {:?}", interfaces.keys());
     for (name, (result, args)) in &interfaces {
-        let (c_result, c_args) = functions.get(name).unwrap_or_else(|| panic!("{name} is bound but not in the header"));
-        let c_result = if c_result.stars > 0 { "ptr".to_string() } else { c_result.kind.clone() };
+        let c = functions.get(name).unwrap_or_else(|| panic!("{name} is bound but not in the header"));
+        let (c_result, c_args) = (if c.result.stars > 0 { "ptr".to_string() } else { c.result.kind.clone() }, &c.args);
         assert_eq!(*result, c_result, "{name}: result");
         assert_eq!(args.len(), c_args.len(), "{name}: {args:?} against {c_args:?}");
         for (f, c) in args.iter().zip(c_args) {
@@ -311,7 +211,7 @@ fn the_fortran_interfaces_are_the_c_prototypes() {
 
 #[test]
 fn the_fortran_parameters_are_the_c_constants() {
-    let (_, constants, _) = c_api();
+    let constants = c_header().constants;
     let (_, _, parameters) = fortran_api();
     let constants: BTreeMap<&String, &i64> = constants.iter().filter(|(k, _)| !NOT_CONSTANTS.contains(&k.as_str())).collect();
     assert!(constants.len() > 40, "the header's constants were not found: {constants:?}");
@@ -322,17 +222,17 @@ fn the_fortran_parameters_are_the_c_constants() {
 /// module's text is found.
 #[test]
 fn a_changed_binding_is_found() {
-    let (structs, constants, functions) = c_api();
+    let CHeader { structs, constants, functions } = c_header();
     // gsenc_job's `error` (int32) bound as 64 bits.
     let fields = f_decls("integer(c_int64_t) :: state = 0, iteration = 0, iterations = 0, error = 0");
     assert_ne!(fields.iter().map(|f| f.kind.clone()).collect::<Vec<_>>(), structs["gsenc_job"][1..5].iter().map(|c| c.kind.clone()).collect::<Vec<_>>());
     // gsenc_push_grid's step by reference.
-    let (_, args) = &functions["gsenc_push_grid"];
+    let args = &functions["gsenc_push_grid"].args;
     assert!(same_argument(&f_decls("integer(c_int64_t), value :: step")[0], &args[2]));
     assert!(!same_argument(&f_decls("integer(c_int64_t), intent(in) :: step")[0], &args[2]));
     assert!(!same_argument(&f_decls("integer(c_int32_t), value :: step")[0], &args[2]));
     // An out handle by value, a string as a handle by reference.
-    let (_, args) = &functions["gsenc_model_read"];
+    let args = &functions["gsenc_model_read"].args;
     assert!(!same_argument(&f_decls("type(c_ptr), value :: out")[0], &args[1]));
     assert!(!same_argument(&f_decls("type(c_ptr), intent(in) :: path")[0], &args[0]));
     assert!(same_argument(&f_decls("character(kind=c_char), intent(in) :: path(*)")[0], &args[0]));

@@ -41,6 +41,8 @@ pub mod status;
 mod common;
 #[cfg(test)]
 mod fortran_binding_tests;
+#[cfg(test)]
+mod header_text;
 #[cfg(all(test, feature = "hdf5"))]
 mod hdf5_tests;
 #[cfg(test)]
@@ -180,6 +182,8 @@ mod tests {
         assert_eq!([GSENC_OUTPUT_FOLDER, GSENC_OUTPUT_HDF5], [0, 1]);
         assert_eq!([GSENC_BACKEND_AUTO, GSENC_BACKEND_CPU, GSENC_BACKEND_GPU], [0, 1, 2]);
         assert_eq!([GSENC_SUPPORT_STORED, GSENC_SUPPORT_NONE], [0, 1]);
+        assert_eq!([GSENC_PREVIEW_NONE, GSENC_PREVIEW_SLICE, GSENC_PREVIEW_VOLUME], [0, 1, 2]);
+        assert_eq!([GSENC_PRIORITY_NORMAL, GSENC_PRIORITY_LOW, GSENC_PRIORITY_IDLE], [0, 1, 2]);
         assert_eq!(size_of::<gsenc_job>(), 32);
         assert_eq!(
             [offset_of!(gsenc_job, state), offset_of!(gsenc_job, iteration), offset_of!(gsenc_job, iterations), offset_of!(gsenc_job, error), offset_of!(gsenc_job, psnr)],
@@ -189,6 +193,48 @@ mod tests {
             [GSENC_JOB_QUEUED, GSENC_JOB_RUNNING, GSENC_JOB_DONE, GSENC_JOB_FAILED, GSENC_JOB_SKIPPED, GSENC_JOB_CANCELLED],
             [0, 1, 2, 3, 4, 5]
         );
+    }
+
+    /// Every prototype of the header, frozen as the layouts and values
+    /// above are: a function may be added (with its line here), never
+    /// changed or removed. The header is read as text (`header_text.rs`).
+    #[test]
+    fn prototypes_are_pinned() {
+        const PINNED: [&str; 28] = [
+            "gsenc_status gsenc_config_init(gsenc_config *config)",
+            "gsenc_status gsenc_encoder_cancel(gsenc_encoder *encoder)",
+            "gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **out)",
+            "gsenc_status gsenc_encoder_create_mpi(const gsenc_config *config, int32_t comm, gsenc_encoder **out)",
+            "void gsenc_encoder_destroy(gsenc_encoder *encoder)",
+            "gsenc_status gsenc_encoder_last_step(gsenc_encoder *encoder, const char *field, uint64_t *step, double *psnr)",
+            "gsenc_status gsenc_encoder_model_bytes(gsenc_encoder *encoder, const char *field, uint8_t *buffer, size_t capacity, size_t *size)",
+            "gsenc_status gsenc_encoder_reserve(gsenc_encoder *encoder, uint64_t values)",
+            "gsenc_status gsenc_encoder_resume(gsenc_encoder *encoder, const gsenc_model *model)",
+            "gsenc_status gsenc_encoder_resume_stored(gsenc_encoder *encoder, const char *field, uint64_t step)",
+            "gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field, const char *path)",
+            "size_t gsenc_last_error(char *buf, size_t len)",
+            "gsenc_status gsenc_model_decode(const gsenc_model *model, const uint64_t *dims, float *out, uint64_t out_len)",
+            "void gsenc_model_destroy(gsenc_model *model)",
+            "gsenc_status gsenc_model_evaluate(const gsenc_model *model, const double *points, uint64_t count, float *out)",
+            "gsenc_status gsenc_model_field(const gsenc_model *model, char *buf, size_t len, size_t *length)",
+            "gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *info)",
+            "gsenc_status gsenc_model_read(const char *path, gsenc_model **out)",
+            "gsenc_status gsenc_model_read_buffer(const uint8_t *data, size_t size, gsenc_model **out)",
+            "gsenc_status gsenc_poll(gsenc_encoder *encoder, const char *field, uint64_t step, gsenc_job *job)",
+            "gsenc_status gsenc_push_cells(gsenc_encoder *encoder, const char *field, uint64_t step, double time, const gsenc_cells *cells)",
+            "gsenc_status gsenc_push_grid(gsenc_encoder *encoder, const char *field, uint64_t step, double time, const gsenc_grid *grid)",
+            "gsenc_status gsenc_push_particles(gsenc_encoder *encoder, const char *field, uint64_t step, double time, const gsenc_particles *particles)",
+            "void gsenc_set_last_error(const char *message)",
+            "const char *gsenc_status_string(int32_t status)",
+            "uint32_t gsenc_version(void)",
+            "const char *gsenc_version_string(void)",
+            "gsenc_status gsenc_wait(gsenc_encoder *encoder, const char *field)",
+        ];
+        let header: std::collections::BTreeSet<String> = crate::header_text::c_header().functions.into_values().map(|f| f.text).collect();
+        let changed: Vec<&str> = PINNED.iter().copied().filter(|p| !header.contains(*p)).collect();
+        assert!(changed.is_empty(), "pinned prototypes changed or removed: {changed:#?}");
+        let added: Vec<&String> = header.iter().filter(|h| !PINNED.contains(&h.as_str())).collect();
+        assert!(added.is_empty(), "prototypes not pinned yet (pin them here): {added:#?}");
     }
 
     /// A panic inside an entry point becomes GSENC_STATUS_INTERNAL with a
