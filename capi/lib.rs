@@ -256,5 +256,9 @@ mod tests {
         assert_eq!(super::gsenc_version(), v[0] * 10000 + v[1] * 100 + v[2]);
         let s = unsafe { std::ffi::CStr::from_ptr(super::gsenc_version_string()) };
         assert_eq!(s.to_str().unwrap(), env!("CARGO_PKG_VERSION"));
+        // The header's macros, as a C caller compiles them.
+        let c = crate::header_text::c_header().constants;
+        let macros = ["GSENC_VERSION_MAJOR", "GSENC_VERSION_MINOR", "GSENC_VERSION_PATCH"].map(|m| c[m]);
+        assert_eq!(macros.to_vec(), v.iter().map(|&x| i64::from(x)).collect::<Vec<_>>());
     }
 }
