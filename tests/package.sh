@@ -35,6 +35,22 @@ done
 check "cmp -s include/gsenc.h '$prefix/include/gsenc.h'" "the installed header is the checked-in one"
 check "objdump -p '$prefix/lib/libgsenc.so' | grep 'SONAME *libgsenc.so.0' > /dev/null" "the shared library's SONAME"
 
+# The system libraries the static library's users link (gsenc::gsenc_static's
+# link interface, gsenc.pc's Libs.private) name every one that rustc says it
+# needs (libc aside): a list short of one links where that library's symbols
+# happen to be in libc (glibc >= 2.34: dl, rt, util, pthread) or the link
+# driver adds it (gcc: gcc_s), and fails elsewhere.
+rustc_libs=$(cargo rustc --release --locked -q -p gsenc-capi --lib --crate-type staticlib -- --print native-static-libs 2>&1 \
+    | sed -n 's/.*native-static-libs: //p' | tr ' ' '\n' | sed -n 's/^-l//p' | grep -vx c | sort -u | tr '\n' ' ')
+check "[ -n '$rustc_libs' ]" "rustc lists the static library's system libraries"
+cmake_libs=$(sed -n 's/.*INTERFACE_LINK_LIBRARIES "\(.*\)")/\1/p' "$prefix/lib/cmake/gsenc/gsencConfig.cmake" | tr ';' ' ')
+pc_libs=$(PKG_CONFIG_PATH="$prefix/lib/pkgconfig" pkg-config --libs-only-l --static gsenc | sed 's/-l//g')
+names() { case " $1 " in *" $2 "*) return 0 ;; esac; return 1; }
+for lib in $rustc_libs; do
+    check "names '$cmake_libs' $lib" "gsenc::gsenc_static links $lib (rustc: $rustc_libs; the package: $cmake_libs)"
+    check "names '$pc_libs' $lib" "gsenc.pc's Libs.private names $lib (it has: $pc_libs)"
+done
+
 # Version checking: this release satisfies 0.1, not 0.2 or 1.0.
 for want in 0.1:found 0.2:missing 1.0:missing; do
     v=${want%%:*}
