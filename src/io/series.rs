@@ -87,6 +87,8 @@ pub fn write_decoded_series(
     if !(opts.scale.is_finite() && opts.scale > 0.0) {
         return Err(Error::arg(format!("scale must be positive, got {}", opts.scale)));
     }
+    // HDF5 prints no error stack while the series is written (as for the store's calls).
+    let _quiet = super::store::host_errors::quiet();
     let entries = store.entries()?;
     let mut fields: Vec<&str> = entries.iter().map(|e| e.key.field.as_str()).collect();
     fields.dedup();

@@ -26,6 +26,7 @@
 //! earlier step.
 
 mod entry;
+pub(crate) mod host_errors;
 
 pub use entry::PARAMETER_NAMES;
 use entry::{entry_crc, read_all, read_info, read_params, read_support, scalar_attr, scalar_str_attr, utf8, write_entry, CRC};
@@ -41,6 +42,8 @@ use hdf5::plist::file_access::{CacheDecreaseMode, CacheIncreaseMode, FlashIncrea
 use hdf5::plist::file_create::FileSpaceStrategy;
 use hdf5::types::VarLenUnicode;
 use hdf5::{File, Group, Location};
+use host_errors::quiet;
+use std::mem::ManuallyDrop;
 use std::path::{Path, PathBuf};
 
 /// What [`Store::verify`] found sound.
@@ -103,9 +106,20 @@ pub struct EntryInfo {
 /// An open store. Opened for append, it holds HDF5's lock on the file: other
 /// processes can read it once the writer has dropped it (or with HDF5's file
 /// locking turned off, `HDF5_USE_FILE_LOCKING=FALSE`, as of the last append).
+/// Every call that reaches HDF5 holds a [`host_errors::Quiet`], closing
+/// the file included: HDF5 prints no error stack while the store works, and
+/// prints as the host set it otherwise.
 pub struct Store {
-    file: File,
+    file: ManuallyDrop<File>,
     path: PathBuf,
+}
+
+impl Drop for Store {
+    fn drop(&mut self) {
+        let _quiet = quiet();
+        // SAFETY: dropped once, here; not used after.
+        unsafe { ManuallyDrop::drop(&mut self.file) }
+    }
 }
 
 fn h5(path: &Path) -> impl Fn(hdf5::Error) -> Error + '_ {
@@ -115,6 +129,7 @@ fn h5(path: &Path) -> impl Fn(hdf5::Error) -> Error + '_ {
 impl Store {
     /// Opens a store to append to, creating it when `path` does not exist.
     pub fn open_append(path: impl AsRef<Path>) -> Result<Store> {
+        let _quiet = quiet();
         let path = path.as_ref().to_path_buf();
         if !path.exists() {
             create_empty(&path)?;
@@ -126,11 +141,12 @@ impl Store {
             .open_rw(&path)
             .map_err(h5(&path))?;
         check_root(&file, &path)?;
-        Ok(Store { file, path })
+        Ok(Store { file: ManuallyDrop::new(file), path })
     }
 
     /// Opens an existing store for reading.
     pub fn open_read(path: impl AsRef<Path>) -> Result<Store> {
+        let _quiet = quiet();
         let path = path.as_ref().to_path_buf();
         if !path.exists() {
             return Err(Error::io(&path, std::io::Error::from(std::io::ErrorKind::NotFound)));
@@ -142,7 +158,7 @@ impl Store {
         super::global_heap::check(&path)?;
         let file = File::open(&path).map_err(h5(&path))?;
         check_root(&file, &path)?;
-        Ok(Store { file, path })
+        Ok(Store { file: ManuallyDrop::new(file), path })
     }
 
     pub fn path(&self) -> &Path {
@@ -153,6 +169,7 @@ impl Store {
     /// now: about [`CACHE_BYTES`] at most between appends, whatever the
     /// number of entries written (`tests/store.rs`).
     pub fn cache_size(&self) -> (usize, usize) {
+        let _quiet = quiet();
         let (mut max, mut min_clean, mut cur, mut n) = (0, 0, 0, 0);
         // SAFETY: an open file's id and four writable counters.
         hdf5::sync::sync(|| unsafe { hdf5_sys::h5f::H5Fget_mdc_size(self.file.id(), &mut max, &mut min_clean, &mut cur, &mut n) });
@@ -169,6 +186,7 @@ impl Store {
     /// commits it, and a second flush writes that link (see the module
     /// documentation).
     pub fn append(&mut self, model: &Model, payload: Payload) -> Result<()> {
+        let _quiet = quiet();
         let key = EntryKey::of(&model.meta);
         check_field_name(&key.field)?;
         // Coded once, refusing unstorable parameters before the file is touched.
@@ -197,6 +215,7 @@ impl Store {
     /// it. Refuses a step that has an index, as [`Store::append`] refuses
     /// an entry that exists.
     pub fn append_step_index(&mut self, index: &StepIndex) -> Result<()> {
+        let _quiet = quiet();
         check_field_name(&index.field)?;
         let mut stored = index.clone();
         for p in &mut stored.pieces {
@@ -304,7 +323,7 @@ impl Store {
                     None => {
                         let new_field = anonymous_group(&self.file, STEPS_PER_FIELD).map_err(&err)?;
                         link(&new_step, &new_field, &step_name).map_err(&err)?;
-                        ((*self.file).clone(), field.to_string(), (*new_field).clone())
+                        ((**self.file).clone(), field.to_string(), (*new_field).clone())
                     }
                 }
             }
@@ -320,6 +339,7 @@ impl Store {
     /// read is listed with its error (a step whose whole group is unreadable,
     /// as its rank 0); the others are unaffected.
     pub fn entries(&self) -> Result<Vec<Entry>> {
+        let _quiet = quiet();
         let err = h5(&self.path);
         // One share of the memory for the whole listing: asking it costs
         // tens of microseconds, and a store may hold thousands of entries.
@@ -354,6 +374,7 @@ impl Store {
 
     /// Reads one model and the payload it was stored with.
     pub fn read(&self, key: &EntryKey) -> Result<(Model, Payload)> {
+        let _quiet = quiet();
         let g = self.entry_group(key)?;
         let budget = super::budget::whole_read_budget(1)?;
         let info = read_info(&g, key, &self.path, budget)?;
@@ -377,6 +398,7 @@ impl Store {
 
     /// The step index of `/<field>/<step>`, where the step has one (1.3).
     pub fn step_index(&self, field: &str, step: u64) -> Result<Option<StepIndex>> {
+        let _quiet = quiet();
         let Some(sg) = self.groups(field, step)?.1 else { return Ok(None) };
         if !sg.link_exists(INDEX) {
             return Ok(None);
@@ -397,6 +419,7 @@ impl Store {
     /// order, each checked to be the piece the index names (as a `.gsi`
     /// and its model files are read).
     pub fn read_step(&self, field: &str, step: u64) -> Result<(StepIndex, Vec<Model>)> {
+        let _quiet = quiet();
         let index = self
             .step_index(field, step)?
             .ok_or_else(|| Error::arg(format!("{} holds no step index of /{field}/{step} (a step of one rank's model, or its index was not added)", self.path.display())))?;
@@ -409,6 +432,7 @@ impl Store {
     /// indexes last) what held or why it failed: an archive's check
     /// (`gsenc store verify`). Fails only when the store cannot be listed.
     pub fn verify(&self) -> Result<Vec<(String, Result<Verified>)>> {
+        let _quiet = quiet();
         let entries = self.entries()?;
         let mut steps: Vec<(String, u64)> = entries.iter().map(|e| (e.key.field.clone(), e.key.step)).collect();
         steps.dedup();
@@ -436,6 +460,7 @@ impl Store {
     /// rank's model with its payload, in rank order, each checked to be the
     /// piece the index names.
     pub fn pieces_of(&self, index: &StepIndex) -> Result<Vec<(Model, Payload)>> {
+        let _quiet = quiet();
         let (field, step) = (&index.field, index.step);
         let sg = self.groups(field, step)?.1;
         let mut pieces = Vec::with_capacity(index.pieces.len());
