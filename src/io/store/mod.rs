@@ -106,9 +106,9 @@ pub struct EntryInfo {
 /// An open store. Opened for append, it holds HDF5's lock on the file: other
 /// processes can read it once the writer has dropped it (or with HDF5's file
 /// locking turned off, `HDF5_USE_FILE_LOCKING=FALSE`, as of the last append).
-/// Every call that reaches HDF5 holds a [`host_errors::Quiet`], closing
-/// the file included: HDF5 prints no error stack while the store works, and
-/// prints as the host set it otherwise.
+/// Every call that reaches HDF5, closing the file included, turns HDF5's
+/// error printing off while it runs and sets it back as the host had it
+/// (`host_errors.rs`).
 pub struct Store {
     file: ManuallyDrop<File>,
     path: PathBuf,
