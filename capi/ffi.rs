@@ -24,6 +24,14 @@ impl DType {
         }
     }
 
+    /// Bytes of an element.
+    pub(crate) fn size(self) -> usize {
+        match self {
+            DType::F32 => 4,
+            DType::F64 => 8,
+        }
+    }
+
     /// Element `at` of an array of this type.
     ///
     /// # Safety
@@ -92,24 +100,42 @@ pub(crate) unsafe fn read_sized<T: Copy>(p: *const T, what: &str) -> Result<T, F
     }
 }
 
-/// `n` tuples of three from a caller's array (strides in elements, 0 = default).
+/// Refuses strides that no array can have: the element that `reaches`
+/// (counts, each with its stride in elements) name farthest from the start
+/// must lie within `isize::MAX` bytes of it, as every array's elements do.
+/// A field left unset (garbage) or a count and stride whose product
+/// overflows would otherwise have the copy read at a wrapped address.
+pub(crate) fn check_reach(what: &str, dtype: DType, reaches: &[(usize, i64)]) -> Result<(), Failure> {
+    let far: i128 = reaches.iter().map(|&(n, s)| n.saturating_sub(1) as i128 * i128::from(s).abs()).sum();
+    if far.saturating_mul(dtype.size() as i128) <= isize::MAX as i128 {
+        return Ok(());
+    }
+    let strides: Vec<i64> = reaches.iter().map(|r| r.1).collect();
+    fail(gsenc_status::InvalidArgument, format!("{what}: strides {strides:?} reach element {far} from the start, past the end of any array (a stride left unset?)"))
+}
+
+/// `n` tuples of three from a caller's array `what` (strides in elements,
+/// 0 = default), refusing strides no array can have ([`check_reach`]).
 ///
 /// # Safety
 /// `ptr` holds every element the count and strides name.
-pub(crate) unsafe fn read_tuples(dtype: DType, ptr: *const c_void, n: usize, stride: i64, component: i64) -> Vec<[f64; 3]> {
+pub(crate) unsafe fn read_tuples(what: &str, dtype: DType, ptr: *const c_void, n: usize, stride: i64, component: i64) -> Result<Vec<[f64; 3]>, Failure> {
     let (ts, cs) = (if stride == 0 { 3 } else { stride }, if component == 0 { 1 } else { component });
-    // SAFETY: per the contract.
-    (0..n as i64).map(|i| std::array::from_fn(|c| unsafe { dtype.read(ptr, (i * ts + c as i64 * cs) as isize) })).collect()
+    check_reach(what, dtype, &[(n, ts), (3, cs)])?;
+    // SAFETY: per the contract; every offset fits (checked just above).
+    Ok((0..n as i64).map(|i| std::array::from_fn(|c| unsafe { dtype.read(ptr, (i * ts + c as i64 * cs) as isize) })).collect())
 }
 
-/// `n` scalars from a caller's array (stride in elements, 0 = 1).
+/// `n` scalars from a caller's array `what` (stride in elements, 0 = 1),
+/// refusing a stride no array can have ([`check_reach`]).
 ///
 /// # Safety
 /// `ptr` holds every element the count and stride name.
-pub(crate) unsafe fn read_scalars(dtype: DType, ptr: *const c_void, n: usize, stride: i64) -> Vec<f64> {
+pub(crate) unsafe fn read_scalars(what: &str, dtype: DType, ptr: *const c_void, n: usize, stride: i64) -> Result<Vec<f64>, Failure> {
     let s = if stride == 0 { 1 } else { stride };
-    // SAFETY: per the contract.
-    (0..n as i64).map(|i| unsafe { dtype.read(ptr, (i * s) as isize) }).collect()
+    check_reach(what, dtype, &[(n, s)])?;
+    // SAFETY: per the contract; every offset fits (checked just above).
+    Ok((0..n as i64).map(|i| unsafe { dtype.read(ptr, (i * s) as isize) }).collect())
 }
 
 /// The values of a strided grid, x fastest, as float32, into `values`
@@ -168,6 +194,22 @@ pub(crate) fn time_of(time: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The farthest element may lie `isize::MAX` bytes from the start, no
+    /// further, counted over every axis, negative strides by their size.
+    #[test]
+    fn strides_reach_no_further_than_an_array_can() {
+        let most = isize::MAX as i64;
+        assert!(check_reach("a", DType::F32, &[(2, most / 4)]).is_ok());
+        assert!(check_reach("a", DType::F32, &[(2, most / 4 + 1)]).is_err());
+        assert!(check_reach("a", DType::F64, &[(2, most / 8 + 1)]).is_err());
+        assert!(check_reach("a", DType::F64, &[(2, most / 8)]).is_ok());
+        assert!(check_reach("a", DType::F64, &[(2, most / 8), (2, 1)]).is_err(), "axes add up");
+        assert!(check_reach("a", DType::F64, &[(2, -(most / 8 + 1))]).is_err(), "a negative stride counts by its size");
+        assert!(check_reach("a", DType::F64, &[(1, i64::MIN), (1, i64::MAX)]).is_ok(), "one element reaches nothing");
+        let e = check_reach("gsenc_push_cells: edges", DType::F32, &[(1 << 20, 1 << 50), (3, 1)]).unwrap_err();
+        assert!(e.1.contains("gsenc_push_cells: edges") && e.1.contains("past the end"), "{}", e.1);
+    }
 
     /// The copy's finite flag against a check of the whole copy: grids of
     /// float32 and float64 with unit stride and with a strided x (the three

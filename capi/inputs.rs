@@ -4,7 +4,7 @@
 //! into the encoder's queue.
 
 use crate::encoder::{gsenc_encoder, with_encoder, Copied};
-use crate::ffi::{c_str, copy_grid, extents, item_count, read_scalars, read_sized, read_tuples, DType};
+use crate::ffi::{c_str, check_reach, copy_grid, extents, item_count, read_scalars, read_sized, read_tuples, DType};
 use crate::status::{fail, gsenc_status, guard, Failure};
 use gsenc::domain::halo::Kind as DataKind;
 use gsenc::field::{Grid, IndexFrame};
@@ -207,6 +207,7 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Copi
     if strides.iter().any(|&s| s <= 0) {
         return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
     }
+    check_reach("gsenc_push_grid: data", dtype, &[(dims[0], strides[0]), (dims[1], strides[1]), (dims[2], strides[2])])?;
     let voxels = dims.iter().product::<usize>();
     // A recycled buffer takes no memory; a new one must fit (asking the
     // system takes 0.2 ms, which the usual push, into a recycled buffer,
@@ -268,13 +269,13 @@ unsafe fn particle_data(enc: &gsenc_encoder, particles: *const gsenc_particles) 
     }
     // SAFETY (every read below): the caller's arrays hold every element
     // that `count` and the strides name.
-    let positions = unsafe { read_tuples(dtype, p.positions, n, p.position_stride, p.position_component_stride) };
-    let smoothing_length = unsafe { read_scalars(dtype, p.smoothing_length, n, p.smoothing_length_stride) };
-    let values = unsafe { read_scalars(dtype, p.values, n, p.value_stride) }.into_iter().map(|v| v as f32).collect();
+    let positions = unsafe { read_tuples("gsenc_push_particles: positions", dtype, p.positions, n, p.position_stride, p.position_component_stride) }?;
+    let smoothing_length = unsafe { read_scalars("gsenc_push_particles: smoothing_length", dtype, p.smoothing_length, n, p.smoothing_length_stride) }?;
+    let values = unsafe { read_scalars("gsenc_push_particles: values", dtype, p.values, n, p.value_stride) }?.into_iter().map(|v| v as f32).collect();
     let mass = if p.mass.is_null() {
         vec![1.0; n]
     } else {
-        unsafe { read_scalars(dtype, p.mass, n, p.mass_stride) }.into_iter().map(|v| v as f32).collect()
+        unsafe { read_scalars("gsenc_push_particles: mass", dtype, p.mass, n, p.mass_stride) }?.into_iter().map(|v| v as f32).collect()
     };
     let placement = enc.placement();
     Ok(StepData::Particles { positions, smoothing_length, mass, values, placement })
@@ -327,14 +328,14 @@ unsafe fn cell_data(enc: &gsenc_encoder, c: &gsenc_cells) -> Result<StepData, Fa
     }
     // SAFETY (every read below): the caller's arrays hold every element
     // that the counts and strides name.
-    let values: Vec<f32> = unsafe { read_scalars(dtype, c.values, n, c.value_stride) }.into_iter().map(|v| v as f32).collect();
+    let values: Vec<f32> = unsafe { read_scalars("gsenc_push_cells: values", dtype, c.values, n, c.value_stride) }?.into_iter().map(|v| v as f32).collect();
     let data = match c.layout {
         GSENC_CELLS_BOXES => {
             if c.centres.is_null() || c.edges.is_null() {
                 return fail(gsenc_status::NullPointer, "gsenc_push_cells: centres or edges is NULL");
             }
-            let centres = unsafe { read_tuples(dtype, c.centres, n, c.centre_stride, c.centre_component_stride) };
-            let edges = unsafe { read_tuples(dtype, c.edges, n, c.edge_stride, c.edge_component_stride) };
+            let centres = unsafe { read_tuples("gsenc_push_cells: centres", dtype, c.centres, n, c.centre_stride, c.centre_component_stride) }?;
+            let edges = unsafe { read_tuples("gsenc_push_cells: edges", dtype, c.edges, n, c.edge_stride, c.edge_component_stride) }?;
             StepData::Cells { centres, edges, volumes: Vec::new(), values, placement: enc.placement() }
         }
         GSENC_CELLS_HEXAHEDRA => {
@@ -343,7 +344,7 @@ unsafe fn cell_data(enc: &gsenc_encoder, c: &gsenc_cells) -> Result<StepData, Fa
             }
             let np = item_count(c.point_count, "point")?;
             gsenc::memory::check_fits("gsenc_push_cells: the mesh points' copy", 24 * np as u64)?;
-            let points = unsafe { read_tuples(dtype, c.points, np, c.point_stride, c.point_component_stride) };
+            let points = unsafe { read_tuples("gsenc_push_cells: points", dtype, c.points, np, c.point_stride, c.point_component_stride) }?;
             // SAFETY: 8 indices per cell.
             let conn = unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) };
             if let Some(i) = conn.iter().position(|&k| k < 0 || k as u64 >= np as u64) {

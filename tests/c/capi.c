@@ -439,6 +439,16 @@ int main(void) {
     parts.dtype = 5;
     EXPECT(gsenc_push_particles(enc, "tracer", 1, NAN, &parts), GSENC_STATUS_INVALID_ARGUMENT);
     parts.dtype = GSENC_DTYPE_FLOAT32;
+    /* Strides no array can have (a field left unset): refused by name, never
+     * read at a wrapped address. */
+    parts.smoothing_length_stride = (int64_t)1 << 61;
+    EXPECT(gsenc_push_particles(enc, "tracer", 1, NAN, &parts), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "smoothing_length") != NULL && strstr(last_error(), "past the end of any array") != NULL, "a wild stride: %s", last_error());
+    parts.smoothing_length_stride = 0;
+    parts.position_component_stride = INT64_MIN + 1;
+    EXPECT(gsenc_push_particles(enc, "tracer", 1, NAN, &parts), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "positions") != NULL, "a wild component stride: %s", last_error());
+    parts.position_component_stride = NP;
     EXPECT(gsenc_push_grid(enc, NULL, 2, 0.0, &grid), GSENC_STATUS_NULL_POINTER);
     EXPECT(gsenc_push_grid(enc, "a/b", 2, 0.0, &grid), GSENC_STATUS_INVALID_ARGUMENT);
     EXPECT(gsenc_push_grid(NULL, "rho", 2, 0.0, &grid), GSENC_STATUS_NULL_POINTER);
@@ -461,6 +471,9 @@ int main(void) {
     CHECK(strstr(last_error(), "strides") != NULL, "a zero stride: %s", last_error());
     g2.strides[1] = -(NX + 2 * G);
     EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    g2.strides[1] = (int64_t)1 << 60; /* positive, but past any array */
+    EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    CHECK(strstr(last_error(), "past the end of any array") != NULL, "a wild grid stride: %s", last_error());
     /* A step on another lattice: it fails in the background, reported once
      * by wait (naming field and step) and by poll; the series goes on. */
     g2 = grid;
