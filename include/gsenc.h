@@ -496,7 +496,9 @@ typedef struct {
  element `i * strides[0] + j * strides[1] + k * strides[2]` of `data`.
  Strides are in elements; all zero means contiguous with i fastest
  (C `[nz][ny][nx]`, Fortran `(nx, ny, nz)`). Strides larger than the
- extents skip ghost layers without a copy.
+ extents skip ghost layers without a copy. Strides must be positive, and
+ reach no element more than `PTRDIFF_MAX` bytes from the start
+ (`GSENC_STATUS_INVALID_ARGUMENT` otherwise).
  */
 typedef struct {
   /*
@@ -527,7 +529,9 @@ typedef struct {
  of `positions` (defaults 3 and 1: interleaved xyz; give 1 and `count` for
  separate x, y, z arrays); a scalar array's element `p` is
  `p * stride` (default 1, or the tuple size to pick one component of a
- vector field). Strides are in elements; 0 selects the default.
+ vector field). Strides are in elements; 0 selects the default. A
+ stride that reaches past what any array can hold (an element more than
+ `PTRDIFF_MAX` bytes from the start) is `GSENC_STATUS_INVALID_ARGUMENT`.
  */
 typedef struct {
   /*
@@ -569,7 +573,8 @@ typedef struct {
    order (0-1-2-3 one face, 4-5-6-7 the opposite, `i + 4` above `i`);
    gsenc computes each cell's centre and volume.
 
- Tuple strides default to 3 and component strides to 1 (0 selects them).
+ Tuple strides default to 3 and component strides to 1 (0 selects them);
+ strides are checked as `gsenc_particles`' are.
  */
 typedef struct {
   /*
