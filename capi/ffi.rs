@@ -9,7 +9,7 @@ use std::os::raw::{c_char, c_void};
 pub const GSENC_DTYPE_FLOAT32: i32 = 0;
 pub const GSENC_DTYPE_FLOAT64: i32 = 1;
 
-#[derive(Clone, Copy)]
+#[derive(Clone, Copy, Debug)]
 pub(crate) enum DType {
     F32,
     F64,
@@ -194,6 +194,49 @@ pub(crate) fn time_of(time: f64) -> Option<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Negative strides walk their axes backwards from the first element:
+    /// the copy of a view reversed along every axis, and along y alone, is
+    /// the values gathered by hand, for both types and both copy paths
+    /// (unit x stride and not).
+    #[test]
+    fn negative_strides_copy_reversed_views() {
+        let dims = [4usize, 3, 2];
+        let n: usize = dims.iter().product();
+        let src: Vec<f64> = (0..n).map(|i| i as f64 * 0.5 - 1.0).collect();
+        let f32s: Vec<f32> = src.iter().map(|&x| x as f32).collect();
+        let at = |i: usize, j: usize, k: usize| i + dims[0] * (j + dims[1] * k);
+        // (flip x, flip y, flip z)
+        for flip in [[true, true, true], [false, true, false], [true, false, false]] {
+            let mut strides = [1i64, dims[0] as i64, (dims[0] * dims[1]) as i64];
+            let mut first = 0usize;
+            for a in 0..3 {
+                if flip[a] {
+                    first += (dims[a] - 1) * strides[a] as usize;
+                    strides[a] = -strides[a];
+                }
+            }
+            let want: Vec<f32> = (0..n)
+                .map(|v| {
+                    let (i, j, k) = (v % dims[0], v / dims[0] % dims[1], v / (dims[0] * dims[1]));
+                    let r = |c: usize, a: usize| if flip[a] { dims[a] - 1 - c } else { c };
+                    f32s[at(r(i, 0), r(j, 1), r(k, 2))]
+                })
+                .collect();
+            for dtype in [DType::F32, DType::F64] {
+                let ptr: *const c_void = match dtype {
+                    // SAFETY: `first` is an element of each array.
+                    DType::F32 => unsafe { f32s.as_ptr().add(first) }.cast(),
+                    DType::F64 => unsafe { src.as_ptr().add(first) }.cast(),
+                };
+                assert!(check_reach("a", dtype, &[(dims[0], strides[0]), (dims[1], strides[1]), (dims[2], strides[2])]).is_ok());
+                // SAFETY: every element the dims and strides name is in the array.
+                let (out, finite) = unsafe { copy_grid(dtype, ptr, dims, strides, Vec::new()) };
+                assert!(finite);
+                assert_eq!(out, want, "{dtype:?} flipped {flip:?}");
+            }
+        }
+    }
 
     /// The farthest element may lie `isize::MAX` bytes from the start, no
     /// further, counted over every axis, negative strides by their size.

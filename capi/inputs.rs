@@ -57,9 +57,11 @@ pub struct gsenc_cells {
 /// element `i * strides[0] + j * strides[1] + k * strides[2]` of `data`.
 /// Strides are in elements; all zero means contiguous with i fastest
 /// (C `[nz][ny][nx]`, Fortran `(nx, ny, nz)`). Strides larger than the
-/// extents skip ghost layers without a copy. Strides must be positive, and
-/// reach no element more than `PTRDIFF_MAX` bytes from the start
-/// (`GSENC_STATUS_INVALID_ARGUMENT` otherwise).
+/// extents skip ghost layers without a copy; a negative stride walks its
+/// axis backwards from `data` (a reversed view, `data` at value
+/// `(0, 0, 0)`). A zero stride among non-zero ones, or strides that reach
+/// an element more than `PTRDIFF_MAX` bytes from `data`, are
+/// `GSENC_STATUS_INVALID_ARGUMENT`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
 #[allow(non_camel_case_types)]
@@ -209,8 +211,9 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Copi
     } else {
         g.strides
     };
-    if strides.iter().any(|&s| s <= 0) {
-        return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be positive (or all zero)", g.strides));
+    // Negative strides walk an axis backwards from `data` (a reversed view).
+    if strides.contains(&0) {
+        return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be non-zero (or all zero: contiguous)", g.strides));
     }
     check_reach("gsenc_push_grid: data", dtype, &[(dims[0], strides[0]), (dims[1], strides[1]), (dims[2], strides[2])])?;
     let voxels = dims.iter().product::<usize>();

@@ -496,9 +496,11 @@ typedef struct {
  element `i * strides[0] + j * strides[1] + k * strides[2]` of `data`.
  Strides are in elements; all zero means contiguous with i fastest
  (C `[nz][ny][nx]`, Fortran `(nx, ny, nz)`). Strides larger than the
- extents skip ghost layers without a copy. Strides must be positive, and
- reach no element more than `PTRDIFF_MAX` bytes from the start
- (`GSENC_STATUS_INVALID_ARGUMENT` otherwise).
+ extents skip ghost layers without a copy; a negative stride walks its
+ axis backwards from `data` (a reversed view, `data` at value
+ `(0, 0, 0)`). A zero stride among non-zero ones, or strides that reach
+ an element more than `PTRDIFF_MAX` bytes from `data`, are
+ `GSENC_STATUS_INVALID_ARGUMENT`.
  */
 typedef struct {
   /*

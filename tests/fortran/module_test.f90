@@ -109,6 +109,12 @@ program module_test
     call check(last == 0 .and. psnr > 25, 'the strided grid encodes its own cells (PSNR above 25 dB)')
     call expect(gsenc_encoder_last_step(enc, 'tracers', last, psnr), GSENC_STATUS_OK, 'last step of particles')
     call check(psnr > 20, 'the particles encode')
+    ! A section reversed along x and y: negative memory strides, taken as they are.
+    call expect(gsenc_push_grid(enc, 'grid_reversed', 0_int64, wide(2 * n - 1:1:-2, n:1:-1, :), [0d0, 0d0, 0d0], 1d0 / n), &
+        GSENC_STATUS_OK, 'push a reversed real32 section')
+    call expect(gsenc_wait(enc, 'grid_reversed'), GSENC_STATUS_OK, 'wait for the reversed section')
+    call expect(gsenc_encoder_last_step(enc, 'grid_reversed', last, psnr), GSENC_STATUS_OK, 'last step of the reversed section')
+    call check(last == 0 .and. psnr > 25, 'the reversed section encodes its own cells')
 
     ! Error paths, each with its status and a message.
     call expect(gsenc_push_particles(enc, 'tracers', 1_int64, records(1:3, :), h(1:10), records(4, :)), &
