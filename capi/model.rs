@@ -209,8 +209,11 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 /// reference dims) into `out`, which holds `out_len` floats, x fastest,
 /// in data units; with its support, where it stores one (its outside where
 /// the data were empty). The caller owns `out`. Runs on a hardware GPU when
-/// there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses).
-/// Thread-safe, also on one model.
+/// there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses), there
+/// on a pool of one thread per CPU the process may use, started by the
+/// first decode or evaluation (rayon's global pool; `RAYON_NUM_THREADS`
+/// sets its size; the encoders never use it). Thread-safe, also on one
+/// model.
 ///
 /// # Safety
 /// `model` may be any value (only a live model handle is used); `dims`
@@ -255,8 +258,8 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
 /// bits whatever other points the call holds, in whatever order, and on
 /// any thread count. On the CPU: a few points do not pay for opening a
 /// GPU. Runs in runs of 65,536 points, so that it holds about a megabyte
-/// besides the caller's arrays however many points there are. Thread-safe,
-/// also on one model.
+/// besides the caller's arrays however many points there are, on the pool
+/// `gsenc_model_decode` runs on. Thread-safe, also on one model.
 ///
 /// # Safety
 /// `model` may be any value (only a live model handle is used); `points`

@@ -1007,8 +1007,11 @@ gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *in
  reference dims) into `out`, which holds `out_len` floats, x fastest,
  in data units; with its support, where it stores one (its outside where
  the data were empty). The caller owns `out`. Runs on a hardware GPU when
- there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses).
- Thread-safe, also on one model.
+ there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses), there
+ on a pool of one thread per CPU the process may use, started by the
+ first decode or evaluation (rayon's global pool; `RAYON_NUM_THREADS`
+ sets its size; the encoders never use it). Thread-safe, also on one
+ model.
 
  # Safety
  `model` may be any value (only a live model handle is used); `dims`
@@ -1028,8 +1031,8 @@ gsenc_status gsenc_model_decode(const gsenc_model *model,
  bits whatever other points the call holds, in whatever order, and on
  any thread count. On the CPU: a few points do not pay for opening a
  GPU. Runs in runs of 65,536 points, so that it holds about a megabyte
- besides the caller's arrays however many points there are. Thread-safe,
- also on one model.
+ besides the caller's arrays however many points there are, on the pool
+ `gsenc_model_decode` runs on. Thread-safe, also on one model.
 
  # Safety
  `model` may be any value (only a live model handle is used); `points`
