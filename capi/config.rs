@@ -142,7 +142,9 @@ pub struct gsenc_config {
     /// Where every model goes, per `output_format`: a folder of
     /// `FIELD_STEP.gsm` files (`FIELD_STEP_rRANK.gsm` on ranks other than
     /// 0), or an HDF5 store file. NULL (default) keeps models in memory
-    /// only. Copied at create.
+    /// only. Copied at create, a relative path made absolute against the
+    /// working folder of that moment (a later `chdir` does not move it);
+    /// an empty one is `GSENC_STATUS_INVALID_ARGUMENT`.
     pub output_dir: *const c_char,
     /// Iterations of a warm-started step; 0 keeps the regime's (1000
     /// coarse, 1500 dense; auto: at most the schedule's).
@@ -403,8 +405,14 @@ impl Settings {
         let threads = c.threads as usize;
         let output = match c.output_dir.is_null() {
             true => None,
-            // SAFETY: a non-null `output_dir` is a NUL-terminated string.
-            false => Some(std::path::PathBuf::from(unsafe { c_str(c.output_dir, "output_dir")? })),
+            false => {
+                // SAFETY: a non-null `output_dir` is a NUL-terminated string.
+                let given = unsafe { c_str(c.output_dir, "output_dir")? };
+                // Made absolute now: a host that changes its working folder
+                // later (into a run folder, say) still has its models where
+                // it asked at create.
+                Some(std::path::absolute(&given).map_err(|e| bad(format!("output_dir '{given}': {e}")))?)
+            }
         };
         let preview = match c.preview {
             GSENC_PREVIEW_NONE => None,

@@ -397,7 +397,9 @@ typedef struct {
    Where every model goes, per `output_format`: a folder of
    `FIELD_STEP.gsm` files (`FIELD_STEP_rRANK.gsm` on ranks other than
    0), or an HDF5 store file. NULL (default) keeps models in memory
-   only. Copied at create.
+   only. Copied at create, a relative path made absolute against the
+   working folder of that moment (a later `chdir` does not move it);
+   an empty one is `GSENC_STATUS_INVALID_ARGUMENT`.
    */
   const char *output_dir;
   /*

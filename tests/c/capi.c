@@ -11,6 +11,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
 #include "gsenc.h"
 
 static int passed, failed;
@@ -539,6 +541,33 @@ int main(void) {
         remove(path);
     }
     gsenc_encoder_destroy(enc);
+
+    /* A relative output_dir is the folder it names at create: a host that
+     * changes its working folder afterwards (into a run folder) still finds
+     * its models there. An empty one is refused at create. */
+    {
+        char here[1024], made[512];
+        CHECK(getcwd(here, sizeof here) != NULL, "getcwd");
+        snprintf(made, sizeof made, "%s/relative_models", dir);
+        mkdir(made, 0755);
+        CHECK(chdir(dir) == 0, "chdir into %s", dir);
+        gsenc_config rel = cfg;
+        rel.output_dir = "relative_models";
+        EXPECT(gsenc_encoder_create(&rel, &enc), GSENC_STATUS_OK);
+        CHECK(chdir("/") == 0, "chdir to /");
+        EXPECT(gsenc_push_grid(enc, "moved", 0, 0.0, &grid), GSENC_STATUS_OK);
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+        gsenc_encoder_destroy(enc);
+        snprintf(path, sizeof path, "%s/relative_models/moved_000000.gsm", dir);
+        CHECK(access(path, F_OK) == 0, "the model under the folder named at create: %s", path);
+        CHECK(access("/relative_models", F_OK) != 0, "nothing under the later working folder");
+        remove(path);
+        rmdir(made);
+        CHECK(chdir(here) == 0, "back to %s", here);
+        rel.output_dir = "";
+        EXPECT(gsenc_encoder_create(&rel, &enc), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(strstr(last_error(), "output_dir") != NULL, "an empty output_dir: %s", last_error());
+    }
 
     /* Pushes copy: the solver overwrites its array right after the push and
      * the model still encodes what was pushed. */
