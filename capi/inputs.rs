@@ -59,8 +59,9 @@ pub struct gsenc_cells {
 /// (C `[nz][ny][nx]`, Fortran `(nx, ny, nz)`). Strides larger than the
 /// extents skip ghost layers without a copy; a negative stride walks its
 /// axis backwards from `data` (a reversed view, `data` at value
-/// `(0, 0, 0)`). A zero stride among non-zero ones, or strides that reach
-/// an element more than `PTRDIFF_MAX` bytes from `data`, are
+/// `(0, 0, 0)`). A zero stride among non-zero ones (but on an axis of one
+/// cell, where none is used: a 2D slab's z), or strides that reach an
+/// element more than `PTRDIFF_MAX` bytes from `data`, are
 /// `GSENC_STATUS_INVALID_ARGUMENT`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug)]
@@ -212,8 +213,10 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Copi
         g.strides
     };
     // Negative strides walk an axis backwards from `data` (a reversed view).
-    if strides.contains(&0) {
-        return fail(gsenc_status::InvalidArgument, format!("strides {:?} must all be non-zero (or all zero: contiguous)", g.strides));
+    // A zero stride would read one value along its whole axis: refused, but
+    // on an axis of one cell (a 2D slab's z), where no stride is ever used.
+    if (0..3).any(|a| strides[a] == 0 && dims[a] > 1) {
+        return fail(gsenc_status::InvalidArgument, format!("strides {:?} must be non-zero along every axis of more than one cell (or all zero: contiguous)", g.strides));
     }
     check_reach("gsenc_push_grid: data", dtype, &[(dims[0], strides[0]), (dims[1], strides[1]), (dims[2], strides[2])])?;
     let voxels = dims.iter().product::<usize>();

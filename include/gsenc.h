@@ -500,8 +500,9 @@ typedef struct {
  (C `[nz][ny][nx]`, Fortran `(nx, ny, nz)`). Strides larger than the
  extents skip ghost layers without a copy; a negative stride walks its
  axis backwards from `data` (a reversed view, `data` at value
- `(0, 0, 0)`). A zero stride among non-zero ones, or strides that reach
- an element more than `PTRDIFF_MAX` bytes from `data`, are
+ `(0, 0, 0)`). A zero stride among non-zero ones (but on an axis of one
+ cell, where none is used: a 2D slab's z), or strides that reach an
+ element more than `PTRDIFF_MAX` bytes from `data`, are
  `GSENC_STATUS_INVALID_ARGUMENT`.
  */
 typedef struct {

@@ -471,6 +471,13 @@ int main(void) {
     g2.strides[1] = 0; /* one zero stride: every row the same, not the default */
     EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
     CHECK(strstr(last_error(), "strides") != NULL, "a zero stride: %s", last_error());
+    /* ...but on an axis of one cell (a 2D slab), where no stride is used. */
+    g2 = grid;
+    g2.extents[2] = 1;
+    g2.strides[2] = 0;
+    EXPECT(gsenc_push_grid(enc, "slab", 0, 0.0, &g2), GSENC_STATUS_OK);
+    EXPECT(gsenc_wait(enc, "slab"), GSENC_STATUS_OK);
+    g2 = grid;
     /* A view reversed along y (data at its first value, the last interior
      * row) is taken and encodes; valgrind's run of this test sees it read
      * only the interior. */
