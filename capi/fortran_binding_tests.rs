@@ -116,10 +116,20 @@ fn module_lines() -> Vec<String> {
     lines
 }
 
-/// The module's `bind(c)` types, `bind(c, name=...)` interfaces (result
-/// kind or "void", arguments in order) and parameters.
-#[allow(clippy::type_complexity)]
-fn fortran_api() -> (BTreeMap<String, Vec<FDecl>>, BTreeMap<String, (String, Vec<FDecl>)>, BTreeMap<String, i64>) {
+/// What the module declares, as [`crate::header_text::CHeader`] holds
+/// the header's.
+struct FModule {
+    /// Each `bind(c)` type's components in order.
+    types: BTreeMap<String, Vec<FDecl>>,
+    /// Each `bind(c, name=...)` interface by its C name: result kind (or
+    /// "void") and arguments in order.
+    interfaces: BTreeMap<String, (String, Vec<FDecl>)>,
+    /// `GSENC_*` parameters.
+    parameters: BTreeMap<String, i64>,
+}
+
+/// The module's `bind(c)` types, interfaces and parameters.
+fn fortran_api() -> FModule {
     let lines = module_lines();
     let (mut types, mut interfaces, mut parameters) = (BTreeMap::new(), BTreeMap::new(), BTreeMap::new());
     let mut i = 0;
@@ -160,7 +170,7 @@ fn fortran_api() -> (BTreeMap<String, Vec<FDecl>>, BTreeMap<String, (String, Vec
         }
         i += 1;
     }
-    (types, interfaces, parameters)
+    FModule { types, interfaces, parameters }
 }
 
 /// Whether Fortran's `f` passes what C's `c` takes.
@@ -177,7 +187,7 @@ fn same_argument(f: &FDecl, c: &CDecl) -> bool {
 #[test]
 fn the_fortran_types_are_the_c_structs() {
     let structs = c_header().structs;
-    let (types, _, _) = fortran_api();
+    let types = fortran_api().types;
     assert_eq!(types.keys().collect::<Vec<_>>(), structs.keys().collect::<Vec<_>>(), "the bind(c) types and the header's structs");
     for (name, fields) in &types {
         let c = &structs[name];
@@ -192,7 +202,7 @@ fn the_fortran_types_are_the_c_structs() {
 #[test]
 fn the_fortran_interfaces_are_the_c_prototypes() {
     let functions = c_header().functions;
-    let (_, interfaces, _) = fortran_api();
+    let interfaces = fortran_api().interfaces;
     assert!(interfaces.len() >= 20, "the interfaces were not found: {:?}", interfaces.keys());
     for (name, (result, args)) in &interfaces {
         let c = functions.get(name).unwrap_or_else(|| panic!("{name} is bound but not in the header"));
@@ -212,7 +222,7 @@ fn the_fortran_interfaces_are_the_c_prototypes() {
 #[test]
 fn the_fortran_parameters_are_the_c_constants() {
     let constants = c_header().constants;
-    let (_, _, parameters) = fortran_api();
+    let parameters = fortran_api().parameters;
     let constants: BTreeMap<&String, &i64> = constants.iter().filter(|(k, _)| !NOT_CONSTANTS.contains(&k.as_str())).collect();
     assert!(constants.len() > 40, "the header's constants were not found: {constants:?}");
     assert_eq!(parameters.iter().collect::<BTreeMap<_, _>>(), constants, "Fortran's parameters against C's constants");
