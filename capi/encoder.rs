@@ -194,7 +194,10 @@ fn create_mpi(_: Settings, _: i32) -> Result<gsenc_encoder, Failure> {
 /// `GSENC_STATUS_INVALID_ARGUMENT`. A call on it in flight on another thread
 /// is waited for first.
 /// Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
-/// duplicated communicator).
+/// duplicated communicator). In a process forked from the one that created
+/// the encoder, frees nothing and writes nothing (its thread and its store
+/// are the parent's); every other call with it there fails with
+/// `GSENC_STATUS_CALL_ORDER`.
 ///
 /// # Safety
 /// `encoder` may be any value: only a live encoder handle is freed.
@@ -205,6 +208,12 @@ pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
             // SAFETY: made by Box::into_raw in gsenc_encoder_create, and live
             // until now (released, so never freed twice, and no call holds it).
             let mut enc = unsafe { Box::from_raw(encoder) };
+            if enc.queue.started_elsewhere().is_some() {
+                // A forked child: the encoder's thread is its parent's, and
+                // so is its store, which closing here would write to.
+                std::mem::forget(enc);
+                return;
+            }
             let _ = enc.queue.wait(None);
             enc.flush(true);
             drop(enc); // the queue's drop joins its idle worker
@@ -217,7 +226,11 @@ pub unsafe extern "C" fn gsenc_encoder_destroy(encoder: *mut gsenc_encoder) {
 pub(crate) fn with_encoder<R>(encoder: *mut gsenc_encoder, what: &str, f: impl FnOnce(&mut gsenc_encoder) -> Result<R, Failure>) -> Result<R, Failure> {
     crate::handles::hold(encoder, Kind::Encoder, what, true, || {
         // SAFETY: a live handle from gsenc_encoder_create, held alone.
-        f(unsafe { &mut *encoder })
+        let enc = unsafe { &mut *encoder };
+        match enc.queue.started_elsewhere() {
+            Some(why) => fail(gsenc_status::CallOrder, format!("{what}: {why}")),
+            None => f(enc),
+        }
     })
 }
 

@@ -156,7 +156,7 @@ pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c
 pub unsafe extern "C" fn gsenc_encoder_cancel(encoder: *mut gsenc_encoder) -> gsenc_status {
     guard(|| {
         with_encoder(encoder, "gsenc_encoder_cancel", |enc| {
-            enc.queue.cancel();
+            enc.queue.cancel()?;
             enc.flush(false);
             Ok(())
         })

@@ -9,6 +9,7 @@ use gsenc::backend::cpu::CpuBackend;
 use gsenc::backend::select::BackendChoice;
 use gsenc::field::IndexBox;
 use gsenc::model::{Model, WarmTaken, DEFAULT_SLAB_VOXELS};
+use gsenc::threads::with_threads;
 use std::os::raw::c_char;
 
 /// Opaque model; read with `gsenc_model_read`, free with `gsenc_model_destroy`.
@@ -211,9 +212,9 @@ pub unsafe extern "C" fn gsenc_model_info_get(model: *const gsenc_model, info: *
 /// the data were empty). The caller owns `out`. Runs on a hardware GPU when
 /// there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses), there
 /// on a pool of one thread per CPU the process may use, started by the
-/// first decode or evaluation (rayon's global pool; `RAYON_NUM_THREADS`
-/// sets its size; the encoders never use it). Thread-safe, also on one
-/// model.
+/// first decode or evaluation (`RAYON_NUM_THREADS` sets its size; the
+/// encoders never use it; a process forked after it started starts its
+/// own). Thread-safe, also on one model.
 ///
 /// # Safety
 /// `model` may be any value (only a live model handle is used); `dims`
@@ -242,11 +243,13 @@ pub unsafe extern "C" fn gsenc_model_decode(model: *const gsenc_model, dims: *co
             let mut at = 0;
             let range = m.meta.range;
             let mut backend = BackendChoice::default().open()?;
-            m.decode_streaming(backend.as_mut(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
-                range.output_into(false, slab, &mut out[at..at + slab.len()]);
-                at += slab.len();
-                Ok(())
-            })?;
+            with_threads(None, || {
+                m.decode_streaming(backend.as_mut(), dims, IndexBox::whole(dims), DEFAULT_SLAB_VOXELS, &mut |slab| {
+                    range.output_into(false, slab, &mut out[at..at + slab.len()]);
+                    at += slab.len();
+                    Ok(())
+                })
+            })??;
             Ok(())
         })
     })
@@ -282,8 +285,11 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
             let (pts, out) = unsafe { (std::slice::from_raw_parts(points.cast::<[f64; 3]>(), n), std::slice::from_raw_parts_mut(out, n)) };
             // Into the caller's array, in runs: nothing sized by count is
             // copied. A point that is not finite is InvalidData, by index.
-            m.evaluate_into(&mut CpuBackend::new(), pts, out)?;
-            m.meta.range.denormalize_all(out);
+            with_threads(None, || {
+                m.evaluate_into(&mut CpuBackend::new(), pts, out)?;
+                m.meta.range.denormalize_all(out);
+                Ok::<_, gsenc::Error>(())
+            })??;
             Ok(())
         })
     })

@@ -6,7 +6,7 @@ use crate::args::{parse_box, parse_dims, BackendArgs, GridOutput};
 use crate::output::{is_vti, kernel_seconds, peak_rss_bytes, print_result, Sink};
 use crate::write_behind::WriteBehind;
 use clap::Args;
-use gsenc::encode::with_threads;
+use gsenc::threads::with_threads;
 use gsenc::field::IndexBox;
 use gsenc::io::{read_field, vti};
 use gsenc::{Error, Result};

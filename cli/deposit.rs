@@ -4,7 +4,7 @@
 use crate::args::{CellInput, GridOutput, ParticleInput, ValueArgs};
 use crate::output::{deposit_keys, peak_rss_bytes, print_result, to_output_unit, write_grid};
 use clap::{Args, Subcommand};
-use gsenc::encode::with_threads;
+use gsenc::threads::with_threads;
 use gsenc::field::Grid;
 use gsenc::input::{prepare, Input, Prepared};
 use gsenc::Result;

@@ -6,7 +6,7 @@ use crate::output::{deposit_keys, gpu_host_seconds, kernel_seconds, keys, peak_r
 use clap::{Args, Subcommand};
 use gsenc::backend::select::BackendChoice;
 use gsenc::encode::pipeline::{config_for, encode_prepared, Labels, Request, Start};
-use gsenc::encode::with_threads;
+use gsenc::threads::with_threads;
 use gsenc::format::info::precision_json;
 use gsenc::encode::target::report_json;
 use gsenc::format::{read_model_file, write_model_as, Payload};

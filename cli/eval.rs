@@ -4,7 +4,7 @@
 use crate::args::{BackendArgs, GridInput, OutputFlags};
 use crate::output::print_result;
 use clap::Args;
-use gsenc::encode::with_threads;
+use gsenc::threads::with_threads;
 use gsenc::field::{Transform, ValueRange};
 use gsenc::io::read_model_file;
 use gsenc::model::metrics::{occupied_psnr, sampled_psnr, voxel_psnr};

@@ -6,7 +6,7 @@
 use crate::args::{named, parse_dims, BackendArgs, GridInput};
 use crate::output::{print_result, write_output};
 use clap::Args;
-use gsenc::encode::with_threads;
+use gsenc::threads::with_threads;
 use gsenc::field::Grid;
 use gsenc::io::image::{png_bytes, Figure};
 use gsenc::io::{raw, read_field};

@@ -101,7 +101,7 @@ mod imp {
 mod imp {
     use super::*;
     use crate::output::{print_result, write_output};
-    use gsenc::encode::with_threads;
+    use gsenc::threads::with_threads;
     use gsenc::format;
     use gsenc::format::step_index::StepIndex;
     use gsenc::io::{read_model_file, read_step_index};

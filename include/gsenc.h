@@ -777,7 +777,10 @@ gsenc_status gsenc_encoder_create_mpi(const gsenc_config *config,
  `GSENC_STATUS_INVALID_ARGUMENT`. A call on it in flight on another thread
  is waited for first.
  Collective for an encoder of `gsenc_encoder_create_mpi` (it frees the
- duplicated communicator).
+ duplicated communicator). In a process forked from the one that created
+ the encoder, frees nothing and writes nothing (its thread and its store
+ are the parent's); every other call with it there fails with
+ `GSENC_STATUS_CALL_ORDER`.
 
  # Safety
  `encoder` may be any value: only a live encoder handle is freed.
@@ -1012,9 +1015,9 @@ gsenc_status gsenc_model_info_get(const gsenc_model *model, gsenc_model_info *in
  the data were empty). The caller owns `out`. Runs on a hardware GPU when
  there is one, else on the CPU (`GSENC_BACKEND=cpu|gpu` chooses), there
  on a pool of one thread per CPU the process may use, started by the
- first decode or evaluation (rayon's global pool; `RAYON_NUM_THREADS`
- sets its size; the encoders never use it). Thread-safe, also on one
- model.
+ first decode or evaluation (`RAYON_NUM_THREADS` sets its size; the
+ encoders never use it; a process forked after it started starts its
+ own). Thread-safe, also on one model.
 
  # Safety
  `model` may be any value (only a live model handle is used); `dims`

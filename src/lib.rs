@@ -9,6 +9,7 @@
 //! above it in this list:
 //! - [`profile`]: task timings for the thread-scaling model (feature
 //!   `task-profile`; without it, nothing but the calls it wraps);
+//! - [`threads`]: the rayon pools the work runs on (fork-safe);
 //! - [`memory`]: how much memory the process can still take, so that what
 //!   cannot fit is refused before it is allocated (a failed allocation
 //!   aborts the process);
@@ -63,6 +64,7 @@ pub mod profile;
 pub mod model;
 pub mod render;
 pub mod series;
+pub mod threads;
 
 pub use error::{Error, Result};
 

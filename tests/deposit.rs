@@ -4,7 +4,7 @@
 
 mod common;
 use gsenc::input::cells::{stamp_box, CellSize, Cells};
-use gsenc::encode::with_threads;
+use gsenc::threads::with_threads;
 use gsenc::field::{Transform, ValueRange};
 use gsenc::input::particles::Particles;
 use gsenc::field::Bounds;

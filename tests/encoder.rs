@@ -4,7 +4,8 @@
 mod common;
 use common::*;
 use gsenc::backend::{cpu::CpuBackend, Backend, Lattice};
-use gsenc::encode::{encode, validate, with_threads, EncodeConfig, Schedule};
+use gsenc::encode::{encode, validate, EncodeConfig, Schedule};
+use gsenc::threads::with_threads;
 use gsenc::input::samples::SampleSet;
 use gsenc::input::Target;
 use gsenc::field::{Grid, IndexFrame, Transform, ValueRange};

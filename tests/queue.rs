@@ -377,7 +377,7 @@ fn cancel_drops_queued_steps_and_the_encoder_stays_usable() {
             open.send(()).unwrap();
         })
     };
-    q.cancel();
+    q.cancel().unwrap();
     canceller.join().unwrap();
     for k in 1..4 {
         assert!(matches!(q.poll("rho", k), Some(JobState::Cancelled)), "step {k}: {:?}", q.poll("rho", k));
@@ -399,7 +399,7 @@ fn a_running_encode_stops_at_cancel() {
     while !matches!(q.poll("rho", 0), Some(JobState::Running { iteration, .. }) if iteration > 0) {
         std::thread::yield_now();
     }
-    q.cancel();
+    q.cancel().unwrap();
     assert!(matches!(q.poll("rho", 0), Some(JobState::Cancelled)), "{:?}", q.poll("rho", 0));
     assert!(steps_stored(&stored).is_empty());
     assert!(q.last("rho").is_none(), "a cancelled step leaves no model");

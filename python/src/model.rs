@@ -6,7 +6,7 @@ use crate::arrays::{grid_array, triples, vector};
 use crate::errors::IntoPy;
 use gsenc::backend::select::{BackendChoice, BackendKind};
 use gsenc::domain::global::GlobalField;
-use gsenc::encode::with_threads;
+use gsenc::threads::with_threads;
 use gsenc::field::IndexBox;
 use gsenc::format::info::{meta_info, model_info};
 use gsenc::format::{write_model_as, Payload};

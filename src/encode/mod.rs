@@ -29,5 +29,5 @@ pub mod target;
 pub mod validation;
 
 pub use config::{Cancel, EncodeConfig, PointRule, Schedule, TargetPsnr, WarmStart};
-pub use refine::{encode, encode_validated, spatial_order, validate, with_threads, check_threads, EncodeOutput, LossTerms, Progress};
+pub use refine::{encode, encode_validated, spatial_order, validate, EncodeOutput, LossTerms, Progress};
 pub use validation::Validation;

@@ -154,7 +154,7 @@ pub fn check_training_memory(budget: usize, points: usize, available: Option<u64
 
 /// Encodes `target` into `cfg.budget` primitives, seeded from its samples, or
 /// warm-started from `init` (then seeding is skipped). Runs on the current
-/// rayon pool; see [`with_threads`].
+/// rayon pool; see [`crate::threads::with_threads`].
 pub fn encode(
     target: &Target,
     cfg: &EncodeConfig,
@@ -499,41 +499,4 @@ pub fn spatial_order(params: &[Primitive]) -> Vec<usize> {
 
 fn permute<T: Clone>(v: &[T], order: &[usize]) -> Vec<T> {
     order.iter().map(|&i| v[i].clone()).collect()
-}
-
-/// Runs `f` on a dedicated rayon pool of `threads` threads (the global pool
-/// when `None`), so that an encode never competes with a host's own pool.
-pub fn with_threads<R: Send>(threads: Option<usize>, f: impl FnOnce() -> R + Send) -> Result<R> {
-    match threads {
-        None => Ok(f()),
-        Some(t) => {
-            let t = check_threads(t)?;
-            let pool = rayon::ThreadPoolBuilder::new()
-                .num_threads(t)
-                .thread_name(|i| format!("gsenc-{i}"))
-                .build()
-                .map_err(|e| Error::arg(format!("cannot start {t} threads: {e}")))?;
-            Ok(pool.install(f))
-        }
-    }
-}
-
-/// Checks a requested thread count: at least 1, and at most 8 for each core
-/// this process may run on (at least 64). More threads than cores give the
-/// same model (it does not depend on the thread count), only slower; far
-/// more is a mistake or an uninitialised field, and rayon would start up to
-/// 65,535 threads that each wait their turn (an 8^3 encode at 1,000 threads
-/// took 42 s instead of 0.6 on 2 cores; at 100,000 it had not finished after
-/// 5 minutes), so such a count is refused.
-pub fn check_threads(threads: usize) -> Result<usize> {
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let most = (8 * cores).max(64);
-    match threads {
-        0 => Err(Error::arg("threads must be at least 1")),
-        t if t > most => Err(Error::arg(format!(
-            "threads {t} is more than {most} (8 for each of the {cores} cores this process may run on): \
-             the model is the same with fewer, and the extra threads only wait"
-        ))),
-        t => Ok(t),
-    }
 }

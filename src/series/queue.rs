@@ -254,6 +254,8 @@ pub struct BackgroundEncoder {
     cfg: QueueConfig,
     jobs: Option<Sender<Work>>,
     worker: Option<JoinHandle<()>>,
+    /// The process that started the worker (see [`Self::check_process`]).
+    process: u32,
 }
 
 /// What the worker takes, in the order it was sent.
@@ -272,7 +274,7 @@ impl BackgroundEncoder {
             0 => placement.cpus.as_ref().map_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()), Vec::len),
             t => t,
         };
-        crate::encode::check_threads(threads)?;
+        crate::threads::check_threads(threads)?;
         if cfg.max_bytes == 0 {
             return Err(Error::arg("the queue's memory budget must be positive"));
         }
@@ -316,11 +318,33 @@ impl BackgroundEncoder {
             let _ = handle.join();
             return Err(e);
         }
-        Ok(BackgroundEncoder { shared, cfg, jobs: Some(tx), worker: Some(handle) })
+        Ok(BackgroundEncoder { shared, cfg, jobs: Some(tx), worker: Some(handle), process: std::process::id() })
     }
 
     pub fn config(&self) -> &QueueConfig {
         &self.cfg
+    }
+
+    /// Why this encoder cannot work here, in a process forked from the one
+    /// that started it: a child has only the thread that forked, so the
+    /// worker and its pool do not run there, and a push would never be
+    /// encoded, a `wait` never return (as they did before this check).
+    /// `None` in the process that started it. `push`, `wait`, `cancel`,
+    /// `resume` and `reserve` refuse such a child with this message;
+    /// dropped there, the encoder frees nothing (see `Drop`).
+    pub fn started_elsewhere(&self) -> Option<String> {
+        let here = std::process::id();
+        (here != self.process).then(|| {
+            format!(
+                "this encoder was started in process {} and this is process {here}, forked from it since: \
+                 its encode thread did not follow the fork; start an encoder in this process",
+                self.process
+            )
+        })
+    }
+
+    fn check_process(&self) -> Result<()> {
+        self.started_elsewhere().map_or(Ok(()), |why| Err(Error::arg(why)))
     }
 
     /// Queues `job` (its data already copied), or applies the full-queue
@@ -375,6 +399,7 @@ impl BackgroundEncoder {
     /// room (the ranks of an MPI run decide together, so that all of them
     /// queue, skip or refuse the same step); `Block` then waits for its own.
     pub fn push_checked(&self, job: Job, others_have_room: bool) -> Result<Pushed> {
+        self.check_process()?;
         let bytes = job.data.bytes();
         let key = (job.field.clone(), job.step);
         let mut st = self.shared.state.lock();
@@ -433,6 +458,7 @@ impl BackgroundEncoder {
     /// begun already, or any model once the encode thread has stopped (so
     /// that the ranks of an MPI run, which check first, resume together).
     pub fn check_resume(&self, model: &Model) -> Result<()> {
+        self.check_process()?;
         self.cfg.series.check_resumable(model)?;
         let field = &model.meta.field;
         self.shared.state.lock().not_begun(field)?;
@@ -469,6 +495,7 @@ impl BackgroundEncoder {
     /// Returns the first failure not reported before, naming its field and
     /// step; each failure is reported once.
     pub fn wait(&self, field: Option<&str>) -> Result<()> {
+        self.check_process()?;
         let mut st = self.shared.state.lock();
         let pending = |st: &State| {
             st.jobs.iter().any(|((f, _), s)| field.is_none_or(|want| want == f) && !s.is_final())
@@ -491,13 +518,15 @@ impl BackgroundEncoder {
     /// Drops every queued job and stops the running one at its next
     /// iteration; returns when the worker is idle. Their states become
     /// `Cancelled`; the fields' series stay at their last encoded steps.
-    pub fn cancel(&self) {
+    pub fn cancel(&self) -> Result<()> {
+        self.check_process()?;
         self.shared.cancel.set(true);
         let mut st = self.shared.state.lock();
         while st.in_flight > 0 {
             self.shared.changed.wait(&mut st);
         }
         self.shared.cancel.set(false);
+        Ok(())
     }
 
     /// The last model of `field` and its PSNR as stored.
@@ -555,6 +584,7 @@ impl BackgroundEncoder {
     /// do when a kept buffer is large enough; otherwise a kept buffer too
     /// small for it makes room. The memory must fit (`memory::check_fits`).
     pub fn reserve(&self, len: usize) -> Result<()> {
+        self.check_process()?;
         if len == 0 || self.shared.state.lock().kept_for(len).is_some() {
             return Ok(());
         }
@@ -583,8 +613,16 @@ impl BackgroundEncoder {
 
 impl Drop for BackgroundEncoder {
     /// Drains: every queued job is encoded before the worker stops (call
-    /// `cancel` first to drop them instead).
+    /// `cancel` first to drop them instead). In a process forked from the
+    /// one that started it, leaves everything as it is: the worker is not
+    /// there to be joined (a join would wait for ever), and its channel and
+    /// state may have been copied in the middle of a change.
     fn drop(&mut self) {
+        if self.started_elsewhere().is_some() {
+            std::mem::forget(self.jobs.take());
+            std::mem::forget(self.worker.take());
+            return;
+        }
         drop(self.jobs.take());
         if let Some(w) = self.worker.take() {
             let _ = w.join();

@@ -12,6 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 #include "gsenc.h"
 
@@ -324,6 +325,34 @@ int main(void) {
         CHECK(memcmp(&one, &every[v], sizeof one) == 0, "voxel %d alone %.9g, among the others %.9g", v, one, every[v]);
         CHECK(fabsf(one - decoded[v]) <= 1e-4f * fmaxf(1.0f, fabsf(decoded[v])), "evaluate %g vs decode %g at voxel %d", one, decoded[v], v);
     }
+    /* A forked child (a host that forks workers after decoding, as Python's
+       multiprocessing does): the pool of the decodes above has no threads
+       there, so the child decodes on its own pool, the same bits; the
+       encoder's thread did not follow the fork either, so its calls fail
+       with CALL_ORDER and destroy frees and writes nothing. A hang is the
+       child killed by its alarm. */
+    fflush(stdout);
+    fflush(stderr);
+    pid_t child = fork();
+    if (child == 0) {
+        alarm(60);
+        failed = 0;
+        static float again[NX * NY * NZ];
+        EXPECT(gsenc_model_decode(model, NULL, again, NX * NY * NZ), GSENC_STATUS_OK);
+        CHECK(memcmp(again, decoded, sizeof again) == 0, "the child's decode is the parent's");
+        float at_child[4];
+        EXPECT(gsenc_model_evaluate(model, pts, 4, at_child), GSENC_STATUS_OK);
+        CHECK(memcmp(at_child, at, sizeof at) == 0, "the child's evaluation is the parent's");
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_CALL_ORDER);
+        CHECK(strstr(last_error(), "gsenc_wait") && strstr(last_error(), "forked"), "names the fork: %s", last_error());
+        EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &grid), GSENC_STATUS_CALL_ORDER);
+        gsenc_encoder_destroy(enc);
+        _exit(failed == 0 ? 0 : 1);
+    }
+    int child_status = 0;
+    CHECK(child > 0 && waitpid(child, &child_status, 0) == child, "fork and wait");
+    CHECK(WIFEXITED(child_status) && WEXITSTATUS(child_status) == 0, "the forked child: %s %d",
+          WIFEXITED(child_status) ? "exit" : "killed by signal", WIFEXITED(child_status) ? WEXITSTATUS(child_status) : WTERMSIG(child_status));
     pts[0] = NAN;
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_DATA);
     EXPECT(gsenc_model_evaluate(NULL, pts, 4, at), GSENC_STATUS_NULL_POINTER);
