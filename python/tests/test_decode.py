@@ -1,8 +1,10 @@
 """Models read and decoded from Python give what the command-line tool gives,
 bit for bit: model files of every payload, a step index of two pieces, and a
-store written by the C API."""
+store written by the C API; and in a worker that multiprocessing forked,
+what its parent gets."""
 
 import json
+import multiprocessing
 
 import numpy as np
 import pytest
@@ -70,6 +72,33 @@ def test_a_points_value_is_the_same_bits_whatever_is_asked_beside_it(model_file)
     np.testing.assert_array_equal(model.evaluate(points[::-1], threads=1)[::-1], values)
     for i in range(0, len(points), 397):
         np.testing.assert_array_equal(model.evaluate(points[i : i + 1]), values[i : i + 1], err_msg=f"point {i} alone")
+
+
+def _in_a_forked_worker(path):
+    """A decode, an evaluation and an encode, none naming a thread count."""
+    model = gsenc.read(path)
+    points = np.array([[8.0, 9.0, 7.0], [1.5, 2.5, 3.5]])
+    encoded = gsenc.encode_grid(blobs(), 40, **dict(QUICK, threads=None))
+    return model.decode(backend="cpu"), model.evaluate(points), encoded.params()
+
+
+def test_a_forked_worker_decodes_and_encodes_as_its_parent(model_file):
+    """multiprocessing forks its workers (Linux's default before Python
+    3.14), and a worker has only the thread that forked: a decode there ran
+    on the pool the parent's decode had started, which had no threads in
+    the worker, and waited for ever. The worker starts its own now."""
+    model = gsenc.read(model_file)
+    points = np.array([[8.0, 9.0, 7.0], [1.5, 2.5, 3.5]])
+    # In the parent first, on the default pool (no thread count), which the
+    # fork then copies without its threads.
+    decoded, evaluated = model.decode(backend="cpu"), model.evaluate(points)
+    encoded = gsenc.encode_grid(blobs(), 40, **dict(QUICK, threads=None)).params()
+    with multiprocessing.get_context("fork").Pool(2) as pool:
+        outs = pool.map_async(_in_a_forked_worker, [str(model_file)] * 2).get(timeout=120)
+    for d, e, p in outs:
+        np.testing.assert_array_equal(d, decoded)
+        np.testing.assert_array_equal(e, evaluated)
+        np.testing.assert_array_equal(p, encoded)
 
 
 def test_primitives_are_the_models_parameters(model_file):
