@@ -178,6 +178,23 @@ fn busy_queues_nothing_and_the_step_can_be_pushed_again() {
     assert_eq!(steps_stored(&stored), [0, 1]);
 }
 
+/// The budget is the most the queue holds, running and queued steps
+/// together: a budget of two steps' bytes takes a second step beside a
+/// running one, to the byte, and finds the third too many.
+#[test]
+fn the_budget_holds_exactly_its_bytes() {
+    let (q, open, stored) = gated(queue_config(2, WhenFull::Busy), vec![]);
+    assert_eq!(q.push(job("rho", 0)).unwrap(), Pushed::Queued);
+    assert_eq!(q.push(job("rho", 1)).unwrap(), Pushed::Queued);
+    assert_eq!(q.queued_bytes(), q.config().max_bytes);
+    assert_eq!(q.push(job("rho", 2)).unwrap(), Pushed::Busy);
+    for _ in 0..2 {
+        open.send(()).unwrap();
+    }
+    q.wait(None).unwrap();
+    assert_eq!(steps_stored(&stored), [0, 1]);
+}
+
 /// A step larger than the whole budget is still taken into an empty queue
 /// (else it could never be encoded), and counts against the budget while
 /// it is there: the next push finds the queue full.

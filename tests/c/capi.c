@@ -4,7 +4,7 @@
  * enum values, NaN data, wrong call order, unwritable folders, foreign
  * files); and the background queue: pushes copy, failures are reported
  * by wait and poll, a full queue under each policy, cancel; a restart
- * resumed from a model's bytes. Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
+ * resumed from a model's bytes; a forked child. Built and run by tests/run-all.sh; prints "c-api: N passed, M failed". */
 #define _POSIX_C_SOURCE 200112L /* setenv */
 #include <math.h>
 #include <stddef.h>
@@ -327,32 +327,42 @@ int main(void) {
     }
     /* A forked child (a host that forks workers after decoding, as Python's
        multiprocessing does): the pool of the decodes above has no threads
-       there, so the child decodes on its own pool, the same bits; the
+       there, so the child decodes on its own pool, as the parent did; the
        encoder's thread did not follow the fork either, so its calls fail
        with CALL_ORDER and destroy frees and writes nothing. A hang is the
-       child killed by its alarm. */
-    fflush(stdout);
-    fflush(stderr);
-    pid_t child = fork();
-    if (child == 0) {
-        alarm(60);
-        failed = 0;
-        static float again[NX * NY * NZ];
-        EXPECT(gsenc_model_decode(model, NULL, again, NX * NY * NZ), GSENC_STATUS_OK);
-        CHECK(memcmp(again, decoded, sizeof again) == 0, "the child's decode is the parent's");
-        float at_child[4];
-        EXPECT(gsenc_model_evaluate(model, pts, 4, at_child), GSENC_STATUS_OK);
-        CHECK(memcmp(at_child, at, sizeof at) == 0, "the child's evaluation is the parent's");
-        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_CALL_ORDER);
-        CHECK(strstr(last_error(), "gsenc_wait") && strstr(last_error(), "forked"), "names the fork: %s", last_error());
-        EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &grid), GSENC_STATUS_CALL_ORDER);
-        gsenc_encoder_destroy(enc);
-        _exit(failed == 0 ? 0 : 1);
+       child killed by its alarm. Not under valgrind, whose leak check in
+       the child would count the parent's encoder, which the child leaves
+       unfreed by design. */
+    if (getenv("GSENC_CAPI_MEMCHECK")) {
+        printf("capi: the fork is checked by the native run, not under valgrind\n");
+    } else {
+        fflush(stdout);
+        fflush(stderr);
+        pid_t child = fork();
+        if (child == 0) {
+            alarm(60);
+            failed = 0;
+            static float again[NX * NY * NZ];
+            EXPECT(gsenc_model_decode(model, NULL, again, NX * NY * NZ), GSENC_STATUS_OK);
+            /* The same bits on the same backend; within rounding where the
+               parent's ran on a GPU and the child's on the CPU. */
+            int same = 1;
+            for (int v = 0; v < NX * NY * NZ; v++) same &= fabsf(again[v] - decoded[v]) <= 1e-4f * fmaxf(1.0f, fabsf(decoded[v]));
+            CHECK(same, "the child's decode is the parent's");
+            float at_child[4];
+            EXPECT(gsenc_model_evaluate(model, pts, 4, at_child), GSENC_STATUS_OK);
+            CHECK(memcmp(at_child, at, sizeof at) == 0, "the child's evaluation is the parent's");
+            EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_CALL_ORDER);
+            CHECK(strstr(last_error(), "gsenc_wait") && strstr(last_error(), "forked"), "names the fork: %s", last_error());
+            EXPECT(gsenc_push_grid(enc, "rho", 2, 1.0, &grid), GSENC_STATUS_CALL_ORDER);
+            gsenc_encoder_destroy(enc);
+            _exit(failed == 0 ? 0 : 1);
+        }
+        int child_status = 0;
+        CHECK(child > 0 && waitpid(child, &child_status, 0) == child, "fork and wait");
+        CHECK(WIFEXITED(child_status) && WEXITSTATUS(child_status) == 0, "the forked child: %s %d",
+              WIFEXITED(child_status) ? "exit" : "killed by signal", WIFEXITED(child_status) ? WEXITSTATUS(child_status) : WTERMSIG(child_status));
     }
-    int child_status = 0;
-    CHECK(child > 0 && waitpid(child, &child_status, 0) == child, "fork and wait");
-    CHECK(WIFEXITED(child_status) && WEXITSTATUS(child_status) == 0, "the forked child: %s %d",
-          WIFEXITED(child_status) ? "exit" : "killed by signal", WIFEXITED(child_status) ? WEXITSTATUS(child_status) : WTERMSIG(child_status));
     pts[0] = NAN;
     EXPECT(gsenc_model_evaluate(model, pts, 4, at), GSENC_STATUS_INVALID_DATA);
     EXPECT(gsenc_model_evaluate(NULL, pts, 4, at), GSENC_STATUS_NULL_POINTER);
