@@ -58,10 +58,109 @@ fn decode(model: &Model) -> Vec<f32> {
     with_threads(None, || model.decode(&mut CpuBackend::new(), None)).unwrap().unwrap().values
 }
 
+/// The GPU backend on the first hardware adapter, else on the software one
+/// (lavapipe in CI); `None` (with a message) when wgpu sees no adapter and
+/// GSENC_REQUIRE_GPU is not 1, as tests/gpu/main.rs.
+#[cfg(feature = "gpu")]
+type Gpu = gsenc::backend::gpu::GpuBackend;
+#[cfg(not(feature = "gpu"))]
+type Gpu = CpuBackend;
+
+#[cfg(feature = "gpu")]
+fn gpu() -> Option<Gpu> {
+    use gsenc::backend::gpu::device::{adapters, DeviceRequest};
+    let seen = adapters();
+    if seen.is_empty() {
+        assert_ne!(std::env::var("GSENC_REQUIRE_GPU").as_deref(), Ok("1"), "GSENC_REQUIRE_GPU=1 and wgpu sees no adapter");
+        eprintln!("NOT RUN (the GPU part): wgpu sees no adapter");
+        return None;
+    }
+    let req = match seen.iter().any(|a| !a.software()) {
+        true => DeviceRequest::default(),
+        false => DeviceRequest { index: None, name: Some(seen[0].name.clone()) },
+    };
+    Some(Gpu::new(&req).unwrap())
+}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu() -> Option<Gpu> {
+    eprintln!("NOT RUN (the GPU part): built without the GPU backend");
+    None
+}
+
+/// What the child checks of the GPU its parent opened: refused, by a
+/// message that says why, where it waited for ever; a new device refused
+/// too; `auto` on the CPU; the device dropped without waiting for the
+/// driver's threads, which are the parent's.
+#[cfg(feature = "gpu")]
+fn gpu_in_the_child(mut g: Gpu, model: &Model, parents: &[f32]) -> Result<(), String> {
+    use gsenc::backend::select::{BackendChoice, BackendKind};
+    use gsenc::backend::Backend;
+    match model.decode(&mut g, None) {
+        Err(e) if e.to_string().contains("forked") => {}
+        other => return Err(format!("the parent's GPU in the child: {:?}, not refused as forked", other.map(|_| ()))),
+    }
+    // Refused before anything reaches the device (a driver's state in the
+    // child may be the parent's: nothing is uploaded).
+    let (mut rho, mut n) = ([0.0f32; 2], [0.0f32; 2]);
+    let uploads = g.uploads();
+    match g.evaluate_points(&model.params, &[[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], &mut rho, &mut n) {
+        Err(e) if e.to_string().contains("forked") => {}
+        other => return Err(format!("an evaluation on the parent's GPU in the child: {other:?}, not refused as forked")),
+    }
+    if g.uploads() != uploads {
+        return Err(format!("the refused evaluation uploaded to the parent's device ({} uploads)", g.uploads() - uploads));
+    }
+    // The training steps too (the parent loaded the model for them).
+    let r = g.resident().expect("the GPU backend keeps a model resident");
+    let batch = gsenc::backend::PointBatch::new(vec![[1.0, 2.0, 3.0], [4.0, 5.0, 6.0]], vec![0.5, 0.25]);
+    for (what, refused) in [
+        ("a resident step", r.submit(&batch, &Default::default(), 1e-3, true).err()),
+        ("a resident finish", r.finish().err()),
+    ] {
+        if !refused.as_ref().is_some_and(|e| e.to_string().contains("forked")) {
+            return Err(format!("{what} on the parent's GPU in the child: {refused:?}, not refused as forked"));
+        }
+    }
+    if g.uploads() != uploads {
+        return Err("the refused training step uploaded to the parent's device".into());
+    }
+    match Gpu::new(&Default::default()) {
+        Err(e) if e.to_string().contains("forked") => {}
+        other => return Err(format!("a new GPU in the child: {:?}, not refused as forked", other.map(|_| ()))),
+    }
+    let mut auto = BackendChoice { kind: BackendKind::Auto, ..Default::default() }.open().map_err(|e| e.to_string())?;
+    let on_auto = with_threads(None, || model.decode(auto.as_mut(), None)).unwrap().map_err(|e| e.to_string())?.values;
+    if on_auto != parents {
+        return Err(format!("auto in the child ({}) decodes otherwise than the CPU", auto.name()));
+    }
+    drop(g);
+    Ok(())
+}
+
+/// `model` loaded for resident training steps.
+#[cfg(feature = "gpu")]
+fn load(g: &mut Gpu, model: &Model) {
+    use gsenc::backend::Backend;
+    let adam = gsenc::math::optim::Adam::new(model.params.len());
+    g.resident().expect("the GPU backend keeps a model resident").load(&model.params, &adam).unwrap();
+}
+
+#[cfg(not(feature = "gpu"))]
+fn load(_: &mut Gpu, _: &Model) {}
+
+#[cfg(not(feature = "gpu"))]
+fn gpu_in_the_child(_: Gpu, _: &Model, _: &[f32]) -> Result<(), String> {
+    Ok(())
+}
+
 /// What the child checks; `Err` says what failed.
-fn in_the_child(q: BackgroundEncoder, model: &Model, parents: &[f32]) -> Result<(), String> {
+fn in_the_child(q: BackgroundEncoder, model: &Model, parents: &[f32], g: Option<Gpu>) -> Result<(), String> {
     if decode(model) != parents {
         return Err("the child's decode differs from the parent's".into());
+    }
+    if let Some(g) = g {
+        gpu_in_the_child(g, model, parents)?;
     }
     for (what, r) in [("push", q.push(job(1)).map(|_| ())), ("wait", q.wait(None)), ("cancel", q.cancel())] {
         match r {
@@ -79,8 +178,14 @@ fn a_forked_child_decodes_on_its_own_pool_and_refuses_the_parents_encoder() {
     q.push(job(0)).unwrap();
     q.wait(None).unwrap();
     let (model, _) = q.last("rho").unwrap();
-    // The default pool started here, in the parent, before the fork.
+    // The default pool started here, in the parent, before the fork, and
+    // the GPU used.
     let parents = decode(&model);
+    let mut g = gpu();
+    if let Some(g) = g.as_mut() {
+        model.decode(g, None).unwrap();
+        load(g, &model);
+    }
 
     // SAFETY: the child only runs `in_the_child` and leaves by `_exit`.
     let child = unsafe { libc::fork() };
@@ -88,7 +193,7 @@ fn a_forked_child_decodes_on_its_own_pool_and_refuses_the_parents_encoder() {
     if child == 0 {
         // SAFETY: plain calls in the child; `_exit` never returns.
         unsafe { libc::alarm(60) };
-        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| in_the_child(q, &model, &parents)));
+        let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| in_the_child(q, &model, &parents, g)));
         let code = match outcome {
             Ok(Ok(())) => 0,
             Ok(Err(why)) => {

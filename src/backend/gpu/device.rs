@@ -10,6 +10,7 @@
 pub use crate::backend::select::AdapterSummary;
 use crate::error::{Error, Result};
 use parking_lot::Mutex;
+use std::mem::ManuallyDrop;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, OnceLock};
 
@@ -28,32 +29,56 @@ pub struct DeviceRequest {
 /// NVIDIA's Vulkan driver (580, on the H200) stops listing its GPU in a
 /// process that has made 30 instances, however many it dropped, so a
 /// simulation that opened an encoder per output step lost its GPU after 15
-/// (docs/BENCHMARKS.md "A lent H200, 2026-12-04").
-fn instance() -> &'static wgpu::Instance {
-    static INSTANCE: OnceLock<wgpu::Instance> = OnceLock::new();
-    INSTANCE.get_or_init(|| {
-        INSTANCES_MADE.fetch_add(1, Ordering::Relaxed);
-        #[allow(unused_mut)]
-        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
-        #[cfg(feature = "gpu-noop")]
-        {
-            desc.backends |= wgpu::Backends::NOOP;
-            // Limits of a large GPU (wgpu's "maximally permissive" default
-            // overflows its own validation).
-            let mut noop = wgpu::NoopBackendOptions::enabled();
-            noop.limits = Some(wgpu::Limits {
-                max_storage_buffers_per_shader_stage: 16,
-                max_storage_buffer_binding_size: (1 << 31) - 4,
-                max_buffer_size: 1 << 34,
-                max_compute_workgroup_storage_size: 1 << 15,
-                max_compute_invocations_per_workgroup: 1024,
-                max_compute_workgroup_size_x: 1024,
-                ..wgpu::Limits::default()
-            });
-            desc.backend_options.noop = noop;
-        }
-        wgpu::Instance::new(desc)
-    })
+/// (docs/BENCHMARKS.md "A lent H200, 2026-12-04"). Refused in a process
+/// forked from the one that made it ([`in_process`]).
+fn instance() -> Result<&'static wgpu::Instance> {
+    static INSTANCE: OnceLock<(u32, wgpu::Instance)> = OnceLock::new();
+    let (made_in, instance) = INSTANCE.get_or_init(|| (std::process::id(), new_instance()));
+    in_process(*made_in)?;
+    Ok(instance)
+}
+
+/// An error in a process other than `made_in`, which connected to the
+/// GPUs: one forked from it since. A driver's connection does not follow a
+/// fork (the child has none of the driver's threads; a decode on lavapipe
+/// there waited for ever), so the child neither uses its parent's devices
+/// nor makes its own through its parent's instance. `auto` then runs on
+/// the CPU.
+fn in_process(made_in: u32) -> Result<()> {
+    let here = std::process::id();
+    if here == made_in {
+        return Ok(());
+    }
+    Err(Error::Device(format!(
+        "this process ({here}) was forked from process {made_in} after that one had connected to the GPUs, \
+         and a GPU connection does not follow a fork: use the CPU backend here, or start this process \
+         without forking (Python: multiprocessing's 'spawn')"
+    )))
+}
+
+/// A new wgpu instance (only `instance` makes one).
+fn new_instance() -> wgpu::Instance {
+    INSTANCES_MADE.fetch_add(1, Ordering::Relaxed);
+    #[allow(unused_mut)]
+    let mut desc = wgpu::InstanceDescriptor::new_without_display_handle_from_env();
+    #[cfg(feature = "gpu-noop")]
+    {
+        desc.backends |= wgpu::Backends::NOOP;
+        // Limits of a large GPU (wgpu's "maximally permissive" default
+        // overflows its own validation).
+        let mut noop = wgpu::NoopBackendOptions::enabled();
+        noop.limits = Some(wgpu::Limits {
+            max_storage_buffers_per_shader_stage: 16,
+            max_storage_buffer_binding_size: (1 << 31) - 4,
+            max_buffer_size: 1 << 34,
+            max_compute_workgroup_storage_size: 1 << 15,
+            max_compute_invocations_per_workgroup: 1024,
+            max_compute_workgroup_size_x: 1024,
+            ..wgpu::Limits::default()
+        });
+        desc.backend_options.noop = noop;
+    }
+    wgpu::Instance::new(desc)
 }
 
 /// The backends enumerated: wgpu's no-op device too in a build with the
@@ -78,10 +103,11 @@ fn is_software(info: &wgpu::AdapterInfo) -> bool {
 }
 
 /// Every compute-capable adapter, hardware ones first numbered in wgpu's order.
-fn enumerate() -> Vec<(AdapterSummary, wgpu::Adapter)> {
-    let all = pollster::block_on(instance().enumerate_adapters(backends()));
+fn enumerate() -> Result<Vec<(AdapterSummary, wgpu::Adapter)>> {
+    let all = pollster::block_on(instance()?.enumerate_adapters(backends()));
     let mut next = 0;
-    all.into_iter()
+    Ok(all
+        .into_iter()
         .map(|a| {
             let info = a.get_info();
             let index = (!is_software(&info)).then(|| {
@@ -97,16 +123,17 @@ fn enumerate() -> Vec<(AdapterSummary, wgpu::Adapter)> {
             };
             (s, a)
         })
-        .collect()
+        .collect())
 }
 
-/// The adapters wgpu sees on this machine.
+/// The adapters wgpu sees on this machine (none in a process that cannot
+/// use them, forked from one that did: [`in_process`]).
 pub fn adapters() -> Vec<AdapterSummary> {
-    enumerate().into_iter().map(|(s, _)| s).collect()
+    enumerate().map_or_else(|_| vec![], |all| all.into_iter().map(|(s, _)| s).collect())
 }
 
 fn choose(req: &DeviceRequest) -> Result<(AdapterSummary, wgpu::Adapter)> {
-    let all = enumerate();
+    let all = enumerate()?;
     let seen = if all.is_empty() {
         "wgpu sees no adapter (no Vulkan, Metal or DX12 driver)".to_string()
     } else {
@@ -136,8 +163,9 @@ fn choose(req: &DeviceRequest) -> Result<(AdapterSummary, wgpu::Adapter)> {
 
 /// An opened device, its queue, and what it reported.
 pub struct Gpu {
-    pub device: wgpu::Device,
-    pub queue: wgpu::Queue,
+    /// Dropped with the `Gpu`, except in a forked process (see `Drop`).
+    pub device: ManuallyDrop<wgpu::Device>,
+    pub queue: ManuallyDrop<wgpu::Queue>,
     pub adapter: AdapterSummary,
     pub limits: wgpu::Limits,
     /// Set by wgpu when the device is lost, or by an error no scope caught.
@@ -149,6 +177,8 @@ pub struct Gpu {
     /// staging memory of its own, and fills of a mapped staging buffer;
     /// garbage fills not counted.
     uploads: std::sync::atomic::AtomicU64,
+    /// The process that opened it ([`Gpu::in_its_process`]).
+    process: u32,
 }
 
 /// The most storage buffers one kernel binds (reduce.wgsl `step`, the
@@ -170,6 +200,21 @@ fn enough_bindings(name: &str, limits: &wgpu::Limits) -> Result<()> {
 /// per-kernel times (`kernel_seconds` stays empty), the same results.
 fn timing_from_env() -> bool {
     std::env::var("GSENC_GPU_TIMING").map_or(true, |v| v.trim() != "0")
+}
+
+impl Drop for Gpu {
+    /// Closes the device, but in a process forked since it was opened:
+    /// there closing it waits for the driver's threads, which are the
+    /// parent's (on lavapipe, for ever), so the device is left as it is.
+    fn drop(&mut self) {
+        if self.in_its_process().is_ok() {
+            // SAFETY: dropped once, here, and never used again.
+            unsafe {
+                ManuallyDrop::drop(&mut self.queue);
+                ManuallyDrop::drop(&mut self.device);
+            }
+        }
+    }
 }
 
 impl Gpu {
@@ -223,12 +268,21 @@ impl Gpu {
             f.lock().get_or_insert(format!("{e}"));
         }));
         let sleepy_wait = std::env::var("GSENC_GPU_WAIT").is_ok_and(|v| v.trim() == "sleep");
-        Ok(Gpu { device, queue, adapter: adapter_summary, limits, failure, sleepy_wait, uploads: Default::default() })
+        let (device, queue) = (ManuallyDrop::new(device), ManuallyDrop::new(queue));
+        Ok(Gpu { device, queue, adapter: adapter_summary, limits, failure, sleepy_wait, uploads: Default::default(), process: std::process::id() })
+    }
+
+    /// An error in a process forked from the one that opened the device,
+    /// where it cannot be used ([`in_process`]): every call of the GPU
+    /// backend checks first.
+    pub fn in_its_process(&self) -> Result<()> {
+        in_process(self.process)
     }
 
     /// The first failure wgpu reported outside an error scope, if any: the
-    /// device is then unusable.
+    /// device is then unusable. In a forked process, that one.
     pub fn check(&self) -> Result<()> {
+        self.in_its_process()?;
         match self.failure.lock().as_ref() {
             Some(m) => Err(Error::Device(format!("'{}': {m}", self.adapter.name))),
             None => Ok(()),
@@ -299,7 +353,7 @@ mod tests {
     /// GSENC_REQUIRE_GPU=1 fails instead of skipping without one).
     #[test]
     fn the_kernels_need_as_many_storage_buffers_as_open_asks() {
-        let Some((summary, adapter)) = enumerate().into_iter().find(|(s, _)| s.name != "noop") else {
+        let Some((summary, adapter)) = enumerate().unwrap().into_iter().find(|(s, _)| s.name != "noop") else {
             assert_ne!(std::env::var("GSENC_REQUIRE_GPU").as_deref(), Ok("1"), "GSENC_REQUIRE_GPU=1 and wgpu sees no adapter");
             eprintln!("NOT RUN: wgpu sees no adapter");
             return;
@@ -312,7 +366,16 @@ mod tests {
         // A device with one fewer, opened past `open`'s check.
         let desc = wgpu::DeviceDescriptor { required_limits: capped(STORAGE_BUFFERS - 1), ..Default::default() };
         let (device, queue) = pollster::block_on(adapter.request_device(&desc)).unwrap();
-        let short = Gpu { device, queue, ..gpu };
+        let short = Gpu {
+            device: ManuallyDrop::new(device),
+            queue: ManuallyDrop::new(queue),
+            adapter: gpu.adapter.clone(),
+            limits: gpu.limits.clone(),
+            failure: gpu.failure.clone(),
+            sleepy_wait: gpu.sleepy_wait,
+            uploads: Default::default(),
+            process: gpu.process,
+        };
         assert!(Kernels::new(&short).is_err(), "the kernels compiled with {} storage buffers a kernel", STORAGE_BUFFERS - 1);
     }
 }

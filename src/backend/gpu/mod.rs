@@ -302,8 +302,10 @@ impl GpuBackend {
 
     /// An error when a submitted call has not been finished: every call
     /// but `finish` needs the device to itself. (A submitted resident step
-    /// is always a call in flight until `finish` takes both.)
+    /// is always a call in flight until `finish` takes both.) And in a
+    /// process forked since the device was opened, where it cannot be used.
     fn idle(&self, what: &str) -> Result<()> {
+        self.gpu.in_its_process()?;
         if !self.in_flight.is_empty() {
             return Err(Error::arg(format!("GPU backend: {what} while a submitted step is not finished")));
         }

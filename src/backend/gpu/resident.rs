@@ -56,6 +56,7 @@ impl Resident for GpuBackend {
     }
 
     fn submit(&mut self, batch: &PointBatch, weights: &LossWeights, lr: f32, report: bool) -> Result<()> {
+        self.gpu.in_its_process()?;
         // What the device will hold once the steps in flight are done.
         let base = self.steps.back().map(|s| s.loaded).or(self.loaded);
         let Loaded { n, t } = base.ok_or_else(|| Error::arg("GPU backend: a resident step before any load"))?;
@@ -74,6 +75,7 @@ impl Resident for GpuBackend {
     }
 
     fn finish(&mut self) -> Result<Option<(PointLoss, RegTerms)>> {
+        self.gpu.in_its_process()?;
         let Step { loaded, ranges, report } = self.steps.pop_front().ok_or_else(|| Error::arg("GPU backend: a resident finish without a step"))?;
         let (_, loss, starts) = self.finish_points()?;
         self.loaded = Some(loaded);
