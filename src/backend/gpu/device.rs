@@ -127,7 +127,7 @@ fn enumerate() -> Result<Vec<(AdapterSummary, wgpu::Adapter)>> {
 }
 
 /// The adapters wgpu sees on this machine (none in a process that cannot
-/// use them, forked from one that did: [`in_process`]).
+/// use them, forked from one that did: `in_process`).
 pub fn adapters() -> Vec<AdapterSummary> {
     enumerate().map_or_else(|_| vec![], |all| all.into_iter().map(|(s, _)| s).collect())
 }
@@ -273,7 +273,7 @@ impl Gpu {
     }
 
     /// An error in a process forked from the one that opened the device,
-    /// where it cannot be used ([`in_process`]): every call of the GPU
+    /// where it cannot be used (`in_process`): every call of the GPU
     /// backend checks first.
     pub fn in_its_process(&self) -> Result<()> {
         in_process(self.process)
