@@ -1,8 +1,8 @@
 //! `fork`: a child process has only the thread that forked. A host that
 //! forks after gsenc started threads (Python's `multiprocessing` forks its
 //! workers on Linux) must find its decodes working in the child, on a pool
-//! of its own, and an encoder of its parent refusing work there instead of
-//! waiting for ever on a thread that is not there.
+//! of its own, and an encoder or a GPU device of its parent refusing work
+//! there instead of waiting for ever on threads that are not there.
 //!
 //! Its own test binary, with one test: the child runs only what this test
 //! gives it and leaves by `_exit`, whatever happens, so that it never goes
@@ -58,14 +58,15 @@ fn decode(model: &Model) -> Vec<f32> {
     with_threads(None, || model.decode(&mut CpuBackend::new(), None)).unwrap().unwrap().values
 }
 
-/// The GPU backend on the first hardware adapter, else on the software one
-/// (lavapipe in CI); `None` (with a message) when wgpu sees no adapter and
-/// GSENC_REQUIRE_GPU is not 1, as tests/gpu/main.rs.
+/// The GPU backend (a stand-in in a build without it, never opened).
 #[cfg(feature = "gpu")]
 type Gpu = gsenc::backend::gpu::GpuBackend;
 #[cfg(not(feature = "gpu"))]
 type Gpu = CpuBackend;
 
+/// The GPU backend on the first hardware adapter, else on the software one
+/// (lavapipe in CI); `None` (with a message) when wgpu sees no adapter and
+/// GSENC_REQUIRE_GPU is not 1, as tests/gpu/main.rs.
 #[cfg(feature = "gpu")]
 fn gpu() -> Option<Gpu> {
     use gsenc::backend::gpu::device::{adapters, DeviceRequest};
@@ -173,7 +174,7 @@ fn in_the_child(q: BackgroundEncoder, model: &Model, parents: &[f32], g: Option<
 }
 
 #[test]
-fn a_forked_child_decodes_on_its_own_pool_and_refuses_the_parents_encoder() {
+fn a_forked_child_decodes_on_its_own_pool_and_refuses_its_parents_encoder_and_gpu() {
     let q = queue();
     q.push(job(0)).unwrap();
     q.wait(None).unwrap();

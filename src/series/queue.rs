@@ -254,7 +254,7 @@ pub struct BackgroundEncoder {
     cfg: QueueConfig,
     jobs: Option<Sender<Work>>,
     worker: Option<JoinHandle<()>>,
-    /// The process that started the worker (see [`Self::check_process`]).
+    /// The process that started the worker (see [`Self::started_elsewhere`]).
     process: u32,
 }
 
