@@ -8,7 +8,7 @@ use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
 /// The library's folders, lowest first.
-const LAYERS: [&str; 14] = ["error", "profile", "memory", "math", "field", "backend", "input", "model", "render", "format", "encode", "series", "domain", "io"];
+const LAYERS: [&str; 15] = ["error", "profile", "threads", "memory", "math", "field", "backend", "input", "model", "render", "format", "encode", "series", "domain", "io"];
 
 fn root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
