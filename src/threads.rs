@@ -11,7 +11,9 @@
 //! and Python's `multiprocessing` forks (its default on Linux before Python
 //! 3.14): a script that decoded a model and then decoded others in a
 //! `Pool`'s workers hung in every worker. The default pool remembers the
-//! process that started it, and a forked child starts its own.
+//! process that started it, and a forked child starts its own. (So a Rust
+//! host's `ThreadPoolBuilder::build_global` does not size gsenc's work;
+//! running it inside the host's own pool, or naming a count, does.)
 
 use crate::error::{Error, Result};
 use rayon::ThreadPool;
