@@ -12,6 +12,8 @@
 
 mod common;
 use common::blobs;
+#[cfg(feature = "gpu")]
+use common::gpu;
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::encode::{EncodeConfig, Schedule, WarmStart};
 use gsenc::field::{IndexFrame, Transform, ValueRange};
@@ -63,25 +65,6 @@ fn decode(model: &Model) -> Vec<f32> {
 type Gpu = gsenc::backend::gpu::GpuBackend;
 #[cfg(not(feature = "gpu"))]
 type Gpu = CpuBackend;
-
-/// The GPU backend on the first hardware adapter, else on the software one
-/// (lavapipe in CI); `None` (with a message) when wgpu sees no adapter and
-/// GSENC_REQUIRE_GPU is not 1, as tests/gpu/main.rs.
-#[cfg(feature = "gpu")]
-fn gpu() -> Option<Gpu> {
-    use gsenc::backend::gpu::device::{adapters, DeviceRequest};
-    let seen = adapters();
-    if seen.is_empty() {
-        assert_ne!(std::env::var("GSENC_REQUIRE_GPU").as_deref(), Ok("1"), "GSENC_REQUIRE_GPU=1 and wgpu sees no adapter");
-        eprintln!("NOT RUN (the GPU part): wgpu sees no adapter");
-        return None;
-    }
-    let req = match seen.iter().any(|a| !a.software()) {
-        true => DeviceRequest::default(),
-        false => DeviceRequest { index: None, name: Some(seen[0].name.clone()) },
-    };
-    Some(Gpu::new(&req).unwrap())
-}
 
 #[cfg(not(feature = "gpu"))]
 fn gpu() -> Option<Gpu> {

@@ -288,3 +288,30 @@ pub fn hdf5_serial() -> std::sync::MutexGuard<'static, ()> {
     static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
     LOCK.lock().unwrap_or_else(|e| e.into_inner())
 }
+
+/// The GPU backend (its buffers filled with garbage before each call) on
+/// the adapter `GSENC_ADAPTER` names, else on the first hardware adapter,
+/// else on llvmpipe; `None` (with a message) when wgpu sees no adapter at
+/// all and GSENC_REQUIRE_GPU is not 1. An adapter that is there but fails
+/// (a kernel that does not compile) always fails the test.
+#[cfg(feature = "gpu")]
+pub fn gpu() -> Option<gsenc::backend::gpu::GpuBackend> {
+    use gsenc::backend::gpu::device::{adapters, DeviceRequest};
+    let seen = adapters();
+    if seen.is_empty() {
+        assert!(
+            std::env::var("GSENC_REQUIRE_GPU").as_deref() != Ok("1"),
+            "GSENC_REQUIRE_GPU=1 and wgpu sees no adapter (install mesa-vulkan-drivers)"
+        );
+        eprintln!("NOT RUN: wgpu sees no adapter; install mesa-vulkan-drivers, or set GSENC_REQUIRE_GPU=1 to fail instead");
+        return None;
+    }
+    let req = match std::env::var("GSENC_ADAPTER").ok().filter(|s| !s.is_empty()) {
+        Some(name) => DeviceRequest { index: None, name: Some(name) },
+        None if seen.iter().any(|a| !a.software()) => DeviceRequest::default(),
+        None => DeviceRequest { index: None, name: Some(seen[0].name.clone()) },
+    };
+    let mut b = gsenc::backend::gpu::GpuBackend::new(&req).unwrap_or_else(|e| panic!("{e}"));
+    b.garbage = true;
+    Some(b)
+}

@@ -9,7 +9,7 @@
 #[path = "../common/mod.rs"]
 mod common;
 use common::*;
-use gsenc::backend::gpu::device::{adapters, instances_made, DeviceRequest};
+use gsenc::backend::gpu::device::{adapters, instances_made};
 use gsenc::backend::gpu::GpuBackend;
 use gsenc::backend::bricks::PointBricks;
 use gsenc::backend::{cpu::CpuBackend, Backend, Lattice, PointBatch, PointLoss};
@@ -30,30 +30,6 @@ mod decode;
 mod encode;
 mod kernels;
 mod resident;
-
-/// The GPU backend on the first hardware adapter, else on llvmpipe; `None`
-/// (with a message) when wgpu sees no adapter at all and GSENC_REQUIRE_GPU
-/// is not 1. An adapter that is there but fails (a kernel that does not
-/// compile) always fails the test.
-fn gpu() -> Option<GpuBackend> {
-    let seen = adapters();
-    if seen.is_empty() {
-        assert!(
-            std::env::var("GSENC_REQUIRE_GPU").as_deref() != Ok("1"),
-            "GSENC_REQUIRE_GPU=1 and wgpu sees no adapter (install mesa-vulkan-drivers)"
-        );
-        eprintln!("NOT RUN: wgpu sees no adapter; install mesa-vulkan-drivers, or set GSENC_REQUIRE_GPU=1 to fail instead");
-        return None;
-    }
-    let req = match std::env::var("GSENC_ADAPTER").ok().filter(|s| !s.is_empty()) {
-        Some(name) => DeviceRequest { index: None, name: Some(name) },
-        None if seen.iter().any(|a| !a.software()) => DeviceRequest::default(),
-        None => DeviceRequest { index: None, name: Some(seen[0].name.clone()) },
-    };
-    let mut b = GpuBackend::new(&req).unwrap_or_else(|e| panic!("{e}"));
-    b.garbage = true;
-    Some(b)
-}
 
 /// Every enumeration and every device of the process go through one wgpu
 /// instance: NVIDIA's driver stops listing its GPU in a process that has
