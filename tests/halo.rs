@@ -252,6 +252,14 @@ fn grid_pieces_are_the_global_grid_with_halo_and_must_tile_it() {
             assert_eq!(v, whole.values[whole.index(x + piece.lo[0], y, z)], "piece {p} voxel {x},{y},{z}");
         }
     }
+    // Without a halo each rank's grid is its piece: a grid that only abuts
+    // a piece sends it nothing (not even an empty block).
+    let own = [IndexBox { lo: [0, 0, 0], hi: [8, n, n] }, IndexBox { lo: [8, 0, 0], hi: [n, n, n] }];
+    for (r, d) in parts.iter().enumerate() {
+        let out = split(d, &global, &own).unwrap();
+        assert_eq!(out[r].len(), 6 + d.bytes() / 4, "rank {r} sends its own piece its grid and one header");
+        assert!(out[1 - r].is_empty(), "rank {r} sent {} values to a piece it only abuts", out[1 - r].len());
+    }
     // Rank 1's grid alone does not cover piece 0: refused, with the count.
     let lone: Vec<&[f64]> = vec![&sent[1][0]];
     let Err(err) = join(Kind::Grid, &lone, &global, &pieces[0]) else { panic!("an uncovered piece was joined") };
