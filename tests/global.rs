@@ -224,6 +224,42 @@ fn blend_uses_each_piece_only_inside_its_box() {
     }
 }
 
+/// Two different pieces without a halo only abut: each voxel is its own
+/// piece's decode (none reaches a neighbour's voxel, where its model was
+/// never fitted); a point on their common face is the mean of the two, and
+/// a point on the domain's far face is the last piece's value, not 0.
+#[test]
+fn abutting_pieces_meet_at_their_face() {
+    use gsenc::domain::pieces::{blend, blend_points};
+    let whole = blobs(DIMS, 7, 5);
+    let a = encode_model(&slab(&whole, 0, CUT), 0, 150);
+    let b = encode_model(&slab(&whole, CUT, DIMS[0]), CUT, 150);
+    let global = IndexFrame { dims: DIMS, bmin: a.meta.frame.bmin, gamma: 2.0 };
+    let boxes = [IndexBox { lo: [0, 0, 0], hi: [CUT, DIMS[1], DIMS[2]] }, IndexBox { lo: [CUT, 0, 0], hi: DIMS }];
+    let pieces = [a.clone(), b.clone()];
+    let g = blend(&global, &pieces, &boxes, 0, DIMS, IndexBox::whole(DIMS), &mut CpuBackend::new()).unwrap();
+    let da = a.decode(&mut CpuBackend::new(), None).unwrap();
+    let db = b.decode(&mut CpuBackend::new(), None).unwrap();
+    for k in 0..DIMS[2] {
+        for j in 0..DIMS[1] {
+            assert_eq!(g.values[g.index(CUT - 1, j, k)], da.values[da.index(CUT - 1, j, k)], "the last voxel of a, {j} {k}");
+            assert_eq!(g.values[g.index(CUT, j, k)], db.values[db.index(0, j, k)], "the first voxel of b, {j} {k}");
+        }
+    }
+    // World points at x = the common face and the domain's far face (exact
+    // in binary: corner 0, two voxels a unit), y and z at voxel centres.
+    let (y, z) = (global.bmin[1] + 12.5 / 2.0, global.bmin[2] + 10.5 / 2.0);
+    let face = [global.bmin[0] + CUT as f64 / 2.0, y, z];
+    let end = [global.bmin[0] + DIMS[0] as f64 / 2.0, y, z];
+    let at = blend_points(&global, &pieces, &boxes, 0, &[face, end], &mut CpuBackend::new()).unwrap();
+    let va = a.evaluate(&mut CpuBackend::new(), &[face]).unwrap()[0];
+    let vb = b.evaluate(&mut CpuBackend::new(), &[face, end]).unwrap();
+    assert!((va - vb[0]).abs() > 1e-4, "the two pieces agree at the face ({va}, {}): the mean would not show", vb[0]);
+    assert!((at[0] - (va + vb[0]) / 2.0).abs() < 1e-6, "at the common face: {}, want the mean of {va} and {}", at[0], vb[0]);
+    assert!(vb[1].abs() > 1e-4, "b is 0 at the far face: a 0 from no piece would not show");
+    assert_eq!(at[1], vb[1], "at the domain's far face");
+}
+
 /// At world points the blend is the lattice blend: at every voxel centre
 /// (of the reference lattice and of a finer one) the two agree to float
 /// rounding, and a point outside every piece is 0.
