@@ -448,10 +448,16 @@ fn step_index_round_trips_and_refuses_other_json() {
     assert_eq!(index.pieces[1].world_max[0], 1.0);
     assert!(matches!(StepIndex::from_json("{\"format\": \"other\"}"), Err(gsenc::Error::Format(_))));
     assert!(matches!(StepIndex::from_json("not json"), Err(gsenc::Error::Format(_))));
-    let newer = text.replace("\"version\": 1", "\"version\": 9");
+    // The next version is already one this reader does not know.
+    let newer = text.replace("\"version\": 1", "\"version\": 2");
     assert!(matches!(StepIndex::from_json(&newer), Err(gsenc::Error::Version(_))));
     let missing_rank = text.replace("\"ranks\": 2", "\"ranks\": 3");
     assert!(StepIndex::from_json(&missing_rank).unwrap_err().to_string().contains("ranks"));
+    // Pieces out of rank order (rank 1 listed first) would pair each model
+    // with the other's box.
+    let swapped = text.replace("\"rank\": 0", "\"rank\": 9").replace("\"rank\": 1", "\"rank\": 0").replace("\"rank\": 9", "\"rank\": 1");
+    assert_ne!(swapped, text);
+    assert!(matches!(StepIndex::from_json(&swapped), Err(gsenc::Error::Format(m)) if m.contains("ranks 0..ranks once each")));
 
     // A layout the decode cannot trust is refused by what is wrong with it.
     let with = |edit: &dyn Fn(&mut serde_json::Value)| {
