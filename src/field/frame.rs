@@ -282,6 +282,48 @@ mod tests {
         assert!(IndexFrame::from_bounds([0, 16, 16], [0.0; 3], [1.0; 3]).unwrap_err().to_string().contains("dims must be positive"));
     }
 
+    /// `box_of` gives back the box a sub-frame was cut from, up to the
+    /// lattice's far end, and refuses a piece a fraction of a voxel off the
+    /// lattice, one starting a whole voxel before its corner and one
+    /// reaching a voxel past its end.
+    #[test]
+    fn a_piece_is_a_box_of_the_lattice_or_refused() {
+        let global = IndexFrame { dims: [10, 8, 6], bmin: [1.0, 2.0, 3.0], gamma: 4.0 };
+        for b in [IndexBox { lo: [2, 0, 1], hi: [7, 8, 6] }, IndexBox { lo: [3, 7, 0], hi: [10, 8, 6] }, IndexBox::whole(global.dims)] {
+            assert_eq!(global.box_of(&global.sub_frame(&b)).unwrap(), b);
+        }
+        let piece = global.sub_frame(&IndexBox { lo: [2, 0, 1], hi: [7, 8, 6] });
+        let moved = |a: usize, voxels: f64, dims: [usize; 3]| {
+            let mut f = IndexFrame { dims, ..piece };
+            f.bmin[a] += voxels / global.gamma;
+            global.box_of(&f).unwrap_err().to_string()
+        };
+        let e = moved(1, 0.5, piece.dims);
+        assert!(e.contains("0.5 voxels") && e.contains("axis 1") && e.contains("not on the global lattice"), "{e}");
+        let e = moved(0, -3.0, piece.dims);
+        assert!(e.contains("-1.0 voxels") && e.contains("axis 0") && e.contains("not on the global lattice"), "a voxel before the corner: {e}");
+        let e = moved(2, 0.0, [5, 8, 6]);
+        assert!(e.contains("reaches outside"), "a voxel past the end along z: {e}");
+    }
+
+    /// `covering_box` takes every voxel whose cell meets the world box,
+    /// grows it by the halo, clips it to the lattice, and never gives an
+    /// empty box (a box on a voxel face, or wholly outside the lattice).
+    #[test]
+    fn the_covering_box_is_the_cells_met_grown_by_the_halo() {
+        let f = IndexFrame { dims: [10, 12, 8], bmin: [0.0, -1.0, 2.0], gamma: 2.0 };
+        // x: [1.15, 2.8] is index 2.3..5.6, cells 2..=5; y: [-0.5, 2.0]
+        // is 1.0..6.0, cells 1..=5 (a face on either side); z: 0.5..7.5.
+        let (min, max) = ([1.15, -0.5, 2.25], [2.8, 2.0, 5.75]);
+        let b = f.covering_box(min, max, 0);
+        assert_eq!(b, IndexBox { lo: [2, 1, 0], hi: [6, 6, 8] });
+        assert_eq!(f.covering_box(min, max, 2), IndexBox { lo: [0, 0, 0], hi: [8, 8, 8] });
+        assert_eq!(f.covering_box(min, max, 100), IndexBox::whole(f.dims));
+        // A point on a voxel face, and a point beyond the lattice: one voxel.
+        assert_eq!(f.covering_box([1.5, 0.0, 3.0], [1.5, 0.0, 3.0], 0), IndexBox { lo: [3, 2, 2], hi: [4, 3, 3] });
+        assert_eq!(f.covering_box([50.0; 3], [60.0; 3], 1), IndexBox { lo: [9, 11, 7], hi: [10, 12, 8] });
+    }
+
     #[test]
     fn index_frame_round_trips() {
         let f = IndexFrame::from_bounds([64, 32, 32], [0.0, 0.0, 0.0], [2.0, 1.0, 1.0]).unwrap();

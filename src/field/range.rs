@@ -264,8 +264,12 @@ mod tests {
         assert_eq!(n.values, vec![0.0, 0.0, 0.5, 1.0, 1.0]);
         assert_eq!(n.clamped, 2);
         assert!(r.normalize(&[f32::NAN]).is_err());
-        assert!(ValueRange::from_data(&[1.0, 1.0], Transform::Linear).is_err());
-        assert!(ValueRange::from_data(&[1.0, 0.0], Transform::Log10).is_err());
+        // Refused by what is wrong, with what the user can do about it
+        // (not by the range check behind, whose message says less).
+        let e = ValueRange::from_data(&[1.0, 1.0], Transform::Linear).unwrap_err().to_string();
+        assert!(e.contains("field is constant (1); give a value range explicitly"), "{e}");
+        let e = ValueRange::from_data(&[1.0, 0.0], Transform::Log10).unwrap_err().to_string();
+        assert!(e.contains("log10 transform needs positive values; value 0 at index 1"), "{e}");
         let l = ValueRange::from_data(&[1.0, 1000.0], Transform::Log10).unwrap();
         assert_eq!((l.vmin, l.vmax), (0.0, 3.0));
     }

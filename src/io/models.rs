@@ -157,8 +157,8 @@ mod tests {
 
     /// A step's models are checked against its index: a model of another
     /// voxel size, transform or value range than the index says is refused
-    /// by name, as a model of another box or of another rank is, and the
-    /// models the index names read.
+    /// by name, as a model of another box (moved, or ending elsewhere) or of
+    /// another rank is, and the models the index names read.
     #[test]
     fn a_step_reads_only_the_models_its_index_names() {
         let dir = std::env::temp_dir().join(format!("gsenc-read-step-{}", std::process::id()));
@@ -185,12 +185,14 @@ mod tests {
         let finer = IndexFrame { gamma: 8.0, ..global.sub_frame(&boxes[1]) };
         let logged = ValueRange { transform: Transform::Log10, ..range };
         let shifted = global.sub_frame(&IndexBox { lo: [2, 0, 0], hi: [7, 4, 4] });
+        let shorter = global.sub_frame(&IndexBox { lo: [3, 0, 0], hi: [7, 4, 4] });
         let wider = ValueRange::new(0.0, 2.5, Transform::Linear).unwrap();
         let own = global.sub_frame(&boxes[1]);
         for (rank, frame, range, says) in [
             (1, finer, range, "8.0 voxels a world unit"),
             (1, own, logged, "transform log10"),
             (1, shifted, range, "covers voxels [2, 0, 0]"),
+            (1, shorter, range, "covers voxels [3, 0, 0]..[7, 4, 4]"),
             (1, own, wider, "another value range"),
             (0, own, range, "rank 0, the index names field 'rho' step 3 rank 1"),
         ] {
