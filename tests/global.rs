@@ -247,7 +247,8 @@ fn abutting_pieces_meet_at_their_face() {
         }
     }
     // World points at x = the common face and the domain's far face (exact
-    // in binary: corner 0, two voxels a unit), y and z at voxel centres.
+    // in binary: the corner's x is 0, two voxels a unit), y and z at voxel
+    // centres.
     let (y, z) = (global.bmin[1] + 12.5 / 2.0, global.bmin[2] + 10.5 / 2.0);
     let face = [global.bmin[0] + CUT as f64 / 2.0, y, z];
     let end = [global.bmin[0] + DIMS[0] as f64 / 2.0, y, z];

@@ -139,5 +139,14 @@ mod tests {
         // Clipped at the lattice's edge; a support wholly outside covers nothing.
         assert_eq!(support_box(dims, [-1.0, 0.0, 7.5], 1.6), Some(([0, 0, 6], [1, 2, 8])));
         assert_eq!(support_box(dims, [-3.0, 0.0, 0.0], 1.6), None);
+        // Outside the lattice, the nearest centre is the box's, not the
+        // one u rounds to: (-1, 0.5, 0.5) is 1.22 from (0, 0, 0) (and 0.71
+        // from (-1, 0, 0), off the lattice), so a radius of 1.2 covers none.
+        assert_eq!(support_box(dims, [-1.0, 0.5, 0.5], 1.2), None);
+        assert_eq!(support_box(dims, [-1.0, 0.5, 0.5], 1.25), Some(([0, 0, 0], [1, 2, 2])));
+        // A centre exactly on the sphere is not within it (the spline is 0
+        // there): the particle takes the nearest-voxel fallback instead of
+        // a splat of weight 0.
+        assert_eq!(support_box(dims, [2.5, 3.0, 4.0], 0.5), None);
     }
 }
