@@ -265,6 +265,16 @@ fn grid_pieces_are_the_global_grid_with_halo_and_must_tile_it() {
     let Err(err) = join(Kind::Grid, &lone, &global, &pieces[0]) else { panic!("an uncovered piece was joined") };
     let err = err.to_string();
     assert!(err.contains(&format!("{} voxels", 8 * n * n)) && err.contains("tile"), "{err}");
+    // A block that reaches outside the piece it was sent to, or is shorter
+    // than its box, is refused (not written out of bounds).
+    // Piece 1 is voxels 5.. along x: voxels 0..12 of a row start before
+    // it; voxels 5..6 of two rows are two values, not one.
+    let outside = [[0.0, 0.0, 0.0, 12.0, 1.0, 1.0].as_slice(), &[1.0; 12]].concat();
+    let short = [5.0, 0.0, 0.0, 6.0, 2.0, 1.0, 1.0];
+    for buf in [outside.as_slice(), &short] {
+        let Err(err) = join(Kind::Grid, &[buf], &global, &pieces[1]) else { panic!("a malformed block {buf:?} was joined") };
+        assert!(err.to_string().contains("malformed"), "{err}");
+    }
     // A grid off the lattice is refused when split.
     let StepData::Grid { grid, mut frame } = part(0, 8) else { panic!() };
     frame.bmin[1] += 0.3 / n as f64;
