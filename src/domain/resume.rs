@@ -213,6 +213,30 @@ mod tests {
         round_trip(global, &boxes, false, [32, 40, 16], None);
     }
 
+    /// Where no piece's own voxel size gives every piece back (each was
+    /// recomputed from its box, and none is the lattice's), the search
+    /// goes on a few units in the last place from them and finds one that
+    /// does. Such lattices exist (found, and counted, here).
+    #[test]
+    fn a_voxel_size_none_of_the_pieces_has_is_searched_for() {
+        let boxes = [boxed([0, 0, 0], [13, 24, 24]), boxed([9, 0, 0], [24, 24, 24])];
+        let frames_of = |g: &IndexFrame| boxes.iter().map(|b| piece_frame(g, b, false)).collect::<Vec<_>>();
+        // Whether the lattice of voxel size `gamma` from g's corner gives every piece's frame.
+        let gives = |g: &IndexFrame, gamma: f64| {
+            let l = IndexFrame { gamma, ..*g };
+            boxes.iter().zip(frames_of(g)).all(|(b, f)| piece_frame(&l, b, false) == f)
+        };
+        let hard: Vec<IndexFrame> = (1..20_000)
+            .map(|i| IndexFrame::from_bounds([24, 24, 24], [0.03, 0.031, 0.031], [0.99 + i as f64 * 1e-5, 0.969, 0.969]).unwrap())
+            .filter(|g| frames_of(g).iter().all(|f| !gives(g, f.gamma)))
+            .take(3)
+            .collect();
+        assert!(!hard.is_empty(), "no lattice where every piece's own voxel size fails");
+        for g in hard {
+            round_trip(g, &boxes, false, [24, 24, 24], None);
+        }
+    }
+
     #[test]
     fn pieces_of_another_lattice_are_refused() {
         let global = IndexFrame { dims: [16, 16, 16], bmin: [0.0; 3], gamma: 8.0 };
