@@ -265,4 +265,73 @@ mod tests {
         }
         assert!(inexact > 100, "only {inexact} of 2000 maps have an inexact top");
     }
+
+    /// A body whose tables or centres a writer cannot have made is refused
+    /// by `dequantize` itself, whichever table or axis holds the fault (the
+    /// readers' later check for non-finite parameters would not see a map
+    /// whose `hi` is below its `lo`: it decodes finite values).
+    #[test]
+    fn a_body_with_an_invalid_table_or_centre_is_refused() {
+        let mut rng = Rng::new(9);
+        let params: Vec<Primitive> = (0..5).map(|_| std::array::from_fn(|_| rng.range(-3.0, 30.0) as f32)).collect();
+        for coding in [CentreCoding::Float16, CentreCoding::Fixed16] {
+            let body = quantize(&params, coding);
+            assert!(dequantize(&body, 5, coding).is_ok());
+            let tables = match coding {
+                CentreCoding::Float16 => vec![6 * 5],
+                CentreCoding::Fixed16 => vec![0, 8, 16, 24 + 6 * 5],
+            };
+            // Each map of the first table (centres for Fixed16), and the last
+            // of the nine parameter maps.
+            let maps: Vec<usize> = match coding {
+                CentreCoding::Float16 => vec![tables[0], tables[0] + 8 * 8],
+                CentreCoding::Fixed16 => vec![0, 8, 16, tables[3], tables[3] + 8 * 8],
+            };
+            for &at in &maps {
+                let put = |lo: f32, hi: f32| {
+                    let mut b = body.clone();
+                    b[at..at + 4].copy_from_slice(&lo.to_le_bytes());
+                    b[at + 4..at + 8].copy_from_slice(&hi.to_le_bytes());
+                    b
+                };
+                for (lo, hi) in [(2.0, 1.0), (f32::NAN, 1.0), (f32::NEG_INFINITY, 1.0), (0.0, f32::INFINITY), (0.0, f32::NAN)] {
+                    let e = dequantize(&put(lo, hi), 5, coding).expect_err("an invalid map");
+                    assert!(e.to_string().contains("invalid min/max table"), "{coding:?} at {at}, ({lo}, {hi}): {e}");
+                }
+                assert!(dequantize(&put(1.0, 1.0), 5, coding).is_ok(), "a constant array's map is valid");
+            }
+        }
+        // A float16 centre that is infinite or NaN, on each axis.
+        let body = quantize(&params, CentreCoding::Float16);
+        for axis in 0..3 {
+            for bits in [f16::INFINITY.to_bits(), f16::NAN.to_bits()] {
+                let mut b = body.clone();
+                let at = 2 * (axis * 5 + 3);
+                b[at..at + 2].copy_from_slice(&bits.to_le_bytes());
+                let e = dequantize(&b, 5, CentreCoding::Float16).expect_err("a non-finite centre");
+                assert!(e.to_string().contains("non-finite centre"), "axis {axis}: {e}");
+            }
+        }
+    }
+
+    /// Arrays built by hand (the HDF5 store reads them one by one) whose
+    /// lengths do not match the count are refused, centres or codes.
+    #[test]
+    fn arrays_of_the_wrong_length_are_refused() {
+        let params: Vec<Primitive> = (0..4).map(|i| std::array::from_fn(|k| (i * 12 + k) as f32)).collect();
+        for coding in [CentreCoding::Float16, CentreCoding::Fixed16] {
+            let q = Quantized::of(&params, coding);
+            assert_eq!(q.dequantize().unwrap().len(), 4);
+            let mut short_codes = q.clone();
+            short_codes.codes.pop();
+            let mut long_centres = q.clone();
+            match &mut long_centres.centres {
+                Centres::Float16(c) | Centres::Fixed16 { codes: c, .. } => c.push(0),
+            }
+            for (what, bad) in [("codes", short_codes), ("centres", long_centres)] {
+                let e = bad.dequantize().expect_err(what);
+                assert!(e.to_string().contains("4 primitives need 12 and 36"), "{coding:?} {what}: {e}");
+            }
+        }
+    }
 }
