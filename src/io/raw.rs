@@ -445,4 +445,58 @@ mod tests {
         assert!(parse_items(&b, DType::F32, 3, Rows { count: Some(3), row: 0 }, "x").is_err());
         assert!(parse_items(&b[..44], DType::F32, 3, Rows { count: None, row: 0 }, "x").is_err());
     }
+
+    /// A row without a count per row, and a count of 0, are the caller's
+    /// mistakes and said so, not data errors.
+    #[test]
+    fn a_row_needs_a_count_and_a_count_is_positive() {
+        let b: Vec<u8> = (0..12).flat_map(|i| (i as f32).to_le_bytes()).collect();
+        for (rows, says) in [(Rows { count: None, row: 1 }, "needs an item count"), (Rows { count: Some(0), row: 0 }, "at least 1")] {
+            let e = parse_items(&b, DType::F32, 3, rows, "pos").unwrap_err();
+            assert!(matches!(&e, Error::InvalidArgument(m) if m.contains(says)), "{rows:?}: {e}");
+        }
+    }
+
+    /// Integers are little-endian and unsigned, in grids and in item arrays,
+    /// and a u8 array keeps its first byte.
+    #[test]
+    fn integers_are_little_endian() {
+        let b = [0x01, 0x02, 0xff, 0x00, 0x00, 0x80];
+        let want = [513.0, 255.0, 32768.0];
+        assert_eq!(parse_raw(&b, [3, 1, 1], DType::U16, Order::XFastest).unwrap().values, want.map(|v| v as f32));
+        assert_eq!(parse_items(&b, DType::U16, 3, Rows { count: None, row: 0 }, "x").unwrap(), want);
+        assert_eq!(parse_items(&b, DType::U8, 2, Rows { count: Some(1), row: 0 }, "x").unwrap(), [1.0, 2.0]);
+        assert_eq!(parse_items(&b, DType::U8, 2, Rows { count: Some(1), row: 2 }, "x").unwrap(), [0.0, 128.0]);
+    }
+
+    /// Dims with a zero are refused by name, before any byte is read.
+    #[test]
+    fn dims_with_a_zero_are_refused() {
+        for dims in [[0, 4, 4], [4, 0, 4], [4, 4, 0]] {
+            let e = parse_raw(&[], dims, DType::F32, Order::XFastest).unwrap_err();
+            assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("dims must be positive")), "{dims:?}: {e}");
+            let e = read_raw("/nonexistent/gsenc-raw", dims, DType::U8, Order::ZFastest).unwrap_err();
+            assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("dims must be positive")), "{dims:?}: {e}");
+        }
+    }
+
+    /// Every name of each type and order, and an unknown one refused with
+    /// the names it takes.
+    #[test]
+    fn dtype_and_order_names() {
+        for (names, t, size) in [(["u8", "uint8"], DType::U8, 1), (["u16", "uint16"], DType::U16, 2), (["f32", "float32"], DType::F32, 4), (["f64", "float64"], DType::F64, 8)] {
+            for name in names {
+                assert_eq!(DType::from_name(name).unwrap(), t);
+            }
+            assert_eq!(t.size(), size);
+        }
+        for name in ["xfast", "x", "zyx"] {
+            assert_eq!(Order::from_name(name).unwrap(), Order::XFastest);
+        }
+        for name in ["zfast", "z", "xyz"] {
+            assert_eq!(Order::from_name(name).unwrap(), Order::ZFastest);
+        }
+        assert!(DType::from_name("i32").unwrap_err().to_string().contains("u8, u16, f32, f64"));
+        assert!(Order::from_name("yfast").unwrap_err().to_string().contains("zfast"));
+    }
 }
