@@ -611,6 +611,75 @@ mod tests {
         assert_eq!(seen, 14, "seven layouts, each with both flags");
     }
 
+    /// Every integer and float type reads as its value, signed or not, in
+    /// either byte order and with either header width: the bytes here come
+    /// from Rust's own `to_le_bytes`/`to_be_bytes` of typed values.
+    #[test]
+    fn every_data_type_in_either_byte_order() {
+        macro_rules! typed {
+            ($name:expr, $t:ty, [$($v:expr),*]) => {{
+                let v: [$t; 6] = [$($v),*];
+                let le: Vec<u8> = v.iter().flat_map(|x| x.to_le_bytes()).collect();
+                let be: Vec<u8> = v.iter().flat_map(|x| x.to_be_bytes()).collect();
+                ($name, le, be, v.map(|x| x as f32).to_vec())
+            }};
+        }
+        let cases = [
+            typed!("Int8", i8, [-128, -1, 0, 1, 127, -7]),
+            typed!("UInt8", u8, [0, 1, 127, 128, 200, 255]),
+            typed!("Int16", i16, [-32768, -2, 0, 3, 32767, -300]),
+            typed!("UInt16", u16, [0, 1, 255, 256, 40000, 65535]),
+            typed!("Int32", i32, [i32::MIN, -3, 0, 1 << 24, i32::MAX - 127, -70000]),
+            typed!("UInt32", u32, [0, 1, 1 << 24, 3_000_000_000, u32::MAX - 255, 70000]),
+            typed!("Int64", i64, [i64::MIN, -5, 0, 1 << 40, -(1 << 50), 9]),
+            typed!("UInt64", u64, [0, 5, 1 << 40, 1 << 63, (1 << 63) + (1 << 50), 9]),
+            typed!("Float32", f32, [-1.5, 0.0, 3.25, 1e30, -1e-30, 7.0]),
+            typed!("Float64", f64, [-1.5, 0.0, 3.25, 1e30, -1e-30, 7.0]),
+        ];
+        for (ty, le, be, want) in &cases {
+            for (order, data) in [("LittleEndian", le), ("BigEndian", be)] {
+                for header64 in [false, true] {
+                    let header = match (header64, order == "BigEndian") {
+                        (false, false) => (data.len() as u32).to_le_bytes().to_vec(),
+                        (false, true) => (data.len() as u32).to_be_bytes().to_vec(),
+                        (true, false) => (data.len() as u64).to_le_bytes().to_vec(),
+                        (true, true) => (data.len() as u64).to_be_bytes().to_vec(),
+                    };
+                    let width = if header64 { "UInt64" } else { "UInt32" };
+                    let f = format!(
+                        "<VTKFile type=\"ImageData\" byte_order=\"{order}\" header_type=\"{width}\"><ImageData WholeExtent=\"0 2 0 1 0 0\"><PointData><DataArray type=\"{ty}\" Name=\"v\" format=\"binary\">{}{}</DataArray></PointData></ImageData></VTKFile>",
+                        b64(&header),
+                        b64(data)
+                    );
+                    let v = parse_vti(f.as_bytes(), None).unwrap_or_else(|e| panic!("{ty} {order} {width}: {e}"));
+                    assert_eq!((v.grid.dims, &v.grid.values), ([3, 2, 1], want), "{ty} {order} {width}");
+                }
+            }
+        }
+    }
+
+    /// What VTK also writes, read alike: single-quoted attributes, a
+    /// self-closing empty `PointData` before the cell data, and a zlib array
+    /// whose length is a whole number of blocks (the header's last size is 0).
+    #[test]
+    fn other_spellings_of_the_same_file() {
+        let quoted = "<VTKFile type='ImageData'><ImageData WholeExtent='0 2 0 1 0 1' Spacing='2 2 2'><PointData Scalars='b'><DataArray type='Float32' Name='a' format='ascii'>1 1 1 1 1 1 1 1 1 1 1 1</DataArray><DataArray type='Float32' Name='b' format='ascii'>2 2 2 2 2 2 2 2 2 2 2 2</DataArray></PointData></ImageData></VTKFile>";
+        let v = parse_vti(quoted.as_bytes(), None).unwrap();
+        assert_eq!((v.grid.values, v.spacing, v.name.as_str()), (vec![2.0; 12], [2.0; 3], "b"));
+        let cells = "<VTKFile type=\"ImageData\"><ImageData WholeExtent=\"0 2 0 1 0 1\"><PointData/><CellData><DataArray type=\"Float32\" Name=\"c\" format=\"ascii\">1 2</DataArray></CellData></ImageData></VTKFile>";
+        let v = parse_vti(cells.as_bytes(), None).unwrap();
+        assert_eq!((v.grid.dims, v.grid.values, v.name.as_str()), ([2, 1, 1], vec![1.0, 2.0], "c"));
+        let data: Vec<u8> = (0..24).collect();
+        let whole_blocks = zlib_file(&data, 12, None, "0 3 0 2 0 1");
+        let at = appended_at(&whole_blocks);
+        assert_eq!(u64::from_le_bytes(whole_blocks[at + 16..at + 24].try_into().unwrap()), 0, "the last block is whole");
+        assert_eq!(parse_vti(&whole_blocks, None).unwrap().grid.values, data.iter().map(|&b| b as f32).collect::<Vec<_>>());
+        // A component count that is not a number is refused, not taken for 1.
+        let f = String::from_utf8(wrap("", "", "")).unwrap().replace("Name=\"a\"", "Name=\"a\" NumberOfComponents=\"one\"");
+        let e = parse_vti(f.as_bytes(), None).unwrap_err();
+        assert!(matches!(&e, Error::Format(m) if m.contains("components")), "{e}");
+    }
+
     /// A zlib-compressed appended array of `data`, in blocks of `block` bytes,
     /// with header words `header` (block count, block size, last size, then
     /// each compressed size) in place of the true ones where given.
