@@ -243,6 +243,18 @@ mod tests {
         assert_eq!(stat_value(stat, "missing"), None);
     }
 
+    /// What fits is taken to the byte; one byte more is refused with both
+    /// sizes and what wanted them; nothing is refused where the system does
+    /// not say.
+    #[test]
+    fn what_fits_is_taken_to_the_byte() {
+        assert!(super::check_fits_in("a field", 4096, Some(4096)).is_ok());
+        let e = super::check_fits_in("a field", 4097, Some(4096)).unwrap_err();
+        assert!(matches!(&e, crate::Error::InvalidArgument(m) if m.contains("a field takes 4097 bytes") && m.contains("the 4096 this process")), "{e}");
+        assert!(super::check_fits_in("a field", u64::MAX, None).is_ok());
+        assert!(super::check_fits_in("a field", 1, Some(0)).is_err());
+    }
+
     /// Sizes read with their suffixes; what is not a size is none.
     #[test]
     fn sizes_read_with_their_suffixes() {
