@@ -294,6 +294,31 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 
+    /// A rename that fails at the commit (a folder made under the final
+    /// name while the file was written) is an error naming the path, leaves
+    /// the folder as it was and removes the temporary file, for either writer.
+    #[test]
+    fn a_failed_rename_leaves_no_temporary_file() {
+        let dir = scratch("rename");
+        let p = dir.join("out.gsm");
+        let mut f = AtomicFile::create(&p).unwrap();
+        f.write(b"bytes").unwrap();
+        std::fs::create_dir(&p).unwrap();
+        std::fs::write(p.join("inside"), b"kept").unwrap();
+        let e = f.commit().unwrap_err();
+        assert!(matches!(&e, Error::Io { path, .. } if path.contains("out.gsm")), "{e}");
+        assert_eq!(names(&dir), ["out.gsm"], "temporary files left behind");
+        assert_eq!(std::fs::read(p.join("inside")).unwrap(), b"kept");
+        std::fs::remove_dir_all(&p).unwrap();
+        let r = Replacement::new(&p).unwrap();
+        std::fs::write(&r.tmp, b"made by another writer").unwrap();
+        std::fs::create_dir(&p).unwrap();
+        std::fs::write(p.join("inside"), b"kept").unwrap();
+        assert!(r.commit().is_err());
+        assert_eq!(names(&dir), ["out.gsm"], "temporary files left behind");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
     #[test]
     fn threads_writing_one_path_each_leave_a_whole_file() {
         let dir = scratch("threads");
