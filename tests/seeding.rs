@@ -3,7 +3,7 @@
 //! the peak stream works on sample positions.
 
 use gsenc::input::samples::{Sample, SampleArrays};
-use gsenc::encode::seeding::{seed, Stream};
+use gsenc::encode::seeding::{seed, Stream, PEAK_THRESHOLD};
 
 const MASSES: [f32; 6] = [1.0, 2.0, 4.0, 8.0, 16.0, 32.0];
 
@@ -109,4 +109,97 @@ fn peak_stream_bins_sample_positions() {
         assert!((sigma - want).abs() < 1e-5, "peak scale {sigma}, want {want}");
     }
     assert_eq!(sd.count(Stream::Uniform), 20 - 9 - 2);
+}
+
+/// With fewer samples than the budget, every sample is first a uniform seed,
+/// once and in order, at its own position and with the spread scale of one
+/// sample per primitive (never smaller: the spread factor is at least 1);
+/// the other slots are copies drawn with replacement in proportion to
+/// m^0.6, each jittered within half a voxel of its sample on every axis.
+#[test]
+fn fewer_samples_than_the_budget_are_each_taken_once_then_copied() {
+    let s = samples(&MASSES, 0.1);
+    let n = 50;
+    let mut counts = [0usize; 6];
+    let mut moved = 0;
+    for k in 0..400 {
+        let sd = seed(&s, [16, 4, 4], n, k).unwrap();
+        assert_eq!((sd.params.len(), sd.stream.len(), sd.sample.len()), (n, n, n));
+        for i in 0..6 {
+            assert_eq!((sd.stream[i], sd.sample[i]), (Stream::Uniform, i), "seed {k}: slot {i}");
+            assert_eq!(sd.params[i][..3], [2.0 * i as f32, 1.0, 1.0], "seed {k}: a uniform seed sits at its sample");
+        }
+        for i in 0..n {
+            assert!((sd.params[i][3].exp() - 0.5).abs() < 1e-6, "seed {k}: scale {} of slot {i}, not the sample's 0.5", sd.params[i][3].exp());
+        }
+        for i in 6..n {
+            assert_eq!(sd.stream[i], Stream::Importance, "seed {k}: slot {i}");
+            let j = sd.sample[i];
+            let q = [2.0 * j as f32, 1.0, 1.0];
+            for a in 0..3 {
+                let d = sd.params[i][a] - q[a];
+                assert!((-0.5..0.5).contains(&d), "seed {k}: copy {i} of sample {j} is {d} from it on axis {a}");
+                moved += (d != 0.0) as usize;
+            }
+            counts[j] += 1;
+        }
+    }
+    assert!(moved > 400 * 44 * 3 * 9 / 10, "only {moved} coordinates of the copies were jittered");
+    let chi = chi_square(&counts, &probabilities(0.6));
+    assert!(chi < 25.7, "chi-square {chi} against m^0.6, counts {counts:?}");
+    for wrong in [0.5, 1.0] {
+        let c = chi_square(&counts, &probabilities(wrong));
+        assert!(c > 100.0, "the test cannot tell m^{wrong} from m^0.6 (chi-square {c})");
+    }
+}
+
+/// Importances that are negative or not finite are refused, in either
+/// branch; so are importances that are all zero when copies must be drawn
+/// in proportion to them.
+#[test]
+fn importances_that_cannot_weigh_a_draw_are_refused() {
+    for bad in [f32::INFINITY, f32::NAN, -1.0] {
+        let mut masses = MASSES;
+        masses[2] = bad;
+        for n in [4, 50] {
+            let e = seed(&samples(&masses, 0.1), [16, 4, 4], n, 0).err().unwrap_or_else(|| panic!("mass {bad} with budget {n} was taken"));
+            assert!(e.to_string().contains("negative or not finite"), "{bad}, budget {n}: {e}");
+        }
+    }
+    let e = seed(&samples(&[0.0; 6], 0.1), [16, 4, 4], 50, 0).err().expect("zero importances weighed copies");
+    assert!(e.to_string().contains("all sample importances are zero"), "{e}");
+}
+
+/// The peak stream's edge cases: a value exactly at the threshold does not
+/// exceed it, the lower sample index wins a tie within a bin, and between
+/// bins whose winners tie, the lower sample index comes first, whatever
+/// the bins' order.
+#[test]
+fn peak_ties_go_to_the_lower_sample_and_the_threshold_is_exceeded() {
+    let peaks = |s: &SampleArrays, n: usize| -> Vec<usize> {
+        let sd = seed(s, [8, 4, 4], n, 3).unwrap();
+        (0..n).filter(|&i| sd.stream[i] == Stream::Peak).map(|i| sd.sample[i]).collect()
+    };
+    let filler = |s: &mut SampleArrays| {
+        for i in 0..40 {
+            s.push(Sample { q: [i as f32 * 0.15, 3.0, 3.0], h: 1.0, v: 0.1, m: 1.0 });
+        }
+    };
+    // Budget 7: a peak share of 1.
+    let mut s = SampleArrays::default();
+    s.push(Sample { q: [4.0, 0.0, 0.0], h: 1.0, v: 0.9, m: 1.0 }); // bin x = 2
+    s.push(Sample { q: [0.0, 0.0, 0.0], h: 1.0, v: 0.9, m: 1.0 }); // bin x = 0
+    filler(&mut s);
+    assert_eq!(peaks(&s, 7), vec![0]);
+    let mut s = SampleArrays::default();
+    s.push(Sample { q: [0.0, 0.0, 0.0], h: 1.0, v: 0.9, m: 1.0 });
+    s.push(Sample { q: [1.0, 1.0, 1.0], h: 1.0, v: 0.9, m: 1.0 }); // the same bin
+    filler(&mut s);
+    assert_eq!(peaks(&s, 7), vec![0]);
+    // Budget 20: a share of 3, of which one bin exceeds the threshold.
+    let mut s = SampleArrays::default();
+    s.push(Sample { q: [0.0, 0.0, 0.0], h: 1.0, v: PEAK_THRESHOLD, m: 1.0 });
+    s.push(Sample { q: [4.0, 0.0, 0.0], h: 1.0, v: PEAK_THRESHOLD.next_up(), m: 1.0 });
+    filler(&mut s);
+    assert_eq!(peaks(&s, 20), vec![1]);
 }
