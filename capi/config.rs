@@ -488,4 +488,110 @@ mod tests {
         let e = unsafe { Settings::from_c(&c) }.err().unwrap();
         assert!(e.1.contains("unknown schedule 5"), "{}", e.1);
     }
+
+    /// Reads `c` (a whole config of this version).
+    fn read(c: gsenc_config) -> Result<Settings, Failure> {
+        // SAFETY: a whole config of this version; its pointers are NULL or
+        // NUL-terminated strings the caller keeps.
+        unsafe { Settings::from_c(&c) }
+    }
+
+    /// Every other enumeration's constants read as the values they name,
+    /// and each field's numbers take effect as given.
+    #[test]
+    fn every_constant_reads_as_what_it_names() {
+        let d = gsenc_config::defaults;
+        for (code, warm) in [(GSENC_WARM_OFF, WarmStart::Off), (GSENC_WARM_COARSE, WarmStart::Coarse), (GSENC_WARM_DENSE, WarmStart::Dense), (GSENC_WARM_AUTO, WarmStart::Auto)] {
+            assert_eq!(read(gsenc_config { warm_start: code, ..d() }).ok().unwrap().series.warm, warm);
+        }
+        for (code, payload) in [
+            (GSENC_PAYLOAD_F32, Payload::Float32),
+            (GSENC_PAYLOAD_8BIT, Payload::Bits8(CentreCoding::Float16)),
+            (GSENC_PAYLOAD_8BIT_U16, Payload::Bits8(CentreCoding::Fixed16)),
+            (GSENC_PAYLOAD_PACKED, Payload::Packed),
+        ] {
+            assert_eq!(read(gsenc_config { payload: code, ..d() }).ok().unwrap().series.payload, payload);
+        }
+        for (code, transform) in [(GSENC_TRANSFORM_LINEAR, Transform::Linear), (GSENC_TRANSFORM_LOG10, Transform::Log10)] {
+            assert_eq!(read(gsenc_config { transform: code, ..d() }).ok().unwrap().series.range, SeriesRange::FirstStep(transform));
+            let fixed = read(gsenc_config { transform: code, fixed_range: 1, value_min: 0.5, value_max: 4.0, ..d() }).ok().unwrap();
+            assert_eq!(fixed.series.range, SeriesRange::Fixed(ValueRange { vmin: 0.5, vmax: 4.0, transform }));
+        }
+        for (code, when) in [(GSENC_QUEUE_BLOCK, WhenFull::Block), (GSENC_QUEUE_SKIP, WhenFull::Skip), (GSENC_QUEUE_BUSY, WhenFull::Busy)] {
+            assert_eq!(read(gsenc_config { when_full: code, ..d() }).ok().unwrap().when_full, when);
+        }
+        for (code, format) in [(GSENC_OUTPUT_FOLDER, OutputFormat::Folder), (GSENC_OUTPUT_HDF5, OutputFormat::Hdf5)] {
+            assert_eq!(read(gsenc_config { output_format: code, ..d() }).ok().unwrap().output_format, format);
+        }
+        for (code, stored) in [(GSENC_SUPPORT_STORED, true), (GSENC_SUPPORT_NONE, false)] {
+            assert_eq!(read(gsenc_config { support: code, ..d() }).ok().unwrap().series.store_support, stored);
+        }
+        for (code, kind) in [(GSENC_BACKEND_AUTO, BackendKind::Auto), (GSENC_BACKEND_CPU, BackendKind::Cpu), (GSENC_BACKEND_GPU, BackendKind::Gpu)] {
+            assert_eq!(read(gsenc_config { backend: code, ..d() }).ok().unwrap().backend.kind, kind);
+        }
+        for (code, priority) in [(GSENC_PRIORITY_NORMAL, Priority::Normal), (GSENC_PRIORITY_LOW, Priority::Low), (GSENC_PRIORITY_IDLE, Priority::Idle)] {
+            assert_eq!(read(gsenc_config { encoder_priority: code, ..d() }).ok().unwrap().placement.priority, priority);
+        }
+        let s = read(gsenc_config {
+            budget: 777,
+            iterations: 90,
+            points: 5000,
+            warm_iterations: 40,
+            seed_init: 11,
+            seed_sample: 12,
+            rank: 3,
+            dims: [5, 6, 7],
+            has_bounds: 1,
+            bounds_min: [-1.0, 0.0, 2.0],
+            bounds_max: [1.0, 0.5, 3.0],
+            threads: 2,
+            queue_bytes: 4096,
+            halo: 3,
+            gpu_index: 1,
+            ..d()
+        })
+        .ok()
+        .unwrap();
+        let e = &s.series.encode;
+        assert_eq!((e.budget, e.iterations, e.points, e.seed_init, e.seed_sample), (777, Some(90), Some(5000), 11, 12));
+        assert_eq!((s.series.warm_iterations, s.series.rank, s.dims), (Some(40), 3, [5, 6, 7]));
+        assert_eq!(s.bounds, Some(Bounds { min: [-1.0, 0.0, 2.0], max: [1.0, 0.5, 3.0] }));
+        assert_eq!((s.threads, s.queue_bytes, s.halo, s.backend.gpu_index), (2, 4096, 3, Some(1)));
+        let s = read(d()).ok().unwrap();
+        assert_eq!((s.series.encode.iterations, s.series.encode.points, s.series.warm_iterations, s.bounds, s.backend.gpu_index), (None, None, None, None, None));
+    }
+
+    /// A field that holds no value of its kind is refused at create, the
+    /// message naming the field or the value.
+    #[test]
+    fn a_field_without_a_value_of_its_kind_is_refused_by_name() {
+        let d = gsenc_config::defaults;
+        let nan = f64::NAN;
+        for (c, says) in [
+            (gsenc_config { warm_start: 4, ..d() }, "unknown warm start 4"),
+            (gsenc_config { transform: 2, ..d() }, "unknown transform 2"),
+            (gsenc_config { payload: 9, ..d() }, "unknown payload 9"),
+            (gsenc_config { when_full: 3, ..d() }, "unknown when_full 3"),
+            (gsenc_config { output_format: -1, ..d() }, "unknown output_format -1"),
+            (gsenc_config { encoder_priority: 3, ..d() }, "unknown encoder_priority 3"),
+            (gsenc_config { gpu_index: -2, ..d() }, "gpu_index -2"),
+            (gsenc_config { queue_bytes: 0, ..d() }, "queue_bytes 0 must be positive"),
+            (gsenc_config { dims: [4, 0, 4], ..d() }, "dims [4, 0, 4] must be positive"),
+            (gsenc_config { fixed_range: 1, value_min: 2.0, value_max: 2.0, ..d() }, "value range"),
+            (gsenc_config { fixed_range: 1, value_min: nan, value_max: 2.0, ..d() }, "value range"),
+            (gsenc_config { has_bounds: 1, bounds_min: [0.0, 1.0, 0.0], bounds_max: [1.0, 1.0, 1.0], ..d() }, "are not a box"),
+            (gsenc_config { has_bounds: 1, bounds_min: [0.0, 0.0, 2.0], bounds_max: [1.0, 1.0, 1.0], ..d() }, "are not a box"),
+            (gsenc_config { has_bounds: 1, bounds_min: [nan, 0.0, 0.0], ..d() }, "are not a box"),
+            (gsenc_config { has_bounds: 1, bounds_max: [1.0, f64::INFINITY, 1.0], ..d() }, "are not a box"),
+            (gsenc_config { preview: GSENC_PREVIEW_SLICE, preview_axis: -1, ..d() }, "preview_axis -1"),
+        ] {
+            let f = read(c).err().unwrap_or_else(|| panic!("'{says}' was read"));
+            assert_eq!(f.0, gsenc_status::InvalidArgument, "{says}: {}", f.1);
+            assert!(f.1.contains(says), "wanted '{says}', got {}", f.1);
+        }
+        // Without a fixed range, its values are not looked at; without
+        // bounds, neither are theirs.
+        assert!(read(gsenc_config { value_min: nan, value_max: nan, ..d() }).is_ok());
+        assert!(read(gsenc_config { bounds_min: [nan; 3], ..d() }).is_ok());
+    }
 }
