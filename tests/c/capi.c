@@ -459,6 +459,18 @@ int main(void) {
     hex.connectivity = NULL;
     EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, &hex), GSENC_STATUS_NULL_POINTER);
     hex.connectivity = conn;
+    /* Boxes need both of their arrays, and every layout its values. */
+    cells.edges = NULL;
+    EXPECT(gsenc_push_cells(enc, "cells_box", 1, 0.0, &cells), GSENC_STATUS_NULL_POINTER);
+    CHECK(strstr(last_error(), "centres or edges") != NULL, "NULL edges: %s", last_error());
+    cells.edges = ce;
+    cells.centres = NULL;
+    EXPECT(gsenc_push_cells(enc, "cells_box", 1, 0.0, &cells), GSENC_STATUS_NULL_POINTER);
+    cells.centres = cc;
+    hex.values = NULL;
+    EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, &hex), GSENC_STATUS_NULL_POINTER);
+    CHECK(strstr(last_error(), "values") != NULL, "NULL values: %s", last_error());
+    hex.values = cv;
     /* The struct itself: NULL, or older than this gsenc. */
     EXPECT(gsenc_push_cells(enc, "cells_hex", 1, 0.0, NULL), GSENC_STATUS_NULL_POINTER);
     CHECK(strstr(last_error(), "cells") != NULL, "NULL cells: %s", last_error());
@@ -502,6 +514,12 @@ int main(void) {
     g2 = grid;
     g2.spacing = -1.0;
     EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+    const double bad_spacings[] = {0.0, INFINITY, NAN};
+    for (size_t i = 0; i < sizeof bad_spacings / sizeof bad_spacings[0]; i++) {
+        g2.spacing = bad_spacings[i];
+        EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
+        CHECK(strstr(last_error(), "spacing") != NULL, "spacing %g: %s", bad_spacings[i], last_error());
+    }
     g2 = grid;
     g2.origin[1] = NAN;
     EXPECT(gsenc_push_grid(enc, "rho", 2, 0.0, &g2), GSENC_STATUS_INVALID_ARGUMENT);
