@@ -294,3 +294,47 @@ pub unsafe extern "C" fn gsenc_model_evaluate(model: *const gsenc_model, points:
         })
     })
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gsenc::field::{IndexFrame, Transform, ValueRange};
+    use gsenc::model::{ModelMeta, WarmRecord};
+
+    /// `gsenc_model_info_get` of a model whose every field is set by hand:
+    /// each number as the model holds it, a time and a PSNR it lacks as
+    /// NaN, and each warm-start record as its own constant.
+    #[test]
+    fn info_reports_every_field_of_the_model() {
+        let frame = IndexFrame { dims: [6, 5, 4], bmin: [-1.0, 2.0, 0.5], gamma: 4.0 };
+        let mut meta = ModelMeta::new(frame, ValueRange::new(0.0, 1.0, Transform::Linear).unwrap());
+        (meta.step, meta.schedule, meta.iterations, meta.rank) = (12, "warm-matched".into(), 345, 7);
+        (meta.time, meta.encode_psnr, meta.fell_back) = (Some(2.5), Some(41.25), Some("the GPU was lost".into()));
+        let params = vec![gsenc::math::kernel::isotropic([1.0, 1.0, 1.0], 1.0, 0.5, 0.5); 3];
+        let info_of = |meta: &ModelMeta| {
+            let handle = new_handle(Model { meta: meta.clone(), params: params.clone(), support: None });
+            // SAFETY: a zeroed plain struct of numbers.
+            let mut info: gsenc_model_info = unsafe { std::mem::zeroed() };
+            info.struct_size = std::mem::size_of::<gsenc_model_info>();
+            // SAFETY: a live handle and a writable info of this version.
+            let status = unsafe { gsenc_model_info_get(handle, &mut info) };
+            // SAFETY: the handle made above, freed once.
+            unsafe { gsenc_model_destroy(handle) };
+            assert_eq!(status, gsenc_status::Ok);
+            info
+        };
+        let info = info_of(&meta);
+        assert_eq!((info.count, info.dims, info.origin, info.spacing), (3, [6, 5, 4], [-1.0, 2.0, 0.5], 0.25));
+        assert_eq!((info.step, info.time, info.rank, info.iterations, info.encode_psnr), (12, 2.5, 7, 345, 41.25));
+        assert_eq!((info.warm_started, info.fell_back, info.warm_taken, info.warm_moved), (1, 1, GSENC_WARM_TAKEN_NONE, 0));
+        for (taken, code, moved) in [(WarmTaken::Kept, GSENC_WARM_TAKEN_KEPT, 0), (WarmTaken::Repaired, GSENC_WARM_TAKEN_REPAIRED, 17), (WarmTaken::Fresh, GSENC_WARM_TAKEN_FRESH, 3)] {
+            meta.warm = Some(WarmRecord { taken, moved });
+            let info = info_of(&meta);
+            assert_eq!((info.warm_taken, info.warm_moved), (code, moved), "{taken:?}");
+        }
+        (meta.time, meta.encode_psnr, meta.fell_back, meta.schedule) = (None, None, None, "matched".into());
+        let info = info_of(&meta);
+        assert!(info.time.is_nan() && info.encode_psnr.is_nan(), "time {}, PSNR {}", info.time, info.encode_psnr);
+        assert_eq!((info.warm_started, info.fell_back), (0, 0));
+    }
+}
