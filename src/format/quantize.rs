@@ -277,15 +277,13 @@ mod tests {
         for coding in [CentreCoding::Float16, CentreCoding::Fixed16] {
             let body = quantize(&params, coding);
             assert!(dequantize(&body, 5, coding).is_ok());
-            let tables = match coding {
-                CentreCoding::Float16 => vec![6 * 5],
-                CentreCoding::Fixed16 => vec![0, 8, 16, 24 + 6 * 5],
-            };
-            // Each map of the first table (centres for Fixed16), and the last
-            // of the nine parameter maps.
+            // Where each map starts: Fixed16's three centre maps, then the
+            // first and the last of the nine parameter maps (after the
+            // centres' codes).
+            let params_at = body_len(5, coding) - 9 * 8 - 9 * 5;
             let maps: Vec<usize> = match coding {
-                CentreCoding::Float16 => vec![tables[0], tables[0] + 8 * 8],
-                CentreCoding::Fixed16 => vec![0, 8, 16, tables[3], tables[3] + 8 * 8],
+                CentreCoding::Float16 => vec![params_at, params_at + 8 * 8],
+                CentreCoding::Fixed16 => vec![0, 8, 16, params_at, params_at + 8 * 8],
             };
             for &at in &maps {
                 let put = |lo: f32, hi: f32| {

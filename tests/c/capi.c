@@ -13,6 +13,7 @@
 #include <string.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
+#include <time.h>
 #include <unistd.h>
 #include "gsenc.h"
 
@@ -812,6 +813,16 @@ int main(void) {
         }
         EXPECT(gsenc_poll(enc, "slow", 0, &job), GSENC_STATUS_OK);
         CHECK(job.state == GSENC_JOB_QUEUED || job.state == GSENC_JOB_RUNNING, "the long step is in flight: %d", job.state);
+        if (policy == GSENC_QUEUE_SKIP) {
+            /* Running, it reports the iteration it has reached of those it
+             * runs (polled until past its first, for at most two minutes;
+             * it is there at the first poll, under valgrind too). */
+            const struct timespec tick = {0, 10 * 1000 * 1000};
+            for (int i = 0; i < 12000 && gsenc_poll(enc, "slow", 0, &job) == GSENC_STATUS_OK && !(job.state == GSENC_JOB_RUNNING && job.iteration > 0); i++)
+                nanosleep(&tick, NULL);
+            CHECK(job.state == GSENC_JOB_RUNNING && job.iteration > 0 && job.iteration < job.iterations && job.iterations == q.iterations && isnan(job.psnr),
+                  "running: state %d, iteration %u of %u, psnr %g", job.state, job.iteration, job.iterations, job.psnr);
+        }
         EXPECT(gsenc_encoder_cancel(enc), GSENC_STATUS_OK);
         EXPECT(gsenc_poll(enc, "slow", 0, &job), GSENC_STATUS_OK);
         CHECK(job.state == GSENC_JOB_CANCELLED, "cancelled: state %d", job.state);
