@@ -166,7 +166,7 @@ fn importances_that_cannot_weigh_a_draw_are_refused() {
             assert!(e.to_string().contains("negative or not finite"), "{bad}, budget {n}: {e}");
         }
     }
-    let e = seed(&samples(&[0.0; 6], 0.1), [16, 4, 4], 50, 0).err().expect("zero importances weighed copies");
+    let e = seed(&samples(&[0.0; 6], 0.1), [16, 4, 4], 50, 0).expect_err("zero importances weighed copies");
     assert!(e.to_string().contains("all sample importances are zero"), "{e}");
 }
 
