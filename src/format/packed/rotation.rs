@@ -176,6 +176,31 @@ mod tests {
     use super::*;
     use crate::math::rng::Rng;
 
+    /// A rotation's bits: none for a sphere; otherwise the group's bits,
+    /// less one for each halving of `3 D / levels` below 1 (computed here
+    /// as a logarithm), down to one bit and never to none.
+    #[test]
+    fn rotation_bits_fall_by_one_a_halving_down_to_one() {
+        for scale_bits in 2..=16u8 {
+            let levels = (1u64 << scale_bits) - 1;
+            for bits in 1..=16u8 {
+                for d in (0..=levels).step_by((levels as usize / 97).max(1)).chain([1, 2, 3, levels / 3, levels / 6 + 1, levels]) {
+                    let scale = [(d / 2) as u16, d as u16, 0];
+                    let want = match d {
+                        0 => 0,
+                        _ => {
+                            let halvings = (levels as f64 / (3 * d) as f64).log2().floor().max(0.0) as u8;
+                            bits - halvings.min(bits - 1)
+                        }
+                    };
+                    assert_eq!(rotation_bits(scale, scale_bits, bits), want, "scale codes {scale:?} at {scale_bits} bits, rotation at {bits}");
+                }
+            }
+        }
+        assert_eq!(rotation_bits([7, 7, 7], 12, 10), 0);
+        assert_eq!(rotation_bits([100, 100, 101], 12, 10), 1);
+    }
+
     #[test]
     fn smallest_three_rebuilds_the_rotation_up_to_sign() {
         let mut rng = Rng::new(9);
