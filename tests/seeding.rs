@@ -26,6 +26,18 @@ fn chi_square(counts: &[usize], expected: &[f64]) -> f64 {
     counts.iter().zip(expected).map(|(&c, &p)| (c as f64 - n as f64 * p).powi(2) / (n as f64 * p)).sum()
 }
 
+/// Asserts that the draws `counts` of the six samples follow m^0.6, and
+/// that so many draws would tell m^0.5 and m^1 from it.
+fn follows_m_to_the_0_6(counts: &[usize; 6]) {
+    // Chi-square with 5 degrees of freedom: 25.7 is its 1e-4 upper quantile.
+    let chi = chi_square(counts, &probabilities(0.6));
+    assert!(chi < 25.7, "chi-square {chi} against m^0.6, counts {counts:?}");
+    for wrong in [0.5, 1.0] {
+        let c = chi_square(counts, &probabilities(wrong));
+        assert!(c > 100.0, "the test cannot tell m^{wrong} from m^0.6 (chi-square {c})");
+    }
+}
+
 const DRAWS: u64 = 30_000;
 
 /// A budget of 2 has one importance seed: its sample frequencies must follow
@@ -40,13 +52,7 @@ fn single_importance_draw_follows_m_to_the_0_6() {
         assert_eq!(imp.len(), 1);
         counts[imp[0]] += 1;
     }
-    // Chi-square with 5 degrees of freedom: 25.7 is its 1e-4 upper quantile.
-    let chi = chi_square(&counts, &probabilities(0.6));
-    assert!(chi < 25.7, "chi-square {chi} against m^0.6, counts {counts:?}");
-    for wrong in [0.5, 1.0] {
-        let c = chi_square(&counts, &probabilities(wrong));
-        assert!(c > 100.0, "the test cannot tell m^{wrong} from m^0.6 (chi-square {c})");
-    }
+    follows_m_to_the_0_6(&counts);
 }
 
 /// A budget of 4 has two importance seeds, distinct (without replacement):
@@ -145,12 +151,7 @@ fn fewer_samples_than_the_budget_are_each_taken_once_then_copied() {
         }
     }
     assert!(moved > 400 * 44 * 3 * 9 / 10, "only {moved} coordinates of the copies were jittered");
-    let chi = chi_square(&counts, &probabilities(0.6));
-    assert!(chi < 25.7, "chi-square {chi} against m^0.6, counts {counts:?}");
-    for wrong in [0.5, 1.0] {
-        let c = chi_square(&counts, &probabilities(wrong));
-        assert!(c > 100.0, "the test cannot tell m^{wrong} from m^0.6 (chi-square {c})");
-    }
+    follows_m_to_the_0_6(&counts);
 }
 
 /// Importances that are negative or not finite are refused, in either
