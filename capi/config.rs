@@ -478,22 +478,27 @@ mod tests {
         let named = [(GSENC_SCHEDULE_FULL, "full"), (GSENC_SCHEDULE_MATCHED, "matched"), (GSENC_SCHEDULE_SHORT, "short"), (GSENC_SCHEDULE_TUNED, "tuned"), (GSENC_SCHEDULE_TUNED_FULL, "tuned-full")];
         assert_eq!(named.len(), Schedule::ALL.len());
         for (code, name) in named {
-            let c = gsenc_config { schedule: code, ..gsenc_config::defaults() };
-            // SAFETY: a whole config of this version.
-            let s = unsafe { Settings::from_c(&c) }.unwrap_or_else(|f| panic!("{code}: {}", f.1));
-            assert_eq!(s.series.encode.schedule.name(), name);
+            assert_eq!(read(gsenc_config { schedule: code, ..gsenc_config::defaults() }).series.encode.schedule.name(), name);
         }
-        let c = gsenc_config { schedule: 5, ..gsenc_config::defaults() };
-        // SAFETY: as above.
-        let e = unsafe { Settings::from_c(&c) }.err().unwrap();
+        let e = refusal(gsenc_config { schedule: 5, ..gsenc_config::defaults() }, "schedule 5");
         assert!(e.1.contains("unknown schedule 5"), "{}", e.1);
     }
 
-    /// Reads `c` (a whole config of this version).
-    fn read(c: gsenc_config) -> Result<Settings, Failure> {
+    /// `c` (a whole config of this version) read, or its failure.
+    fn try_read(c: gsenc_config) -> Result<Settings, Failure> {
         // SAFETY: a whole config of this version; its pointers are NULL or
         // NUL-terminated strings the caller keeps.
         unsafe { Settings::from_c(&c) }
+    }
+
+    /// The settings `c` reads as; a refusal fails the test with its message.
+    fn read(c: gsenc_config) -> Settings {
+        try_read(c).unwrap_or_else(|f| panic!("refused: {}", f.1))
+    }
+
+    /// How `c` is refused; being read fails the test, naming `what`.
+    fn refusal(c: gsenc_config, what: &str) -> Failure {
+        try_read(c).err().unwrap_or_else(|| panic!("'{what}' was read"))
     }
 
     /// Every other enumeration's constants read as the values they name,
@@ -502,7 +507,7 @@ mod tests {
     fn every_constant_reads_as_what_it_names() {
         let d = gsenc_config::defaults;
         for (code, warm) in [(GSENC_WARM_OFF, WarmStart::Off), (GSENC_WARM_COARSE, WarmStart::Coarse), (GSENC_WARM_DENSE, WarmStart::Dense), (GSENC_WARM_AUTO, WarmStart::Auto)] {
-            assert_eq!(read(gsenc_config { warm_start: code, ..d() }).ok().unwrap().series.warm, warm);
+            assert_eq!(read(gsenc_config { warm_start: code, ..d() }).series.warm, warm);
         }
         for (code, payload) in [
             (GSENC_PAYLOAD_F32, Payload::Float32),
@@ -510,27 +515,27 @@ mod tests {
             (GSENC_PAYLOAD_8BIT_U16, Payload::Bits8(CentreCoding::Fixed16)),
             (GSENC_PAYLOAD_PACKED, Payload::Packed),
         ] {
-            assert_eq!(read(gsenc_config { payload: code, ..d() }).ok().unwrap().series.payload, payload);
+            assert_eq!(read(gsenc_config { payload: code, ..d() }).series.payload, payload);
         }
         for (code, transform) in [(GSENC_TRANSFORM_LINEAR, Transform::Linear), (GSENC_TRANSFORM_LOG10, Transform::Log10)] {
-            assert_eq!(read(gsenc_config { transform: code, ..d() }).ok().unwrap().series.range, SeriesRange::FirstStep(transform));
-            let fixed = read(gsenc_config { transform: code, fixed_range: 1, value_min: 0.5, value_max: 4.0, ..d() }).ok().unwrap();
+            assert_eq!(read(gsenc_config { transform: code, ..d() }).series.range, SeriesRange::FirstStep(transform));
+            let fixed = read(gsenc_config { transform: code, fixed_range: 1, value_min: 0.5, value_max: 4.0, ..d() });
             assert_eq!(fixed.series.range, SeriesRange::Fixed(ValueRange { vmin: 0.5, vmax: 4.0, transform }));
         }
         for (code, when) in [(GSENC_QUEUE_BLOCK, WhenFull::Block), (GSENC_QUEUE_SKIP, WhenFull::Skip), (GSENC_QUEUE_BUSY, WhenFull::Busy)] {
-            assert_eq!(read(gsenc_config { when_full: code, ..d() }).ok().unwrap().when_full, when);
+            assert_eq!(read(gsenc_config { when_full: code, ..d() }).when_full, when);
         }
         for (code, format) in [(GSENC_OUTPUT_FOLDER, OutputFormat::Folder), (GSENC_OUTPUT_HDF5, OutputFormat::Hdf5)] {
-            assert_eq!(read(gsenc_config { output_format: code, ..d() }).ok().unwrap().output_format, format);
+            assert_eq!(read(gsenc_config { output_format: code, ..d() }).output_format, format);
         }
         for (code, stored) in [(GSENC_SUPPORT_STORED, true), (GSENC_SUPPORT_NONE, false)] {
-            assert_eq!(read(gsenc_config { support: code, ..d() }).ok().unwrap().series.store_support, stored);
+            assert_eq!(read(gsenc_config { support: code, ..d() }).series.store_support, stored);
         }
         for (code, kind) in [(GSENC_BACKEND_AUTO, BackendKind::Auto), (GSENC_BACKEND_CPU, BackendKind::Cpu), (GSENC_BACKEND_GPU, BackendKind::Gpu)] {
-            assert_eq!(read(gsenc_config { backend: code, ..d() }).ok().unwrap().backend.kind, kind);
+            assert_eq!(read(gsenc_config { backend: code, ..d() }).backend.kind, kind);
         }
         for (code, priority) in [(GSENC_PRIORITY_NORMAL, Priority::Normal), (GSENC_PRIORITY_LOW, Priority::Low), (GSENC_PRIORITY_IDLE, Priority::Idle)] {
-            assert_eq!(read(gsenc_config { encoder_priority: code, ..d() }).ok().unwrap().placement.priority, priority);
+            assert_eq!(read(gsenc_config { encoder_priority: code, ..d() }).placement.priority, priority);
         }
         let s = read(gsenc_config {
             budget: 777,
@@ -549,15 +554,13 @@ mod tests {
             halo: 3,
             gpu_index: 1,
             ..d()
-        })
-        .ok()
-        .unwrap();
+        });
         let e = &s.series.encode;
         assert_eq!((e.budget, e.iterations, e.points, e.seed_init, e.seed_sample), (777, Some(90), Some(5000), 11, 12));
         assert_eq!((s.series.warm_iterations, s.series.rank, s.dims), (Some(40), 3, [5, 6, 7]));
         assert_eq!(s.bounds, Some(Bounds { min: [-1.0, 0.0, 2.0], max: [1.0, 0.5, 3.0] }));
         assert_eq!((s.threads, s.queue_bytes, s.halo, s.backend.gpu_index), (2, 4096, 3, Some(1)));
-        let s = read(d()).ok().unwrap();
+        let s = read(d());
         assert_eq!((s.series.encode.iterations, s.series.encode.points, s.series.warm_iterations, s.bounds, s.backend.gpu_index), (None, None, None, None, None));
     }
 
@@ -585,13 +588,13 @@ mod tests {
             (gsenc_config { has_bounds: 1, bounds_max: [1.0, f64::INFINITY, 1.0], ..d() }, "are not a box"),
             (gsenc_config { preview: GSENC_PREVIEW_SLICE, preview_axis: -1, ..d() }, "preview_axis -1"),
         ] {
-            let f = read(c).err().unwrap_or_else(|| panic!("'{says}' was read"));
+            let f = refusal(c, says);
             assert_eq!(f.0, gsenc_status::InvalidArgument, "{says}: {}", f.1);
             assert!(f.1.contains(says), "wanted '{says}', got {}", f.1);
         }
         // Without a fixed range, its values are not looked at; without
         // bounds, neither are theirs.
-        assert!(read(gsenc_config { value_min: nan, value_max: nan, ..d() }).is_ok());
-        assert!(read(gsenc_config { bounds_min: [nan; 3], ..d() }).is_ok());
+        read(gsenc_config { value_min: nan, value_max: nan, ..d() });
+        read(gsenc_config { bounds_min: [nan; 3], ..d() });
     }
 }

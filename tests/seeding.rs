@@ -181,26 +181,20 @@ fn peak_ties_go_to_the_lower_sample_and_the_threshold_is_exceeded() {
         let sd = seed(s, [8, 4, 4], n, 3).unwrap();
         (0..n).filter(|&i| sd.stream[i] == Stream::Peak).map(|i| sd.sample[i]).collect()
     };
-    let filler = |s: &mut SampleArrays| {
+    // Samples 0 and 1 at (x, value) on the y = z = 0 row, then 40 below
+    // the threshold elsewhere.
+    let two = |[(x0, v0), (x1, v1)]: [(f32, f32); 2]| {
+        let mut s = SampleArrays::default();
+        s.push(Sample { q: [x0, 0.0, 0.0], h: 1.0, v: v0, m: 1.0 });
+        s.push(Sample { q: [x1, 0.0, 0.0], h: 1.0, v: v1, m: 1.0 });
         for i in 0..40 {
             s.push(Sample { q: [i as f32 * 0.15, 3.0, 3.0], h: 1.0, v: 0.1, m: 1.0 });
         }
+        s
     };
-    // Budget 7: a peak share of 1.
-    let mut s = SampleArrays::default();
-    s.push(Sample { q: [4.0, 0.0, 0.0], h: 1.0, v: 0.9, m: 1.0 }); // bin x = 2
-    s.push(Sample { q: [0.0, 0.0, 0.0], h: 1.0, v: 0.9, m: 1.0 }); // bin x = 0
-    filler(&mut s);
-    assert_eq!(peaks(&s, 7), vec![0]);
-    let mut s = SampleArrays::default();
-    s.push(Sample { q: [0.0, 0.0, 0.0], h: 1.0, v: 0.9, m: 1.0 });
-    s.push(Sample { q: [1.0, 1.0, 1.0], h: 1.0, v: 0.9, m: 1.0 }); // the same bin
-    filler(&mut s);
-    assert_eq!(peaks(&s, 7), vec![0]);
+    // Budget 7: a peak share of 1. Bins x = 2 and 0, then both in bin 0.
+    assert_eq!(peaks(&two([(4.0, 0.9), (0.0, 0.9)]), 7), vec![0]);
+    assert_eq!(peaks(&two([(0.0, 0.9), (1.0, 0.9)]), 7), vec![0]);
     // Budget 20: a share of 3, of which one bin exceeds the threshold.
-    let mut s = SampleArrays::default();
-    s.push(Sample { q: [0.0, 0.0, 0.0], h: 1.0, v: PEAK_THRESHOLD, m: 1.0 });
-    s.push(Sample { q: [4.0, 0.0, 0.0], h: 1.0, v: PEAK_THRESHOLD.next_up(), m: 1.0 });
-    filler(&mut s);
-    assert_eq!(peaks(&s, 20), vec![1]);
+    assert_eq!(peaks(&two([(0.0, PEAK_THRESHOLD), (4.0, PEAK_THRESHOLD.next_up())]), 20), vec![1]);
 }
