@@ -72,13 +72,19 @@ pub struct Measured {
 /// group until it passes (or is at its finest). Sets its support's outside
 /// too, fitted to the packed parameters ([`decode_as_stored`]).
 pub fn measure_precision(model: &mut Model, reference: &Grid, backend: &mut dyn Backend) -> Result<Measured> {
+    measure_with(model, reference, backend, &SEARCH_ALLOWANCES, MAX_PSNR_LOSS_DB)
+}
+
+/// [`measure_precision`] with the allowances it searches with, in turn,
+/// and the whole lattice's loss it must meet.
+fn measure_with(model: &mut Model, reference: &Grid, backend: &mut dyn Backend, allowances: &[f64], max_loss: f64) -> Result<Measured> {
     let float32_psnr = voxel_psnr(&decode_as_stored(Payload::Float32, model, reference, backend)?.decoded, &reference.values);
     let finest = finest_for(&model.params);
     // One search for every allowance: a retry scores only what the search
     // before it did not (most of its bisection repeats the first search's:
     // 25 of 76 scorings for hydrogen's `tuned` model at 300 iterations).
-    let mut search = Search::new(&model.params, reference, model.support.is_some(), backend)?;
-    let mut allowances = SEARCH_ALLOWANCES.iter();
+    let mut search = search(&model.params, reference, model.support.is_some(), backend)?;
+    let mut allowances = allowances.iter();
     let mut p = finest;
     loop {
         if let Some(&allowed) = allowances.next() {
@@ -90,7 +96,7 @@ pub fn measure_precision(model: &mut Model, reference: &Grid, backend: &mut dyn 
         model.meta.precision = Some(p);
         let stored = decode_as_stored(Payload::Packed, model, reference, backend)?;
         let psnr = voxel_psnr(&stored.decoded, &reference.values);
-        if float32_psnr - psnr <= MAX_PSNR_LOSS_DB || p == finest {
+        if float32_psnr - psnr <= max_loss || p == finest {
             model.support = stored.support;
             return Ok(Measured { decoded: stored.decoded, psnr, float32_psnr });
         }
@@ -112,60 +118,85 @@ fn finest_for(params: &[Primitive]) -> Precision {
 /// stores its support. A model without primitives, or a reference with
 /// nothing to score, gets the default.
 pub fn choose_precision(params: &[Primitive], reference: &Grid, support: bool, allowed: f64, backend: &mut dyn Backend) -> Result<Precision> {
-    match Search::new(params, reference, support, backend)? {
+    match search(params, reference, support, backend)? {
         Some(mut search) => search.choose(allowed, backend),
         None => Ok(Precision::DEFAULT),
     }
 }
 
-/// One model's search: its sample, the float32 model's PSNR there, and the
-/// loss of every precision scored so far, kept across allowances (a
-/// precision's loss on the sample does not depend on the allowance).
-struct Search<'a> {
-    params: &'a [Primitive],
-    sample: Validation,
-    exact: f64,
-    finest: Precision,
-    seen: HashMap<Precision, f64>,
+/// The search for `params` on the sample of `reference`: it scores the
+/// sample's PSNR lost by packing at a precision. `None` when `params` is
+/// empty or `reference` has nothing to score (the precision is then the
+/// default).
+fn search<'a>(params: &'a [Primitive], reference: &Grid, support: bool, backend: &mut dyn Backend) -> Result<Option<Search<impl FnMut(Precision, &mut dyn Backend) -> Result<f64> + 'a>>> {
+    let Some(sample) = sample(reference, support) else { return Ok(None) };
+    if params.is_empty() {
+        return Ok(None);
+    }
+    let exact = sample.psnr(backend, params)?;
+    let finest = finest_for(params);
+    let score = move |p: Precision, backend: &mut dyn Backend| Ok(exact - sample.psnr(backend, &Packed::of(params, p)?.params()?)?);
+    Ok(Some(Search::over(score, numbers(params, finest), finest)))
 }
 
-impl<'a> Search<'a> {
-    /// `None` when `params` is empty or `reference` has nothing to score
-    /// (the precision is then the default).
-    fn new(params: &'a [Primitive], reference: &Grid, support: bool, backend: &mut dyn Backend) -> Result<Option<Search<'a>>> {
-        let Some(sample) = sample(reference, support) else { return Ok(None) };
-        if params.is_empty() {
-            return Ok(None);
-        }
-        let exact = sample.psnr(backend, params)?;
-        Ok(Some(Search { params, sample, exact, finest: finest_for(params), seen: HashMap::new() }))
+/// Numbers a primitive stores per bit of each group, on average: three a
+/// primitive of its class for a centre class (so 0 for a class without
+/// primitives), [`NUMBERS`] for the others.
+fn numbers(params: &[Primitive], finest: Precision) -> [f64; GROUPS.len()] {
+    let counts = class_counts(params, finest.scale);
+    std::array::from_fn(|g| if Precision::is_centre(g) { 3.0 * counts[g] as f64 / params.len() as f64 } else { NUMBERS[g - counts.len()] })
+}
+
+/// One model's search: what it scores (`score`: the loss in dB of a
+/// precision), the numbers each group stores, and the loss of every
+/// precision scored so far, kept across allowances (a precision's loss on
+/// the sample does not depend on the allowance).
+struct Search<S> {
+    score: S,
+    /// Numbers stored per bit of each group ([`numbers`]); a group of none
+    /// is not searched (it keeps `finest`'s bits).
+    numbers: [f64; GROUPS.len()],
+    finest: Precision,
+    seen: HashMap<Precision, f64>,
+    /// Precisions scored: each once, a repeat is read from `seen`.
+    scored: usize,
+}
+
+impl<S: FnMut(Precision, &mut dyn Backend) -> Result<f64>> Search<S> {
+    fn over(score: S, numbers: [f64; GROUPS.len()], finest: Precision) -> Search<S> {
+        Search { score, numbers, finest, seen: HashMap::new(), scored: 0 }
     }
 
-    /// The sample's PSNR lost by packing at `p`.
+    /// The loss of packing at `p`.
     fn loss(&mut self, p: Precision, backend: &mut dyn Backend) -> Result<f64> {
         if let Some(&l) = self.seen.get(&p) {
             return Ok(l);
         }
-        let l = self.exact - self.sample.psnr(backend, &Packed::of(self.params, p)?.params()?)?;
+        let l = (self.score)(p, backend)?;
+        self.scored += 1;
         self.seen.insert(p, l);
         Ok(l)
     }
 
+    /// The precision that loses at most `allowed` dB: the module
+    /// documentation's three steps.
     fn choose(&mut self, allowed: f64, backend: &mut dyn Backend) -> Result<Precision> {
-        let (params, finest) = (self.params, self.finest);
-        // Numbers stored per bit of each group, a primitive on average; the
-        // groups searched: all but the centre classes without primitives.
-        let counts = class_counts(params, finest.scale);
-        let numbers: Vec<f64> = (0..GROUPS.len())
-            .map(|g| if Precision::is_centre(g) { 3.0 * counts[g] as f64 / params.len() as f64 } else { NUMBERS[g - counts.len()] })
-            .collect();
-        let groups: Vec<usize> = (0..GROUPS.len()).filter(|&g| numbers[g] > 0.0).collect();
+        let groups: Vec<usize> = (0..GROUPS.len()).filter(|&g| self.numbers[g] > 0.0).collect();
+        let alone = self.each_alone(&groups, allowed, backend)?;
+        let cheapest = self.give_up_cheapest(alone, &groups, allowed, backend)?;
+        self.within(cheapest, allowed, backend)
+    }
+
+    /// Step 1: each of `groups` at the fewest bits that lose at most an
+    /// equal share of `allowed`, the others at their finest.
+    fn each_alone(&mut self, groups: &[usize], allowed: f64, backend: &mut dyn Backend) -> Result<Precision> {
+        let finest = self.finest;
         // The loss of one group alone is about its share of the added error:
         // an equal share of the allowed error, in dB.
         let total_err = 10f64.powf(allowed / 10.0) - 1.0;
         let group_loss = 10.0 * (1.0 + total_err / groups.len() as f64).log10();
         let mut chosen = finest;
-        for &g in &groups {
+        for &g in groups {
             // The fewest bits in [lo, finest] whose loss is within the group's share.
             let (mut lo, mut hi) = (Precision::min_bits(g), finest.get(g));
             while lo < hi {
@@ -178,25 +209,37 @@ impl<'a> Search<'a> {
             }
             chosen = chosen.with(g, lo);
         }
+        Ok(chosen)
+    }
+
+    /// Step 2: from `chosen`, while the allowance lasts, the group of
+    /// `groups` whose next bit costs the least loss per stored number
+    /// gives it up.
+    fn give_up_cheapest(&mut self, mut chosen: Precision, groups: &[usize], allowed: f64, backend: &mut dyn Backend) -> Result<Precision> {
         let mut now = self.loss(chosen, backend)?;
         loop {
             let mut best: Option<(f64, Precision, f64)> = None;
-            for &g in &groups {
+            for &g in groups {
                 if chosen.get(g) == Precision::min_bits(g) {
                     continue;
                 }
                 let candidate = chosen.with(g, chosen.get(g) - 1);
                 let l = self.loss(candidate, backend)?;
-                let per_number = (l - now).max(0.0) / numbers[g];
+                let per_number = (l - now).max(0.0) / self.numbers[g];
                 if l <= allowed && best.is_none_or(|b| per_number < b.0) {
                     best = Some((per_number, candidate, l));
                 }
             }
-            let Some((_, candidate, l)) = best else { break };
+            let Some((_, candidate, l)) = best else { return Ok(chosen) };
             (chosen, now) = (candidate, l);
         }
-        while self.loss(chosen, backend)? > allowed && chosen != finest {
-            chosen = finer(chosen, finest);
+    }
+
+    /// Step 3: `chosen` with a bit more in every group until it loses at
+    /// most `allowed` (or is the finest).
+    fn within(&mut self, mut chosen: Precision, allowed: f64, backend: &mut dyn Backend) -> Result<Precision> {
+        while self.loss(chosen, backend)? > allowed && chosen != self.finest {
+            chosen = finer(chosen, self.finest);
         }
         Ok(chosen)
     }
@@ -248,8 +291,12 @@ fn sample(reference: &Grid, support: bool) -> Option<Validation> {
 mod tests {
     use super::*;
     use crate::backend::cpu::CpuBackend;
+    use crate::backend::Lattice;
+    use crate::field::{IndexFrame, Transform, ValueRange};
+    use crate::format::packed::{CENTRE_CLASSES, MAX_BITS};
     use crate::math::kernel::layout;
     use crate::math::loss::v_eval;
+    use crate::model::{ModelMeta, Support};
 
     /// Sharp primitives (class 0) that carry the field and broad ones of
     /// almost no weight (class 3) that carry nothing, and a reference: the
@@ -304,9 +351,9 @@ mod tests {
     fn a_retry_reuses_the_scores_of_the_searches_before_it() {
         let (params, reference) = two_class_model();
         let mut backend = CpuBackend::new();
-        let mut shared = Search::new(&params, &reference, false, &mut backend).unwrap().unwrap();
+        let mut shared = search(&params, &reference, false, &mut backend).unwrap().unwrap();
         for (i, &allowed) in SEARCH_ALLOWANCES.iter().enumerate() {
-            let mut fresh = Search::new(&params, &reference, false, &mut backend).unwrap().unwrap();
+            let mut fresh = search(&params, &reference, false, &mut backend).unwrap().unwrap();
             let want = fresh.choose(allowed, &mut backend).unwrap();
             let before = shared.seen.len();
             assert_eq!(shared.choose(allowed, &mut backend).unwrap(), want, "allowance {allowed}");
@@ -317,6 +364,8 @@ mod tests {
                 assert!(scored < fresh.seen.len(), "allowance {allowed}: {scored} scored again of a fresh search's {}", fresh.seen.len());
             }
             assert_eq!(shared.seen.iter().filter(|(p, _)| fresh.seen.contains_key(p)).count(), fresh.seen.len());
+            // Each precision was scored once.
+            assert_eq!((shared.scored, fresh.scored), (shared.seen.len(), fresh.seen.len()));
         }
     }
 
@@ -350,5 +399,197 @@ mod tests {
         seen.dedup();
         assert_eq!(seen.len(), 32000, "a voxel twice");
         assert_eq!(sample(&small, false).unwrap().points.len(), 64000);
+    }
+
+    /// A voxel exactly at the mask is outside the support (as the
+    /// support's own rule: above it), and a lattice of exactly [`POINTS`]
+    /// candidates is scored whole, each voxel once, in lattice order.
+    #[test]
+    fn the_sample_at_the_mask_and_at_exactly_its_size() {
+        let mut values = vec![MASK_REF; 64];
+        values[37] = MASK_REF.next_up();
+        let s = sample(&Grid::new([4, 4, 4], values).unwrap(), true).unwrap();
+        assert_eq!((s.points, s.values), (vec![[1.0, 1.0, 2.0]], vec![MASK_REF.next_up()]));
+        let whole = Grid::new([64, 32, 32], vec![0.5; POINTS]).unwrap();
+        assert_eq!(sample(&whole, false).unwrap().points, (0..POINTS).map(|i| whole.centre(i)).collect::<Vec<_>>());
+    }
+
+    /// A model of `params` on `reference`'s lattice, with the support of
+    /// `reference` when `support`.
+    fn model_of(params: &[Primitive], reference: &Grid, support: bool) -> Model {
+        let frame = IndexFrame::for_grid(reference.dims, [0.0; 3], 1.0).unwrap();
+        let meta = ModelMeta::new(frame, ValueRange::new(0.0, 1.0, Transform::Linear).unwrap());
+        Model { meta, params: params.to_vec(), support: if support { Support::from_reference(reference) } else { None } }
+    }
+
+    #[test]
+    fn a_model_without_primitives_or_without_a_sample_gets_the_default() {
+        let (params, reference) = two_class_model();
+        let mut backend = CpuBackend::new();
+        assert_eq!(choose_precision(&[], &reference, false, MAX_PSNR_LOSS_DB, &mut backend).unwrap(), Precision::DEFAULT);
+        let nothing = Grid::new(reference.dims, vec![0.0; reference.len()]).unwrap();
+        assert_eq!(choose_precision(&params, &nothing, true, MAX_PSNR_LOSS_DB, &mut backend).unwrap(), Precision::DEFAULT);
+        let mut empty = model_of(&[], &reference, false);
+        let m = measure_precision(&mut empty, &reference, &mut backend).unwrap();
+        assert_eq!((empty.meta.precision, m.psnr), (Some(Precision::DEFAULT), m.float32_psnr));
+    }
+
+    /// When the lattice loses more than the sample promised, the search
+    /// runs again with the next allowance, and after the last one every
+    /// group gains a bit (none past the finest) until the lattice loses
+    /// at most the most allowed. Allowances far beyond that make both
+    /// searches miss.
+    #[test]
+    fn a_miss_on_the_lattice_searches_again_then_adds_a_bit_to_every_group() {
+        let (params, reference) = two_class_model();
+        let mut backend = CpuBackend::new();
+        let float32 = voxel_psnr(&decode_as_stored(Payload::Float32, &model_of(&params, &reference, false), &reference, &mut backend).unwrap().decoded, &reference.values);
+        let lattice_loss = |p: Precision| {
+            let mut m = model_of(&params, &reference, false);
+            m.meta.precision = Some(p);
+            float32 - voxel_psnr(&decode_as_stored(Payload::Packed, &m, &reference, &mut CpuBackend::new()).unwrap().decoded, &reference.values)
+        };
+        let (first, last) = [5.0, 3.0].map(|allowed| choose_precision(&params, &reference, false, allowed, &mut backend).unwrap()).into();
+        assert!(lattice_loss(first) > MAX_PSNR_LOSS_DB && lattice_loss(last) > MAX_PSNR_LOSS_DB);
+
+        let mut model = model_of(&params, &reference, false);
+        let m = measure_with(&mut model, &reference, &mut backend, &[5.0, 3.0], MAX_PSNR_LOSS_DB).unwrap();
+        let p = model.meta.precision.unwrap();
+        let finest = finest_for(&params);
+        let plus = |k: u8| (0..GROUPS.len()).fold(last, |q, g| q.with(g, (last.get(g) + k).min(finest.get(g))));
+        let k = (1..=MAX_BITS).find(|&k| plus(k) == p).unwrap_or_else(|| panic!("{p:?} is not {last:?} with bits added"));
+        assert!((0..GROUPS.len()).all(|g| p.get(g) <= finest.get(g)), "{p:?} past the finest");
+        assert_eq!(m.float32_psnr, float32);
+        assert!((float32 - m.psnr - lattice_loss(p)).abs() < 1e-12 && lattice_loss(p) <= MAX_PSNR_LOSS_DB, "{p:?}");
+        assert!(lattice_loss(plus(k - 1)) > MAX_PSNR_LOSS_DB, "{k} bits added, one fewer was enough");
+    }
+
+    /// The support is stored with its outside fitted to the packed
+    /// parameters' decode, not the float32 ones' (which differ: the test
+    /// can tell them apart). The reference is the model's own decode, with
+    /// noise only inside the support, so that its tail outside is what an
+    /// outside fits.
+    #[test]
+    fn the_support_is_stored_with_its_outside_fitted_to_the_packed_decode() {
+        let (params, _) = two_class_model();
+        let mut backend = CpuBackend::new();
+        let dims = [24, 24, 24];
+        let decode = |params: &[Primitive]| {
+            let mut out = vec![0f32; 24 * 24 * 24];
+            CpuBackend::new().decode_lattice(params, &Lattice::reference(dims), &mut out).unwrap();
+            out
+        };
+        let mut rng = Rng::new(8);
+        let reference = Grid::new(dims, decode(&params).iter().map(|&v| if v > 0.02 { v + 0.01 * rng.normal() as f32 } else { v }).collect()).unwrap();
+        let mut model = model_of(&params, &reference, true);
+        measure_precision(&mut model, &reference, &mut backend).unwrap();
+        let support = model.support.as_ref().expect("the model keeps its support");
+        let packed = Packed::of(&params, model.meta.precision.unwrap()).unwrap().params().unwrap();
+        let fitted = support.fit_outside(&decode(&packed), &reference);
+        assert!(!fitted.is_zero());
+        assert_eq!(support.outside(), fitted);
+        assert_ne!(support.outside(), support.fit_outside(&decode(&params), &reference));
+    }
+
+    /// Numbers a primitive stores per bit in the analytic searches below:
+    /// no centre class is searched.
+    const ANALYTIC_NUMBERS: [f64; GROUPS.len()] = [0.0, 0.0, 0.0, 0.0, 3.0, 3.0, 1.0, 1.0];
+
+    /// An analytic loss in dB: each group but the centres' adds an error
+    /// `c 4^-bits` (a quantisation step's square) to an error of 1, summed
+    /// or (`compound`) as the cube of the sum of their cube roots, up to
+    /// 16 times their sum: groups that each lose their share then lose
+    /// more together.
+    fn analytic(c: [f64; 4], compound: bool) -> impl Fn(Precision) -> f64 {
+        move |p| {
+            let e = (0..4).map(|i| c[i] * 4f64.powi(-(p.get(CENTRE_CLASSES + i) as i32)));
+            10.0 * (1.0 + if compound { e.map(f64::cbrt).sum::<f64>().powi(3) } else { e.sum() }).log10()
+        }
+    }
+
+    fn analytic_search(loss: impl Fn(Precision) -> f64) -> Search<impl FnMut(Precision, &mut dyn Backend) -> Result<f64>> {
+        Search::over(move |p: Precision, _: &mut dyn Backend| Ok(loss(p)), ANALYTIC_NUMBERS, Precision::FINEST)
+    }
+
+    fn stored_bits(p: Precision) -> f64 {
+        (0..GROUPS.len()).map(|g| ANALYTIC_NUMBERS[g] * p.get(g) as f64).sum()
+    }
+
+    /// Every precision of the searched groups (the centres at the finest)
+    /// that loses at most `allowed`: the fewest bits stored.
+    fn fewest_bits(loss: &impl Fn(Precision) -> f64, allowed: f64) -> f64 {
+        let f = Precision::FINEST;
+        let mut best = f64::INFINITY;
+        for scale in 1..=f.scale {
+            for rotation in 1..=f.rotation {
+                for value in 1..=f.value {
+                    for weight in 1..=f.weight {
+                        let p = Precision { scale, rotation, value, weight, ..f };
+                        if loss(p) <= allowed {
+                            best = best.min(stored_bits(p));
+                        }
+                    }
+                }
+            }
+        }
+        best
+    }
+
+    /// Error constants of the analytic losses: groups alike, one group
+    /// far costlier than the others, and between.
+    const ANALYTIC_CASES: [[f64; 4]; 4] = [[40.0, 10.0, 200.0, 3.0], [1.0, 1000.0, 5.0, 50.0], [300.0, 300.0, 300.0, 300.0], [2.0, 30.0, 4000.0, 0.5]];
+
+    /// Step 1 against its rule: each group alone (the others at their
+    /// finest) at the fewest bits whose loss is within an equal share of
+    /// the allowed error, the shares adding up to the allowance (in error,
+    /// not in dB).
+    #[test]
+    fn each_group_alone_takes_the_fewest_bits_within_its_share() {
+        let groups = [4, 5, 6, 7];
+        for c in ANALYTIC_CASES {
+            for allowed in [0.03, 0.1, 0.5] {
+                let loss = analytic(c, false);
+                let p = analytic_search(analytic(c, false)).each_alone(&groups, allowed, &mut CpuBackend::new()).unwrap();
+                let share = 10.0 * (1.0 + (10f64.powf(allowed / 10.0) - 1.0) / 4.0).log10();
+                assert!((4.0 * (10f64.powf(share / 10.0) - 1.0) - (10f64.powf(allowed / 10.0) - 1.0)).abs() < 1e-12);
+                for g in groups {
+                    let alone = |bits: u8| loss(Precision::FINEST.with(g, bits));
+                    assert!(alone(p.get(g)) <= share, "{c:?} {allowed}: group {g} at {p:?}");
+                    assert!(p.get(g) == 1 || alone(p.get(g) - 1) > share, "{c:?} {allowed}: group {g} at {p:?} could give up a bit");
+                }
+                assert!(loss(p) <= allowed + 1e-12);
+            }
+        }
+    }
+
+    /// The whole search on analytic losses, against every precision: it
+    /// loses at most the allowance and stores at most one bit of the most
+    /// numerous group (3 numbers) more than the fewest that do (the
+    /// greedy steps are not exact: up to 2 more here).
+    #[test]
+    fn the_search_stores_nearly_the_fewest_bits_within_the_allowance() {
+        for c in ANALYTIC_CASES {
+            for allowed in [0.03, 0.1, 0.5] {
+                let loss = analytic(c, false);
+                let p = analytic_search(analytic(c, false)).choose(allowed, &mut CpuBackend::new()).unwrap();
+                assert!(loss(p) <= allowed, "{c:?} {allowed}: {p:?} loses {}", loss(p));
+                let (bits, fewest) = (stored_bits(p), fewest_bits(&loss, allowed));
+                assert!(bits <= fewest + 3.0, "{c:?} {allowed}: {p:?} stores {bits} bits, {fewest} lose no more");
+            }
+        }
+    }
+
+    /// When the groups, each within its share, lose more than the
+    /// allowance together, every group gains a bit until they do not.
+    #[test]
+    fn groups_that_lose_more_together_gain_bits_until_within_the_allowance() {
+        for c in ANALYTIC_CASES {
+            let loss = analytic(c, true);
+            let mut search = analytic_search(analytic(c, true));
+            let alone = search.each_alone(&[4, 5, 6, 7], 0.1, &mut CpuBackend::new()).unwrap();
+            assert!(loss(alone) > 0.1, "{c:?}: the shares add up");
+            let p = search.choose(0.1, &mut CpuBackend::new()).unwrap();
+            assert!(loss(p) <= 0.1, "{c:?}: {p:?} loses {}", loss(p));
+        }
     }
 }
