@@ -562,19 +562,23 @@ mod tests {
         }
     }
 
-    /// The whole search on analytic losses, against every precision: it
-    /// loses at most the allowance and stores at most one bit of the most
-    /// numerous group (3 numbers) more than the fewest that do (the
-    /// greedy steps are not exact: up to 2 more here).
+    /// The whole search on analytic losses (the cases above and 40 drawn
+    /// at random), against every precision: it loses at most the
+    /// allowance and stores less than one bit of the most numerous group
+    /// (3 numbers) more than the fewest that do (the greedy steps are not
+    /// exact: up to 2 more here; a search that weighed each bit's loss
+    /// alone, not per number stored, went 4 over).
     #[test]
     fn the_search_stores_nearly_the_fewest_bits_within_the_allowance() {
-        for c in ANALYTIC_CASES {
+        let mut rng = Rng::new(3);
+        let drawn: Vec<[f64; 4]> = (0..40).map(|_| std::array::from_fn(|_| 10f64.powf(rng.range(-0.5, 3.5)))).collect();
+        for &c in ANALYTIC_CASES.iter().chain(&drawn) {
             for allowed in [0.03, 0.1, 0.5] {
                 let loss = analytic(c, false);
                 let p = analytic_search(analytic(c, false)).choose(allowed, &mut CpuBackend::new()).unwrap();
                 assert!(loss(p) <= allowed, "{c:?} {allowed}: {p:?} loses {}", loss(p));
                 let (bits, fewest) = (stored_bits(p), fewest_bits(&loss, allowed));
-                assert!(bits <= fewest + 3.0, "{c:?} {allowed}: {p:?} stores {bits} bits, {fewest} lose no more");
+                assert!(bits < fewest + 3.0, "{c:?} {allowed}: {p:?} stores {bits} bits, {fewest} lose no more");
             }
         }
     }
