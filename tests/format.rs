@@ -736,3 +736,33 @@ fn packed_models_of_the_first_layout_still_read() {
         assert_eq!(again.model.meta.precision, file.model.meta.precision);
     }
 }
+
+/// Packed models of the repository's data written by gsenc at commit
+/// `c8e6ed6` (tests/golden/README.md), read as that commit read them:
+/// every parameter, the support's bits and its outside exactly as its
+/// `*.expected.zst` holds them. Their streams and supports are
+/// range-coded or zstd frames, whichever was smaller: the range coder's
+/// model (its probabilities' rates, each stream's and the support's
+/// contexts) is part of the format, and a change to it reads these files
+/// otherwise, or not at all.
+#[test]
+fn packed_goldens_read_as_they_were_written() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden");
+    for (name, outside) in [("hydrogen32_packed", true), ("dambreak40_packed", false)] {
+        let bytes = std::fs::read(dir.join(format!("{name}.gsm"))).unwrap();
+        let file = read_model_file(&bytes).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!((file.payload, file.version), (Payload::Packed, (1, 2)), "{name}");
+        // u32 count n, n x 12 float32 parameters, the outside's offset and
+        // gain (float32), then the support's bits as Support::bits holds them.
+        let want = zstd::stream::decode_all(&std::fs::read(dir.join(format!("{name}.expected.zst"))).unwrap()[..]).unwrap();
+        let n = u32::from_le_bytes(want[..4].try_into().unwrap()) as usize;
+        let (numbers, bits) = want[4..].split_at(4 * (12 * n + 2));
+        let numbers: Vec<f32> = numbers.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+        let params: Vec<[f32; 12]> = numbers[..12 * n].chunks_exact(12).map(|c| c.try_into().unwrap()).collect();
+        assert!(file.model.params == params, "{name}: the parameters read otherwise");
+        let support = file.model.support.as_ref().unwrap_or_else(|| panic!("{name}: no support"));
+        assert_eq!(support.outside(), Outside { offset: numbers[12 * n], gain: numbers[12 * n + 1] }, "{name}");
+        assert_eq!(!support.outside().is_zero(), outside, "{name}");
+        assert!(support.bits() == bits, "{name}: the support reads otherwise");
+    }
+}
