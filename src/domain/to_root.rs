@@ -296,4 +296,29 @@ mod tests {
         assert!(Verdict::read_all(&bytes[..bytes.len() - 1], 4).is_err());
         assert!(Verdict::read_all(&bytes, 3).is_err());
     }
+
+    /// Every kind of error crosses as its own kind (the C API's status on
+    /// the sending rank), with its message; a file error as a store error
+    /// that keeps the path and the cause; anything else as an MPI error.
+    #[test]
+    fn every_kind_of_error_crosses_as_itself() {
+        let io = std::io::Error::new(std::io::ErrorKind::StorageFull, "disk full");
+        let sent: Vec<Result<String>> = vec![
+            Err(Error::data("NaN at 4")),
+            Err(Error::format("not a model")),
+            Err(Error::Version("2.0".into())),
+            Err(Error::Io { path: "run.h5".into(), source: io }),
+            Err(Error::Cancelled("stopped".into())),
+            Ok(String::new()),
+        ];
+        let mut bytes = Vec::new();
+        sent.iter().for_each(|s| Verdict::write(&mut bytes, s));
+        let got = Verdict::read_all(&bytes, sent.len()).unwrap();
+        assert!(matches!(&got[0], Err(Error::InvalidData(m)) if m == "NaN at 4"), "{:?}", got[0]);
+        assert!(matches!(&got[1], Err(Error::Format(m)) if m == "not a model"), "{:?}", got[1]);
+        assert!(matches!(&got[2], Err(Error::Version(m)) if m == "2.0"), "{:?}", got[2]);
+        assert!(matches!(&got[3], Err(Error::Hdf5 { message, .. }) if message.contains("run.h5") && message.contains("disk full")), "{:?}", got[3]);
+        assert!(matches!(&got[4], Err(Error::Mpi(m)) if m.contains("stopped")), "{:?}", got[4]);
+        assert_eq!(got[5].as_ref().unwrap(), "");
+    }
 }
