@@ -262,6 +262,10 @@ mod tests {
             let m = model(p);
             assert_eq!(from_wire(&to_wire(&m).unwrap()).unwrap(), m);
         }
+        // One of 4,000 primitives (192 kB: no small bound on a message).
+        let mut big = model(None);
+        big.params = (0..4000).map(|i| std::array::from_fn(|k| ((i * 12 + k) % 97) as f32 * 0.01)).collect();
+        assert_eq!(from_wire(&to_wire(&big).unwrap()).unwrap(), big);
     }
 
     #[test]
