@@ -163,6 +163,9 @@ struct Search<S> {
 }
 
 impl<S: FnMut(Precision, &mut dyn Backend) -> Result<f64>> Search<S> {
+    /// A search of the losses `score` gives, for groups that store
+    /// `numbers` per bit and bits up to `finest`'s (the tests give it
+    /// analytic losses).
     fn over(score: S, numbers: [f64; GROUPS.len()], finest: Precision) -> Search<S> {
         Search { score, numbers, finest, seen: HashMap::new(), scored: 0 }
     }
