@@ -659,3 +659,62 @@ fn a_decoded_series_blends_a_step_that_has_its_index() {
     assert!(xdmf.contains("<Grid Name=\"global\"") && xdmf.contains("series.h5:/rho/4/global</DataItem>"), "{xdmf}");
     assert_eq!(xdmf.matches("<Grid Name=\"rank_").count(), 3);
 }
+
+/// Each decoded grid carries its origin, spacing and time as attributes
+/// (NaN for a model without a time, whose step in the XDMF takes its step
+/// number as time); `normalized` keeps the decode's own values; a scale
+/// that is not a positive number, and a store without models, are refused
+/// by name; a write that fails leaves no temporary file beside the output.
+#[test]
+fn decoded_grids_carry_their_geometry_and_time_and_refusals_leave_nothing() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("series-attributes");
+    let path = dir.join("s.h5");
+    let timed = model("rho", 3, 1, 40, -0.5);
+    let mut untimed = model("rho", 5, 0, 40, -0.5);
+    untimed.meta.time = None;
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        s.append(&timed, Payload::Float32).unwrap();
+        s.append(&untimed, Payload::Float32).unwrap();
+    }
+    drop(Store::open_append(&dir.join("empty.h5")).unwrap());
+    let s = Store::open_read(&path).unwrap();
+    let out = dir.join("series.h5");
+    let mut cpu = CpuBackend::new();
+    let mut opts = SeriesOptions { field: None, scale: 0.5, normalized: true, slab_voxels: 24 * 16 };
+    for scale in [f64::NAN, f64::INFINITY, 0.0, -1.0] {
+        opts.scale = scale;
+        let e = write_decoded_series(&s, &out, &opts, &mut cpu).unwrap_err();
+        assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("scale must be positive")), "scale {scale}: {e}");
+    }
+    opts.scale = 0.5;
+    let e = write_decoded_series(&Store::open_read(&dir.join("empty.h5")).unwrap(), &out, &opts, &mut cpu).unwrap_err();
+    assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("holds no models")), "{e}");
+
+    write_decoded_series(&s, &out, &opts, &mut cpu).unwrap();
+    let file = hdf5::File::open(&out).unwrap();
+    for (m, time) in [(&timed, 0.75), (&untimed, f64::NAN)] {
+        let key = EntryKey::of(&m.meta);
+        let (_, got) = read_f32_dataset(&out, &key.path());
+        assert!(got == m.decode(&mut cpu, Some([12, 8, 6])).unwrap().values, "{}: not the normalised decode", key.path());
+        let ds = file.dataset(&key.path()).unwrap();
+        let attr = |name: &str| ds.attr(name).unwrap().read_raw::<f64>().unwrap();
+        // The model's 24 x 16 x 12 voxels of 1/12 world unit, decoded on half as many a side.
+        let spacing = 2.0 / 12.0;
+        assert_eq!(attr("spacing"), [spacing; 3]);
+        assert_eq!(attr("origin"), [0, 1, 2].map(|a| m.meta.frame.bmin[a] + spacing / 2.0));
+        let stored = attr("time");
+        assert!(stored.len() == 1 && (stored[0] == time || time.is_nan() && stored[0].is_nan()), "{}: time {stored:?}", key.path());
+    }
+    let xdmf = std::fs::read_to_string(xdmf_path(&out)).unwrap();
+    assert!(xdmf.contains("<Time Value=\"7.5e-1\"/>") && xdmf.contains("<Time Value=\"5e0\"/>"), "{xdmf}");
+
+    // A lattice the decode refuses fails the write, which leaves the
+    // series as it was and no temporary file.
+    opts.scale = 1e10;
+    write_decoded_series(&s, &out, &opts, &mut cpu).unwrap_err();
+    let mut names: Vec<String> = std::fs::read_dir(&*dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+    names.sort();
+    assert_eq!(names, ["empty.h5", "s.h5", "series.h5", "series.xmf"]);
+}
