@@ -10,7 +10,7 @@ use common::store_model as model;
 use common::tmpdir;
 use gsenc::backend::cpu::CpuBackend;
 use gsenc::format::{write_model_as, Payload};
-use gsenc::io::series::{write_decoded_series, xdmf_path, SeriesOptions};
+use gsenc::io::series::{write_decoded_series, xdmf_path, xdmf_text, Piece, SeriesOptions};
 use gsenc::io::store::{EntryKey, Store, CACHE_BYTES};
 use gsenc::field::Grid;
 use gsenc::model::{Curve, Outside, Support, WarmRecord, WarmTaken};
@@ -717,4 +717,17 @@ fn decoded_grids_carry_their_geometry_and_time_and_refusals_leave_nothing() {
     let mut names: Vec<String> = std::fs::read_dir(&*dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     names.sort();
     assert_eq!(names, ["empty.h5", "s.h5", "series.h5", "series.xmf"]);
+}
+
+/// Names an XML reader would misread are escaped in the XDMF: the
+/// field's (grid names, the attribute, dataset paths) and the HDF5 file's.
+#[test]
+fn the_xdmf_escapes_field_and_file_names() {
+    let field = "a<b&\"c\"";
+    let piece = Piece { key: EntryKey { field: field.into(), step: 2, rank: 1 }, global: false, time: None, dims: [4, 3, 2], origin: [0.0; 3], spacing: [1.0; 3] };
+    let x = xdmf_text(field, "run&<1>.h5", &[piece]);
+    let escaped = "a&lt;b&amp;&quot;c&quot;";
+    assert!(x.contains(&format!("<Attribute Name=\"{escaped}\"")), "{x}");
+    assert!(x.contains(&format!(">run&amp;&lt;1&gt;.h5:/{escaped}/2/rank_1</DataItem>")), "{x}");
+    assert!(!x.contains(field) && !x.contains("run&<1>"), "{x}");
 }
