@@ -678,7 +678,7 @@ fn decoded_grids_carry_their_geometry_and_time_and_refusals_leave_nothing() {
         s.append(&timed, Payload::Float32).unwrap();
         s.append(&untimed, Payload::Float32).unwrap();
     }
-    drop(Store::open_append(&dir.join("empty.h5")).unwrap());
+    drop(Store::open_append(dir.join("empty.h5")).unwrap());
     let s = Store::open_read(&path).unwrap();
     let out = dir.join("series.h5");
     let mut cpu = CpuBackend::new();
@@ -689,7 +689,7 @@ fn decoded_grids_carry_their_geometry_and_time_and_refusals_leave_nothing() {
         assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("scale must be positive")), "scale {scale}: {e}");
     }
     opts.scale = 0.5;
-    let e = write_decoded_series(&Store::open_read(&dir.join("empty.h5")).unwrap(), &out, &opts, &mut cpu).unwrap_err();
+    let e = write_decoded_series(&Store::open_read(dir.join("empty.h5")).unwrap(), &out, &opts, &mut cpu).unwrap_err();
     assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("holds no models")), "{e}");
 
     write_decoded_series(&s, &out, &opts, &mut cpu).unwrap();
