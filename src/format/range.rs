@@ -285,7 +285,7 @@ mod tests {
     fn truncated_or_corrupted_streams_are_errors_not_panics() {
         let syms = symbols(9, 3000);
         let bytes = encode(&syms);
-        for cut in [0, 3, 5, bytes.len() / 2, bytes.len() - 1] {
+        for cut in [0, 3, 4, 5, bytes.len() / 2, bytes.len() - 1] {
             let e = decode(&bytes[..cut], &syms).unwrap_err();
             assert!(e.to_string().contains("range-coded stream"), "{e}");
         }
@@ -303,5 +303,22 @@ mod tests {
         let mut longer = bytes;
         longer.push(7);
         assert!(!decode(&longer, &syms).unwrap().1);
+    }
+
+    /// The encoder writes `low`'s top byte as `range` shrinks, holding back
+    /// a byte of 0xFF (and those after it) until a carry can no longer
+    /// reach it: a carry that comes after one reaches the byte before it.
+    /// `low`'s bytes, as numbers: 0x12, then 0xFF, then a carry of 1
+    /// into that 0xFF make 0x13 0x00.
+    #[test]
+    fn a_carry_reaches_the_bytes_held_back_before_it() {
+        let mut e = Encoder::default();
+        e.cache = 0x12;
+        e.low = 0xFF00_0000; // the next byte out is 0xFF, with nothing below it
+        e.shift_low();
+        assert!(e.out.is_empty(), "0x12 went out before a carry could reach it: {:02x?}", e.out);
+        e.low = 1 << 32; // a carry into the 0xFF held back
+        e.shift_low();
+        assert_eq!(e.out, [0x13, 0x00]);
     }
 }

@@ -283,9 +283,19 @@ mod tests {
         bad(&ranged[..ranged.len() - 1], "ends early");
         bad(&[ranged.as_slice(), &[0]].concat(), "bytes left");
         bad(&[9, 0, 0, 0, 0, 0], "neither");
-        // A lattice far beyond what the bytes can hold is refused at once.
+        // A lattice beyond what the bytes can hold, or beyond what a
+        // writer range-codes (though the bytes could hold it), or beyond
+        // any support, is refused at once.
         let e = decode(&ranged, [4096, 4096, 4096], &unpack).unwrap_err();
         assert!(e.to_string().contains("cannot hold"), "{e}");
+        assert!(ranged.len() < 500, "{} bytes", ranged.len());
+        let e = decode(&ranged, [512, 512, 512], &unpack).unwrap_err();
+        assert!(e.to_string().contains("cannot hold 134217728 voxels"), "{e}");
+        let long = [ranged.as_slice(), &[0; 600]].concat();
+        let e = decode(&long, [1024, 1024, 129], &unpack).unwrap_err();
+        assert!(e.to_string().contains("cannot hold 135266304 voxels"), "{e}");
+        let e = decode(&ranged, [1 << 13, 1 << 13, 1 << 11], &unpack).unwrap_err();
+        assert!(e.to_string().contains("holds a support of dims"), "{e}");
         // Garbage after the tag decodes to some support or fails; never panics.
         let mut rng = Rng::new(6);
         for _ in 0..30 {

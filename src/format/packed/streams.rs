@@ -248,4 +248,28 @@ mod tests {
         assert!(independent > 3 * n / 2, "{independent} bytes for {n} independent");
         assert!(same * 2 < independent, "{same} bytes for {n} equal, {independent} independent");
     }
+
+    /// What a stream's contexts read must fit its length, and a count is
+    /// refused before decoding when the bytes cannot hold it: each an
+    /// error, never a read past an array.
+    #[test]
+    fn contexts_that_do_not_fit_and_counts_beyond_the_bytes_are_refused() {
+        let values = [3u16; 6];
+        let ranged = Stream::Value { bits: 8 }.range_code(&values);
+        let e = Stream::Value { bits: 8 }.decode(&ranged, 200_000_000, &unpack).unwrap_err();
+        assert!(e.to_string().contains("cannot hold 200000000 symbols"), "{e}");
+        // Rotation codes wider than the stream's, or of no bits.
+        for rbits in [[3u8, 5], [0, 2]] {
+            let stream = Stream::Rotation { bits: 4, rbits: &rbits };
+            assert!(matches!(stream.encode(&[1; 6], 3), Err(Error::InvalidArgument(_))), "{rbits:?}");
+            assert!(matches!(stream.decode(&ranged, 6, &unpack), Err(Error::Format(_))), "{rbits:?}");
+        }
+        // Weights whose values (or scales) are fewer than they.
+        let (scale_x, value) = ([1u16; 6], [1u16; 5]);
+        for (s, v) in [(&scale_x[..], &value[..]), (&value[..], &scale_x[..])] {
+            let stream = Stream::Weight { bits: 4, scale_x: s, scale_bits: 7, value: v };
+            assert!(matches!(stream.encode(&[1; 6], 3), Err(Error::InvalidArgument(_))));
+            assert!(matches!(stream.decode(&ranged, 6, &unpack), Err(Error::Format(_))));
+        }
+    }
 }
