@@ -312,9 +312,8 @@ mod tests {
     /// into that 0xFF make 0x13 0x00.
     #[test]
     fn a_carry_reaches_the_bytes_held_back_before_it() {
-        let mut e = Encoder::default();
-        e.cache = 0x12;
-        e.low = 0xFF00_0000; // the next byte out is 0xFF, with nothing below it
+        // The next byte out is 0xFF, with nothing below it.
+        let mut e = Encoder { cache: 0x12, low: 0xFF00_0000, ..Encoder::default() };
         e.shift_low();
         assert!(e.out.is_empty(), "0x12 went out before a carry could reach it: {:02x?}", e.out);
         e.low = 1 << 32; // a carry into the 0xFF held back
