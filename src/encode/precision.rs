@@ -439,9 +439,9 @@ mod tests {
 
     /// When the lattice loses more than the sample promised, the search
     /// runs again with the next allowance, and after the last one every
-    /// group gains a bit (none past the finest) until the lattice loses
-    /// at most the most allowed. Allowances far beyond that make both
-    /// searches miss.
+    /// group gains a bit (none past the finest) until the lattice loses at
+    /// most `max_loss`, and no more bits than that. Allowances far beyond
+    /// it (5 and 3 dB) make both searches miss.
     #[test]
     fn a_miss_on_the_lattice_searches_again_then_adds_a_bit_to_every_group() {
         let (params, reference) = two_class_model();
