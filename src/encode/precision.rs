@@ -552,7 +552,7 @@ mod tests {
         for c in ANALYTIC_CASES {
             for allowed in [0.03, 0.1, 0.5] {
                 let loss = analytic(c, false);
-                let p = analytic_search(analytic(c, false)).each_alone(&groups, allowed, &mut CpuBackend::new()).unwrap();
+                let p = analytic_search(&loss).each_alone(&groups, allowed, &mut CpuBackend::new()).unwrap();
                 let share = 10.0 * (1.0 + (10f64.powf(allowed / 10.0) - 1.0) / 4.0).log10();
                 assert!((4.0 * (10f64.powf(share / 10.0) - 1.0) - (10f64.powf(allowed / 10.0) - 1.0)).abs() < 1e-12);
                 for g in groups {
@@ -578,7 +578,7 @@ mod tests {
         for &c in ANALYTIC_CASES.iter().chain(&drawn) {
             for allowed in [0.03, 0.1, 0.5] {
                 let loss = analytic(c, false);
-                let p = analytic_search(analytic(c, false)).choose(allowed, &mut CpuBackend::new()).unwrap();
+                let p = analytic_search(&loss).choose(allowed, &mut CpuBackend::new()).unwrap();
                 assert!(loss(p) <= allowed, "{c:?} {allowed}: {p:?} loses {}", loss(p));
                 let (bits, fewest) = (stored_bits(p), fewest_bits(&loss, allowed));
                 assert!(bits < fewest + 3.0, "{c:?} {allowed}: {p:?} stores {bits} bits, {fewest} lose no more");
@@ -592,7 +592,7 @@ mod tests {
     fn groups_that_lose_more_together_gain_bits_until_within_the_allowance() {
         for c in ANALYTIC_CASES {
             let loss = analytic(c, true);
-            let mut search = analytic_search(analytic(c, true));
+            let mut search = analytic_search(&loss);
             let alone = search.each_alone(&[4, 5, 6, 7], 0.1, &mut CpuBackend::new()).unwrap();
             assert!(loss(alone) > 0.1, "{c:?}: the shares add up");
             let p = search.choose(0.1, &mut CpuBackend::new()).unwrap();
