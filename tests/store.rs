@@ -58,6 +58,15 @@ fn every_payload_round_trips_with_its_metadata() {
         let info = entries.iter().find(|e| e.key == key).unwrap().content.as_ref().unwrap();
         assert_eq!(info.count, m.params.len() as u64);
     }
+    // What the listing says each entry stores: the bytes of all its
+    // datasets in the file (an 8-bit entry's two, centres and codes), as
+    // HDF5 itself counts them.
+    let f = hdf5::File::open(&path).unwrap();
+    for e in &entries {
+        let g = f.group(&e.key.path()).unwrap();
+        let on_disk: u64 = g.datasets().unwrap().iter().map(|d| d.storage_size()).sum();
+        assert_eq!(e.content.as_ref().unwrap().stored_bytes, on_disk, "{}", e.key.path());
+    }
 }
 
 /// A support and its outside (layout 1.2) come back as stored; a zero
@@ -268,11 +277,69 @@ fn sound_store(name: &str, entries: &[(&str, u64, Payload)]) -> (common::TmpDir,
     (dir, bytes)
 }
 
-/// A store whose global heap (where HDF5 keeps its string attributes,
-/// without a checksum) was corrupted is refused by name before HDF5 reads
-/// it: one changed byte in an object's size made HDF5 1.10 copy past its
-/// buffer (a segmentation fault of the reader), a zero size loop forever.
-/// The sound store opens.
+fn replace_attr<T: hdf5::H5Type>(loc: &hdf5::Location, name: &str, v: &[T]) {
+    loc.delete_attr(name).unwrap();
+    loc.new_attr::<T>().shape(v.len()).create(name).unwrap().write_raw(v).unwrap();
+}
+
+fn replace_scalar<T: hdf5::H5Type>(loc: &hdf5::Location, name: &str, v: T) {
+    loc.delete_attr(name).unwrap();
+    loc.new_attr::<T>().create(name).unwrap().write_scalar(&v).unwrap();
+}
+
+/// An entry changed after it was written, without its checksum (as an
+/// entry of a store before 1.4 has none), is refused by what is wrong in
+/// it: never read as another model, and never a panic (a `bmin` or a map of
+/// too few values was indexed past its end).
+#[test]
+fn an_entry_damaged_in_its_structure_is_refused_by_name() {
+    let _serial = common::hdf5_serial();
+    let (dir, sound) = sound_store("damaged", &[("rho", 0, Payload::Float32), ("rho", 1, Payload::Bits8(CentreCoding::Fixed16))]);
+    // The sound store's entries: 40 primitives of a 24 x 16 x 12 lattice.
+    let transposed = |g: &hdf5::Group| {
+        let rows: Vec<f32> = g.dataset("params").unwrap().read_raw().unwrap();
+        let columns: Vec<f32> = (0..40 * 12).map(|i| rows[(i % 12) * 40 + i / 12]).collect();
+        g.unlink("params").unwrap();
+        g.new_dataset::<f32>().shape([40, 12]).create("params").unwrap().write_raw(&columns).unwrap();
+    };
+    let nan = |g: &hdf5::Group| {
+        let ds = g.dataset("params").unwrap();
+        let mut rows: Vec<f32> = ds.read_raw().unwrap();
+        rows[5 * 40 + 7] = f32::NAN;
+        ds.write_raw(&rows).unwrap();
+    };
+    let cases: [(u64, &str, &dyn Fn(&hdf5::Group)); 10] = [
+        (0, "has invalid dims [0, 16, 12]", &|g| replace_attr(g, "dims", &[0u64, 16, 12])),
+        (0, "has invalid dims [4294967296, 16, 12]", &|g| replace_attr(g, "dims", &[1u64 << 32, 16, 12])),
+        (0, "attribute bmin holds 2 values, not 3", &|g| replace_attr(g, "bmin", &[0.0f64, -1.0])),
+        (0, "holds an invalid index frame", &|g| replace_scalar(g, "gamma", 0.0f64)),
+        (0, "says it is /rho/0/rank_1", &|g| replace_scalar(g, "rank", 1u32)),
+        (0, "dataset params has shape [40, 12], not [12, 40]", &transposed),
+        (0, "holds non-finite parameters", &nan),
+        (1, "centres attribute lo holds 2 values, not 3", &|g| replace_attr(&g.dataset("centres").unwrap(), "lo", &[0.0f32, 1.0])),
+        (1, "codes attribute hi holds 8 values, not 9", &|g| replace_attr(&g.dataset("codes").unwrap(), "hi", &[1.0f32; 8])),
+        (1, "dataset codes has shape [9, 39], not [9, 40]", &|g| {
+            g.unlink("codes").unwrap();
+            g.new_dataset::<u8>().shape([9, 39]).create("codes").unwrap().write_raw(&[7u8; 9 * 39]).unwrap();
+        }),
+    ];
+    for (step, want, damage) in cases {
+        let path = dir.join("d.h5");
+        std::fs::write(&path, &sound).unwrap();
+        {
+            let f = hdf5::File::open_rw(&path).unwrap();
+            let g = f.group(&format!("rho/{step}/rank_0")).unwrap();
+            damage(&g);
+            g.delete_attr("crc32").unwrap();
+        }
+        let key = EntryKey { field: "rho".into(), step, rank: 0 };
+        match Store::open_read(&path).unwrap().read(&key) {
+            Err(Error::Format(w)) => assert!(w.contains(&format!("rho/{step}/rank_0")) && w.contains(want), "{want}: {w}"),
+            other => panic!("{want}: {:?}", other.map(|(m, _)| m.meta)),
+        }
+    }
+}
+
 /// A store kept open for a long run, as an in-situ encoder keeps its own,
 /// holds HDF5's metadata cache within its size: the cache that never
 /// evicted held every entry ever appended (about 9 KB of cache each, 5.5 MB
@@ -299,6 +366,11 @@ fn a_long_run_keeps_the_metadata_cache_within_its_size() {
     }
 }
 
+/// A store whose global heap (where HDF5 keeps its string attributes,
+/// without a checksum) was corrupted is refused by name before HDF5 reads
+/// it: one changed byte in an object's size made HDF5 1.10 copy past its
+/// buffer (a segmentation fault of the reader), a zero size loop forever.
+/// The sound store opens.
 #[test]
 fn a_corrupted_global_heap_is_refused_before_hdf5_reads_it() {
     let _serial = common::hdf5_serial();
