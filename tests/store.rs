@@ -689,6 +689,62 @@ fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_w
     assert!(matches!(e, Error::InvalidData(_)) && e.to_string().contains("names rank 0"), "{e}");
 }
 
+/// The listing and `verify` (`gsenc store verify`): entries in the order of
+/// field, step and rank as numbers (HDF5 lists its names as text, "10"
+/// before "9"), members that are no entry's skipped; each step's group
+/// carries its step and time (NaN unknown); `verify` gives every entry one
+/// verdict, with or without its checksum, then every step index one, and a
+/// step without an index none. An index linked under another step is
+/// refused by what it is.
+#[test]
+fn the_listing_and_verify_give_each_entry_and_index_once_in_order() {
+    use gsenc::io::store::Verified;
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("listing");
+    let path = dir.join("s.h5");
+    let (index, pieces) = common::decomposed_step("rho", 4);
+    {
+        let mut s = Store::open_append(&path).unwrap();
+        s.append_step_index(&index).unwrap();
+        for m in &pieces {
+            s.append(m, Payload::Float32).unwrap();
+        }
+        for (field, step, rank) in [("rho", 10, 0), ("rho", 9, 10), ("rho", 9, 2), ("a", 100, 0)] {
+            s.append(&model(field, step, rank, 20, 0.5), Payload::Float32).unwrap();
+        }
+        let mut untimed = model("rho", 11, 0, 20, 0.5);
+        untimed.meta.time = None;
+        s.append(&untimed, Payload::Float32).unwrap();
+    }
+    {
+        // What a store's reader must pass over, and an entry without its checksum.
+        let f = hdf5::File::open_rw(&path).unwrap();
+        f.create_group("rho/notastep").unwrap().create_group("rank_0").unwrap();
+        f.group("rho/9").unwrap().create_group("ranks").unwrap();
+        f.new_dataset::<u8>().shape(3).create("notes").unwrap().write_raw(&[1u8, 2, 3]).unwrap();
+        f.group("rho/9/rank_2").unwrap().delete_attr("crc32").unwrap();
+        for (step, time) in [(4, index.time.unwrap()), (10, 2.5), (11, f64::NAN)] {
+            let g = f.group(&format!("rho/{step}")).unwrap();
+            assert_eq!(g.attr("step").unwrap().read_scalar::<u64>().unwrap(), step);
+            let t = g.attr("time").unwrap().read_scalar::<f64>().unwrap();
+            assert!(t == time || (t.is_nan() && time.is_nan()), "step {step}: time {t}, not {time}");
+        }
+    }
+    let s = Store::open_read(&path).unwrap();
+    let keys: Vec<String> = s.entries().unwrap().iter().map(|e| e.key.path()).collect();
+    let want = ["/a/100/rank_0", "/rho/4/rank_0", "/rho/4/rank_1", "/rho/9/rank_2", "/rho/9/rank_10", "/rho/10/rank_0", "/rho/11/rank_0"];
+    assert_eq!(keys, want);
+    let verdicts: Vec<(String, Verified)> = s.verify().unwrap().into_iter().map(|(k, v)| (k, v.unwrap())).collect();
+    let mut expected: Vec<(String, Verified)> =
+        want.iter().map(|k| (k.to_string(), if *k == "/rho/9/rank_2" { Verified::NoChecksum } else { Verified::Checksum })).collect();
+    expected.push(("/rho/4/index".into(), Verified::StepIndex));
+    assert_eq!(verdicts, expected);
+    drop(s);
+    hdf5::File::open_rw(&path).unwrap().link_hard("rho/4/index", "rho/10/index").unwrap();
+    let e = Store::open_read(&path).unwrap().step_index("rho", 10).unwrap_err();
+    assert!(matches!(&e, Error::Format(w) if w.contains("/rho/10/index is the index of field 'rho' step 4")), "{e}");
+}
+
 /// `decode-series` of a store holding a decomposed step's index: that step
 /// is one grid, its global field as the pieces blend it; a step without an
 /// index stays a grid per rank, and so does one whose index names a rank
