@@ -541,6 +541,113 @@ mod round_trip_tests {
         assert!(reposed > 20, "only {reposed} read-back primitives lie outside their canonical pose");
     }
 
+    fn random_params(n: usize, seed: u64) -> Vec<Primitive> {
+        let mut rng = Rng::new(seed);
+        (0..n).map(|_| std::array::from_fn(|k| if k < 3 { rng.range(0.0, 30.0) as f32 } else { rng.normal() as f32 })).collect()
+    }
+
+    /// A `Packed` built or changed by hand (its fields are public, and a
+    /// zstd-coded stream may hold any code) whose arrays do not fit its
+    /// count, or whose codes, origin or weight map no writer makes, is
+    /// refused by `params`: none is read as other primitives, and none
+    /// indexes past an array (a dropped component of 4 did).
+    #[test]
+    fn codes_no_writer_makes_are_refused() {
+        let sound = Packed::of(&random_params(200, 4), Precision::DEFAULT).unwrap();
+        sound.params().unwrap();
+        let p = sound.precision;
+        let first_turned_bits = sound.rotation_bits().into_iter().find(|&b| b > 0).expect("a turned primitive");
+        let cases: [(&str, &dyn Fn(&mut Packed)); 11] = [
+            ("wrong length", &|k| k.low.truncate(k.low.len() - 1)),
+            ("wrong length", &|k| k.value.truncate(k.value.len() - 1)),
+            ("wrong length", &|k| k.weight.truncate(k.weight.len() - 1)),
+            ("wrong length", &|k| k.rotation.truncate(k.rotation.len() - 1)),
+            ("a code beyond its group's bits", &|k| k.value[3] = 1 << p.value),
+            ("a code beyond its group's bits", &|k| k.weight[3] = 1 << p.weight),
+            ("non-finite centre origin", &|k| k.origin[1] = f64::NAN),
+            ("invalid weight map", &|k| k.weight_map.lo = k.weight_map.hi + 1.0),
+            ("invalid weight map", &|k| k.weight_map.hi = f32::INFINITY),
+            ("a rotation code beyond its bits", &|k| k.rotation_index[0] = 4),
+            ("a rotation code beyond its bits", &|k| k.rotation[0] = 1 << first_turned_bits),
+        ];
+        for (want, change) in cases {
+            let mut k = sound.clone();
+            change(&mut k);
+            let e = k.params().unwrap_err();
+            assert!(e.to_string().contains(want), "{want}: {e}");
+        }
+    }
+
+    /// Values whose sigmoid rounds to 0 or 1 keep a code within their bits
+    /// (the cell of s = 1 is past the last), and read back finite.
+    #[test]
+    fn saturated_values_keep_codes_within_their_bits() {
+        let mut params = random_params(20, 5);
+        params.iter_mut().enumerate().for_each(|(i, p)| p[layout::ALPHA] = if i % 2 == 0 { 1e3 } else { -1e3 });
+        for value in [1, 4, 9] {
+            let packed = Packed::of(&params, Precision { value, ..Precision::DEFAULT }).unwrap();
+            assert!(packed.value.iter().all(|&v| v == 0 || v == (1 << value) - 1), "{value} bits: {:?}", packed.value);
+            let read = packed.params().unwrap();
+            assert!(read.iter().all(|p| p[layout::ALPHA].is_finite()), "{value} bits");
+        }
+    }
+
+    /// A centre key past the 63 bits of three 21-bit axes is refused as the
+    /// payload is parsed (the gaps' classes are each within 63).
+    #[test]
+    fn a_centre_key_beyond_its_range_is_refused() {
+        let mut packed = Packed::of(&random_params(50, 6), Precision::DEFAULT).unwrap();
+        let n = packed.len();
+        (packed.keys[n - 2], packed.keys[n - 1]) = (1 << 62, 1 << 63);
+        let bytes = packed.to_bytes(3).unwrap();
+        let e = Packed::from_bytes(&bytes, n, &unpack).unwrap_err();
+        assert!(e.to_string().contains("a centre key beyond its range"), "{e}");
+    }
+
+    /// The keys are on the coarsest lattice of the classes present: the bits
+    /// of a class no primitive is in change nothing but their own byte of
+    /// the precision.
+    #[test]
+    fn an_empty_class_changes_only_its_precision_byte() {
+        let mut params = random_params(300, 8);
+        // Every smallest scale below 0.8 voxel: class 0 alone.
+        params.iter_mut().for_each(|p| p[layout::LOG_SCALE + 1] = 0.6f32.ln());
+        let at = |centre: [u8; CENTRE_CLASSES]| Packed::of(&params, Precision { centre, ..Precision::DEFAULT }).unwrap().to_bytes(3).unwrap();
+        let (coarse, same) = (at([3, 0, 1, 2]), at([3, 3, 3, 3]));
+        assert_eq!(coarse[..1 + CENTRE_CLASSES], [LAYOUT_CLASSES, 3, 0, 1, 2]);
+        assert_eq!(coarse[1 + CENTRE_CLASSES..], same[1 + CENTRE_CLASSES..]);
+    }
+
+    /// The first layout (one centre bit count, 0..=8, in the first byte; its
+    /// gaps' classes coded without the previous class as context) still
+    /// reads, at every bit count, as every class on that lattice.
+    #[test]
+    fn the_first_layout_reads_at_every_centre_bit_count() {
+        let params = random_params(150, 9);
+        for bits in 0..=MAX_CENTRE_BITS {
+            let packed = Packed::of(&params, Precision { centre: [bits; CENTRE_CLASSES], ..Precision::DEFAULT }).unwrap();
+            let now = packed.to_bytes(3).unwrap();
+            // The first layout's bytes: its one count, then the four other
+            // precision bytes, the fixed fields and the first five streams
+            // as they are, the gaps' classes coded anew, the centre bits.
+            let mut first = vec![bits];
+            first.extend_from_slice(&now[1 + CENTRE_CLASSES..PRECISION_BYTES + 32]);
+            let mut at = PRECISION_BYTES + 32;
+            for _ in 0..STREAMS - 1 {
+                let len = u32::from_le_bytes(now[at..at + 4].try_into().unwrap()) as usize;
+                first.extend_from_slice(&now[at..at + 4 + len]);
+                at += 4 + len;
+            }
+            let len = u32::from_le_bytes(now[at..at + 4].try_into().unwrap()) as usize;
+            let classes: Vec<u16> = packed.gaps().map(|d| gap_class(d) as u16).collect();
+            let coded = Stream::GapClass { by_previous: false }.encode(&classes, 3).unwrap();
+            first.extend_from_slice(&(coded.len() as u32).to_le_bytes());
+            first.extend_from_slice(&coded);
+            first.extend_from_slice(&now[at + 4 + len..]);
+            assert_eq!(Packed::from_bytes(&first, params.len(), &unpack).unwrap(), packed, "{bits} bits");
+        }
+    }
+
     /// Codes beyond their class's lattice (a `Packed` built by hand; the
     /// reader takes exactly the bits a class has) are refused, not read as
     /// another centre.
