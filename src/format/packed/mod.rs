@@ -546,6 +546,18 @@ mod round_trip_tests {
         (0..n).map(|_| std::array::from_fn(|k| if k < 3 { rng.range(0.0, 30.0) as f32 } else { rng.normal() as f32 })).collect()
     }
 
+    /// A stored payload of the current layout with stream `which`'s body
+    /// replaced by `body`.
+    fn with_stream(stored: &[u8], which: usize, body: &[u8]) -> Vec<u8> {
+        let mut at = PRECISION_BYTES + 32;
+        let len = |at: usize| u32::from_le_bytes(stored[at..at + 4].try_into().unwrap()) as usize;
+        for _ in 0..which {
+            at += 4 + len(at);
+        }
+        let end = at + 4 + len(at);
+        [&stored[..at], &(body.len() as u32).to_le_bytes(), body, &stored[end..]].concat()
+    }
+
     /// A `Packed` built or changed by hand (its fields are public, and a
     /// zstd-coded stream may hold any code) whose arrays do not fit its
     /// count, or whose codes, origin or weight map no writer makes, is
@@ -604,6 +616,24 @@ mod round_trip_tests {
         assert!(e.to_string().contains("a centre key beyond its range"), "{e}");
     }
 
+    /// A scale code beyond its bits, which a zstd-coded stream can hold
+    /// (one byte a code of up to 8 bits), is refused as the payload is
+    /// parsed, before the rotations and classes it would select are read.
+    #[test]
+    fn a_scale_code_beyond_its_bits_is_refused_as_the_payload_is_parsed() {
+        let packed = Packed::of(&random_params(40, 7), Precision { scale: 6, ..Precision::DEFAULT }).unwrap();
+        let now = packed.to_bytes(3).unwrap();
+        let mut codes: Vec<u8> = packed.scale.iter().map(|&k| k as u8).collect();
+        codes[5] = 1 << 6;
+        let bytes = with_stream(&now, 0, &zstd::bulk::compress(&codes, 3).unwrap());
+        let e = Packed::from_bytes(&bytes, packed.len(), &unpack).unwrap_err();
+        assert!(e.to_string().contains("a scale code beyond its bits"), "{e}");
+        // The same frame with the code in range reads.
+        codes[5] = packed.scale[5] as u8;
+        let bytes = with_stream(&now, 0, &zstd::bulk::compress(&codes, 3).unwrap());
+        assert_eq!(Packed::from_bytes(&bytes, packed.len(), &unpack).unwrap(), packed);
+    }
+
     /// The keys are on the coarsest lattice of the classes present: the bits
     /// of a class no primitive is in change nothing but their own byte of
     /// the precision.
@@ -626,24 +656,12 @@ mod round_trip_tests {
         let params = random_params(150, 9);
         for bits in 0..=MAX_CENTRE_BITS {
             let packed = Packed::of(&params, Precision { centre: [bits; CENTRE_CLASSES], ..Precision::DEFAULT }).unwrap();
-            let now = packed.to_bytes(3).unwrap();
             // The first layout's bytes: its one count, then the four other
-            // precision bytes, the fixed fields and the first five streams
-            // as they are, the gaps' classes coded anew, the centre bits.
-            let mut first = vec![bits];
-            first.extend_from_slice(&now[1 + CENTRE_CLASSES..PRECISION_BYTES + 32]);
-            let mut at = PRECISION_BYTES + 32;
-            for _ in 0..STREAMS - 1 {
-                let len = u32::from_le_bytes(now[at..at + 4].try_into().unwrap()) as usize;
-                first.extend_from_slice(&now[at..at + 4 + len]);
-                at += 4 + len;
-            }
-            let len = u32::from_le_bytes(now[at..at + 4].try_into().unwrap()) as usize;
+            // precision bytes and the rest as they are, but for the gaps'
+            // classes, coded anew.
             let classes: Vec<u16> = packed.gaps().map(|d| gap_class(d) as u16).collect();
             let coded = Stream::GapClass { by_previous: false }.encode(&classes, 3).unwrap();
-            first.extend_from_slice(&(coded.len() as u32).to_le_bytes());
-            first.extend_from_slice(&coded);
-            first.extend_from_slice(&now[at + 4 + len..]);
+            let first = [&[bits], &with_stream(&packed.to_bytes(3).unwrap(), STREAMS - 1, &coded)[1 + CENTRE_CLASSES..]].concat();
             assert_eq!(Packed::from_bytes(&first, params.len(), &unpack).unwrap(), packed, "{bits} bits");
         }
     }
