@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The MPI layer under mpirun -n 1, 2 and 4 (oversubscribed on small machines):
-# the C API (tests/c/capi_mpi.c), a restarted run resumed from every rank's
-# models (tests/c/capi_mpi_resume.c), the Fortran module (tests/fortran/mpi_test.f90),
+# the exchange of models with rank 0 (examples/mpi_exchange.rs), the C API
+# (tests/c/capi_mpi.c), a restarted run resumed from every rank's models
+# (tests/c/capi_mpi_resume.c), the Fortran module (tests/fortran/mpi_test.f90),
 # the step index decoded by the CLI, the store rank 0 wrote for every rank
 # against the folder's models, and the domain-decomposed mock solver
 # (examples/mpi_mock_solver.rs) against its single-rank run.
@@ -10,7 +11,7 @@ cd "$(dirname "$0")/.."
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
 run() { mpirun --oversubscribe -n "$@"; }
 
-cargo build --release --locked --features mpi,hdf5 --lib --bin gsenc --example mpi_mock_solver
+cargo build --release --locked --features mpi,hdf5 --lib --bin gsenc --example mpi_mock_solver --example mpi_exchange
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
 lib=target/release/libgsenc.a
@@ -21,6 +22,8 @@ mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi_resume.c "$lib" $hdf5_li
 mpif90 -std=f2008 -J "$out" -c capi/gsenc.f90 -o "$out/gsenc_mod.o"
 mpif90 -I"$out" tests/fortran/mpi_test.f90 "$out/gsenc_mod.o" "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/mpi_test"
 for n in 1 2 4; do
+    # The exchange with rank 0 itself: every verdict, both ways.
+    run "$n" target/release/examples/mpi_exchange
     mkdir -p "$out/c$n" "$out/f$n"
     run "$n" "$out/capi_mpi" "$out/c$n"
     run "$n" "$out/mpi_test" "$out/f$n"
