@@ -277,6 +277,14 @@ fn sound_store(name: &str, entries: &[(&str, u64, Payload)]) -> (common::TmpDir,
     (dir, bytes)
 }
 
+/// Appends a decomposed step: its pieces (float32), then its index.
+fn append_step(s: &mut Store, index: &gsenc::format::StepIndex, pieces: &[gsenc::model::Model]) {
+    for m in pieces {
+        s.append(m, Payload::Float32).unwrap();
+    }
+    s.append_step_index(index).unwrap();
+}
+
 fn replace_attr<T: hdf5::H5Type>(loc: &hdf5::Location, name: &str, v: &[T]) {
     loc.delete_attr(name).unwrap();
     loc.new_attr::<T>().shape(v.len()).create(name).unwrap().write_raw(v).unwrap();
@@ -489,10 +497,7 @@ fn stores_with_random_bytes_changed_give_errors_not_crashes() {
     {
         let mut s = Store::open_append(dir.join("s.h5")).unwrap();
         let (index, pieces) = common::decomposed_step("rho", 4);
-        for m in &pieces {
-            s.append(m, Payload::Float32).unwrap();
-        }
-        s.append_step_index(&index).unwrap();
+        append_step(&mut s, &index, &pieces);
     }
     let sound = std::fs::read(dir.join("s.h5")).unwrap();
     let (truth, truth_step) = {
@@ -669,11 +674,8 @@ fn a_decomposed_steps_index_gives_back_its_pieces_and_leaves_the_listing_as_it_w
     {
         let mut s = Store::open_append(&path).unwrap();
         let (mut index, pieces) = common::decomposed_step("temp", 4);
-        for m in &pieces {
-            s.append(m, Payload::Float32).unwrap();
-        }
         index.pieces[0].hi[0] = 13;
-        s.append_step_index(&index).unwrap();
+        append_step(&mut s, &index, &pieces);
     }
     let s = Store::open_read(&path).unwrap();
     let e = s.read_step("temp", 4).unwrap_err();
@@ -705,10 +707,7 @@ fn the_listing_and_verify_give_each_entry_and_index_once_in_order() {
     let (index, pieces) = common::decomposed_step("rho", 4);
     {
         let mut s = Store::open_append(&path).unwrap();
-        s.append_step_index(&index).unwrap();
-        for m in &pieces {
-            s.append(m, Payload::Float32).unwrap();
-        }
+        append_step(&mut s, &index, &pieces);
         for (field, step, rank) in [("rho", 10, 0), ("rho", 9, 10), ("rho", 9, 2), ("a", 100, 0)] {
             s.append(&model(field, step, rank, 20, 0.5), Payload::Float32).unwrap();
         }
@@ -759,10 +758,7 @@ fn a_decoded_series_blends_a_step_that_has_its_index() {
     let (index, pieces) = common::decomposed_step("rho", 4);
     {
         let mut s = Store::open_append(&path).unwrap();
-        for m in &pieces {
-            s.append(m, Payload::Float32).unwrap();
-        }
-        s.append_step_index(&index).unwrap();
+        append_step(&mut s, &index, &pieces);
         for rank in 0..2 {
             s.append(&model("rho", 6, rank, 30, -0.5), Payload::Float32).unwrap();
         }
