@@ -297,8 +297,8 @@ fn replace_scalar<T: hdf5::H5Type>(loc: &hdf5::Location, name: &str, v: T) {
 
 /// An entry changed after it was written, without its checksum (as an
 /// entry of a store before 1.4 has none), is refused by what is wrong in
-/// it: never read as another model, and never a panic (a `bmin` or a map of
-/// too few values was indexed past its end).
+/// it: never read as another model, and never a panic (unchecked, a `bmin`
+/// or a map of too few values would be indexed past its end).
 #[test]
 fn an_entry_damaged_in_its_structure_is_refused_by_name() {
     let _serial = common::hdf5_serial();

@@ -549,7 +549,8 @@ mod round_trip_tests {
     /// A stored payload of the current layout with stream `which`'s body
     /// replaced by `body`.
     fn with_stream(stored: &[u8], which: usize, body: &[u8]) -> Vec<u8> {
-        let mut at = PRECISION_BYTES + 32;
+        // The streams follow the precision, the origin (3 x f64) and the weight map (2 x f32).
+        let mut at = PRECISION_BYTES + 24 + 8;
         let len = |at: usize| u32::from_le_bytes(stored[at..at + 4].try_into().unwrap()) as usize;
         for _ in 0..which {
             at += 4 + len(at);
