@@ -10,7 +10,7 @@
 //! rank's model and rank r gets exactly its own, but the last rank (of
 //! several), whose read fails: it gets that error, of its kind, said to
 //! be rank 0's. Rank 0 prints "exchange: N ranks ok"; a failed check
-//! panics, and mpirun fails.
+//! panics and aborts every rank, and mpirun fails.
 //!
 //! ```text
 //! mpirun -n 2 target/release/examples/mpi_exchange
