@@ -101,8 +101,7 @@ fn supports_round_trip_with_their_outsides() {
     {
         let f = hdf5::File::open_rw(&path).unwrap();
         let ds = f.dataset("density/3/rank_0/support").unwrap();
-        ds.delete_attr("outside").unwrap();
-        ds.new_attr::<f32>().shape(3).create("outside").unwrap().write_raw(&[0.1f32, 0.2, 0.3]).unwrap();
+        replace_attr(&ds, "outside", &[0.1f32, 0.2, 0.3]);
     }
     let e = Store::open_read(&path).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
     assert!(matches!(&e, Error::Format(w) if w.contains("outside")), "{e}");
@@ -133,8 +132,7 @@ fn a_target_curve_round_trips_within_the_checksum() {
     }
     let rewrite = |v: [f64; 2], crc: bool| {
         let g = hdf5::File::open_rw(&path).unwrap().group("density/3/rank_0").unwrap();
-        g.delete_attr("target_curve").unwrap();
-        g.new_attr::<f64>().shape(2).create("target_curve").unwrap().write_raw(&v).unwrap();
+        replace_attr(&g, "target_curve", &v);
         if !crc && g.attr("crc32").is_ok() {
             g.delete_attr("crc32").unwrap();
         }
@@ -190,9 +188,7 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     drop(Store::open_append(&newer).unwrap());
     {
         let f = hdf5::File::open_rw(&newer).unwrap();
-        f.delete_attr("gsenc_store").unwrap();
-        let v: hdf5::types::VarLenUnicode = "2.0".parse().unwrap();
-        f.new_attr::<hdf5::types::VarLenUnicode>().create("gsenc_store").unwrap().write_scalar(&v).unwrap();
+        replace_scalar(&f, "gsenc_store", "2.0".parse::<hdf5::types::VarLenUnicode>().unwrap());
     }
     assert!(matches!(Store::open_read(&newer), Err(Error::Version(_))));
     assert!(matches!(Store::open_read(dir.join("missing.h5")), Err(Error::Io { .. })));
@@ -223,9 +219,7 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
     {
         let f = hdf5::File::open_rw(&warm).unwrap();
         let g = f.group("rho/5/rank_0").unwrap();
-        g.delete_attr("warm_start").unwrap();
-        let v: hdf5::types::VarLenUnicode = "sideways".parse().unwrap();
-        g.new_attr::<hdf5::types::VarLenUnicode>().create("warm_start").unwrap().write_scalar(&v).unwrap();
+        replace_scalar(&g, "warm_start", "sideways".parse::<hdf5::types::VarLenUnicode>().unwrap());
     }
     let e = Store::open_read(&warm).unwrap().read(&EntryKey::of(&w.meta)).unwrap_err();
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("rho/5/rank_0 has an unknown warm start 'sideways'"), "{e}");
@@ -240,8 +234,7 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
         let n = 1usize << 40;
         g.unlink("params").unwrap();
         g.new_dataset::<f32>().shape([12, n]).chunk([12, 1024]).create("params").unwrap();
-        g.delete_attr("count").unwrap();
-        g.new_attr::<u64>().create("count").unwrap().write_scalar(&(n as u64)).unwrap();
+        replace_scalar(&g, "count", n as u64);
     }
     let e = Store::open_read(&huge).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
     assert!(matches!(e, Error::Format(_)) && e.to_string().contains("dataset params declares 52776558133248 bytes"), "{e}");
@@ -255,8 +248,7 @@ fn appends_never_rewrite_and_bad_input_is_refused() {
         {
             let f = hdf5::File::open_rw(&claims).unwrap();
             let g = f.group("rho/3/rank_0").unwrap();
-            g.delete_attr("count").unwrap();
-            g.new_attr::<u64>().create("count").unwrap().write_scalar(&(1u64 << 40)).unwrap();
+            replace_scalar(&g, "count", 1u64 << 40);
         }
         let e = Store::open_read(&claims).unwrap().read(&EntryKey::of(&m.meta)).unwrap_err();
         assert!(matches!(e, Error::Format(_)), "{payload:?}: {e}");
@@ -285,11 +277,13 @@ fn append_step(s: &mut Store, index: &gsenc::format::StepIndex, pieces: &[gsenc:
     s.append_step_index(index).unwrap();
 }
 
+/// Replaces attribute `name` of `loc` by an array of `v` (a damage done through HDF5).
 fn replace_attr<T: hdf5::H5Type>(loc: &hdf5::Location, name: &str, v: &[T]) {
     loc.delete_attr(name).unwrap();
     loc.new_attr::<T>().shape(v.len()).create(name).unwrap().write_raw(v).unwrap();
 }
 
+/// Replaces attribute `name` of `loc` by the scalar `v`.
 fn replace_scalar<T: hdf5::H5Type>(loc: &hdf5::Location, name: &str, v: T) {
     loc.delete_attr(name).unwrap();
     loc.new_attr::<T>().create(name).unwrap().write_scalar(&v).unwrap();
