@@ -68,7 +68,7 @@ fn main() {
         };
         let mut want = vec![kept];
         if rank > 0 {
-            want.push(format!("MPI: rank 0 could not store this rank's model: MPI: rank {rank} sent a model of rank {}; not stored", rank + 100));
+            want.push(format!("MPI: rank 0 could not store this rank's model: rank {rank} sent a model of rank {}; not stored", rank + 100));
             want.push(no_wire.clone().unwrap());
         }
         assert_eq!(text, want, "rank {rank}, stored {stored}");
