@@ -174,6 +174,8 @@ struct State {
     held: Vec<Key>,
     /// Per field, the last step whose state was dropped.
     dropped: BTreeMap<String, u64>,
+    /// The worker has stopped ([`Stopping`]): nothing more is queued.
+    stopped: bool,
 }
 
 impl State {
@@ -263,6 +265,42 @@ enum Work {
     Encode(Job),
     /// A field's series continues from this model (`resume`).
     Resume(Model),
+    /// The worker panics outside a job's guard, as only a bug in the
+    /// queue's own bookkeeping could make it: the tests' way to stop it.
+    #[cfg(test)]
+    Panic,
+}
+
+/// What the queue answers once its worker has stopped.
+fn thread_stopped() -> Error {
+    Error::arg("the encode thread has stopped")
+}
+
+/// Owns the worker's end of the channel. However the worker stops (a
+/// panic outside a job's guard included), it drops the channel, so that
+/// nothing more is sent, then fails every job not final (they will never be
+/// encoded), frees their room and wakes `wait` and a blocked `push`, which
+/// would otherwise wait for ever. As the queue's drop ends the worker no
+/// job is left, and this changes nothing but `stopped`.
+struct Stopping {
+    shared: Arc<Shared>,
+    work: Option<Receiver<Work>>,
+}
+
+impl Drop for Stopping {
+    fn drop(&mut self) {
+        drop(self.work.take());
+        let mut st = self.shared.state.lock();
+        st.stopped = true;
+        let left: Vec<Key> = st.jobs.iter().filter(|(_, s)| !s.is_final()).map(|(k, _)| k.clone()).collect();
+        for key in left {
+            st.unreported.push(key.clone());
+            st.settle(key, JobState::Failed(Arc::new(thread_stopped())));
+        }
+        st.in_flight = 0;
+        st.bytes = 0;
+        self.shared.changed.notify_all();
+    }
 }
 
 impl BackgroundEncoder {
@@ -404,11 +442,18 @@ impl BackgroundEncoder {
         let key = (job.field.clone(), job.step);
         let mut st = self.shared.state.lock();
         let fits = |st: &State| st.fits(bytes, self.cfg.max_bytes);
+        if st.stopped {
+            return Err(thread_stopped());
+        }
         if !fits(&st) || !others_have_room {
             match self.cfg.when_full {
                 WhenFull::Block => {
                     while !fits(&st) {
                         self.shared.changed.wait(&mut st);
+                    }
+                    // Woken by a worker that stopped (which frees its room)?
+                    if st.stopped {
+                        return Err(thread_stopped());
                     }
                 }
                 WhenFull::Skip => {
@@ -426,12 +471,17 @@ impl BackgroundEncoder {
         drop(st);
         let sent = self.jobs.as_ref().is_some_and(|tx| tx.send(Work::Encode(job)).is_ok());
         if !sent {
-            // Only after a worker panic outside its guard: undo, and say so.
+            // The worker stopped since the check above, and `Stopping`
+            // fails this job with the others (once it has the lock, which
+            // it takes after dropping the channel): this call reports it,
+            // `wait` not again.
             let mut st = self.shared.state.lock();
-            st.settle(key, JobState::Failed(Arc::new(Error::arg("the encode thread has stopped"))));
-            st.in_flight -= 1;
-            st.bytes -= bytes;
-            return Err(Error::arg("the encode thread has stopped"));
+            while !st.stopped {
+                self.shared.changed.wait(&mut st);
+            }
+            st.unreported.retain(|k| k != &key);
+            st.reported(&key);
+            return Err(thread_stopped());
         }
         Ok(Pushed::Queued)
     }
@@ -461,9 +511,10 @@ impl BackgroundEncoder {
         self.check_process()?;
         self.cfg.series.check_resumable(model)?;
         let field = &model.meta.field;
-        self.shared.state.lock().not_begun(field)?;
-        if self.worker.as_ref().is_none_or(|w| w.is_finished()) {
-            return Err(Error::arg("the encode thread has stopped"));
+        let st = self.shared.state.lock();
+        st.not_begun(field)?;
+        if st.stopped || self.worker.as_ref().is_none_or(|w| w.is_finished()) {
+            return Err(thread_stopped());
         }
         Ok(())
     }
@@ -484,7 +535,7 @@ impl BackgroundEncoder {
         // Sent under the lock, so that no push of the field can pass it.
         let sent = self.jobs.as_ref().is_some_and(|tx| tx.send(Work::Resume(model.clone())).is_ok());
         if !sent {
-            return Err(Error::arg("the encode thread has stopped"));
+            return Err(thread_stopped());
         }
         st.last_pushed.insert(field.clone(), step);
         st.last.insert(field, (model, psnr));
@@ -641,6 +692,8 @@ struct Worker {
 
 impl Worker {
     fn run(mut self, work: Receiver<Work>) {
+        let stopping = Stopping { shared: self.shared.clone(), work: Some(work) };
+        let work = stopping.work.as_ref().expect("the channel is dropped only with `stopping`");
         while let Ok(work) = work.recv() {
             let job = match work {
                 Work::Encode(job) => job,
@@ -648,6 +701,8 @@ impl Worker {
                     self.resume(model);
                     continue;
                 }
+                #[cfg(test)]
+                Work::Panic => panic!("the test stops the worker"),
             };
             self.prepare_spare(&job.data);
             let key = (job.field.clone(), job.step);
@@ -747,5 +802,115 @@ impl Worker {
         // elsewhere (`gsenc_encoder_write_model`).
         self.shared.state.lock().last.insert(job.field.clone(), (model, psnr));
         state
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::encode::{EncodeConfig, Schedule, WarmStart};
+    use crate::field::{Grid, IndexFrame, Transform};
+    use crate::series::SeriesRange;
+    use std::time::Duration;
+
+    /// One unit of the queue's budget: a grid of field "a".
+    const SMALL: [usize; 3] = [12, 10, 8];
+    /// Two units: a grid of field "c".
+    const LARGE: [usize; 3] = [24, 10, 8];
+
+    fn job(field: &str, step: u64, dims: [usize; 3]) -> Job {
+        let at = |i: usize| [i % dims[0], i / dims[0] % dims[1], i / (dims[0] * dims[1])];
+        let values = (0..dims.iter().product::<usize>())
+            .map(|i| {
+                let [x, y, z] = at(i).map(|c| c as f32);
+                (-(x - 5.0 - step as f32).powi(2) / 8.0 - (y - 4.0).powi(2) / 6.0 - (z - 3.0).powi(2) / 4.0).exp()
+            })
+            .collect();
+        let grid = Grid::new(dims, values).unwrap();
+        Job { field: field.into(), step, time: None, data: StepData::Grid { grid, frame: IndexFrame { dims, bmin: [0.0; 3], gamma: 1.0 } }, range: None }
+    }
+
+    fn config() -> QueueConfig {
+        let mut c = EncodeConfig::new(20, Schedule::Short);
+        c.iterations = Some(10);
+        c.points = Some(128);
+        let range = SeriesRange::Fixed(ValueRange::new(0.0, 1.0, Transform::Linear).unwrap());
+        let mut series = SeriesConfig::new(c, WarmStart::Coarse, range);
+        series.validation_points = 128;
+        QueueConfig {
+            series,
+            max_bytes: 3 * SMALL.iter().product::<usize>() * 4,
+            when_full: WhenFull::Block,
+            threads: 1,
+            backend: BackendChoice::cpu(),
+            placement: Default::default(),
+            kept_states: KEPT_STATES,
+        }
+    }
+
+    /// Stores nothing, each model only once the test opens the gate.
+    struct Gated(Receiver<()>);
+
+    impl ModelSink for Gated {
+        fn store(&mut self, _: &Model) -> Result<Option<String>> {
+            let _ = self.0.recv();
+            Ok(None)
+        }
+    }
+
+    fn is_stopped(r: &Result<impl std::fmt::Debug>) -> bool {
+        matches!(r, Err(Error::InvalidArgument(m)) if m == "the encode thread has stopped")
+    }
+
+    /// A worker that stops (here made to panic outside a job's guard, as
+    /// only a bug could) fails the jobs queued behind it, frees their room,
+    /// wakes a push blocked on it, and the queue refuses pushes and resumes
+    /// from then on; nothing waits for ever and each failure is reported
+    /// once. Every outcome is deterministic: "c" 1 (two units) cannot fit
+    /// beside "c" 0 (two units) in the budget of three, so it waits until
+    /// the worker has stopped, whenever that is.
+    #[test]
+    fn a_stopped_worker_fails_its_jobs_and_refuses_more() {
+        // A model of field "b" that a working queue resumes.
+        let working = BackgroundEncoder::new(config(), Box::new(CallerStores)).unwrap();
+        working.push(job("b", 0, SMALL)).unwrap();
+        working.wait(None).unwrap();
+        let b = working.take_finished().pop().unwrap();
+        let fresh = BackgroundEncoder::new(config(), Box::new(CallerStores)).unwrap();
+        fresh.check_resume(&b).unwrap();
+
+        let (open, gate) = crossbeam_channel::unbounded();
+        let q = Arc::new(BackgroundEncoder::new(config(), Box::new(Gated(gate))).unwrap());
+        assert_eq!(q.push(job("a", 0, SMALL)).unwrap(), Pushed::Queued);
+        q.jobs.as_ref().unwrap().send(Work::Panic).unwrap();
+        assert_eq!(q.push(job("c", 0, LARGE)).unwrap(), Pushed::Queued, "three units of three");
+        let (blocked_tx, blocked) = crossbeam_channel::bounded(1);
+        let q2 = q.clone();
+        let pusher = std::thread::spawn(move || blocked_tx.send(q2.push(job("c", 1, LARGE))).unwrap());
+        open.send(()).unwrap();
+
+        // Each state is checked before `wait`, which would block on a job
+        // left unfinished.
+        let pushed = blocked.recv_timeout(Duration::from_secs(120)).expect("the blocked push returns");
+        assert!(is_stopped(&pushed), "{pushed:?}");
+        pusher.join().unwrap();
+        assert!(matches!(q.poll("a", 0), Some(JobState::Encoded { .. })), "the job before the stop is encoded");
+        assert_eq!(q.take_finished().len(), 1);
+        assert!(matches!(q.poll("c", 0), Some(JobState::Failed(_))));
+        assert!(q.poll("c", 1).is_none(), "the refused push left no state");
+        assert_eq!(q.queued_bytes(), 0);
+        assert!(q.has_room(usize::MAX));
+        let waited = q.wait(None);
+        assert!(matches!(&waited, Err(Error::InvalidArgument(m)) if m == "field 'c' step 0: the encode thread has stopped"), "{waited:?}");
+        q.wait(None).unwrap();
+
+        assert!(is_stopped(&q.push(job("a", 1, SMALL))));
+        assert!(q.poll("a", 1).is_none());
+        assert!(is_stopped(&q.check_resume(&b)));
+        assert!(is_stopped(&q.resume(b.clone())));
+        q.wait(None).unwrap();
+        q.cancel().unwrap();
+        // The drop joins a stopped worker.
+        drop(Arc::into_inner(q).unwrap());
     }
 }
