@@ -119,6 +119,13 @@ pub(crate) fn deposit(dims: [usize; 3], splats: &[Splat], mut stats: DepositStat
     let slabs_wanted = (8 * rayon::current_num_threads()).max(1);
     let thickness = dims[2].div_ceil(slabs_wanted).max(1);
     let n_slabs = dims[2].div_ceil(thickness);
+    // The grid, and two f64 accumulators of a slab on each thread at once.
+    // Refused before any of it is allocated when the process cannot take
+    // it: an allocation that fails aborts the process, a simulation that
+    // links gsenc included (a lattice of [1, 2^32 - 1, 1] is one slab of 34
+    // GB a thread).
+    let scratch = 2 * 8 * (thickness * plane) as u64 * rayon::current_num_threads().min(n_slabs) as u64;
+    crate::memory::check_fits(&format!("depositing on a lattice of {dims:?} voxels"), 4 * n as u64 + scratch)?;
 
     // Counting sort of splat indices into the slabs they reach, input order kept.
     let slab_range = |s: &Splat| (s.lo[2] as usize / thickness, (s.hi[2] as usize - 1) / thickness);
@@ -169,13 +176,12 @@ pub(crate) fn deposit(dims: [usize; 3], splats: &[Splat], mut stats: DepositStat
         })
         .sum();
 
-    let scratch = 2 * 8 * thickness * plane * rayon::current_num_threads().min(n_slabs);
     stats.empty_voxels = empty;
     stats.peak_bytes = 4 * n
         + std::mem::size_of_val(splats)
         + 4 * lists.len()
         + std::mem::size_of_val(offsets.as_slice())
-        + scratch;
+        + scratch as usize;
     stats.seconds = started.elapsed().as_secs_f64();
     Ok((Grid::new(dims, out)?, stats))
 }
@@ -248,5 +254,18 @@ mod tests {
         assert_eq!(m4_spline(2.0 * h, h), 0.0);
         // Continuous at q = 1.
         assert!((m4_spline(h * (1.0 - 1e-9), h) - m4_spline(h * (1.0 + 1e-9), h)).abs() < 1e-9);
+    }
+
+    /// A lattice within the dims' bounds whose deposit cannot fit (2^34
+    /// voxels in one plane: 64 GiB of grid and 256 GiB of one slab's
+    /// accumulators) is refused as such, before anything is allocated; it
+    /// aborted the process (a failed allocation) when the C API's random
+    /// walks first met it, on a lattice of [1, 2^32 - 1, 1].
+    #[test]
+    fn a_deposit_beyond_memory_is_refused_before_it_allocates() {
+        let dims = [1 << 17, 1 << 17, 1];
+        assert_eq!(lattice_len(dims).unwrap(), 1 << 34, "the lattice itself is allowed");
+        let e = deposit(dims, &[], DepositStats::default(), Instant::now()).unwrap_err();
+        assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("depositing on a lattice of [131072, 131072, 1] voxels") && m.contains("more than")), "{e}");
     }
 }
