@@ -56,9 +56,13 @@ impl Error {
     }
 
     /// The same kind of error with `context` ("field 'rho' step 4") before
-    /// its message, for errors reported away from where they happened.
+    /// its message, for errors reported away from where they happened; a
+    /// message that begins with that context already keeps it once.
     pub fn in_context(&self, context: &str) -> Error {
-        let with = |m: &str| format!("{context}: {m}");
+        let with = |m: &str| match m.strip_prefix(context).is_some_and(|rest| rest.starts_with(": ")) {
+            true => m.to_string(),
+            false => format!("{context}: {m}"),
+        };
         match self {
             Error::InvalidArgument(m) => Error::InvalidArgument(with(m)),
             Error::InvalidData(m) => Error::InvalidData(with(m)),
@@ -85,4 +89,24 @@ pub(crate) fn by_name<T: Copy>(all: &[T], name: fn(T) -> &'static str, s: &str, 
         let names: Vec<&str> = all.iter().map(|&v| name(v)).collect();
         Error::arg(format!("unknown {what} '{s}' ({})", names.join(", ")))
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_context_is_said_once() {
+        let at = "field 'rho' step 6";
+        let e = Error::arg("grid of [1, 1, 3] voxels").in_context(at);
+        assert_eq!(e.to_string(), "invalid argument: field 'rho' step 6: grid of [1, 1, 3] voxels");
+        // Given again, or already in the message as the queue's wait finds
+        // it in the series encoder's: once.
+        assert_eq!(e.in_context(at).to_string(), e.to_string());
+        // Another context, or the same words not as a context, go before.
+        assert_eq!(e.in_context("field 'rho' step 7").to_string(), "invalid argument: field 'rho' step 7: field 'rho' step 6: grid of [1, 1, 3] voxels");
+        assert_eq!(Error::data("field 'rho' step 60: x").in_context(at).to_string(), "invalid data: field 'rho' step 6: field 'rho' step 60: x");
+        let io = Error::io("rho.gsm", std::io::Error::other("disk full")).in_context(at);
+        assert_eq!(io.in_context(at).to_string(), "i/o error on field 'rho' step 6: rho.gsm: disk full");
+    }
 }
