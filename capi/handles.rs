@@ -108,3 +108,10 @@ pub(crate) fn held<T>(p: *const T) -> bool {
     let life = live().get(&(p as usize)).map(|(_, life)| life.clone());
     life.is_some_and(|l| matches!(l.try_write(), Err(std::sync::TryLockError::WouldBlock)))
 }
+
+/// Whether `p` is a live handle of `kind` (the tests' random walks pass
+/// one kind as the other and must know when the library has to refuse it).
+#[cfg(test)]
+pub(crate) fn is_live<T>(p: *const T, kind: Kind) -> bool {
+    live().get(&(p as usize)).is_some_and(|(k, _)| *k == kind)
+}

@@ -49,6 +49,8 @@ mod hdf5_tests;
 mod null_tests;
 #[cfg(test)]
 mod thread_tests;
+#[cfg(test)]
+mod walk_tests;
 
 pub use ffi::{GSENC_DTYPE_FLOAT32, GSENC_DTYPE_FLOAT64};
 
