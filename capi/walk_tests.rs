@@ -327,7 +327,7 @@ fn dtype(rng: &mut Rng) -> i32 {
 unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CString>) {
     let mut foreign = 0u64;
     let foreign: *mut u64 = &mut foreign;
-    match rng.below(22) {
+    match rng.below(27) {
         0 | 1 => {
             let cfg = config(rng, world, strings);
             let mut enc = null_mut();
@@ -463,7 +463,7 @@ unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CString>) {
             };
             world.answered(status, ["cancel", "reserve", "last_step"][call].to_string());
         }
-        11 => {
+        11 | 21 | 22 => {
             let (enc, _) = world.encoder(rng, foreign);
             let (field, name) = world.field(rng);
             let mut size = 0usize;
@@ -540,7 +540,7 @@ unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CString>) {
                 world.models.add(m);
             }
         }
-        15 => {
+        15 | 23 | 24 => {
             let (m, alien) = world.model(rng, foreign);
             let dims: [u64; 3] = [rng.pick(&[0, 1, 3, 7]), rng.pick(&[1, 4, u64::MAX]), rng.pick(&[1, 5, 1 << 40])];
             // The model's own dims, for a NULL `dims`: its info says them.
@@ -563,7 +563,7 @@ unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CString>) {
             world.require(!ok || len as u128 == asked, "an out_len that is not the dims' was taken");
             world.require(!ok || out.iter().all(|v| v.is_finite()), "a decode gave a value that is not finite");
         }
-        16 => {
+        16 | 25 => {
             let (m, alien) = world.model(rng, foreign);
             let count = rng.pick(&[0, 1, 9]);
             let spoil = rng.chance(0.2);
