@@ -340,7 +340,7 @@ unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CString>) {
             };
             let ok = world.answered(status, format!("create(budget {}, dims {:?}, iterations {}, threads {}, mpi {mpi})", cfg.budget, cfg.dims, cfg.iterations, cfg.threads));
             world.require(!mpi || !ok, "an MPI encoder without MPI");
-            world.require(ok == !enc.is_null(), "a handle without success, or success without one");
+            world.require(ok != enc.is_null(), "a handle without success, or success without one");
             if ok {
                 world.encoders.add(enc);
             }
@@ -525,7 +525,7 @@ unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CString>) {
             }
             let mut m = null_mut();
             let ok = world.answered(unsafe { gsenc_model_read_buffer(bytes.as_ptr(), bytes.len(), &mut m) }, format!("read_buffer({} bytes, change {how})", bytes.len()));
-            world.require(ok == !m.is_null(), "a handle without success, or success without one");
+            world.require(ok != m.is_null(), "a handle without success, or success without one");
             if ok {
                 world.models.add(m);
             }
