@@ -30,6 +30,14 @@ impl Kind {
             Kind::Model => "model",
         }
     }
+
+    /// The name with its article ("an encoder").
+    fn a(self) -> &'static str {
+        match self {
+            Kind::Encoder => "an encoder",
+            Kind::Model => "a model",
+        }
+    }
 }
 
 /// The lock of one handle; `true` while the handle is alive.
@@ -77,7 +85,7 @@ pub(crate) fn hold<T, R>(p: *const T, kind: Kind, what: &str, alone: bool, f: im
     let life = match live().get(&(p as usize)) {
         Some((k, life)) if *k == kind => life.clone(),
         Some((k, _)) => {
-            return fail(gsenc_status::InvalidArgument, format!("{what}: the handle is a {}, not a {}", k.name(), kind.name()))
+            return fail(gsenc_status::InvalidArgument, format!("{what}: the handle is {}, not {}", k.a(), kind.a()))
         }
         None => {
             return fail(
