@@ -929,7 +929,10 @@ gsenc_status gsenc_encoder_write_model(gsenc_encoder *encoder, const char *field
  `*size` is set to the bytes the model takes in any case: call with a
  NULL `buffer` to learn it; a `capacity` below it is
  `GSENC_STATUS_INVALID_ARGUMENT` with nothing written. Does not wait for
- queued steps. Calls on one encoder run one at a time.
+ queued steps: one that finishes between the call that sizes the buffer
+ and the call that fills it changes the model, whose new size the second
+ call then gives (call `gsenc_wait` first, or size again). Calls on one
+ encoder run one at a time.
 
  # Safety
  As for `gsenc_wait`; `buffer` is NULL or holds `capacity` writable
