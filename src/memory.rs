@@ -43,6 +43,22 @@ pub fn check_fits(what: &str, bytes: u64) -> crate::Result<()> {
     check_fits_in(what, bytes, available()?)
 }
 
+/// Requests of fewer bytes are not checked by [`check_large`]: the check
+/// reads `/proc` (about 0.1 ms), and so little memory decides nothing.
+pub const CHECKED_BYTES: u64 = 64 << 20;
+
+/// [`check_fits`] for requests of [`CHECKED_BYTES`] or more. Rust's
+/// fallible reservation (`try_reserve`) does not say whether memory fits:
+/// Linux promises what it may not have (overcommit) and kills the process
+/// (SIGKILL, no error) when the memory is written, so a large buffer is
+/// checked here before it is reserved.
+pub fn check_large(what: &str, bytes: u64) -> crate::Result<()> {
+    match bytes < CHECKED_BYTES {
+        true => Ok(()),
+        false => check_fits(what, bytes),
+    }
+}
+
 /// [`check_fits`] against `available` bytes (nothing is refused with `None`).
 pub fn check_fits_in(what: &str, bytes: u64, available: Option<u64>) -> crate::Result<()> {
     match available {

@@ -93,6 +93,15 @@ fn bad_boxes_and_sink_errors_are_reported() {
     }
     let e = m.decode(&mut CpuBackend::new(), Some([1 << 20, 1 << 20, 1 << 20])).unwrap_err();
     assert!(e.to_string().contains("too large"), "{e}");
+    // A lattice within the bounds whose one z layer (a slab's least) cannot
+    // be held: refused before it is reserved (Linux would promise the
+    // memory and kill the process as the decode wrote it). 2^34 voxels, 192
+    // GiB with a consumer's two copies. A whole decode of it too.
+    let flat = [1 << 17, 1 << 17, 1];
+    let e = m.decode_streaming(&mut CpuBackend::new(), flat, IndexBox::whole(flat), 1 << 24, &mut |_| panic!("no slab")).unwrap_err();
+    assert!(matches!(&e, gsenc::Error::InvalidArgument(t) if t.contains("decoding slabs of 17179869184 voxels") && t.contains("more than")), "{e}");
+    let e = m.decode(&mut CpuBackend::new(), Some(flat)).unwrap_err();
+    assert!(matches!(&e, gsenc::Error::InvalidArgument(t) if t.contains("a decode of 17179869184 voxels") && t.contains("more than")), "{e}");
     // A failing sink (a full disk, say) stops the decode with its error.
     let mut calls = 0;
     let e = m

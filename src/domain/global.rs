@@ -81,6 +81,8 @@ impl GlobalField {
                 let mut z = region.lo[2];
                 while z < region.hi[2] {
                     let slab = IndexBox { lo: [region.lo[0], region.lo[1], z], hi: [region.hi[0], region.hi[1], (z + layers).min(region.hi[2])] };
+                    // A blend holds two f64 sums and the f32 values a voxel.
+                    crate::model::check_slab(slab.dims().iter().product(), 20)?;
                     sink(&blend(&global, &self.pieces, &boxes, index.halo, dims, slab, backend)?.values)?;
                     z = slab.hi[2];
                 }
@@ -110,6 +112,7 @@ impl GlobalField {
         // Before the product below, which wraps beyond 64 bits.
         self.merged().lattice_dims(Some(dims))?;
         let n: usize = region.dims().iter().product();
+        crate::memory::check_large(&format!("a decode of {n} voxels"), 4 * n as u64)?;
         let mut out = Vec::new();
         out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
         self.decode_streaming(backend, dims, region, additive, crate::model::DEFAULT_SLAB_VOXELS, &mut |slab| {

@@ -162,6 +162,18 @@ pub struct Model {
     pub support: Option<Support>,
 }
 
+/// Refuses a streamed decode's slab of `voxels` (at least one z layer,
+/// however few voxels a slab was asked to hold: a lattice of [2^32, 1, 1]
+/// has a layer of 16 GiB) when this process cannot hold it now, at
+/// `bytes_a_voxel` while it decodes and the two copies of its f32 values
+/// that a consumer keeps beside it (the tool's write-behind: one being
+/// filled, one being written). Without it such a slab was reserved (Linux
+/// promises memory it may not have) and the process killed as it wrote it.
+pub(crate) fn check_slab(voxels: usize, bytes_a_voxel: u64) -> Result<()> {
+    let bytes = (voxels as u64).saturating_mul(bytes_a_voxel + 8);
+    crate::memory::check_large(&format!("decoding slabs of {voxels} voxels (a z layer at least; decode fewer voxels a layer, or a sub-box)"), bytes)
+}
+
 /// Default most voxels decoded at once by [`Model::decode_streaming`]: 64 MB of f32.
 pub const DEFAULT_SLAB_VOXELS: usize = 1 << 24;
 
@@ -191,7 +203,8 @@ impl Model {
     pub fn decode_box(&self, backend: &mut dyn Backend, dims: [usize; 3], region: IndexBox) -> Result<Grid> {
         let dims = self.lattice_dims(Some(dims))?;
         region.check_within(dims)?;
-        let n = region.dims().iter().product();
+        let n: usize = region.dims().iter().product();
+        crate::memory::check_large(&format!("a decode of {n} voxels"), 4 * n as u64)?;
         let mut out = Vec::new();
         out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
         out.resize(n, 0.0);
@@ -224,6 +237,7 @@ impl Model {
             let n = layer * (z1 - z);
             if buf.len() != n {
                 buf.clear();
+                check_slab(n, 4)?;
                 buf.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate a slab of {n} voxels")))?;
                 buf.resize(n, 0.0);
             }
