@@ -365,6 +365,14 @@ fn a_step_whose_lattice_reaches_past_its_pieces_is_on_the_index_lattice() {
             }
         }
     }
+    // A blended decode whose one z layer (2^34 voxels: 448 GiB of sums,
+    // values and a consumer's copies) cannot be held is refused before its
+    // sums are reserved; a whole decode of it too.
+    let flat = [1 << 17, 1 << 17, 1];
+    let e = field.decode_streaming(&mut CpuBackend::new(), flat, IndexBox::whole(flat), false, 1 << 24, &mut |_| panic!("no slab")).unwrap_err();
+    assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("decoding slabs of 17179869184 voxels") && m.contains("more than")), "{e}");
+    let e = field.decode(&mut CpuBackend::new(), flat, IndexBox::whole(flat), false).unwrap_err();
+    assert!(matches!(&e, Error::InvalidArgument(m) if m.contains("a decode of 17179869184 voxels") && m.contains("more than")), "{e}");
     let mut off = pieces.clone();
     off[1].meta.frame.bmin[0] += 0.25; // half a voxel
     assert!(matches!(GlobalField::of_step(index, off).map(|_| ()), Err(Error::InvalidArgument(m)) if m.contains("piece 1")));
