@@ -7,9 +7,11 @@
 //! before it is allocated, with an error that says so: an allocation that
 //! fails aborts the process, and in a simulation that links gsenc that is
 //! the whole run. Readers of inputs whose length nothing bounds use it
-//! (`io/budget.rs`), and so does an encode, before it allocates its
-//! training state (`encode::refine::validate`). [`with_pages`] allocates a
-//! buffer whose pages are in memory before its first write (a push's copy).
+//! (`io/budget.rs`), and so do an encode, before it allocates its
+//! training state (`encode::refine::validate`), and a deposit (its grid
+//! and accumulators) and a decode (its slab, or its whole lattice), those
+//! two through [`check_large`]. [`with_pages`] allocates a buffer whose
+//! pages are in memory before its first write (a push's copy).
 
 /// The variable that bounds the memory the process may hold: bytes, or a
 /// number with a suffix `k`, `M`, `G` or `T` (powers of 1024), as `8G`.

@@ -125,7 +125,7 @@ pub(crate) fn deposit(dims: [usize; 3], splats: &[Splat], mut stats: DepositStat
     // links gsenc included (a lattice of [1, 2^32 - 1, 1] is one slab of 34
     // GB a thread).
     let scratch = 2 * 8 * (thickness * plane) as u64 * rayon::current_num_threads().min(n_slabs) as u64;
-    crate::memory::check_fits(&format!("depositing on a lattice of {dims:?} voxels"), 4 * n as u64 + scratch)?;
+    crate::memory::check_large(&format!("depositing on a lattice of {dims:?} voxels"), 4 * n as u64 + scratch)?;
 
     // Counting sort of splat indices into the slabs they reach, input order kept.
     let slab_range = |s: &Splat| (s.lo[2] as usize / thickness, (s.hi[2] as usize - 1) / thickness);
