@@ -277,22 +277,23 @@ fn bad_inputs_give_clear_errors() {
     assert!(err(quick(10, 10, 0)).contains("points"));
     assert!(err(quick(10, 10, gsenc::encode::config::MAX_POINTS + 1)).contains("more than the 16777216 a batch may hold"));
     // A budget whose training state would not fit in the memory given.
-    use gsenc::encode::refine::{check_training_memory, TRAINING_BYTES_PER_POINT as PT, TRAINING_BYTES_PER_PRIMITIVE as PR};
-    let fits = 1000 * PR + 256 * PT;
-    assert!(check_training_memory(1000, 256, Some(fits)).is_ok());
-    let e = check_training_memory(1000, 256, Some(fits - 1)).unwrap_err();
-    assert!(matches!(&e, gsenc::Error::InvalidArgument(m) if m.contains("a budget of 1000 primitives") && m.contains(&format!("takes {fits} bytes, more than the {}", fits - 1))), "{e}");
-    assert!(check_training_memory(usize::MAX, usize::MAX, None).is_ok(), "nothing is refused where the system says nothing");
-    assert!(check_training_memory(usize::MAX, 1, Some(u64::MAX - 1)).is_err(), "the need saturates instead of wrapping");
+    use gsenc::encode::refine::{check_training_memory, TRAINING_BYTES_PER_POINT as PT, TRAINING_BYTES_PER_PRIMITIVE as PR, TRAINING_BYTES_PER_VOXEL as PV};
+    let fits = 1000 * PR + 256 * PT + 4096 * PV;
+    assert!(check_training_memory(1000, 256, 4096, Some(fits)).is_ok());
+    let e = check_training_memory(1000, 256, 4096, Some(fits - 1)).unwrap_err();
+    assert!(matches!(&e, gsenc::Error::InvalidArgument(m) if m.contains("a budget of 1000 primitives on 4096 voxels") && m.contains(&format!("takes {fits} bytes, more than the {}", fits - 1))), "{e}");
+    assert!(check_training_memory(usize::MAX, usize::MAX, usize::MAX, None).is_ok(), "nothing is refused where the system says nothing");
+    assert!(check_training_memory(usize::MAX, 1, 1, Some(u64::MAX - 1)).is_err(), "the need saturates instead of wrapping");
+    assert!(check_training_memory(1, 1, usize::MAX, Some(u64::MAX - 1)).is_err(), "the voxels' share saturates too");
     // The target search's cap is a budget that check accepts, with room.
     use gsenc::encode::target::{fitting_budget, MIN_BUDGET};
-    for (available, points) in [(1u64 << 30, 3072usize), (5 << 30, 16384), (123_456_789, 1)] {
-        let n = fitting_budget(Some(available), points);
-        assert!(check_training_memory(n, points, Some(available / 4 * 3)).is_ok(), "{n} in {available}");
-        assert!(check_training_memory(n + 1, points, Some(available / 4 * 3)).is_err(), "{n} + 1 in {available}");
+    for (available, points, voxels) in [(1u64 << 30, 3072usize, 1usize << 21), (5 << 30, 16384, 1 << 24), (123_456_789, 1, 1)] {
+        let n = fitting_budget(Some(available), points, voxels);
+        assert!(check_training_memory(n, points, voxels, Some(available / 4 * 3)).is_ok(), "{n} in {available}");
+        assert!(check_training_memory(n + 1, points, voxels, Some(available / 4 * 3)).is_err(), "{n} + 1 in {available}");
     }
-    assert_eq!(fitting_budget(Some(1000), 3072), MIN_BUDGET);
-    assert_eq!(fitting_budget(None, 3072), usize::MAX);
+    assert_eq!(fitting_budget(Some(1000), 3072, 64), MIN_BUDGET);
+    assert_eq!(fitting_budget(None, 3072, 64), usize::MAX);
     let mut nan = g.clone();
     nan.values[77] = f32::NAN;
     let e = validate(&Target { reference: &nan, samples: &nan }, &quick(10, 10, 10), None).unwrap_err().to_string();

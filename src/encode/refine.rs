@@ -111,7 +111,7 @@ pub fn validate(target: &Target, cfg: &EncodeConfig, init: Option<&[Primitive]>)
         )));
     }
     cfg.check()?;
-    check_training_memory(cfg.budget, cfg.points(), crate::memory::available()?)?;
+    check_training_memory(cfg.budget, cfg.points(), voxels, crate::memory::available()?)?;
     if target.samples.is_empty() {
         return Err(Error::data("no samples"));
     }
@@ -142,13 +142,24 @@ pub fn validate(target: &Target, cfg: &EncodeConfig, init: Option<&[Primitive]>)
 /// allocated for it (an allocation that fails aborts).
 pub const TRAINING_BYTES_PER_PRIMITIVE: u64 = 800;
 pub const TRAINING_BYTES_PER_POINT: u64 = 64;
+/// What an encode holds a voxel of its reference beyond the reference and
+/// the input it came from, which exist when the check runs (the decode
+/// that scores it, the error map, the support's bits): the peak resident
+/// size of CPU encodes of 128³ and 256³ grids at one budget differs by
+/// 18.6 bytes a voxel, 8 of them the tool's input and reference
+/// (docs/BENCHMARKS.md "Memory of an encode a voxel"); rounded up.
+pub const TRAINING_BYTES_PER_VOXEL: u64 = 12;
 
-/// Refuses a budget whose training state would take more than `available`
-/// bytes (what [`crate::memory::available`] says; nothing is refused where
-/// it says nothing).
-pub fn check_training_memory(budget: usize, points: usize, available: Option<u64>) -> Result<()> {
-    let need = (budget as u64).saturating_mul(TRAINING_BYTES_PER_PRIMITIVE).saturating_add((points as u64).saturating_mul(TRAINING_BYTES_PER_POINT));
-    let what = format!("training a budget of {budget} primitives (about {TRAINING_BYTES_PER_PRIMITIVE} bytes a primitive)");
+/// Refuses a budget whose training state, with batches of `points` and a
+/// reference of `voxels`, would take more than `available` bytes (what
+/// [`crate::memory::available`] says; nothing is refused where it says
+/// nothing).
+pub fn check_training_memory(budget: usize, points: usize, voxels: usize, available: Option<u64>) -> Result<()> {
+    let need = (budget as u64)
+        .saturating_mul(TRAINING_BYTES_PER_PRIMITIVE)
+        .saturating_add((points as u64).saturating_mul(TRAINING_BYTES_PER_POINT))
+        .saturating_add((voxels as u64).saturating_mul(TRAINING_BYTES_PER_VOXEL));
+    let what = format!("training a budget of {budget} primitives on {voxels} voxels (about {TRAINING_BYTES_PER_PRIMITIVE} bytes a primitive and {TRAINING_BYTES_PER_VOXEL} a voxel)");
     crate::memory::check_fits_in(&what, need, available)
 }
 

@@ -122,7 +122,7 @@ pub fn encode_to_target(
     .min(prepared.reference.len())
     // A budget whose training cannot fit would fail the encode that tries
     // it (`refine::check_training_memory`): the search stays within what fits.
-    .min(fitting_budget(crate::memory::available()?, request.config.points()));
+    .min(fitting_budget(crate::memory::available()?, request.config.points(), prepared.reference.len()));
     let mut search = Search { prepared, request, target: t.db, cap, backend, progress, probes: vec![], tries: vec![] };
     let (first, curve) = match request.start {
         Start::Seeded => {
@@ -177,16 +177,18 @@ pub fn encode_to_target(
     Ok(encoded)
 }
 
-/// The largest budget whose training, with batches of `points`, fits in
+/// The largest budget whose training, with batches of `points` on a
+/// reference of `voxels`, fits in
 /// three quarters of `available` bytes (as `refine::check_training_memory`
 /// counts it; the quarter left is for what the search's own probes leave
 /// mapped before the encode at the cap checks again: a 1.3M cap taken at
 /// the whole was refused 19 MB short under `ulimit -v`), at least
 /// [`MIN_BUDGET`], which the search needs to start; unbounded with `None`.
-pub fn fitting_budget(available: Option<u64>, points: usize) -> usize {
-    use crate::encode::refine::{TRAINING_BYTES_PER_POINT, TRAINING_BYTES_PER_PRIMITIVE};
+pub fn fitting_budget(available: Option<u64>, points: usize, voxels: usize) -> usize {
+    use crate::encode::refine::{TRAINING_BYTES_PER_POINT, TRAINING_BYTES_PER_PRIMITIVE, TRAINING_BYTES_PER_VOXEL};
     available.map_or(usize::MAX, |m| {
-        let n = (m / 4 * 3).saturating_sub(points as u64 * TRAINING_BYTES_PER_POINT) / TRAINING_BYTES_PER_PRIMITIVE;
+        let fixed = (points as u64).saturating_mul(TRAINING_BYTES_PER_POINT).saturating_add((voxels as u64).saturating_mul(TRAINING_BYTES_PER_VOXEL));
+        let n = (m / 4 * 3).saturating_sub(fixed) / TRAINING_BYTES_PER_PRIMITIVE;
         usize::try_from(n).unwrap_or(usize::MAX).max(MIN_BUDGET)
     })
 }
