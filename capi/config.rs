@@ -98,7 +98,8 @@ pub struct gsenc_config {
     pub struct_size: usize,
     /// Number of Gaussians per field and step (default 32000). One whose
     /// training would take more memory than the process can (about 800
-    /// bytes a Gaussian) fails that step with `GSENC_STATUS_INVALID_ARGUMENT`.
+    /// bytes a Gaussian and 12 a voxel of the step's lattice) fails that
+    /// step with `GSENC_STATUS_INVALID_ARGUMENT`.
     pub budget: u64,
     /// `GSENC_SCHEDULE_*` of first and independent steps (default matched).
     pub schedule: i32,
