@@ -30,6 +30,7 @@ pub(super) unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CS
             11 | 21 | 22 => model_bytes(rng, world, foreign),
             12 => write_model(rng, world, foreign),
             13 => read_bytes(rng, world),
+            // Without a file written, mostly a destroy instead.
             14 if !world.files.is_empty() || rng.chance(0.3) => read_file(rng, world),
             15 | 23 | 24 => decode(rng, world, foreign),
             16 | 25 => evaluate(rng, world, foreign),
