@@ -19,7 +19,7 @@ pub(super) unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CS
     let foreign: *mut u64 = &mut foreign;
     // SAFETY: as the walk's (mod.rs).
     unsafe {
-        match rng.below(27) {
+        match rng.below(28) {
             0 | 1 => create(rng, world, strings),
             2..=4 | 19 | 20 => push_grid(rng, world, foreign),
             5 => push_particles(rng, world, foreign),
@@ -35,7 +35,7 @@ pub(super) unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CS
             15 | 23 | 24 => decode(rng, world, foreign),
             16 | 25 => evaluate(rng, world, foreign),
             17 => info(rng, world, foreign),
-            18 => resume(rng, world, foreign),
+            18 | 26 => resume(rng, world, foreign),
             _ => destroy(rng, world, foreign),
         }
     }

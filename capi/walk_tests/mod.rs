@@ -37,6 +37,7 @@
 mod calls;
 mod inputs;
 
+use crate::common::Draws as Rng;
 use crate::encoder::{gsenc_encoder, gsenc_encoder_destroy};
 use crate::handles::{is_live, Kind};
 use crate::model::{gsenc_model, gsenc_model_destroy};
@@ -53,33 +54,6 @@ use std::time::{Duration, Instant};
 const CALLS: usize = 60;
 /// Walks in a run, unless `GSENC_CAPI_WALKS` says.
 const WALKS: u64 = 150;
-
-/// splitmix64: the walk's only source of choices.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    /// 0..n.
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-    /// True with probability `p`.
-    fn chance(&mut self, p: f64) -> bool {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64 <= p
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn pick<T: Copy>(&mut self, all: &[T]) -> T {
-        all[self.below(all.len())]
-    }
-}
 
 /// What the walk made and still knows of.
 struct World {
@@ -238,7 +212,7 @@ fn random_walks_over_the_c_api_keep_every_promise() {
         let dir = root.join(seed.to_string());
         std::fs::create_dir_all(&dir).unwrap();
         let mut world = World { dir, encoders: Made::new(), models: Made::new(), files: Vec::new(), bytes: Vec::new(), next_step: 0, pushed: Vec::new(), log: Vec::new(), seed, oks: BTreeMap::new(), trace };
-        let mut rng = Rng(seed.wrapping_mul(0x2545_f491_4f6c_dd1d));
+        let mut rng = Rng::new(seed);
         let mut strings = Vec::new();
         for _ in 0..CALLS {
             // SAFETY: every pointer the walk passes is NULL, a handle the

@@ -16,33 +16,15 @@
 #[path = "../../tests/common/mod.rs"]
 mod common;
 mod tool;
-use common::tmpdir;
+use common::{tmpdir, Draws as Rng};
 use std::path::Path;
 use tool::{gsenc, write_input, write_particles};
 
-/// splitmix64: the runs' only source of choices.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-    fn below(&mut self, n: usize) -> usize {
-        (self.next() % n as u64) as usize
-    }
-    fn chance(&mut self, p: f64) -> bool {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64 <= p
-    }
-    /// Mostly `usual`, sometimes one of `odd`.
-    fn value(&mut self, usual: &str, odd: &[&str]) -> String {
-        match self.chance(0.8) || odd.is_empty() {
-            true => usual.to_string(),
-            false => odd[self.below(odd.len())].to_string(),
-        }
+/// Mostly `usual`, sometimes one of `odd`.
+fn value(rng: &mut Rng, usual: &str, odd: &[&str]) -> String {
+    match rng.chance(0.8) || odd.is_empty() {
+        true => usual.to_string(),
+        false => odd[rng.below(odd.len())].to_string(),
     }
 }
 
@@ -107,15 +89,15 @@ fn command(rng: &mut Rng, inp: &Inputs, out: &Path) -> Vec<String> {
     match rng.below(7) {
         0 | 1 => {
             push(&mut a, &["encode", "grid", "--input"]);
-            let input = rng.value(&inp.field, &[&inp.empty, &inp.model, "/nonexistent-gsenc-walk/f.f32"]);
+            let input = value(rng, &inp.field, &[&inp.empty, &inp.model, "/nonexistent-gsenc-walk/f.f32"]);
             a.push(input);
-            let dims = rng.value("20,16,12", &["0,16,12", "20,16", "20,16,12,1", "4294967296,1,1", "1,4294967295,1", "a,b,c", "10,16,12", "-1,2,3"]);
-            let dtype = rng.value("f32", &["u8", "u16", "f64", "x"]);
-            let budget = rng.value("10", &["0", "1", "1000000", "99999999999999999999", "-3", "ten"]);
+            let dims = value(rng, "20,16,12", &["0,16,12", "20,16", "20,16,12,1", "4294967296,1,1", "1,4294967295,1", "a,b,c", "10,16,12", "-1,2,3"]);
+            let dtype = value(rng, "f32", &["u8", "u16", "f64", "x"]);
+            let budget = value(rng, "10", &["0", "1", "1000000", "99999999999999999999", "-3", "ten"]);
             push(&mut a, &["--dims", &dims, "--dtype", &dtype, "--budget", &budget, "--backend", "cpu"]);
-            let schedule = rng.value("short", &["matched", "tuned", "bogus"]);
-            let iters = rng.value("8", &["0", "1", "10000001", "x"]);
-            let points = rng.value("256", &["0", "1", "4294967296"]);
+            let schedule = value(rng, "short", &["matched", "tuned", "bogus"]);
+            let iters = value(rng, "8", &["0", "1", "10000001", "x"]);
+            let points = value(rng, "256", &["0", "1", "4294967296"]);
             push(&mut a, &["--schedule", &schedule, "--iters", &iters, "--points", &points]);
             for (option, values) in [
                 ("--range", &["0,1", "1,0", "nan,1", "0", "2,12"][..]),
@@ -147,11 +129,11 @@ fn command(rng: &mut Rng, inp: &Inputs, out: &Path) -> Vec<String> {
             let m = model(rng);
             push(&mut a, &["decode", &m, "--backend", "cpu"]);
             if rng.chance(0.5) {
-                let dims = rng.value("8,6,4", &["0,1,1", "1,2", "4294967296,4,1", "100000,100000,100000", "x"]);
+                let dims = value(rng, "8,6,4", &["0,1,1", "1,2", "4294967296,4,1", "100000,100000,100000", "x"]);
                 push(&mut a, &["--dims", &dims]);
             }
             if rng.chance(0.2) {
-                let b = rng.value("0,0,0,4,4,4", &["4,4,4,0,0,0", "0,0,0,100,100,100", "-5,0,0,1,1,1", "0,0,0"]);
+                let b = value(rng, "0,0,0,4,4,4", &["4,4,4,0,0,0", "0,0,0,100,100,100", "-5,0,0,1,1,1", "0,0,0"]);
                 push(&mut a, &["--box", &b]);
             }
             if rng.chance(0.2) {
@@ -170,45 +152,45 @@ fn command(rng: &mut Rng, inp: &Inputs, out: &Path) -> Vec<String> {
         }
         4 => {
             let m = model(rng);
-            let input = rng.value(&inp.field, &[&inp.empty, "/nonexistent-gsenc-walk/f.f32"]);
-            let dims = rng.value("20,16,12", &["0,16,12", "10,16,12", "20,16,12,2"]);
-            let dtype = rng.value("f32", &["u8", "f64", "x"]);
+            let input = value(rng, &inp.field, &[&inp.empty, "/nonexistent-gsenc-walk/f.f32"]);
+            let dims = value(rng, "20,16,12", &["0,16,12", "10,16,12", "20,16,12,2"]);
+            let dtype = value(rng, "f32", &["u8", "f64", "x"]);
             push(&mut a, &["eval", &m, "--input", &input, "--dims", &dims, "--dtype", &dtype, "--backend", "cpu"]);
         }
         5 => {
             let m = model(rng);
-            let payload = rng.value("packed", &["f32", "8bit", "8bit-u16", "zip"]);
+            let payload = value(rng, "packed", &["f32", "8bit", "8bit-u16", "zip"]);
             let to = output(rng, "gsm");
             push(&mut a, &["convert", &m, "--payload", &payload, "-o", &to]);
         }
         _ => {
-            let kind = rng.value("encode", &["deposit"]);
+            let kind = value(rng, "encode", &["deposit"]);
             push(&mut a, &[&kind, "particles"]);
             let [pos, h, mass, val] = &inp.particles;
-            let positions = rng.value(pos, &[&inp.empty, val, "/nonexistent-gsenc-walk/p.f32"]);
-            let smoothing = rng.value(h, &[pos]);
+            let positions = value(rng, pos, &[&inp.empty, val, "/nonexistent-gsenc-walk/p.f32"]);
+            let smoothing = value(rng, h, &[pos]);
             push(&mut a, &["--positions", &positions, "--smoothing-length", &smoothing, "--values", val]);
             if rng.chance(0.3) {
                 push(&mut a, &["--mass", mass]);
             }
             if rng.chance(0.5) {
-                let dims = rng.value("16,12,8", &["0,1,1", "1,4294967295,1", "16,12", "1,1,1"]);
+                let dims = value(rng, "16,12,8", &["0,1,1", "1,4294967295,1", "16,12", "1,1,1"]);
                 push(&mut a, &["--dims", &dims]);
             } else {
-                let n = rng.value("16", &["0", "1", "100000"]);
+                let n = value(rng, "16", &["0", "1", "100000"]);
                 push(&mut a, &["--fit-dims", &n]);
             }
             if rng.chance(0.5) {
-                let count = rng.value("600", &["0", "601", "1200", "x"]);
-                let row = rng.value("1", &["0", "2", "9"]);
+                let count = value(rng, "600", &["0", "601", "1200", "x"]);
+                let row = value(rng, "1", &["0", "2", "9"]);
                 push(&mut a, &["--count", &count, "--row", &row]);
             }
             if rng.chance(0.15) {
-                let b = rng.value("0,0,0,3,2,1", &["3,2,1,0,0,0", "0,0,0,0,0,0", "nan,0,0,1,1,1"]);
+                let b = value(rng, "0,0,0,3,2,1", &["3,2,1,0,0,0", "0,0,0,0,0,0", "nan,0,0,1,1,1"]);
                 push(&mut a, &["--bounds", &b]);
             }
             if kind == "encode" {
-                let budget = rng.value("10", &["0", "1000000"]);
+                let budget = value(rng, "10", &["0", "1000000"]);
                 push(&mut a, &["--budget", &budget, "--schedule", "short", "--iters", "8", "--points", "256", "--backend", "cpu", "--quiet"]);
             }
             let ext = if kind == "encode" { "gsm" } else { ["vti", "raw"][rng.below(2)] };
@@ -233,7 +215,7 @@ fn random_runs_of_the_tool_keep_its_promises() {
     for seed in first..first + runs {
         std::fs::copy(&inp.model, &there).unwrap();
         let before = std::fs::read(&there).unwrap();
-        let mut rng = Rng(seed.wrapping_mul(0x2545_f491_4f6c_dd1d));
+        let mut rng = Rng::new(seed);
         let args = command(&mut rng, &inp, &out);
         let refs: Vec<&str> = args.iter().map(String::as_str).collect();
         let (code, _, err) = gsenc(&refs);

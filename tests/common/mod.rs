@@ -13,6 +13,34 @@ use gsenc::backend::{Backend, PointBatch};
 use gsenc::math::loss::LossWeights;
 use gsenc::math::rng::Rng;
 
+/// The choices of a random walk (over the C API, `capi/walk_tests/`; over
+/// the tool, `cli/tests/walk.rs`): the library's generator, seeded by the
+/// walk's number, with the draws a walk makes.
+pub struct Draws(Rng);
+
+impl Draws {
+    pub fn new(seed: u64) -> Draws {
+        Draws(Rng::new(seed))
+    }
+    pub fn next(&mut self) -> u64 {
+        self.0.next_u64()
+    }
+    /// 0..n.
+    pub fn below(&mut self, n: usize) -> usize {
+        self.0.below(n as u64) as usize
+    }
+    /// True with probability `p`.
+    pub fn chance(&mut self, p: f64) -> bool {
+        self.0.uniform() < p
+    }
+    pub fn unit(&mut self) -> f64 {
+        self.0.uniform()
+    }
+    pub fn pick<T: Copy>(&mut self, all: &[T]) -> T {
+        all[self.below(all.len())]
+    }
+}
+
 /// Primitives over a `size`^3 box with every parameter group varied:
 /// rotations, anisotropy, scales beyond the clamp, weights and values.
 pub fn random_model(rng: &mut Rng, n: usize, size: f64) -> Vec<Primitive> {
