@@ -41,6 +41,15 @@ pub(super) unsafe fn call(rng: &mut Rng, world: &mut World, strings: &mut Vec<CS
     }
 }
 
+/// A push's answer: the step is the field's when it was queued; a foreign
+/// encoder handle must have been refused.
+fn pushed(world: &mut World, status: gsenc_status, call: String, (name, step): (&'static str, u64), alien: bool) {
+    if world.answered(status, call) {
+        world.pushed.push((name, step));
+    }
+    world.require(!alien || status == gsenc_status::InvalidArgument, "a foreign encoder handle was not refused");
+}
+
 /// An encoder from a perturbed config, now and then over MPI.
 unsafe fn create(rng: &mut Rng, world: &mut World, strings: &mut Vec<CString>) {
     let cfg = config(rng, world, strings);
@@ -87,10 +96,7 @@ unsafe fn push_grid(rng: &mut Rng, world: &mut World, foreign: *mut u64) {
         g.struct_size = 8;
     }
     let status = unsafe { gsenc_push_grid(enc, field.as_ptr(), step, odd_f64(rng, 0.5), &g) };
-    if world.answered(status, format!("push_grid('{name}', {step}, dims {dims:?}, dtype {dt}, pad {pad})")) {
-        world.pushed.push((name, step));
-    }
-    world.require(!alien || status == gsenc_status::InvalidArgument, "a foreign encoder handle was not refused");
+    pushed(world, status, format!("push_grid('{name}', {step}, dims {dims:?}, dtype {dt}, pad {pad})"), (name, step), alien);
 }
 
 /// SPH particles, interleaved or in separate x, y, z arrays.
@@ -120,10 +126,7 @@ unsafe fn push_particles(rng: &mut Rng, world: &mut World, foreign: *mut u64) {
         *[&mut p.value_stride, &mut p.smoothing_length_stride, &mut p.position_stride][rng.below(3)] = i64::MAX;
     }
     let status = unsafe { gsenc_push_particles(enc, field.as_ptr(), step, f64::NAN, &p) };
-    if world.answered(status, format!("push_particles('{name}', {step}, {count}, dtype {dt})")) {
-        world.pushed.push((name, step));
-    }
-    world.require(!alien || status == gsenc_status::InvalidArgument, "a foreign encoder handle was not refused");
+    pushed(world, status, format!("push_particles('{name}', {step}, {count}, dtype {dt})"), (name, step), alien);
 }
 
 /// AMR boxes or hexahedra.
@@ -155,10 +158,7 @@ unsafe fn push_cells(rng: &mut Rng, world: &mut World, foreign: *mut u64) {
         *[&mut c.value_stride, &mut c.centre_stride, &mut c.point_stride][rng.below(3)] = i64::MAX;
     }
     let status = unsafe { gsenc_push_cells(enc, field.as_ptr(), step, 0.0, &c) };
-    if world.answered(status, format!("push_cells('{name}', {step}, {count}, layout {}, dtype {dt})", c.layout)) {
-        world.pushed.push((name, step));
-    }
-    world.require(!alien || status == gsenc_status::InvalidArgument, "a foreign encoder handle was not refused");
+    pushed(world, status, format!("push_cells('{name}', {step}, {count}, layout {}, dtype {dt})", c.layout), (name, step), alien);
 }
 
 /// `gsenc_wait` for one field or all.
