@@ -46,7 +46,7 @@ use std::collections::BTreeMap;
 use std::ffi::{CStr, CString};
 use std::path::PathBuf;
 use std::ptr::null_mut;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -185,26 +185,41 @@ impl World {
     }
 }
 
+/// Sets its flag when dropped, as a walk ends or fails.
+struct SetOnDrop(Arc<AtomicBool>);
+
+impl Drop for SetOnDrop {
+    fn drop(&mut self) {
+        self.0.store(true, Ordering::Relaxed);
+    }
+}
+
 #[test]
 fn random_walks_over_the_c_api_keep_every_promise() {
     let walks: u64 = std::env::var("GSENC_CAPI_WALKS").ok().and_then(|s| s.parse().ok()).unwrap_or(WALKS);
     let first: u64 = std::env::var("GSENC_CAPI_WALK_SEED").ok().and_then(|s| s.parse().ok()).unwrap_or(1);
     let root = std::env::temp_dir().join(format!("gsenc-walk-{}", std::process::id()));
-    // The watchdog: a call that never returns stops the run, naming its walk.
+    // The watchdog: a call that never returns stops the run, naming its
+    // walk. It ends with the walks, a failed one too (the crate's other
+    // tests run on in the same process, for as long as they take).
     let moved = Arc::new(AtomicU64::new(0));
     let seed_now = Arc::new(AtomicU64::new(first));
+    let done = Arc::new(AtomicBool::new(false));
     let start = Instant::now();
-    {
-        let (moved, seed_now) = (moved.clone(), seed_now.clone());
-        std::thread::spawn(move || loop {
-            std::thread::sleep(Duration::from_secs(5));
-            let last = moved.load(Ordering::Relaxed);
-            if start.elapsed().as_secs() > last + 120 {
-                eprintln!("walk seed {}: no call returned for two minutes", seed_now.load(Ordering::Relaxed));
-                std::process::abort();
+    let watchdog = {
+        let (moved, seed_now, done) = (moved.clone(), seed_now.clone(), done.clone());
+        std::thread::spawn(move || {
+            while !done.load(Ordering::Relaxed) {
+                std::thread::sleep(Duration::from_millis(200));
+                let last = moved.load(Ordering::Relaxed);
+                if !done.load(Ordering::Relaxed) && start.elapsed().as_secs() > last + 120 {
+                    eprintln!("walk seed {}: no call returned for two minutes", seed_now.load(Ordering::Relaxed));
+                    std::process::abort();
+                }
             }
-        });
-    }
+        })
+    };
+    let ends_the_watchdog = SetOnDrop(done.clone());
     let mut oks: BTreeMap<String, usize> = BTreeMap::new();
     let trace = std::env::var_os("GSENC_CAPI_WALK_TRACE").is_some();
     for seed in first..first + walks {
@@ -232,6 +247,8 @@ fn random_walks_over_the_c_api_keep_every_promise() {
             *oks.entry(call).or_default() += n;
         }
     }
+    drop(ends_the_watchdog);
+    watchdog.join().unwrap();
     let _ = std::fs::remove_dir_all(&root);
     // The walks reached what they are for: each call that makes or reads
     // a model succeeded somewhere (else they test only refusals). Asked of
