@@ -513,7 +513,7 @@ impl BackgroundEncoder {
         let field = &model.meta.field;
         let st = self.shared.state.lock();
         st.not_begun(field)?;
-        if st.stopped || self.worker.as_ref().is_none_or(|w| w.is_finished()) {
+        if st.stopped {
             return Err(thread_stopped());
         }
         Ok(())
