@@ -296,7 +296,10 @@ impl ParticleInput {
             Some(p) => to_f32(f.read(p, 1, held)?),
             None => vec![1.0; positions.len()],
         };
-        Ok(ParticleArrays { positions, smoothing_length, mass, values })
+        let arrays = ParticleArrays { positions, smoothing_length, mass, values };
+        // Checked before anything is made of them (their bounds, for --fit-dims).
+        arrays.particles().validate()?;
+        Ok(arrays)
     }
 }
 
@@ -323,14 +326,22 @@ pub struct CellInput {
 /// Cell arrays read from files, owned (a [`Cells`] borrows them).
 pub struct CellArrays {
     centres: Vec<[f64; 3]>,
-    edges: Vec<[f64; 3]>,
-    volumes: Vec<f64>,
+    size: SizeArray,
     values: Vec<f32>,
+}
+
+/// The cells' sizes, as given: `--sizes` or `--volumes`.
+enum SizeArray {
+    Edges(Vec<[f64; 3]>),
+    Volumes(Vec<f64>),
 }
 
 impl CellArrays {
     pub fn cells(&self) -> Cells<'_> {
-        let size = if self.volumes.is_empty() { CellSize::Edges(&self.edges) } else { CellSize::Volumes(&self.volumes) };
+        let size = match &self.size {
+            SizeArray::Edges(e) => CellSize::Edges(e),
+            SizeArray::Volumes(v) => CellSize::Volumes(v),
+        };
         Cells { centres: &self.centres, size, values: &self.values }
     }
 }
@@ -341,12 +352,15 @@ impl CellInput {
         let (centres, held) = f.read_first(&self.centers, 3)?;
         let centres = triples(centres);
         let values = to_f32(f.read(&self.values, 1, held)?);
-        let (edges, volumes) = match (&self.sizes, &self.volumes) {
-            (Some(p), _) => (triples(f.read(p, 3, held)?), vec![]),
-            (None, Some(p)) => (vec![], f.read(p, 1, held)?),
+        let size = match (&self.sizes, &self.volumes) {
+            (Some(p), _) => SizeArray::Edges(triples(f.read(p, 3, held)?)),
+            (None, Some(p)) => SizeArray::Volumes(f.read(p, 1, held)?),
             (None, None) => return Err(Error::arg("give --sizes or --volumes")),
         };
-        Ok(CellArrays { centres, edges, volumes, values })
+        let arrays = CellArrays { centres, size, values };
+        // Checked before anything is made of them (their bounds, for --fit-dims).
+        arrays.cells().validate()?;
+        Ok(arrays)
     }
 }
 

@@ -46,6 +46,8 @@ impl Arrays {
             None => vec![1.0; positions.len()],
         };
         let particles = Particles { positions: &positions, smoothing_length: &smoothing_length, mass: &mass, values: &values };
+        // Checked before their box is taken (for fit_dims).
+        particles.validate().py_err()?;
         let placement = placement(place, || particles.bounds())?;
         Ok(Arrays::Particles { positions, smoothing_length, values, mass, placement })
     }
@@ -66,7 +68,12 @@ impl Arrays {
             _ => return Err(PyValueError::new_err("give sizes (an (n, 3) array of cell edges) or volumes, one of them")),
         };
         let placement = {
-            let cells = cells(&centres, &edges, &volumes, &values);
+            // Sized as given (an empty array of volumes is not edges), and
+            // checked before their box is taken (for fit_dims); once checked,
+            // the array given is the one that is not empty, as `cells` reads it.
+            let size = if sizes.is_some() { CellSize::Edges(&edges) } else { CellSize::Volumes(&volumes) };
+            let cells = Cells { centres: &centres, size, values: &values };
+            cells.validate().py_err()?;
             placement(place, || cells.bounds())?
         };
         Ok(Arrays::Cells { centres, edges, volumes, values, placement })

@@ -101,6 +101,15 @@ def test_encode_arguments_and_data():
         gsenc.encode_cells(pos, v, budget=10, dims=(8, 8, 8), **QUICK)
     with pytest.raises(ValueError, match="not both"):
         gsenc.encode_cells(pos, v, volumes=h, budget=10, dims=(8, 8, 8), fit_dims=8, **QUICK)
+    # The data's box (for fit_dims) is taken before the arrays are checked:
+    # cells without sizes were read past their array there (a panic).
+    for sizes, says in [(dict(volumes=np.ones(0)), "50 cell centres but 0 volumes"), (dict(sizes=np.ones((20, 3))), "but 20 edge-length")]:
+        with pytest.raises(ValueError, match=says):
+            gsenc.encode_cells(pos, v, **sizes, budget=10, fit_dims=8, **QUICK)
+    bad = pos.copy()
+    bad[7, 1] = np.nan
+    with pytest.raises(ValueError, match="particle 7"):
+        gsenc.encode_particles(bad, h, v, budget=10, fit_dims=8, **QUICK)
 
 
 def test_copies_beyond_the_memory_are_refused(monkeypatch, good):

@@ -105,9 +105,10 @@ impl Cells<'_> {
         Ok(())
     }
 
-    /// The box enclosing every cell.
+    /// The box enclosing every cell. Cells whose size is missing (arrays of
+    /// different lengths, which [`Self::validate`] refuses) are left out.
     pub fn bounds(&self) -> Bounds {
-        Bounds::enclosing((0..self.len()).into_par_iter().map(|j| {
+        Bounds::enclosing((0..self.len().min(self.size.len())).into_par_iter().map(|j| {
             let (c, e) = (self.centres[j], self.size.half_edges(j));
             ([c[0] - e[0], c[1] - e[1], c[2] - e[2]], [c[0] + e[0], c[1] + e[1], c[2] + e[2]])
         }))
@@ -189,5 +190,19 @@ mod tests {
         // A frustum-like hexahedron: bottom 2 x 2, top 1 x 1 centred, height 1: volume 7/3.
         let f = [[0., 0., 0.], [2., 0., 0.], [2., 2., 0.], [0., 2., 0.], [0.5, 0.5, 1.], [1.5, 0.5, 1.], [1.5, 1.5, 1.], [0.5, 1.5, 1.]];
         assert!((hexahedron_centre_volume(&f).1 - 7.0 / 3.0).abs() < 1e-12);
+    }
+
+    /// Bounds are asked of arrays not yet validated (the data's box, for
+    /// fit dims): a cell without a size is left out, not read past its array.
+    #[test]
+    fn bounds_leave_out_cells_without_a_size() {
+        let centres = [[0.0; 3], [4.0, 5.0, 6.0]];
+        let values = [1.0f32; 2];
+        let one = Cells { centres: &centres, size: CellSize::Edges(&[[2.0; 3]]), values: &values };
+        let b = one.bounds();
+        assert_eq!((b.min, b.max), ([-1.0; 3], [1.0; 3]));
+        let none = Cells { centres: &centres, size: CellSize::Volumes(&[]), values: &values };
+        assert!(none.bounds().fitted_dims(8).is_err());
+        assert!(none.validate().unwrap_err().to_string().contains("2 cell centres but 0 volumes"));
     }
 }
