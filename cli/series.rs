@@ -125,15 +125,64 @@ fn is_store_path(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("h5"))
 }
 
+#[cfg(not(feature = "hdf5"))]
+fn no_hdf5() -> Error {
+    Error::arg("an .h5 output needs HDF5 support; rebuild with `cargo build --release --features hdf5` or give a folder")
+}
+
 impl Sink {
+    /// Whether the steps' models could go to `path`, asked before any step
+    /// is encoded (the sink is opened once the first one is, so that a
+    /// series that fails at its first step makes nothing): a store there
+    /// must be one and hold none of `steps` of `field` (steps are never
+    /// rewritten), a new store's folder must be there, and a folder must
+    /// be one or could be made.
+    fn check(path: &Path, field: &str, steps: &[usize]) -> Result<()> {
+        match is_store_path(path) {
+            true => Self::check_store(path, field, steps),
+            false => Self::check_folder(path),
+        }
+    }
+
+    #[cfg(feature = "hdf5")]
+    fn check_store(path: &Path, field: &str, steps: &[usize]) -> Result<()> {
+        if !path.exists() {
+            return Self::check_folder(path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")));
+        }
+        let store = gsenc::io::store::Store::open_read(path)?;
+        match store.entries()?.into_iter().find(|e| e.key.field == field && steps.contains(&(e.key.step as usize))) {
+            Some(e) => Err(Error::arg(format!("{}: the store holds {} already (steps are never rewritten)", path.display(), e.key.path()))),
+            None => Ok(()),
+        }
+    }
+
+    #[cfg(not(feature = "hdf5"))]
+    fn check_store(_: &Path, _: &str, _: &[usize]) -> Result<()> {
+        Err(no_hdf5())
+    }
+
+    /// A folder that is there or could be made: the nearest of it and its
+    /// ancestors that exists is a folder.
+    fn check_folder(path: &Path) -> Result<()> {
+        let mut at = path;
+        while !at.exists() {
+            match at.parent() {
+                Some(p) if !p.as_os_str().is_empty() => at = p,
+                _ => return Ok(()),
+            }
+        }
+        match at.is_dir() {
+            true => Ok(()),
+            false => Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotADirectory, format!("{} is not a folder", at.display())))),
+        }
+    }
+
     fn open(path: &Path) -> Result<Sink> {
         if is_store_path(path) {
             #[cfg(feature = "hdf5")]
             return Ok(Sink::Store(gsenc::io::store::Store::open_append(path)?));
             #[cfg(not(feature = "hdf5"))]
-            return Err(Error::arg(
-                "an .h5 output needs HDF5 support; rebuild with `cargo build --release --features hdf5` or give a folder",
-            ));
+            return Err(no_hdf5());
         }
         std::fs::create_dir_all(path).map_err(|e| Error::io(path, e))?;
         Ok(Sink::Folder(path.to_path_buf()))
@@ -199,7 +248,10 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
         None => None,
     };
     let preview_dir = if is_store_path(&a.output) { a.output.parent().map(Path::to_path_buf).unwrap_or_default() } else { a.output.clone() };
+    Sink::check(&a.output, &a.field, &steps)?;
     let mut sink = None; // opened once the first step is encoded
+    // The CSV and the plot are files to be written before any step is
+    // encoded: a place they cannot go is an error now.
     let mut csv = match &a.csv {
         Some(p) => {
             let mut f = AtomicFile::create(p)?;
@@ -208,6 +260,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
         }
         None => None,
     };
+    let plot = a.plot.as_ref().map(AtomicFile::create).transpose()?;
     let mut rows_out = Vec::new();
     // One backend (one device) for the whole series.
     let mut backend = a.train.device.choice().open()?;
@@ -285,7 +338,7 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
     if let Some(f) = csv {
         f.commit()?;
     }
-    if let Some(p) = &a.plot {
+    if let Some(mut f) = plot {
         let finals = rows_out.iter().map(|r| (r["step"].as_f64().unwrap(), r["validation_psnr"].as_f64().unwrap_or(f64::NAN)));
         let starts = rows_out.iter().filter(|r| r["start"] != "independent");
         let mut lines = vec![(format!("final, {}", warm.name()), finals.collect())];
@@ -293,7 +346,8 @@ pub fn encode_series(a: EncodeSeriesArgs) -> Result<()> {
             let start_points = starts.map(|r| (r["step"].as_f64().unwrap(), r["start_validation_psnr"].as_f64().unwrap_or(f64::NAN)));
             lines.push(("start of warm step".into(), start_points.collect()));
         }
-        write_atomic(p, &series_chart(lines).to_png()?)?;
+        f.write(&series_chart(lines).to_png()?)?;
+        f.commit()?;
     }
     let range = series.range(&a.field).expect("at least one step was encoded");
     print_result(

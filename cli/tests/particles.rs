@@ -157,6 +157,20 @@ fn cells_encode_and_deposit() {
     let (code, _, err) = gsenc(&["deposit", "cells", "--centers", &s(&files[0]), "--values", &s(&files[2]), "--dims", "16", "-o", dep.to_str().unwrap()]);
     assert_eq!(code, 2, "{err}");
     assert!(err.contains("--sizes") || err.contains("--volumes"), "{err}");
+    // Arrays that do not match are named as given, before their box is
+    // fitted (an empty volume file panicked there).
+    let empty = dir.join("empty.f32");
+    std::fs::write(&empty, b"").unwrap();
+    let (centres, volumes, values) = (s(&files[0]), s(&empty), s(&files[2]));
+    for kind in ["encode", "deposit"] {
+        let mut args = vec![kind, "cells", "--centers", &centres, "--volumes", &volumes, "--values", &values, "--fit-dims", "16", "-o", dep.to_str().unwrap()];
+        if kind == "encode" {
+            args.extend(["--budget", "4"]);
+        }
+        let (code, _, err) = gsenc(&args);
+        assert_eq!(code, 3, "{kind}: {err}");
+        assert!(err.contains("15 cell centres but 0 volumes"), "{kind}: {err}");
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -202,6 +216,22 @@ fn encode_series_warm_starts_writes_models_csv_and_plot() {
         assert_eq!(code, 2, "{bad}: {err}");
         assert!(err.contains(says), "{bad}: {err}");
         assert!(!out.exists(), "nothing written for a bad preview");
+    }
+    // So does an output that cannot be written: a plot or CSV in a folder
+    // that is not there, a folder of models where a file is, or below one
+    // (the plot was found out after every step was encoded and stored).
+    let nowhere = dir.join("missing").join("p.png");
+    let file = pos.to_str().unwrap();
+    let below = format!("{file}/models");
+    for (option, path) in [("--plot", nowhere.to_str().unwrap()), ("--csv", nowhere.to_str().unwrap()), ("-o", file), ("-o", &below)] {
+        let mut args = common.to_vec();
+        if option != "-o" {
+            args.extend(["-o", out.to_str().unwrap()]);
+        }
+        args.extend([option, path]);
+        let (code, _, err) = gsenc(&args);
+        assert_eq!(code, 5, "{option} {path}: {err}");
+        assert!(!err.contains("voxel PSNR") && !out.exists(), "{option} {path}: a step was encoded first: {err}");
     }
     args.extend(["--warm", "coarse", "-o", out.to_str().unwrap(), "--csv", csv.to_str().unwrap(), "--plot", png.to_str().unwrap(), "--json"]);
     args.extend(["--preview", "x=0.5", "--preview-size", "48,32"]);
@@ -355,4 +385,20 @@ fn encode_series_into_a_store() {
     }
     assert_eq!(entries[1]["schedule"], "warm-dense");
     assert_eq!(entries[1]["iterations"], 1500);
+    // Steps are never rewritten: a series whose steps the store holds is
+    // refused before any is encoded, and the store is left as it was; so
+    // is a file that is not a store.
+    let before = std::fs::read(&store).unwrap();
+    let foreign = dir.join("foreign.h5");
+    std::fs::copy(&pos, &foreign).unwrap();
+    for (output, says) in [(&store, "holds /rho/1/rank_0 already"), (&foreign, "not an HDF5 file")] {
+        let (code, _, err) = gsenc(&[
+            "encode-series", "--positions", pos.to_str().unwrap(), "--smoothing-length", hh.to_str().unwrap(),
+            "--values", val.to_str().unwrap(), "--count", "300", "--dims", "12", "--budget", "40", "--schedule", "short",
+            "--iters", "100", "--points", "256", "--steps", "1", "--field", "rho", "--quiet", "-o", output.to_str().unwrap(),
+        ]);
+        assert!(code == 2 || code == 4, "{err}");
+        assert!(err.contains(says) && !err.contains("voxel PSNR"), "{err}");
+    }
+    assert_eq!(std::fs::read(&store).unwrap(), before);
 }
