@@ -145,7 +145,11 @@ unsafe fn create_into(
 /// and writes them there; a failed write is that step's failure on the
 /// rank that encoded it (reported by its next `gsenc_wait`, or by
 /// `gsenc_poll`). `gsenc_poll` writes nothing on an MPI encoder: a step
-/// it calls done may reach the store at the next collective call. Ranks pushing
+/// it calls done may reach the store at the next collective call. A step
+/// index rank 0 cannot write (a full disk; a store that holds that step's
+/// index) fails rank 0's push, its message saying so, though the step was
+/// queued on every rank and its models are encoded and written as any
+/// other's: the failure is the index's alone. Ranks pushing
 /// different fields, steps or forms get `GSENC_STATUS_MPI` together.
 /// `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
 ///
@@ -353,14 +357,17 @@ impl gsenc_encoder {
             let (field, step) = (job.field.clone(), job.step);
             let done = ranks.push(&self.queue, job, &|rank| gsenc::format::model_file_name(&field, step, rank))?;
             if let (Some(index), Some(out), Pushed::Queued) = (done.index, self.settings.output.as_ref(), done.pushed) {
+                let queued = |e: gsenc::Error| {
+                    e.in_context(&format!("field '{field}' step {step} was queued on every rank, but rank 0 could not write its step index"))
+                };
                 match self.settings.output_format {
                     OutputFormat::Folder => {
-                        gsenc::io::write_atomic(out.join(gsenc::format::step_index_file_name(&field, step)), index.to_json().as_bytes())?
+                        gsenc::io::write_atomic(out.join(gsenc::format::step_index_file_name(&field, step)), index.to_json().as_bytes()).map_err(queued)?
                     }
                     #[cfg(feature = "hdf5")]
                     OutputFormat::Hdf5 => {
                         if let Some(store) = self.store.as_mut() {
-                            store.append_step_index(&index)?;
+                            store.append_step_index(&index).map_err(queued)?;
                         }
                     }
                     #[cfg(not(feature = "hdf5"))]

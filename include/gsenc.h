@@ -756,7 +756,11 @@ gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **ou
  and writes them there; a failed write is that step's failure on the
  rank that encoded it (reported by its next `gsenc_wait`, or by
  `gsenc_poll`). `gsenc_poll` writes nothing on an MPI encoder: a step
- it calls done may reach the store at the next collective call. Ranks pushing
+ it calls done may reach the store at the next collective call. A step
+ index rank 0 cannot write (a full disk; a store that holds that step's
+ index) fails rank 0's push, its message saying so, though the step was
+ queued on every rank and its models are encoded and written as any
+ other's: the failure is the index's alone. Ranks pushing
  different fields, steps or forms get `GSENC_STATUS_MPI` together.
  `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
 
