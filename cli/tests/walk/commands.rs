@@ -82,6 +82,13 @@ impl Places<'_> {
     }
 }
 
+/// Mostly the CPU backend, sometimes the GPU's (Mesa's software adapter,
+/// which the walk's runs are pointed at; exit 7 where none is installed)
+/// or `auto` (the CPU where there is no hardware GPU).
+fn backend(rng: &mut Rng) -> String {
+    value(rng, "cpu", &["gpu", "gpu", "auto"])
+}
+
 fn push(a: &mut Vec<String>, items: &[&str]) {
     a.extend(items.iter().map(|s| s.to_string()));
 }
@@ -121,7 +128,7 @@ fn encode_grid(rng: &mut Rng, at: &Places) -> Vec<String> {
     let dims = value(rng, "20,16,12", &["0,16,12", "20,16", "20,16,12,1", "4294967296,1,1", "1,4294967295,1", "a,b,c", "10,16,12", "-1,2,3"]);
     let dtype = value(rng, "f32", &["u8", "u16", "f64", "x"]);
     let budget = value(rng, "10", &["0", "1", "1000000", "99999999999999999999", "-3", "ten"]);
-    push(&mut a, &["--dims", &dims, "--dtype", &dtype, "--budget", &budget, "--backend", "cpu"]);
+    push(&mut a, &["--dims", &dims, "--dtype", &dtype, "--budget", &budget, "--backend", &backend(rng)]);
     let schedule = value(rng, "short", &["matched", "tuned", "bogus"]);
     let iters = value(rng, "8", &["0", "1", "10000001", "x"]);
     let points = value(rng, "256", &["0", "1", "4294967296"]);
@@ -150,7 +157,7 @@ fn encode_grid(rng: &mut Rng, at: &Places) -> Vec<String> {
 fn decode(rng: &mut Rng, at: &Places) -> Vec<String> {
     let mut a = vec!["decode".to_string()];
     a.extend(at.models(rng));
-    push(&mut a, &["--backend", "cpu"]);
+    push(&mut a, &["--backend", &backend(rng)]);
     if rng.chance(0.5) {
         let dims = value(rng, "8,6,4", &["0,1,1", "1,2", "4294967296,4,1", "100000,100000,100000", "x"]);
         push(&mut a, &["--dims", &dims]);
@@ -190,7 +197,7 @@ fn eval(rng: &mut Rng, at: &Places) -> Vec<String> {
     let dims = value(rng, "20,16,12", &["0,16,12", "10,16,12", "20,16,12,2"]);
     let dtype = value(rng, "f32", &["u8", "f64", "x"]);
     let mut a = vec![];
-    push(&mut a, &["eval", &m, "--input", &input, "--dims", &dims, "--dtype", &dtype, "--backend", "cpu"]);
+    push(&mut a, &["eval", &m, "--input", &input, "--dims", &dims, "--dtype", &dtype, "--backend", &backend(rng)]);
     a
 }
 
@@ -221,7 +228,7 @@ fn placement(rng: &mut Rng, a: &mut Vec<String>, dims: &str) {
 /// The training options of an encode of particles or cells.
 fn short_encode(rng: &mut Rng, a: &mut Vec<String>) {
     let budget = value(rng, "10", &["0", "1000000"]);
-    push(a, &["--budget", &budget, "--schedule", "short", "--iters", "8", "--points", "256", "--backend", "cpu", "--quiet"]);
+    push(a, &["--budget", &budget, "--schedule", "short", "--iters", "8", "--points", "256", "--backend", &backend(rng), "--quiet"]);
 }
 
 fn particles(rng: &mut Rng, at: &Places) -> Vec<String> {
@@ -306,7 +313,7 @@ fn render(rng: &mut Rng, at: &Places) -> Vec<String> {
         4..=6 => push(&mut a, &["--dims", &value(rng, "16,12,8", &["0,1,1", "100000,100000,100000", "x"])]),
         _ => {}
     }
-    push(&mut a, &["--backend", "cpu"]);
+    push(&mut a, &["--backend", &backend(rng)]);
     if rng.chance(0.2) {
         a.push("--json".into());
     }
@@ -328,7 +335,7 @@ fn encode_series(rng: &mut Rng, at: &Places) -> Vec<String> {
     placement(rng, &mut a, "12,8,6");
     let budget = value(rng, "8", &["0"]);
     let iters = value(rng, "8", &["0"]);
-    push(&mut a, &["--budget", &budget, "--schedule", "short", "--iters", &iters, "--points", "256", "--backend", "cpu", "--quiet"]);
+    push(&mut a, &["--budget", &budget, "--schedule", "short", "--iters", &iters, "--points", "256", "--backend", &backend(rng), "--quiet"]);
     push(&mut a, &["--validation-points", &value(rng, "256", &["0", "1"]), "--validation-every", &value(rng, "4", &["0"])]);
     some_of(rng, &mut a, 0.15, &[
         ("--steps", &["0..2", "0..5", "1,0", "x", "5", "0..0", "1"]),
@@ -425,7 +432,8 @@ fn store(rng: &mut Rng, at: &Places) -> Vec<String> {
 
 fn decode_series(rng: &mut Rng, at: &Places) -> Vec<String> {
     let mut a = vec!["decode-series".to_string(), at.store(rng)];
-    push(&mut a, &["-o", &at.output(rng, "h5"), "--backend", "cpu", "--quiet"]);
+    let to = at.output(rng, "h5");
+    push(&mut a, &["-o", &to, "--backend", &backend(rng), "--quiet"]);
     // The inputs' store holds two fields: without --field, a refusal.
     if rng.chance(0.85) {
         push(&mut a, &["--field", &value(rng, "rho", &["scalar", "nope"])]);
