@@ -78,7 +78,7 @@ pub(super) fn config(rng: &mut Rng, world: &World, strings: &mut Vec<CString>) -
             15 => c.warm_iterations = rng.pick(&[0, 2, u32::MAX]),
             16 => (c.when_full, c.queue_bytes) = (rng.pick(&[GSENC_QUEUE_BLOCK, GSENC_QUEUE_SKIP, GSENC_QUEUE_BUSY, 8]), rng.pick(&[0, 1, 400, 1 << 20])),
             17 => c.halo = rng.pick(&[1, u32::MAX]),
-            18 => (c.backend, c.gpu_index) = (rng.pick(&[GSENC_BACKEND_AUTO, GSENC_BACKEND_CPU, 9]), rng.pick(&[-1, 0, 7])),
+            18 => (c.backend, c.gpu_index) = (rng.pick(&[GSENC_BACKEND_AUTO, GSENC_BACKEND_CPU, GSENC_BACKEND_GPU, 9]), rng.pick(&[-1, 0, 7])),
             19 => {
                 c.preview = rng.pick(&[GSENC_PREVIEW_NONE, GSENC_PREVIEW_SLICE, GSENC_PREVIEW_VOLUME, 6]);
                 (c.preview_axis, c.preview_at) = (rng.pick(&[0, 2, 3, -1]), odd_f64(rng, 0.5));

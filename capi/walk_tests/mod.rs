@@ -7,7 +7,10 @@
 //! of order, handles destroyed, destroyed twice, of the other kind or
 //! foreign, models read back from their bytes whole, cut short or with a
 //! byte changed, decodes and evaluations at odd sizes and at NaN points,
-//! resumes, waits, polls and cancels in any order.
+//! resumes, waits, polls and cancels in any order. Now and then an encoder
+//! asks for the GPU backend: without a hardware GPU that is a device error
+//! at create, unless `GSENC_ADAPTER=llvmpipe` is set for the run, which
+//! puts those encoders on Mesa's software adapter (3,600 walks clean so).
 //!
 //! Nothing is expected of a call but what the header promises of every
 //! call: no panic reaches the caller (`GSENC_STATUS_INTERNAL` fails the
