@@ -421,7 +421,7 @@ impl Decomposition {
         let range = match self.cfg.range {
             SeriesRange::Fixed(r) => r,
             SeriesRange::FirstStep(t) => ValueRange::new(all[6], -all[7], t)
-                .map_err(|_| Error::data(format!("{what}: the field is constant ({}) on every rank; give a value range", all[6])))?,
+                .map_err(|_| Error::data(format!("{what}: the field is constant ({:?}) on every rank; give a value range", all[6])))?,
         };
         let global = match kind {
             Kind::Grid => {

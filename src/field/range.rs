@@ -80,7 +80,7 @@ impl ValueRange {
         if transform == Transform::Log10 {
             if let Some(pos) = values.iter().position(|&v| v <= 0.0) {
                 return Err(Error::data(format!(
-                    "log10 transform needs positive values; value {} at index {pos}",
+                    "log10 transform needs positive values; value {:?} at index {pos}",
                     values[pos]
                 )));
             }
@@ -93,7 +93,7 @@ impl ValueRange {
             })
             .reduce(|| (f64::INFINITY, f64::NEG_INFINITY), |a, b| (a.0.min(b.0), a.1.max(b.1)));
         if hi <= lo {
-            return Err(Error::data(format!("field is constant ({lo}); give a value range explicitly")));
+            return Err(Error::data(format!("field is constant ({lo:?}); give a value range explicitly")));
         }
         ValueRange::new(lo, hi, transform)
     }
@@ -267,9 +267,14 @@ mod tests {
         // Refused by what is wrong, with what the user can do about it
         // (not by the range check behind, whose message says less).
         let e = ValueRange::from_data(&[1.0, 1.0], Transform::Linear).unwrap_err().to_string();
-        assert!(e.contains("field is constant (1); give a value range explicitly"), "{e}");
+        assert!(e.contains("field is constant (1.0); give a value range explicitly"), "{e}");
         let e = ValueRange::from_data(&[1.0, 0.0], Transform::Log10).unwrap_err().to_string();
-        assert!(e.contains("log10 transform needs positive values; value 0 at index 1"), "{e}");
+        assert!(e.contains("log10 transform needs positive values; value 0.0 at index 1"), "{e}");
+        // Large and small values in exponent form, not forty digits.
+        let e = ValueRange::from_data(&[-9.2e19, 1.0], Transform::Log10).unwrap_err().to_string();
+        assert!(e.contains("value -9.2e19 at index 0"), "{e}");
+        let e = ValueRange::from_data(&[3.4e38; 2], Transform::Linear).unwrap_err().to_string();
+        assert!(e.contains("field is constant (3.3999999521443642e38)"), "{e}");
         let l = ValueRange::from_data(&[1.0, 1000.0], Transform::Log10).unwrap();
         assert_eq!((l.vmin, l.vmax), (0.0, 3.0));
     }
