@@ -2,7 +2,9 @@
 it: encodes of grids, particles and cells (alone and in a Series), decodes,
 evaluations, writes and reads, with arguments drawn from what is valid and
 what is not (arrays empty, of the wrong shape or dtype, strided, with NaN
-or infinities, or not arrays at all; budgets of zero, negative, past 2^63
+or infinities, or not arrays at all; constant, a single spike, values
+near 1e30, 1e-30 and the ends of float32; grids of one voxel or one
+row; budgets of zero, negative, past 2^63
 or not numbers; unknown names; dims and boxes of zero or too large; paths
 that do not exist or are folders; cut, damaged and foreign files; steps out
 of order; progress callbacks that raise or are not callable).
@@ -65,7 +67,7 @@ class Walk:
         good = self.rng.uniform(low, high, shape)
         if self.chance(0.75):
             return good
-        kind = int(self.rng.integers(12))
+        kind = int(self.rng.integers(15))
         if kind == 0:
             return np.zeros((0,) + tuple(shape[1:]))
         if kind == 1:
@@ -90,7 +92,15 @@ class Walk:
             return good[: max(1, shape[0] // 2)]
         if kind == 10:
             return -good
-        return np.asfortranarray(good)
+        if kind == 11:
+            return np.asfortranarray(good)
+        if kind == 12:
+            return np.full(shape, 3.0)
+        if kind == 13:
+            return good * self.pick([1e30, 1e-30, 1e-310, 3e38])
+        spike = np.zeros(shape)
+        spike.flat[int(self.rng.integers(spike.size))] = 1.0
+        return spike
 
     def options(self):
         """Encode options: a short encode, or one with an odd value."""
@@ -160,7 +170,8 @@ def check_model(m, budget=None):
 
 
 def encode_grid(w):
-    a = w.array((6, 7, 8)) if w.chance(0.9) else blobs((9, 8, 7))
+    shape = w.value((6, 7, 8), [(1, 1, 1), (1, 7, 1), (2, 2, 2), (40, 1, 1)])
+    a = w.array(shape) if w.chance(0.9) else blobs((9, 8, 7))
     b, o = w.budget(), w.options()
     m = gsenc.encode_grid(a, b, **o)
     check_model(m, None if "target_psnr" in o else b)
