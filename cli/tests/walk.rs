@@ -3,7 +3,8 @@
 //! decodes of models, pieces and step indexes, eval, info, convert,
 //! render, encode-series, plot-series, the store's commands and
 //! decode-series) with its options drawn from what is valid and what is
-//! not (missing, foreign, cut and damaged files, dims of zero, of the
+//! not (missing, foreign, cut and damaged files, fields constant, of one
+//! spike or of values near 1e30, dims of zero, of the
 //! wrong count or past 2^32, unknown names, huge or non-numeric counts,
 //! outputs in folders that do not exist, onto folders, or over a file
 //! already there), on the CPU backend or now and then the GPU's (on

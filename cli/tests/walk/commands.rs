@@ -124,7 +124,8 @@ fn encode_grid(rng: &mut Rng, at: &Places) -> Vec<String> {
     let inp = at.inp;
     let mut a = vec![];
     push(&mut a, &["encode", "grid", "--input"]);
-    a.push(value(rng, &inp.field, &[&inp.empty, &inp.model, "/nonexistent-gsenc-walk/f.f32"]));
+    let [flat, spike, huge] = &inp.odd_fields;
+    a.push(value(rng, &inp.field, &[&inp.empty, &inp.model, "/nonexistent-gsenc-walk/f.f32", flat, spike, huge]));
     let dims = value(rng, "20,16,12", &["0,16,12", "20,16", "20,16,12,1", "4294967296,1,1", "1,4294967295,1", "a,b,c", "10,16,12", "-1,2,3"]);
     let dtype = value(rng, "f32", &["u8", "u16", "f64", "x"]);
     let budget = value(rng, "10", &["0", "1", "1000000", "99999999999999999999", "-3", "ten"]);
@@ -193,7 +194,8 @@ fn info(rng: &mut Rng, at: &Places) -> Vec<String> {
 fn eval(rng: &mut Rng, at: &Places) -> Vec<String> {
     let inp = at.inp;
     let m = at.model(rng);
-    let input = value(rng, &inp.field, &[&inp.empty, "/nonexistent-gsenc-walk/f.f32"]);
+    let [flat, spike, huge] = &inp.odd_fields;
+    let input = value(rng, &inp.field, &[&inp.empty, "/nonexistent-gsenc-walk/f.f32", flat, spike, huge]);
     let dims = value(rng, "20,16,12", &["0,16,12", "10,16,12", "20,16,12,2"]);
     let dtype = value(rng, "f32", &["u8", "f64", "x"]);
     let mut a = vec![];
@@ -304,7 +306,8 @@ fn render(rng: &mut Rng, at: &Places) -> Vec<String> {
     some_of(rng, &mut a, 0.2, &[("--colormap", &["magma", "greys", "rainbow", ""])]);
     match rng.below(10) {
         0..=3 => {
-            let r = value(rng, &inp.field, &[&inp.empty, &inp.model]);
+            let [flat, spike, huge] = &inp.odd_fields;
+            let r = value(rng, &inp.field, &[&inp.empty, &inp.model, flat, spike, huge]);
             let dims = value(rng, "20,16,12", &["10,16,12", "0,1,1"]);
             let dtype = value(rng, "f32", &["u8", "x"]);
             push(&mut a, &["--reference", &r, "--reference-dims", &dims, "--dtype", &dtype]);

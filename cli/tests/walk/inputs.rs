@@ -7,8 +7,10 @@ use gsenc::format::{write_model_as, Payload};
 use std::path::Path;
 
 pub struct Inputs {
-    /// A 20 x 16 x 12 float32 grid.
+    /// A 20 x 16 x 12 float32 grid; the same lattice constant, with a
+    /// single spike, and with values near 1e30.
     pub field: String,
+    pub odd_fields: [String; 3],
     /// Models of `field`: float32 and 8-bit payloads, the first cut in
     /// half, with one bit changed, and an empty file.
     pub model: String,
@@ -38,7 +40,16 @@ fn s(p: &Path) -> String {
 }
 
 pub fn inputs(dir: &Path) -> Inputs {
-    let (field, _) = write_input(dir);
+    let (field, values) = write_input(dir);
+    let odd_fields = [
+        ("flat.f32", vec![3.0f32; values.len()]),
+        ("spike.f32", (0..values.len()).map(|i| if i == 1234 { 5.0 } else { 0.0 }).collect()),
+        ("huge.f32", values.iter().map(|v| v * 1e30).collect()),
+    ]
+    .map(|(name, v)| {
+        write_f32(&dir.join(name), &v);
+        s(&dir.join(name))
+    });
     let particles = write_particles(dir).map(|p| s(&p));
     let model = dir.join("m.gsm");
     let (code, _, err) = gsenc(&[
@@ -71,6 +82,7 @@ pub fn inputs(dir: &Path) -> Inputs {
     }
     Inputs {
         field: s(&field),
+        odd_fields,
         model: s(&model),
         model_8bit: s(&model_8bit),
         cut: s(&cut),
