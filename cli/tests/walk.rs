@@ -15,7 +15,8 @@
 //! refuses), a failure says why on the standard error and leaves every
 //! file of the output folder byte for byte as it was (adding none), no
 //! temporary file is left behind, no folder is made where none was asked
-//! for, and no run changes what it read.
+//! for, no run changes what it read, and what a run wrote reads back as
+//! what it is (`check_written`).
 //!
 //! `GSENC_TOOL_WALKS` sets the number of runs (default 120, about 7 s on
 //! two cores), `GSENC_TOOL_WALK_SEED` the first seed (default 1); a
@@ -55,6 +56,60 @@ fn files(dir: &Path) -> BTreeMap<PathBuf, Vec<u8>> {
     all
 }
 
+/// What a run that succeeded wrote reads back as what it is, told by its
+/// first bytes (an output's name need not say: `-o x.txt`): a model with
+/// finite parameters, a step index, a `.vti` grid or raw float32 values
+/// all finite, a PNG image, a CSV of encode-series, a store whose every
+/// entry verifies (`command` decode-series writes a field's HDF5 file, not
+/// a store), XDMF text.
+fn check_written(command: &str, path: &Path, bytes: &[u8]) -> Result<(), String> {
+    let text = || std::str::from_utf8(bytes).map_err(|e| e.to_string());
+    let finite = |v: &[f32]| match v.iter().all(|x| x.is_finite()) {
+        true => Ok(()),
+        false => Err("values that are not finite".to_string()),
+    };
+    if bytes.starts_with(gsenc::format::MAGIC) {
+        let m = gsenc::format::read_model(bytes).map_err(|e| e.to_string())?;
+        return finite(&m.params.iter().flatten().copied().collect::<Vec<f32>>());
+    }
+    if bytes.starts_with(b"\x89PNG") {
+        return gsenc::io::image::read_png(path).map(|_| ()).map_err(|e| e.to_string());
+    }
+    if bytes.starts_with(b"\x89HDF") {
+        #[cfg(feature = "hdf5")]
+        if command != "decode-series" {
+            let checked = gsenc::io::store::Store::open_read(path).and_then(|s| s.verify()).map_err(|e| e.to_string())?;
+            return match checked.iter().find(|(_, r)| r.is_err()) {
+                Some((what, r)) => Err(format!("{what}: {r:?}")),
+                None => Ok(()),
+            };
+        }
+        return match command {
+            "decode-series" => Ok(()),
+            _ => Err("an HDF5 file from a build without HDF5".into()),
+        };
+    }
+    if bytes.starts_with(b"field,step,start,iteration,validation_psnr\n") {
+        return match text()?.lines().skip(1).all(|l| l.split(',').count() == 5) {
+            true => Ok(()),
+            false => Err("a CSV line that is not five columns".into()),
+        };
+    }
+    if bytes.starts_with(b"{") {
+        return gsenc::format::step_index::StepIndex::from_json(text()?).map(|_| ()).map_err(|e| e.to_string());
+    }
+    if bytes.starts_with(b"<") {
+        return match bytes.windows(8).any(|w| w == b"<VTKFile") {
+            true => finite(&gsenc::io::vti::parse_vti(bytes, None).map_err(|e| e.to_string())?.grid.values),
+            false => text().map(|_| ()), // XDMF beside decode-series' HDF5 file
+        };
+    }
+    if bytes.is_empty() || !bytes.len().is_multiple_of(4) {
+        return Err(format!("{} bytes: not float32 values", bytes.len()));
+    }
+    finite(&bytes.chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect::<Vec<f32>>())
+}
+
 #[test]
 fn random_runs_of_the_tool_keep_its_promises() {
     let runs: u64 = std::env::var("GSENC_TOOL_WALKS").ok().and_then(|s| s.parse().ok()).unwrap_or(RUNS);
@@ -87,6 +142,11 @@ fn random_runs_of_the_tool_keep_its_promises() {
         if code != 0 {
             assert!(!err.trim().is_empty(), "{line}\nexit code {code} without a word on the standard error");
             assert!(after == before, "{line}\nfailed (exit {code}: {err}) and changed, removed or added files: before {:?}, after {:?}", before.keys(), after.keys());
+        }
+        for (path, bytes) in after.iter().filter(|(p, b)| before.get(*p) != Some(b)) {
+            if let Err(e) = check_written(&args[0], path, bytes) {
+                panic!("{line}\nwrote {} that does not read back: {e}", path.display());
+            }
         }
         let left: Vec<&PathBuf> = after.keys().filter(|p| p.to_string_lossy().contains(".tmp")).collect();
         assert!(left.is_empty(), "{line}\nleft temporary files behind: {left:?}");
