@@ -227,10 +227,16 @@ fn placement(rng: &mut Rng, a: &mut Vec<String>, dims: &str) {
     }
 }
 
-/// The training options of an encode of particles or cells.
-fn short_encode(rng: &mut Rng, a: &mut Vec<String>) {
-    let budget = value(rng, "10", &["0", "1000000"]);
-    push(a, &["--budget", &budget, "--schedule", "short", "--iters", "8", "--points", "256", "--backend", &backend(rng), "--quiet"]);
+/// The end of an encode or a deposit (`kind`) of particles or cells: an
+/// encode's training options, and the output (a model, or a grid).
+fn items_end(rng: &mut Rng, at: &Places, kind: &str, a: &mut Vec<String>) {
+    if kind == "encode" {
+        let budget = value(rng, "10", &["0", "1000000"]);
+        push(a, &["--budget", &budget, "--schedule", "short", "--iters", "8", "--points", "256", "--backend", &backend(rng), "--quiet"]);
+    }
+    let ext = if kind == "encode" { "gsm" } else { ["vti", "raw"][rng.below(2)] };
+    let to = at.output(rng, ext);
+    push(a, &["-o", &to]);
 }
 
 fn particles(rng: &mut Rng, at: &Places) -> Vec<String> {
@@ -251,12 +257,7 @@ fn particles(rng: &mut Rng, at: &Places) -> Vec<String> {
         let row = value(rng, "1", &["0", "2", "9"]);
         push(&mut a, &["--count", &count, "--row", &row]);
     }
-    if kind == "encode" {
-        short_encode(rng, &mut a);
-    }
-    let ext = if kind == "encode" { "gsm" } else { ["vti", "raw"][rng.below(2)] };
-    let to = at.output(rng, ext);
-    push(&mut a, &["-o", &to]);
+    items_end(rng, at, &kind, &mut a);
     a
 }
 
@@ -277,12 +278,7 @@ fn cells(rng: &mut Rng, at: &Places) -> Vec<String> {
     push(&mut a, &["--values", &value(rng, values, &[centres])]);
     placement(rng, &mut a, "8,8,8");
     some_of(rng, &mut a, 0.1, &[("--dtype", &["f64", "u8", "x"]), ("--count", &["64", "0", "32", "65"]), ("--row", &["1", "2"])]);
-    if kind == "encode" {
-        short_encode(rng, &mut a);
-    }
-    let ext = if kind == "encode" { "gsm" } else { ["vti", "raw"][rng.below(2)] };
-    let to = at.output(rng, ext);
-    push(&mut a, &["-o", &to]);
+    items_end(rng, at, &kind, &mut a);
     a
 }
 
