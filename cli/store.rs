@@ -261,8 +261,8 @@ mod imp {
     fn add(a: StoreAddArgs) -> Result<()> {
         let payload = a.payload;
         let plan = plan(&a.store, &a.models)?;
-        let created = !a.store.exists();
         let mut store = Store::open_append(&a.store)?;
+        let created = store.created();
         let (mut added, mut indexed) = (Vec::new(), Vec::new());
         let total = plan.models.len() + plan.indexes.len();
         // Each model read again (a file changed since it was checked fails

@@ -10,7 +10,7 @@ use gsenc::format::quantize::CentreCoding;
 use gsenc::format::{write_model_as, Payload};
 use gsenc::io::store::{EntryKey, Store};
 use gsenc::model::{WarmRecord, WarmTaken};
-use std::process::Command;
+use std::process::{Command, Stdio};
 
 fn gsenc_bin() -> &'static str {
     env!("CARGO_BIN_EXE_gsenc")
@@ -315,4 +315,47 @@ fn verify_names_the_entry_that_changed() {
         assert_eq!(i["ok"], !bad, "{i}");
         assert!(!bad || i["error"].as_str().unwrap().contains("fails its checksum"), "{i}");
     }
+}
+
+/// Processes adding to one store that is not there yet: each either adds
+/// its model or fails (exit 5: another holds the store's lock), and every
+/// model a process said it added is in the store. Two processes that both
+/// found no store used to each make one and rename it over the other's,
+/// so that a model added to the first was lost though its process said it
+/// was added.
+#[test]
+fn processes_adding_to_a_new_store_at_once_lose_nothing() {
+    let _serial = common::hdf5_serial();
+    let dir = tmpdir("concurrent-adds");
+    let files: Vec<_> = (0..8u64)
+        .map(|step| {
+            let f = dir.join(format!("m{step}.gsm"));
+            std::fs::write(&f, write_model_as(&model("rho", step, 0, 40, 0.5), Payload::Float32).unwrap()).unwrap();
+            f
+        })
+        .collect();
+    for round in 0..8 {
+        let path = dir.join(format!("s{round}.h5"));
+        let running: Vec<_> = files
+            .iter()
+            .map(|f| Command::new(gsenc_bin()).args(["store", "add"]).arg(&path).arg(f).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap())
+            .collect();
+        let mut said_added = Vec::new();
+        for (step, child) in running.into_iter().enumerate() {
+            let out = child.wait_with_output().unwrap();
+            let err = String::from_utf8_lossy(&out.stderr);
+            match out.status.code() {
+                Some(0) => said_added.push(step as u64),
+                Some(5) => assert!(err.contains("lock"), "round {round}, step {step}: {err}"),
+                code => panic!("round {round}, step {step}: exit {code:?}: {err}"),
+            }
+        }
+        assert!(!said_added.is_empty(), "round {round}: no process added its model");
+        let held: Vec<u64> = Store::open_read(&path).unwrap().entries().unwrap().iter().map(|e| e.key.step).collect();
+        for step in &said_added {
+            assert!(held.contains(step), "round {round}: step {step} was said to be added, but the store holds {held:?}");
+        }
+        assert_eq!(held.len(), said_added.len(), "round {round}: the store holds {held:?}, the processes added {said_added:?}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }

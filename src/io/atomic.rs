@@ -94,6 +94,26 @@ impl Replacement {
         })
     }
 
+    /// Puts the temporary file under the destination's name only if no
+    /// file has that name: `Ok(true)` when it did, `Ok(false)` (the
+    /// temporary file removed) when another writer made the destination
+    /// first, so that two processes creating one file never put a new one
+    /// over what the first already wrote into. A hard link, which never
+    /// replaces a file, publishes it; on a file system without hard links
+    /// it is renamed where the destination is still missing (a window
+    /// between the look and the rename there).
+    pub fn commit_new(&self) -> Result<bool> {
+        let linked = std::fs::hard_link(&self.tmp, &self.dest);
+        let made = match linked {
+            Ok(()) => Ok(true),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(false),
+            Err(_) if self.dest.exists() => Ok(false),
+            Err(_) => std::fs::rename(&self.tmp, &self.dest).map(|()| true),
+        };
+        self.discard();
+        made.map_err(|e| Error::io(&self.dest, e))
+    }
+
     /// Removes the temporary file, if there is one.
     pub fn discard(&self) {
         let _ = std::fs::remove_file(&self.tmp);
@@ -192,6 +212,26 @@ mod tests {
         assert_eq!(std::fs::read(&p).unwrap(), b"second");
         let leftovers: Vec<_> = std::fs::read_dir(&dir).unwrap().filter_map(|e| e.ok()).collect();
         assert_eq!(leftovers.len(), 1, "temporary files left behind");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A new file is published only where none is: the second of two
+    /// writers creating one file leaves the first one's, and no temporary
+    /// file.
+    #[test]
+    fn commit_new_never_replaces_a_file() {
+        let dir = scratch("new");
+        let p = dir.join("s.h5");
+        let write = |bytes: &[u8]| {
+            let r = Replacement::new(&p).unwrap();
+            std::fs::write(&r.tmp, bytes).unwrap();
+            r
+        };
+        let (first, second) = (write(b"first"), write(b"second"));
+        assert!(first.commit_new().unwrap());
+        assert!(!second.commit_new().unwrap());
+        assert_eq!(std::fs::read(&p).unwrap(), b"first");
+        assert_eq!(names(&dir), ["s.h5"]);
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

@@ -112,6 +112,8 @@ pub struct EntryInfo {
 pub struct Store {
     file: ManuallyDrop<File>,
     path: PathBuf,
+    /// Whether opening it made the file ([`Store::created`]).
+    created: bool,
 }
 
 impl Drop for Store {
@@ -131,9 +133,7 @@ impl Store {
     pub fn open_append(path: impl AsRef<Path>) -> Result<Store> {
         let _quiet = quiet();
         let path = path.as_ref().to_path_buf();
-        if !path.exists() {
-            create_empty(&path)?;
-        }
+        let created = !path.exists() && create_empty(&path)?;
         regular_file(&path)?;
         super::global_heap::check(&path)?;
         let file = File::with_options()
@@ -141,7 +141,14 @@ impl Store {
             .open_rw(&path)
             .map_err(h5(&path))?;
         check_root(&file, &path)?;
-        Ok(Store { file: ManuallyDrop::new(file), path })
+        Ok(Store { file: ManuallyDrop::new(file), path, created })
+    }
+
+    /// Whether [`Store::open_append`] made the file (it was not there, and
+    /// no other writer made it first): a writer that then adds nothing to
+    /// it may remove it.
+    pub fn created(&self) -> bool {
+        self.created
     }
 
     /// Opens an existing store for reading.
@@ -158,7 +165,7 @@ impl Store {
         super::global_heap::check(&path)?;
         let file = File::open(&path).map_err(h5(&path))?;
         check_root(&file, &path)?;
-        Ok(Store { file: ManuallyDrop::new(file), path })
+        Ok(Store { file: ManuallyDrop::new(file), path, created: false })
     }
 
     pub fn path(&self) -> &Path {
@@ -501,7 +508,11 @@ fn regular_file(path: &Path) -> Result<()> {
     }
 }
 
-fn create_empty(path: &Path) -> Result<()> {
+/// Makes an empty store at `path`, unless another writer made a file
+/// there first (two processes appending to a store that is not yet there):
+/// then that file is left as it is, to be opened (and locked) as any
+/// store. Whether it made the file.
+fn create_empty(path: &Path) -> Result<bool> {
     let out = Replacement::new(path)?;
     let made = (|| -> hdf5::Result<()> {
         let f = File::with_options()
@@ -516,7 +527,7 @@ fn create_empty(path: &Path) -> Result<()> {
         out.discard();
         return Err(h5(path)(e));
     }
-    out.commit()
+    out.commit_new()
 }
 
 fn check_root(file: &File, path: &Path) -> Result<()> {
