@@ -118,3 +118,86 @@ fn a_restart_resumes_from_its_own_store() {
         assert_eq!(store.read(&key).unwrap().0.params, want.params, "the restarted run's step 2 differs from the unbroken run's");
     }
 }
+
+/// The process `an_hdf5_store_is_held_from_create_to_destroy` starts (a
+/// run of this test binary; without `GSENC_LOCK_PROBE` it does nothing):
+/// opens the store that variable names for append, prints `PROBE: held`
+/// or `PROBE: refused: <why>`, and keeps the store until its standard
+/// input closes.
+#[test]
+#[ignore = "a helper process of an_hdf5_store_is_held_from_create_to_destroy"]
+fn store_lock_probe() {
+    use std::io::Read;
+    let Some(path) = std::env::var_os("GSENC_LOCK_PROBE") else { return };
+    let held = Store::open_append(&path);
+    match &held {
+        Ok(_) => println!("PROBE: held"),
+        Err(e) => println!("PROBE: refused: {e}"),
+    }
+    let _ = std::io::stdin().read_to_end(&mut Vec::new());
+    drop(held);
+}
+
+/// A probe process on `path`, and what it said once it tried.
+fn probe(path: &std::path::Path) -> (std::process::Child, String) {
+    use std::io::BufRead;
+    use std::process::{Command, Stdio};
+    let mut child = Command::new(std::env::current_exe().unwrap())
+        .args(["--ignored", "--exact", "hdf5_tests::store_lock_probe", "--nocapture", "--test-threads=1"])
+        .env("GSENC_LOCK_PROBE", path)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Its output read to the end (a pipe closed early would fail its
+    // harness's last lines); the harness prints the test's name on the
+    // same line first.
+    let out = std::io::BufReader::new(child.stdout.take().unwrap());
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::spawn(move || {
+        for l in out.lines().map_while(Result::ok) {
+            if let Some(at) = l.find("PROBE: ") {
+                let _ = tx.send(l[at..].to_string());
+            }
+        }
+    });
+    (child, rx.recv_timeout(std::time::Duration::from_secs(120)).expect("the probe said nothing"))
+}
+
+/// An encoder writing an HDF5 store holds it, under HDF5's file lock,
+/// from create to destroy: another process cannot open it for writing
+/// meanwhile, can after destroy, and a create on a store another process
+/// holds fails with `GSENC_STATUS_IO` and the lock's message.
+#[test]
+fn an_hdf5_store_is_held_from_create_to_destroy() {
+    let _hdf5 = common::hdf5_serial();
+    let dir = std::env::temp_dir().join(format!("gsenc-capi-h5-lock-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("run.h5");
+    let c_path = CString::new(path.to_str().unwrap()).unwrap();
+    let done = |mut child: std::process::Child| {
+        drop(child.stdin.take());
+        assert!(child.wait().unwrap().success());
+    };
+    unsafe {
+        let mut cfg: gsenc_config = std::mem::zeroed();
+        cfg.struct_size = std::mem::size_of::<gsenc_config>();
+        assert_eq!(gsenc_config_init(&mut cfg), gsenc_status::Ok);
+        (cfg.budget, cfg.output_format, cfg.output_dir) = (10, GSENC_OUTPUT_HDF5, c_path.as_ptr());
+        let mut enc = std::ptr::null_mut();
+        assert_eq!(gsenc_encoder_create(&cfg, &mut enc), gsenc_status::Ok);
+        let (child, said) = probe(&path);
+        assert!(said.starts_with("PROBE: refused") && said.contains("lock"), "{said}");
+        done(child);
+        gsenc_encoder_destroy(enc);
+        let (child, said) = probe(&path);
+        assert_eq!(said, "PROBE: held");
+        let mut other = std::ptr::null_mut();
+        assert_eq!(gsenc_encoder_create(&cfg, &mut other), gsenc_status::Io);
+        assert!(other.is_null() && crate::status::last_error_text().contains("lock"), "{}", crate::status::last_error_text());
+        done(child);
+        assert_eq!(gsenc_encoder_create(&cfg, &mut other), gsenc_status::Ok);
+        gsenc_encoder_destroy(other);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -400,7 +400,11 @@ typedef struct {
    0), or an HDF5 store file. NULL (default) keeps models in memory
    only. Copied at create, a relative path made absolute against the
    working folder of that moment (a later `chdir` does not move it);
-   an empty one is `GSENC_STATUS_INVALID_ARGUMENT`.
+   an empty one is `GSENC_STATUS_INVALID_ARGUMENT`. An HDF5 store is
+   held, under HDF5's file lock, from create to destroy: a create on a
+   store that another process holds fails with `GSENC_STATUS_IO`, and
+   other processes read it after destroy (or with
+   `HDF5_USE_FILE_LOCKING=FALSE`, as of its last write).
    */
   const char *output_dir;
   /*
