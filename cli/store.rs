@@ -293,12 +293,13 @@ mod imp {
 
     /// An add that failed at `path`: what was added stays (and is named); a
     /// store this command created and could add nothing to (a full disk)
-    /// is removed.
+    /// is removed, while its lock is still held, so that no other writer
+    /// can have opened it and added to it first.
     fn cut_short(store: Store, at: &Path, created: bool, path: &Path, added: &[String], total: usize, e: Error) -> Error {
-        drop(store);
         if added.is_empty() && created {
             let _ = std::fs::remove_file(at);
         }
+        drop(store);
         eprintln!("gsenc store add: {} not added; {} of {} added before it: {added:?}", path.display(), added.len(), total);
         e
     }
