@@ -135,8 +135,8 @@ impl Sink {
     /// is encoded (the sink is opened once the first one is, so that a
     /// series that fails at its first step makes nothing): a store there
     /// must be one and hold none of `steps` of `field` (steps are never
-    /// rewritten), a new store's folder must be there, and a folder must
-    /// be one or could be made.
+    /// rewritten), a new store's folder must be there (a store's folder is
+    /// not made), and a folder must be one or could be made.
     fn check(path: &Path, field: &str, steps: &[usize]) -> Result<()> {
         match is_store_path(path) {
             true => Self::check_store(path, field, steps),
@@ -147,7 +147,11 @@ impl Sink {
     #[cfg(feature = "hdf5")]
     fn check_store(path: &Path, field: &str, steps: &[usize]) -> Result<()> {
         if !path.exists() {
-            return Self::check_folder(path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")));
+            let folder = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            return match folder.is_dir() {
+                true => Ok(()),
+                false => Err(Error::io(path, std::io::Error::new(std::io::ErrorKind::NotFound, format!("no folder {} to make the store in", folder.display())))),
+            };
         }
         let store = gsenc::io::store::Store::open_read(path)?;
         match store.entries()?.into_iter().find(|e| e.key.field == field && steps.contains(&(e.key.step as usize))) {

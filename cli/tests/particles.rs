@@ -391,13 +391,16 @@ fn encode_series_into_a_store() {
     let before = std::fs::read(&store).unwrap();
     let foreign = dir.join("foreign.h5");
     std::fs::copy(&pos, &foreign).unwrap();
-    for (output, says) in [(&store, "holds /rho/1/rank_0 already"), (&foreign, "not an HDF5 file")] {
+    // A new store's folder is not made: one that is not there is refused
+    // before any step too (it was found at the first step's storing).
+    let nowhere = dir.join("missing").join("run.h5");
+    for (output, exit, says) in [(&store, 2, "holds /rho/1/rank_0 already"), (&foreign, 4, "not an HDF5 file"), (&nowhere, 5, "no folder")] {
         let (code, _, err) = gsenc(&[
             "encode-series", "--positions", pos.to_str().unwrap(), "--smoothing-length", hh.to_str().unwrap(),
             "--values", val.to_str().unwrap(), "--count", "300", "--dims", "12", "--budget", "40", "--schedule", "short",
             "--iters", "100", "--points", "256", "--steps", "1", "--field", "rho", "--quiet", "-o", output.to_str().unwrap(),
         ]);
-        assert!(code == 2 || code == 4, "{err}");
+        assert_eq!(code, exit, "{err}");
         assert!(err.contains(says) && !err.contains("voxel PSNR"), "{err}");
     }
     assert_eq!(std::fs::read(&store).unwrap(), before);
