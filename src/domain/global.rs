@@ -111,10 +111,7 @@ impl GlobalField {
         region.check_within(dims)?;
         // Before the product below, which wraps beyond 64 bits.
         self.merged().lattice_dims(Some(dims))?;
-        let n: usize = region.dims().iter().product();
-        crate::memory::check_large(&format!("a decode of {n} voxels"), 4 * n as u64)?;
-        let mut out = Vec::new();
-        out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
+        let mut out = crate::model::decode_buffer(region.dims().iter().product())?;
         self.decode_streaming(backend, dims, region, additive, crate::model::DEFAULT_SLAB_VOXELS, &mut |slab| {
             out.extend_from_slice(slab);
             Ok(())

@@ -174,6 +174,17 @@ pub(crate) fn check_slab(voxels: usize, bytes_a_voxel: u64) -> Result<()> {
     crate::memory::check_large(&format!("decoding slabs of {voxels} voxels (a z layer at least; decode fewer voxels a layer, or a sub-box)"), bytes)
 }
 
+/// An empty buffer with room for a whole decode of `voxels` f32 values
+/// ([`Model::decode_box`], [`crate::domain::global::GlobalField::decode`]),
+/// refused when this process cannot hold it now rather than reserved (Linux
+/// promises memory it may not have, and kills the process as it is written).
+pub(crate) fn decode_buffer(voxels: usize) -> Result<Vec<f32>> {
+    crate::memory::check_large(&format!("a decode of {voxels} voxels"), 4 * voxels as u64)?;
+    let mut out = Vec::new();
+    out.try_reserve_exact(voxels).map_err(|_| Error::arg(format!("cannot allocate {voxels} voxels")))?;
+    Ok(out)
+}
+
 /// Default most voxels decoded at once by [`Model::decode_streaming`]: 64 MB of f32.
 pub const DEFAULT_SLAB_VOXELS: usize = 1 << 24;
 
@@ -204,9 +215,7 @@ impl Model {
         let dims = self.lattice_dims(Some(dims))?;
         region.check_within(dims)?;
         let n: usize = region.dims().iter().product();
-        crate::memory::check_large(&format!("a decode of {n} voxels"), 4 * n as u64)?;
-        let mut out = Vec::new();
-        out.try_reserve_exact(n).map_err(|_| Error::arg(format!("cannot allocate {n} voxels")))?;
+        let mut out = decode_buffer(n)?;
         out.resize(n, 0.0);
         self.decode_lattice(backend, &self.sub_lattice(dims, region), &mut out)?;
         Grid::new(region.dims(), out)
