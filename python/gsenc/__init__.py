@@ -162,15 +162,13 @@ def encode_grid(array, budget=None, *, target_psnr=None, schedule="matched", ran
     The GIL is released while it runs; Ctrl-C stops it."""
     o = _options(budget, target_psnr, schedule, range, log10, payload, field, step, time, rank, iterations, points, seed,
                  sample_seed, relocation, support, threads, backend)
-    origin = tuple(float(v) for v in origin)
-    return _run(lambda report: _gsenc.encode_grid(array, origin, float(spacing), o, report), progress)
+    return _run(lambda report: _gsenc.encode_grid(array, origin, spacing, o, report), progress)
 
 
 def _place(dims, fit_dims, bounds):
-    if bounds is not None:
-        lo, hi = bounds
-        bounds = (tuple(float(v) for v in lo), tuple(float(v) for v in hi))
-    return dict(dims=None if dims is None else tuple(int(v) for v in dims), fit_dims=fit_dims, bounds=bounds)
+    # Passed as given: the native side converts them, refusing a fraction
+    # of a voxel and naming the argument it cannot take.
+    return dict(dims=dims, fit_dims=fit_dims, bounds=bounds)
 
 
 def encode_particles(positions, smoothing_length, values, mass=None, *, budget=None, target_psnr=None, dims=None, fit_dims=None, bounds=None,
@@ -243,8 +241,7 @@ class Series:
         """Encodes a 3D array ``[z][y][x]`` as ``field``'s step ``step``
         (simulation time ``time``); ``array``, ``origin``, ``spacing`` and
         ``progress`` as :func:`encode_grid`."""
-        origin = tuple(float(v) for v in origin)
-        return _run(lambda report: self._series.encode_grid(array, origin, float(spacing), field, step, time, report), progress)
+        return _run(lambda report: self._series.encode_grid(array, origin, spacing, field, step, time, report), progress)
 
     def encode_particles(self, positions, smoothing_length, values, mass=None, *, step, field="scalar", time=None, dims=None,
                          fit_dims=None, bounds=None, progress=None) -> Model:

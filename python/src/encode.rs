@@ -5,6 +5,7 @@
 //! which spells them out and documents them. `series.rs` runs a time
 //! series' steps through the same options, GIL release and models.
 
+use crate::args::named;
 use crate::errors::IntoPy;
 use crate::inputs::Arrays;
 use crate::model::{backend_choice, in_memory, Model};
@@ -38,10 +39,7 @@ pub fn options(o: &Bound<'_, PyDict>) -> PyResult<Options> {
     }
     fn get<'py, T: pyo3::conversion::FromPyObjectOwned<'py>>(o: &Bound<'py, PyDict>, key: &str) -> PyResult<Option<T>> {
         match o.get_item(key)? {
-            Some(v) if !v.is_none() => v.extract::<T>().map(Some).map_err(|e| {
-                let e: PyErr = e.into();
-                PyTypeError::new_err(format!("{key}: {e}"))
-            }),
+            Some(v) if !v.is_none() => named(&v, key).map(Some),
             _ => Ok(None),
         }
     }

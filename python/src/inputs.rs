@@ -3,6 +3,7 @@
 //! pipeline as an [`Input`] once the GIL is released. `gsenc.encode_*` and
 //! `gsenc.Series.encode_*` take the same arrays through these.
 
+use crate::args::named;
 use crate::arrays::{grid_values, triples, values, values_f64};
 use crate::errors::IntoPy;
 use gsenc::field::{Bounds, Grid, IndexFrame};
@@ -104,8 +105,8 @@ fn cells<'a>(centres: &'a [[f64; 3]], edges: &'a [[f64; 3]], volumes: &'a [f64],
 /// Where particles or cells are deposited: `dims`, or `fit_dims` voxels
 /// along the longest axis of `bounds` (default the data's).
 fn placement(place: &Bound<'_, PyDict>, data_bounds: impl FnOnce() -> Bounds) -> PyResult<Placement> {
-    let dims: Option<[usize; 3]> = place.get_item("dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
-    let fit: Option<usize> = place.get_item("fit_dims")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
-    let bounds: Option<([f64; 3], [f64; 3])> = place.get_item("bounds")?.filter(|v| !v.is_none()).map(|v| v.extract()).transpose()?;
-    Placement::resolve(dims, fit, bounds.map(|(min, max)| Bounds { min, max }), data_bounds).py_err()
+    let dims: Option<[usize; 3]> = place.get_item("dims")?.map(|v| named(&v, "dims")).transpose()?.flatten();
+    let fit: Option<usize> = place.get_item("fit_dims")?.map(|v| named(&v, "fit_dims")).transpose()?.flatten();
+    let bounds: Option<[[f64; 3]; 2]> = place.get_item("bounds")?.map(|v| named(&v, "bounds")).transpose()?.flatten();
+    Placement::resolve(dims, fit, bounds.map(|[min, max]| Bounds { min, max }), data_bounds).py_err()
 }

@@ -5,6 +5,7 @@
 //! `gsenc/_gsenc.pyi`
 //! types it. Every call that decodes or encodes releases the GIL.
 
+mod args;
 mod arrays;
 mod encode;
 mod errors;

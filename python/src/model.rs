@@ -2,6 +2,7 @@
 //! or made by an encode; decoded, evaluated and written through the
 //! library, as the command line does.
 
+use crate::args::named;
 use crate::arrays::{grid_array, triples, vector};
 use crate::errors::IntoPy;
 use gsenc::backend::select::{BackendChoice, BackendKind};
@@ -114,7 +115,9 @@ impl Model {
         &self,
         py: Python<'py>,
         dims: Option<[usize; 3]>,
-        r#box: Option<[usize; 6]>,
+        // Taken as it comes: pyo3 would note a failed conversion as of
+        // 'r#box'; `named` names it as Python spells it.
+        r#box: Option<Bound<'py, PyAny>>,
         normalized: bool,
         additive: bool,
         threads: Option<usize>,
@@ -122,7 +125,8 @@ impl Model {
     ) -> PyResult<Bound<'py, PyArray3<f32>>> {
         let choice = backend_choice(backend)?;
         let dims = dims.unwrap_or(self.field.merged().meta.frame.dims);
-        let region = match r#box {
+        let region: Option<[usize; 6]> = r#box.map(|b| named(&b, "box")).transpose()?.flatten();
+        let region = match region {
             Some([x0, y0, z0, x1, y1, z1]) => IndexBox { lo: [x0, y0, z0], hi: [x1, y1, z1] },
             None => IndexBox::whole(dims),
         };

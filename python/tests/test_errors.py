@@ -112,6 +112,67 @@ def test_encode_arguments_and_data():
         gsenc.encode_particles(bad, h, v, budget=10, fit_dims=8, **QUICK)
 
 
+def test_numbers_of_the_wrong_kind_are_refused_by_name(good):
+    """A lattice, a box or a count given as a fraction, a string or a
+    negative number is refused, naming the argument: in the message for
+    the encode options, a deposit's placement (they travel to the native
+    side in a dict) and a decode's box, in the exception's note (pyo3's)
+    for the native methods' other arguments. dims=(8.9, 8, 8) was truncated to 8 without a word, and a
+    string for dims or origin raised int()'s or float()'s error, unnamed."""
+    field = blobs()
+    pos = np.random.default_rng(1).uniform(0, 8, (50, 3))
+    h, v = np.ones(50), np.random.default_rng(2).uniform(1, 2, 50)
+    for place, error, says in [
+        (dict(dims=(8.9, 8, 8)), TypeError, "dims: 'float'"),
+        (dict(dims="abc"), TypeError, "dims: 'str'"),
+        (dict(dims=8), TypeError, "dims: 'int'"),
+        (dict(dims=(8, 8)), ValueError, "dims: expected a sequence of length 3"),
+        (dict(dims=(-8, 8, 8)), OverflowError, "dims: can't convert negative"),
+        (dict(fit_dims=-4), OverflowError, "fit_dims: can't convert negative"),
+        (dict(fit_dims=2**70), OverflowError, "fit_dims: int too big"),
+        (dict(fit_dims=8, bounds=3), TypeError, "bounds: 'int'"),
+        (dict(fit_dims=8, bounds=((0, 0, 0),)), ValueError, "bounds: expected a sequence of length 2"),
+        (dict(fit_dims=8, bounds=((0, 0, 0), (1, "x", 1))), TypeError, "bounds: must be real number"),
+    ]:
+        with pytest.raises(error, match=says):
+            gsenc.encode_particles(pos, h, v, budget=10, **place, **QUICK)
+    for option, error, says in [
+        (dict(budget=-3), OverflowError, "budget: can't convert negative"),
+        (dict(budget=10, step=-1), OverflowError, "step: can't convert negative"),
+        (dict(budget=10, rank=2**40), OverflowError, "rank: "),
+        (dict(budget="ten"), TypeError, "budget: 'str'"),
+        (dict(budget=10, range=(0.0,)), ValueError, "range: expected a sequence of length 2"),
+    ]:
+        with pytest.raises(error, match=says):
+            gsenc.encode_grid(field, **option, **QUICK)
+
+    def noted(call, error, name):
+        with pytest.raises(error) as raised:
+            call()
+        assert f"while processing '{name}'" in getattr(raised.value, "__notes__", []), raised.value
+
+    noted(lambda: gsenc.encode_grid(field, 10, origin="abc", **QUICK), TypeError, "origin")
+    noted(lambda: gsenc.encode_grid(field, 10, spacing="one", **QUICK), TypeError, "spacing")
+    noted(lambda: gsenc.Series(10, **QUICK).encode_grid(field, step=-1), OverflowError, "step")
+    m = gsenc.read(good)
+    noted(lambda: m.decode(dims=(-1, 4, 4)), OverflowError, "dims")
+    with pytest.raises(OverflowError, match="box: int too big"):
+        m.decode(box=(0, 0, 0, 2**70, 1, 1))
+    noted(lambda: m.geometry(dims=(4.5, 4, 4)), TypeError, "dims")
+    noted(lambda: gsenc.read(good, step=-1), OverflowError, "step")
+    # What a numpy user passes is taken as the tuples are: the same models.
+    a = gsenc.encode_particles(pos, h, v, budget=10, dims=np.array([8, 8, 8]), **QUICK)
+    b = gsenc.encode_particles(pos, h, v, budget=10, dims=(8, 8, 8), **QUICK)
+    np.testing.assert_array_equal(a.params(), b.params())
+    a = gsenc.encode_particles(pos, h, v, budget=10, fit_dims=np.int64(8), bounds=np.array([[0.0, 0, 0], [8, 8, 8]]), **QUICK)
+    b = gsenc.encode_particles(pos, h, v, budget=10, fit_dims=8, bounds=[(0, 0, 0), (8.0, 8.0, 8.0)], **QUICK)
+    np.testing.assert_array_equal(a.params(), b.params())
+    a = gsenc.encode_grid(field, 10, origin=np.array([1.0, 2.0, 3.0]), spacing=np.float32(0.5), **QUICK)
+    b = gsenc.encode_grid(field, 10, origin=(1, 2, 3), spacing=0.5, **QUICK)
+    np.testing.assert_array_equal(a.params(), b.params())
+    assert a.geometry() == b.geometry() == ((1.0, 2.0, 3.0), (0.5, 0.5, 0.5))
+
+
 def test_copies_beyond_the_memory_are_refused(monkeypatch, good):
     """An array whose copy the process cannot take now raises ValueError
     before anything is allocated (a failed allocation would abort the
