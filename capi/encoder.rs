@@ -70,7 +70,7 @@ impl ModelSink for KeepInMemory {
 #[no_mangle]
 pub unsafe extern "C" fn gsenc_encoder_create(config: *const gsenc_config, out: *mut *mut gsenc_encoder) -> gsenc_status {
     // SAFETY: per this function's contract.
-    guard(|| unsafe { create_into(config, out, "gsenc_encoder_create", |s| gsenc_encoder::new(s, true)) })
+    guard(|| unsafe { create_into(config, out, "gsenc_encoder_create", |s| gsenc_encoder::new(s?, true)) })
 }
 
 /// `gsenc_encoder_create` with `tweak` applied to the settings first: for
@@ -83,7 +83,8 @@ pub(crate) unsafe fn create_tweaked(config: *const gsenc_config, out: *mut *mut 
     // SAFETY: per this function's contract.
     guard(|| {
         unsafe {
-            create_into(config, out, "gsenc_encoder_create", |mut s| {
+            create_into(config, out, "gsenc_encoder_create", |s| {
+                let mut s = s?;
                 tweak(&mut s);
                 gsenc_encoder::new(s, true)
             })
@@ -92,7 +93,9 @@ pub(crate) unsafe fn create_tweaked(config: *const gsenc_config, out: *mut *mut 
 }
 
 /// Creates an encoder by `make` from `*config` into `*out` (NULL on
-/// failure) and registers its handle.
+/// failure) and registers its handle. `make` is called also when the
+/// arguments were refused (with that failure), so that an MPI rank takes
+/// part in the create's collectives whatever its arguments.
 ///
 /// # Safety
 /// `config` is NULL or a caller's config of at least its `struct_size`
@@ -101,15 +104,16 @@ unsafe fn create_into(
     config: *const gsenc_config,
     out: *mut *mut gsenc_encoder,
     what: &str,
-    make: impl FnOnce(Settings) -> Result<gsenc_encoder, Failure>,
+    make: impl FnOnce(Result<Settings, Failure>) -> Result<gsenc_encoder, Failure>,
 ) -> Result<(), Failure> {
-    if out.is_null() {
-        return fail(gsenc_status::NullPointer, format!("{what}: out is NULL"));
-    }
-    // SAFETY: non-null pointer to the caller's handle slot.
-    unsafe { *out = std::ptr::null_mut() };
-    // SAFETY: the caller passes a config of at least its struct_size bytes.
-    let settings = unsafe { Settings::from_c(config) }.map_err(|Failure(status, why)| Failure(status, format!("{what}: {why}")))?;
+    let settings = if out.is_null() {
+        fail(gsenc_status::NullPointer, format!("{what}: out is NULL"))
+    } else {
+        // SAFETY: non-null pointer to the caller's handle slot.
+        unsafe { *out = std::ptr::null_mut() };
+        // SAFETY: the caller passes a config of at least its struct_size bytes.
+        unsafe { Settings::from_c(config) }.map_err(|Failure(status, why)| Failure(status, format!("{what}: {why}")))
+    };
     let raw = Box::into_raw(Box::new(make(settings)?));
     crate::handles::register(raw, Kind::Encoder);
     // SAFETY: as above.
@@ -150,7 +154,12 @@ unsafe fn create_into(
 /// index) fails rank 0's push, its message saying so, though the step was
 /// queued on every rank and its models are encoded and written as any
 /// other's: the failure is the index's alone. Ranks pushing
-/// different fields, steps or forms get `GSENC_STATUS_MPI` together.
+/// different fields, steps or forms get `GSENC_STATUS_MPI` together, as
+/// do the others when a rank's arguments or data are refused (that rank
+/// gets its own error): here, or at a push (each particle or cell is
+/// checked before it goes to the pieces it reaches). A rank may push no
+/// particles or cells but at a field's first step (its piece is where its
+/// data are at that step).
 /// `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
 ///
 /// # Safety
@@ -164,10 +173,23 @@ pub unsafe extern "C" fn gsenc_encoder_create_mpi(config: *const gsenc_config, c
 }
 
 #[cfg(feature = "mpi")]
-fn create_mpi(mut settings: Settings, comm: i32) -> Result<gsenc_encoder, Failure> {
+fn create_mpi(settings: Result<Settings, Failure>, comm: i32) -> Result<gsenc_encoder, Failure> {
     use gsenc::domain::mpi::{Decomposition, DecompositionConfig};
-    let cfg = DecompositionConfig { dims: settings.dims, bounds: settings.bounds, halo: settings.halo, range: settings.series.range };
+    use gsenc::series::SeriesRange;
+    let cfg = match &settings {
+        Ok(s) => DecompositionConfig { dims: s.dims, bounds: s.bounds, halo: s.halo, range: s.series.range },
+        // Never used: this rank only takes part in the agreement below.
+        Err(_) => DecompositionConfig { dims: [1; 3], bounds: None, halo: 0, range: SeriesRange::FirstStep(gsenc::field::Transform::Linear) },
+    };
     let ranks = Decomposition::from_fortran(comm, cfg)?;
+    // A rank whose arguments were refused fails here with the others,
+    // which would otherwise wait for it in the collectives below.
+    let agreed = ranks.agree_all(settings.is_ok(), "to read its arguments");
+    let mut settings = match (settings, agreed) {
+        (Err(mine), _) => return Err(mine),
+        (Ok(_), Err(other)) => return Err(other.into()),
+        (Ok(s), Ok(())) => s,
+    };
     settings.series.rank = ranks.rank() as u32;
     settings.backend = settings.backend.for_node_rank(ranks.node_rank());
     // Every rank writes the same way (a store makes some calls collective),
@@ -186,7 +208,7 @@ fn create_mpi(mut settings: Settings, comm: i32) -> Result<gsenc_encoder, Failur
 }
 
 #[cfg(not(feature = "mpi"))]
-fn create_mpi(_: Settings, _: i32) -> Result<gsenc_encoder, Failure> {
+fn create_mpi(_: Result<Settings, Failure>, _: i32) -> Result<gsenc_encoder, Failure> {
     fail(gsenc_status::Mpi, "this gsenc was built without MPI (cargo feature mpi; CMake -DGSENC_CARGO_FEATURES=mpi)")
 }
 
@@ -426,6 +448,14 @@ impl gsenc_encoder {
 
     pub(crate) fn placement(&self) -> Placement {
         Placement::new(self.settings.dims, self.settings.bounds)
+    }
+
+    /// Made by `gsenc_encoder_create_mpi`: its pushes are one rank's part.
+    pub(crate) fn is_mpi(&self) -> bool {
+        #[cfg(feature = "mpi")]
+        return self.ranks.is_some();
+        #[cfg(not(feature = "mpi"))]
+        false
     }
 }
 

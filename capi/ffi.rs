@@ -179,11 +179,14 @@ pub(crate) unsafe fn copy_grid(dtype: DType, ptr: *const c_void, dims: [usize; 3
     (values, finite)
 }
 
-pub(crate) fn item_count(count: u64, what: &str) -> Result<usize, Failure> {
+/// A count of items (particles, cells, points): 1..2^40, or from 0 where
+/// `none_ok` (a rank of an MPI encoder may hold none).
+pub(crate) fn item_count(count: u64, what: &str, none_ok: bool) -> Result<usize, Failure> {
+    let least = usize::from(!none_ok);
     usize::try_from(count)
         .ok()
-        .filter(|&n| n > 0 && n <= 1 << 40)
-        .ok_or_else(|| Failure(gsenc_status::InvalidArgument, format!("{what} count {count} must be 1..2^40")))
+        .filter(|&n| n >= least && n <= 1 << 40)
+        .ok_or_else(|| Failure(gsenc_status::InvalidArgument, format!("{what} count {count} must be {least}..2^40")))
 }
 
 /// A caller's time: NaN (or any non-finite value) means unknown.

@@ -242,7 +242,9 @@ unsafe fn grid_data(enc: &gsenc_encoder, grid: *const gsenc_grid) -> Result<Copi
 
 /// Hands over one field of step `step` as SPH particles (see
 /// `gsenc_particles`), deposited on the configured `dims` and bounds. The
-/// arrays and `field` are copied before the call returns.
+/// arrays and `field` are copied before the call returns. `count` is at
+/// least 1, but on an MPI encoder, whose ranks may hold none (the arrays
+/// may then be NULL) at every step but a field's first.
 /// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
 ///
@@ -270,11 +272,12 @@ unsafe fn particle_data(enc: &gsenc_encoder, particles: *const gsenc_particles) 
     // SAFETY: NULL or the caller's gsenc_particles.
     let p = unsafe { read_sized(particles, "gsenc_push_particles: particles") }?;
     let dtype = DType::from_c(p.dtype)?;
-    let n = item_count(p.count, "particle")?;
+    let n = item_count(p.count, "particle", enc.is_mpi())?;
     // Positions, smoothing lengths (f64), masses and values (f32).
     gsenc::memory::check_fits("gsenc_push_particles: the particles' copy", 40 * n as u64)?;
     for (ptr, name) in [(p.positions, "positions"), (p.smoothing_length, "smoothing_length"), (p.values, "values")] {
-        if ptr.is_null() {
+        // None to read: an empty C++ vector's data() is NULL.
+        if ptr.is_null() && n > 0 {
             return fail(gsenc_status::NullPointer, format!("gsenc_push_particles: {name} is NULL"));
         }
     }
@@ -283,7 +286,7 @@ unsafe fn particle_data(enc: &gsenc_encoder, particles: *const gsenc_particles) 
     let positions = unsafe { read_tuples("gsenc_push_particles: positions", dtype, p.positions, n, p.position_stride, p.position_component_stride) }?;
     let smoothing_length = unsafe { read_scalars("gsenc_push_particles: smoothing_length", dtype, p.smoothing_length, n, p.smoothing_length_stride) }?;
     let values = unsafe { read_scalars("gsenc_push_particles: values", dtype, p.values, n, p.value_stride) }?.into_iter().map(|v| v as f32).collect();
-    let mass = if p.mass.is_null() {
+    let mass = if p.mass.is_null() || n == 0 {
         vec![1.0; n]
     } else {
         unsafe { read_scalars("gsenc_push_particles: mass", dtype, p.mass, n, p.mass_stride) }?.into_iter().map(|v| v as f32).collect()
@@ -295,7 +298,8 @@ unsafe fn particle_data(enc: &gsenc_encoder, particles: *const gsenc_particles) 
 /// Hands over one field of step `step` on hexahedral cells (see
 /// `gsenc_cells`), deposited on the configured `dims` and bounds
 /// (volume-weighted). The arrays and `field` are copied before the call
-/// returns.
+/// returns. `count` is at least 1, but on an MPI encoder, as for
+/// `gsenc_push_particles`.
 /// Calls on one encoder from several threads run one at a time; different
 /// encoders are independent.
 ///
@@ -330,11 +334,12 @@ pub unsafe extern "C" fn gsenc_push_cells(
 /// `c`'s arrays hold every element that the counts and strides name.
 unsafe fn cell_data(enc: &gsenc_encoder, c: &gsenc_cells) -> Result<StepData, Failure> {
     let dtype = DType::from_c(c.dtype)?;
-    let n = item_count(c.count, "cell")?;
+    let n = item_count(c.count, "cell", enc.is_mpi())?;
     // Centres and edges (or volumes) in f64, values in f32; a mesh's
     // points are counted below.
     gsenc::memory::check_fits("gsenc_push_cells: the cells' copy", 52 * n as u64)?;
-    if c.values.is_null() {
+    // None to read: an empty C++ vector's data() is NULL.
+    if c.values.is_null() && n > 0 {
         return fail(gsenc_status::NullPointer, "gsenc_push_cells: values is NULL");
     }
     // SAFETY (every read below): the caller's arrays hold every element
@@ -342,7 +347,7 @@ unsafe fn cell_data(enc: &gsenc_encoder, c: &gsenc_cells) -> Result<StepData, Fa
     let values: Vec<f32> = unsafe { read_scalars("gsenc_push_cells: values", dtype, c.values, n, c.value_stride) }?.into_iter().map(|v| v as f32).collect();
     let data = match c.layout {
         GSENC_CELLS_BOXES => {
-            if c.centres.is_null() || c.edges.is_null() {
+            if (c.centres.is_null() || c.edges.is_null()) && n > 0 {
                 return fail(gsenc_status::NullPointer, "gsenc_push_cells: centres or edges is NULL");
             }
             let centres = unsafe { read_tuples("gsenc_push_cells: centres", dtype, c.centres, n, c.centre_stride, c.centre_component_stride) }?;
@@ -350,14 +355,14 @@ unsafe fn cell_data(enc: &gsenc_encoder, c: &gsenc_cells) -> Result<StepData, Fa
             StepData::Cells { centres, edges, volumes: Vec::new(), values, placement: enc.placement() }
         }
         GSENC_CELLS_HEXAHEDRA => {
-            if c.points.is_null() || c.connectivity.is_null() {
+            if (c.points.is_null() || c.connectivity.is_null()) && n > 0 {
                 return fail(gsenc_status::NullPointer, "gsenc_push_cells: points or connectivity is NULL");
             }
-            let np = item_count(c.point_count, "point")?;
+            let np = item_count(c.point_count, "point", n == 0)?;
             gsenc::memory::check_fits("gsenc_push_cells: the mesh points' copy", 24 * np as u64)?;
             let points = unsafe { read_tuples("gsenc_push_cells: points", dtype, c.points, np, c.point_stride, c.point_component_stride) }?;
-            // SAFETY: 8 indices per cell.
-            let conn = unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) };
+            // SAFETY: 8 indices per cell (none: no read of a pointer that may be NULL).
+            let conn = if n == 0 { &[][..] } else { unsafe { std::slice::from_raw_parts(c.connectivity, 8 * n) } };
             if let Some(i) = conn.iter().position(|&k| k < 0 || k as u64 >= np as u64) {
                 return fail(
                     gsenc_status::InvalidArgument,

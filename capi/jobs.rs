@@ -149,6 +149,9 @@ pub unsafe extern "C" fn gsenc_poll(encoder: *mut gsenc_encoder, field: *const c
 /// iteration; returns when the worker is idle. Their states become
 /// `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
 /// encoded one. The encoder stays usable. Calls on one encoder run one at a time.
+/// Local on an MPI encoder: rank 0 wrote a cancelled step's index at its
+/// push, and it names models that never come (`gsenc store verify` reports
+/// it; the step's global field cannot be decoded).
 ///
 /// # Safety
 /// `encoder` may be any value (only a live encoder handle is used).

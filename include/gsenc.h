@@ -765,7 +765,12 @@ gsenc_status gsenc_encoder_create(const gsenc_config *config, gsenc_encoder **ou
  index) fails rank 0's push, its message saying so, though the step was
  queued on every rank and its models are encoded and written as any
  other's: the failure is the index's alone. Ranks pushing
- different fields, steps or forms get `GSENC_STATUS_MPI` together.
+ different fields, steps or forms get `GSENC_STATUS_MPI` together, as
+ do the others when a rank's arguments or data are refused (that rank
+ gets its own error): here, or at a push (each particle or cell is
+ checked before it goes to the pieces it reaches). A rank may push no
+ particles or cells but at a field's first step (its piece is where its
+ data are at that step).
  `GSENC_STATUS_MPI` too when this gsenc was built without MPI.
 
  # Safety
@@ -840,7 +845,9 @@ gsenc_status gsenc_encoder_reserve(gsenc_encoder *encoder, uint64_t values);
 /*
  Hands over one field of step `step` as SPH particles (see
  `gsenc_particles`), deposited on the configured `dims` and bounds. The
- arrays and `field` are copied before the call returns.
+ arrays and `field` are copied before the call returns. `count` is at
+ least 1, but on an MPI encoder, whose ranks may hold none (the arrays
+ may then be NULL) at every step but a field's first.
  Calls on one encoder from several threads run one at a time; different
  encoders are independent.
 
@@ -859,7 +866,8 @@ gsenc_status gsenc_push_particles(gsenc_encoder *encoder,
  Hands over one field of step `step` on hexahedral cells (see
  `gsenc_cells`), deposited on the configured `dims` and bounds
  (volume-weighted). The arrays and `field` are copied before the call
- returns.
+ returns. `count` is at least 1, but on an MPI encoder, as for
+ `gsenc_push_particles`.
  Calls on one encoder from several threads run one at a time; different
  encoders are independent.
 
@@ -910,6 +918,9 @@ gsenc_status gsenc_poll(gsenc_encoder *encoder, const char *field, uint64_t step
  iteration; returns when the worker is idle. Their states become
  `GSENC_JOB_CANCELLED`; each field's next step warm-starts from its last
  encoded one. The encoder stays usable. Calls on one encoder run one at a time.
+ Local on an MPI encoder: rank 0 wrote a cancelled step's index at its
+ push, and it names models that never come (`gsenc store verify` reports
+ it; the step's global field cannot be decoded).
 
  # Safety
  `encoder` may be any value (only a live encoder handle is used).

@@ -2,14 +2,17 @@
 # The MPI layer under mpirun -n 1, 2 and 4 (oversubscribed on small machines):
 # the exchange of models with rank 0 (examples/mpi_exchange.rs), the C API
 # (tests/c/capi_mpi.c), a restarted run resumed from every rank's models
-# (tests/c/capi_mpi_resume.c), the Fortran module (tests/fortran/mpi_test.f90),
+# (tests/c/capi_mpi_resume.c), random walks over the C API (tests/c/capi_mpi_walk.c),
+# the Fortran module (tests/fortran/mpi_test.f90),
 # the step index decoded by the CLI, the store rank 0 wrote for every rank
 # against the folder's models, and the domain-decomposed mock solver
 # (examples/mpi_mock_solver.rs) against its single-rank run.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1
-run() { mpirun --oversubscribe -n "$@"; }
+# A run that hangs (a rank waiting in a collective the others left) fails
+# after ten minutes instead of holding the test command.
+run() { timeout 600 mpirun --oversubscribe -n "$@"; }
 
 cargo build --release --locked --features mpi,hdf5 --lib --bin gsenc --example mpi_mock_solver --example mpi_exchange
 out="$(mktemp -d)"
@@ -109,6 +112,43 @@ for n in 1 2 4; do
     grep -aq 'Origin="-0.9375 -0.9375 -0.9375" Spacing="0.125 0.125 0.125"' "$out/cloud.vti" || { echo "cloud ($n ranks): not on the configured lattice" >&2; exit 1; }
 done
 echo "cli-mpi: 5 passed"
+
+# Random walks over the MPI side of the C API (tests/c/capi_mpi_walk.c:
+# every rank the same calls, one rank's push now and then wrong in its own
+# way; every collective answer the same on every rank, none hanging, a push
+# no rank spoiled taken, every model pushed and waited for read back). Then
+# what they wrote, read by the tool: each step index whose every rank's
+# model is in its folder decodes; each store verifies, but for the index of
+# a step cancelled or failed before all its models were stored (rank 0
+# writes a step's index at its push).
+mpicc -std=c99 -Wall -Wextra -Werror -DGSENC_WALK_HDF5 -Iinclude tests/c/capi_mpi_walk.c "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/capi_mpi_walk"
+for n in 2 4; do
+    mkdir "$out/walk$n"
+    run "$n" "$out/capi_mpi_walk" "$out/walk$n" "${GSENC_MPI_WALKS:-40}" "$((n * 1000))"
+    decoded=0
+    while IFS= read -r gsi; do
+        name=${gsi%.gsi}
+        models=$(find "$(dirname "$gsi")" -maxdepth 1 \( -name "$(basename "$name").gsm" -o -name "$(basename "$name")_r*.gsm" \) | wc -l)
+        [ "$models" = "$n" ] || continue
+        "$gsenc" decode "$gsi" -o "$out/walk.raw" >/dev/null
+        decoded=$((decoded + 1))
+    done < <(find "$out/walk$n" -name '*.gsi')
+    verified=0
+    while IFS= read -r store; do
+        if ! "$gsenc" store verify "$store" > "$out/verify.txt" 2>&1; then
+            failed=$(grep -c ' FAILED: ' "$out/verify.txt" || true)
+            unfinished=$(grep -c "/index  *FAILED: invalid data: the step index of .* names rank [0-9]*, whose model .* the store does not hold" "$out/verify.txt" || true)
+            if [ "$failed" = 0 ] || [ "$failed" != "$unfinished" ]; then
+                cat "$out/verify.txt" >&2
+                echo "$store, written by $n ranks' walk, fails verification" >&2
+                exit 1
+            fi
+        fi
+        verified=$((verified + 1))
+    done < <(find "$out/walk$n" -name '*.h5')
+    [ "$decoded" -gt 0 ] && [ "$verified" -gt 0 ] || { echo "the walks on $n ranks wrote $decoded complete step indexes, $verified stores" >&2; exit 1; }
+    echo "walk outputs ($n ranks): $decoded step indexes decoded, $verified stores verified"
+done
 
 # MPI at MPI_THREAD_SINGLE, and after MPI_Finalize: clear errors, no handle.
 mpicc -std=c99 -Wall -Werror -Iinclude tests/c/capi_mpi_levels.c "$lib" $hdf5_libs -lpthread -ldl -lm -o "$out/capi_mpi_levels"

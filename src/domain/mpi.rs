@@ -260,7 +260,7 @@ impl Decomposition {
         let kind = Kind::of(&job.data);
         let (what, pushed, key) = labels(&job.field, job.step, kind);
         // A resumed field's first push rebuilds its layout from the pieces.
-        let local = queue.check(&job).and_then(|()| self.resumed_layout(&job.field, kind)).and_then(|resumed| {
+        let local = queue.check(&job).and_then(|()| job.data.check_each()).and_then(|()| self.resumed_layout(&job.field, kind)).and_then(|resumed| {
             let stats = self.check_local(&job, kind, resumed.as_ref())?;
             Ok((stats, resumed))
         });
@@ -372,8 +372,8 @@ impl Decomposition {
 
     /// What this rank checks alone before the first collective: the form
     /// matches the field's (its `layout`, or the one it has), a grid sits
-    /// on the field's lattice; and the local value range for the first
-    /// step.
+    /// on the field's lattice; and, at the first step, that it has data
+    /// and their local value range.
     fn check_local(&self, job: &Job, kind: Kind, layout: Option<&Layout>) -> Result<[f64; 2]> {
         if let Some(l) = layout.or(self.fields.get(&job.field)) {
             if l.kind != kind {
@@ -390,6 +390,15 @@ impl Decomposition {
             return Ok([0.0; 2]);
         }
         let values = halo::data_values(&job.data);
+        if values.is_empty() {
+            // Its piece of the lattice would be where its data are.
+            return Err(Error::data(format!(
+                "field '{}' step {}: this rank has no {} at the field's first step; every rank needs some there (a rank's piece is where its data are), and may have none at later steps",
+                job.field,
+                job.step,
+                if kind == Kind::Particles { "particles" } else { "cells" }
+            )));
+        }
         let transform = match self.cfg.range {
             SeriesRange::Fixed(_) => return Ok([0.0; 2]),
             SeriesRange::FirstStep(t) => t,

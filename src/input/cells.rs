@@ -14,6 +14,7 @@ use crate::input::deposit::{inside_bounds, nearest_voxel_box, Shape, Splat};
 use crate::error::{Error, Result};
 use crate::field::IndexFrame;
 use crate::field::Bounds;
+use crate::input::first_bad;
 use crate::input::items::{Conversion, Item};
 use rayon::prelude::*;
 
@@ -70,10 +71,17 @@ impl Cells<'_> {
     /// Fails on empty or mismatched arrays, non-finite centres, and edges or
     /// volumes that are not positive and finite.
     pub fn validate(&self) -> Result<()> {
-        let n = self.len();
-        if n == 0 {
+        if self.is_empty() {
             return Err(Error::data("no cells"));
         }
+        self.validate_each(false)
+    }
+
+    /// What [`Self::validate`] asks of each cell alone: a rank's part of a
+    /// decomposed field, which may hold none. `serial`: on the calling
+    /// thread alone ([`first_bad`]).
+    pub fn validate_each(&self, serial: bool) -> Result<()> {
+        let n = self.len();
         let what = match self.size {
             CellSize::Edges(_) => "edge-length triples",
             CellSize::Volumes(_) => "volumes",
@@ -84,7 +92,7 @@ impl Cells<'_> {
         if self.values.len() != n {
             return Err(Error::data(format!("{n} cell centres but {} values", self.values.len())));
         }
-        if let Some(i) = self.centres.par_iter().position_first(|p| !p.iter().all(|c| c.is_finite())) {
+        if let Some(i) = first_bad(n, serial, |i| !self.centres[i].iter().all(|c| c.is_finite())) {
             return Err(Error::data(format!("cell {i} has a non-finite centre {:?}", self.centres[i])));
         }
         let bad_size = |i: usize| {
@@ -95,7 +103,7 @@ impl Cells<'_> {
             };
             !(edges_ok && vol.is_finite() && vol > 0.0)
         };
-        if let Some(i) = (0..n).into_par_iter().position_first(bad_size) {
+        if let Some(i) = first_bad(n, serial, bad_size) {
             let size = match self.size {
                 CellSize::Edges(e) => format!("edges {:?}", e[i]),
                 CellSize::Volumes(v) => format!("volume {}", v[i]),

@@ -54,6 +54,22 @@ impl StepData {
         }
     }
 
+    /// [`Self::check_finite`], and every particle or cell as the encode
+    /// will check it ([`Particles::validate_each`],
+    /// [`Cells::validate_each`]: positive smoothing lengths and sizes,
+    /// masses not negative), on the calling thread alone: for a rank of a
+    /// decomposed field, whose items go to the pieces they reach, so that a
+    /// bad one fails the push on every rank (naming this one) instead of an
+    /// encode elsewhere, or going nowhere. None at all is no fault here.
+    pub fn check_each(&self) -> Result<()> {
+        self.check_finite()?;
+        self.with_input(|input| match input {
+            Input::Particles { particles, .. } => particles.validate_each(true),
+            Input::Cells { cells, .. } => cells.validate_each(true),
+            _ => Ok(()),
+        })
+    }
+
     /// Runs `f` on this data as an [`Input`].
     pub fn with_input<R>(&self, f: impl FnOnce(Input) -> R) -> R {
         match self {

@@ -25,3 +25,16 @@ pub struct Target<'a> {
     pub reference: &'a Grid,
     pub samples: &'a dyn SampleSet,
 }
+
+/// The first `i < n` for which `bad(i)`, sought on rayon's pool, or on the
+/// calling thread alone where `serial` (a push, on the caller's side of the
+/// background queue, must not wake a pool: the host's, or the global one
+/// the encoder's threads compete with).
+pub(crate) fn first_bad(n: usize, serial: bool, bad: impl Fn(usize) -> bool + Sync + Send) -> Option<usize> {
+    use rayon::prelude::*;
+    if serial {
+        (0..n).position(bad)
+    } else {
+        (0..n).into_par_iter().position_first(bad)
+    }
+}

@@ -14,6 +14,7 @@ use crate::input::deposit::{inside_bounds, nearest_voxel_box, Shape, Splat};
 use crate::error::{Error, Result};
 use crate::field::IndexFrame;
 use crate::field::Bounds;
+use crate::input::first_bad;
 use crate::input::items::{Conversion, Item};
 use rayon::prelude::*;
 
@@ -43,12 +44,24 @@ impl Particles<'_> {
     }
 
     /// Fails on empty or mismatched arrays, non-finite positions, smoothing
-    /// lengths that are not positive, and negative or non-finite masses.
+    /// lengths that are not positive, negative or non-finite masses, and
+    /// masses all zero.
     pub fn validate(&self) -> Result<()> {
-        let n = self.len();
-        if n == 0 {
+        if self.is_empty() {
             return Err(Error::data("no particles"));
         }
+        self.validate_each(false)?;
+        if self.mass.par_iter().all(|&m| m == 0.0) {
+            return Err(Error::data("all particle masses are zero"));
+        }
+        Ok(())
+    }
+
+    /// What [`Self::validate`] asks of each particle alone: a rank's part of
+    /// a decomposed field, which may hold none or only massless ones.
+    /// `serial`: on the calling thread alone ([`first_bad`]).
+    pub fn validate_each(&self, serial: bool) -> Result<()> {
+        let n = self.len();
         for (name, len) in [
             ("smoothing lengths", self.smoothing_length.len()),
             ("masses", self.mass.len()),
@@ -58,20 +71,17 @@ impl Particles<'_> {
                 return Err(Error::data(format!("{n} particle positions but {len} {name}")));
             }
         }
-        if let Some(i) = self.positions.par_iter().position_first(|p| !p.iter().all(|c| c.is_finite())) {
+        if let Some(i) = first_bad(n, serial, |i| !self.positions[i].iter().all(|c| c.is_finite())) {
             return Err(Error::data(format!("particle {i} has a non-finite position {:?}", self.positions[i])));
         }
-        if let Some(i) = self.smoothing_length.par_iter().position_first(|h| !(h.is_finite() && *h > 0.0)) {
+        if let Some(i) = first_bad(n, serial, |i| !(self.smoothing_length[i].is_finite() && self.smoothing_length[i] > 0.0)) {
             return Err(Error::data(format!(
                 "particle {i} has smoothing length {}; it must be positive and finite",
                 self.smoothing_length[i]
             )));
         }
-        if let Some(i) = self.mass.par_iter().position_first(|m| !(m.is_finite() && *m >= 0.0)) {
+        if let Some(i) = first_bad(n, serial, |i| !(self.mass[i].is_finite() && self.mass[i] >= 0.0)) {
             return Err(Error::data(format!("particle {i} has mass {}; it must be finite and not negative", self.mass[i])));
-        }
-        if self.mass.par_iter().all(|&m| m == 0.0) {
-            return Err(Error::data("all particle masses are zero"));
         }
         Ok(())
     }
@@ -128,6 +138,37 @@ fn support_box(dims: [usize; 3], u: [f64; 3], radius: f64) -> Option<([u32; 3], 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `validate_each` asks of each particle what `validate` does, on the
+    /// calling thread or the pool alike (the same first bad particle), and
+    /// takes what only a whole set can be refused for: none, or massless.
+    #[test]
+    fn each_particle_is_checked_alike_alone_or_in_a_set() {
+        let n = 1000;
+        let positions: Vec<[f64; 3]> = (0..n).map(|i| [i as f64, 0.5, 0.25]).collect();
+        let (mut h, mut mass, values) = (vec![0.5; n], vec![1.0f32; n], vec![1.0f32; n]);
+        let check = |h: &[f64], mass: &[f32]| {
+            let p = Particles { positions: &positions, smoothing_length: h, mass, values: &values };
+            let (serial, pooled, whole) = (p.validate_each(true), p.validate_each(false), p.validate());
+            assert_eq!(format!("{serial:?}"), format!("{pooled:?}"));
+            (serial.err().map(|e| e.to_string()), whole.err().map(|e| e.to_string()))
+        };
+        assert_eq!(check(&h, &mass), (None, None));
+        (h[700], h[900]) = (-0.5, 0.0);
+        let (each, whole) = check(&h, &mass);
+        assert!(each.as_deref().is_some_and(|e| e.contains("particle 700 has smoothing length -0.5")), "{each:?}");
+        assert_eq!(each, whole);
+        h[700] = 0.5;
+        mass[950] = f32::NAN;
+        assert!(check(&h, &mass).0.is_some_and(|e| e.contains("particle 900 has smoothing length 0")));
+        (h[900], mass[950]) = (0.5, -1.0);
+        assert!(check(&h, &mass).0.is_some_and(|e| e.contains("particle 950 has mass -1")));
+        // Massless, or none: a rank's part may be; a whole set may not.
+        let (each, whole) = check(&h, &vec![0.0; n]);
+        assert!(each.is_none() && whole.is_some_and(|e| e.contains("all particle masses are zero")));
+        let none = Particles { positions: &[], smoothing_length: &[], mass: &[], values: &[] };
+        assert!(none.validate_each(true).is_ok() && none.validate().is_err());
+    }
 
     #[test]
     fn support_box_needs_a_voxel_centre_inside_the_sphere() {

@@ -6,7 +6,10 @@
  * same grid steps written into one HDF5 store by rank 0 (OUTPUT_DIR/run.h5,
  * which tests/mpi.sh compares with the folder's models), a store rank 0
  * cannot open failing every rank's create, as do ranks asking for different
- * outputs, and a write that fails on rank 0 reported by every rank's wait. */
+ * outputs, a write that fails on rank 0 reported by every rank's wait, a
+ * rank with no particles (refused at a field's first step, taken later), a
+ * rank's negative smoothing length and a rank's refused arguments at create
+ * failing every rank together. */
 #define _POSIX_C_SOURCE 200112L /* setenv */
 #include "gsenc.h"
 #include "mpi_checks.h"
@@ -157,6 +160,67 @@ int main(int argc, char **argv) {
         EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
     }
     gsenc_encoder_destroy(enc);
+
+    /* A rank with no particles: refused at a field's first step (a rank's
+     * piece is where its data are), on every rank together; taken at later
+     * steps, NULL arrays and all (an empty C++ vector's data()), the rank's
+     * piece encoded from what its neighbours' particles reach of it. Both
+     * were refused on every rank before (count 0), failing the whole step. */
+    if (size > 1) {
+        int last = rank == size - 1;
+        EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
+        gsenc_particles p = lattice_particles(16, size, 0.0, 1, pos, hh, val), none = p;
+        none.count = 0, none.positions = NULL, none.smoothing_length = NULL, none.values = NULL;
+        gsenc_status s = gsenc_push_particles(enc, "sparse", 1, 0.1, last ? &none : &p);
+        if (last)
+            CHECK(s == GSENC_STATUS_INVALID_DATA && strstr(last_error(), "no particles at the field's first step") != NULL, "empty rank at the first step got %s: %s", gsenc_status_string(s), last_error());
+        else
+            CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "refused its data") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+        EXPECT(gsenc_push_particles(enc, "sparse", 1, 0.1, &p), GSENC_STATUS_OK);
+        p = lattice_particles(16, size, 0.0, 2, pos, hh, val);
+        EXPECT(gsenc_push_particles(enc, "sparse", 2, 0.2, last ? &none : &p), GSENC_STATUS_OK);
+        /* A negative smoothing length on one rank is refused before its
+         * particles go to the pieces they reach (it went nowhere, taken). */
+        p = lattice_particles(16, size, 0.0, 3, pos, hh, val);
+        if (rank == 0) hh[2] = -0.25;
+        s = gsenc_push_particles(enc, "sparse", 3, 0.3, &p);
+        if (rank == 0)
+            CHECK(s == GSENC_STATUS_INVALID_DATA && strstr(last_error(), "particle 2 has smoothing length -0.25") != NULL, "negative smoothing length got %s: %s", gsenc_status_string(s), last_error());
+        else
+            CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "rank 0 refused") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+        EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
+        gsenc_encoder_destroy(enc);
+        /* The empty rank's model of step 2: its piece, of the budget. */
+        char path[600];
+        snprintf(path, sizeof path, "%s/sparse_000002%s%.0d.gsm", argv[1], rank ? "_r" : "", rank);
+        gsenc_model *m = NULL;
+        EXPECT(gsenc_model_read(path, &m), GSENC_STATUS_OK);
+        gsenc_model_info info;
+        info.struct_size = sizeof info;
+        EXPECT(gsenc_model_info_get(m, &info), GSENC_STATUS_OK);
+        CHECK(info.step == 2 && info.rank == (uint32_t)rank && info.count == cfg.budget, "%s: step %llu rank %u, %llu primitives", path, (unsigned long long)info.step, info.rank, (unsigned long long)info.count);
+        gsenc_model_destroy(m);
+    }
+
+    /* A rank whose arguments are refused (a zero budget; no handle slot)
+     * fails with its own error and the others naming it: they waited for
+     * it in the create's collectives before, for ever. */
+    {
+        gsenc_config bad = cfg;
+        if (rank == size - 1) bad.budget = 0;
+        enc = (gsenc_encoder *)1;
+        gsenc_status s = gsenc_encoder_create_mpi(&bad, MPI_Comm_c2f(comm), &enc);
+        CHECK(enc == NULL, "a failed create left a handle");
+        if (rank == size - 1)
+            CHECK(s == GSENC_STATUS_INVALID_ARGUMENT && strstr(last_error(), "budget") != NULL, "zero budget got %s: %s", gsenc_status_string(s), last_error());
+        else
+            CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "failed to read its arguments") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+        s = gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), rank == 0 ? NULL : &enc);
+        if (rank == 0)
+            CHECK(s == GSENC_STATUS_NULL_POINTER, "no handle slot got %s: %s", gsenc_status_string(s), last_error());
+        else
+            CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "rank 0 failed to read its arguments") != NULL && enc == NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+    }
 
     /* Particles in configured bounds wider than they fill: the pieces (the
      * data's box and halo) stop short of the lattice's faces, and the step
