@@ -281,3 +281,62 @@ fn grid_pieces_are_the_global_grid_with_halo_and_must_tile_it() {
     let Err(err) = split(&StepData::Grid { grid, frame }, &global, &pieces) else { panic!("a grid off the lattice was split") };
     assert!(err.to_string().contains("lattice"), "{err}");
 }
+
+/// Pieces are fixed at a field's first step; at a later one a rank may hold
+/// no particle (rank 3 here: its quarter emptied), so its piece holds no
+/// particle's centre, only what its neighbours' wide kernels reach of it,
+/// and with narrow kernels nothing at all. Its deposit is still the serial
+/// deposit of all the particles on its voxels (zero where nothing reaches),
+/// seeded from its voxels (no samples). It failed before ("none of the
+/// items lies inside the bounds"), and the rank's empty part was refused.
+#[test]
+fn a_piece_that_holds_no_particle_deposits_what_reaches_it() {
+    let first = points(6000);
+    let part = |pos: &[[f64; 3]], h: f64, r: usize| {
+        let mine: Vec<usize> = (0..pos.len()).filter(|&j| owner(&pos[j]) == r).collect();
+        let positions = pick(pos, &mine);
+        let n = positions.len();
+        let values = positions.iter().map(|&p| field(p)).collect();
+        StepData::Particles { positions, smoothing_length: vec![h; n], mass: vec![1.0; n], values, placement: Placement::new([24; 3], None) }
+    };
+    let global = IndexFrame::from_bounds([24; 3], [0.0; 3], [1.0; 3]).unwrap();
+    let pieces: Vec<IndexBox> = (0..4)
+        .map(|r| {
+            // No halo: piece 3 is rank 3's quarter alone.
+            let b = data_bounds(&part(&first, 0.05, r));
+            global.covering_box(b.min, b.max, 0)
+        })
+        .collect();
+    let range = ValueRange::new(0.0, 1.2, Transform::Linear).unwrap();
+    for (h, reaches) in [(0.12, true), (0.004, false)] {
+        // Narrow kernels a few voxels away from the piece, which the routing
+        // (sending an item to every piece its support box may touch) leaves out.
+        let margin = if reaches { 0.5 } else { 0.4 };
+        let later: Vec<[f64; 3]> = first.iter().copied().filter(|p| p[0] < margin || p[1] < margin).collect();
+        let parts: Vec<StepData> = (0..4).map(|r| part(&later, h, r)).collect();
+        let StepData::Particles { positions, .. } = &parts[3] else { unreachable!() };
+        assert!(positions.is_empty());
+        let values: Vec<f32> = later.iter().map(|&p| field(p)).collect();
+        let (hs, masses) = (vec![h; later.len()], vec![1.0; later.len()]);
+        let all = Particles { positions: &later, smoothing_length: &hs, mass: &masses, values: &values };
+        let serial = prepare_particles(&all, &Placement::new([24; 3], Some(global.world_box())), &RangeSpec::Fixed(range)).unwrap();
+        let sent: Vec<Vec<Vec<f64>>> = parts.iter().map(|d| split(d, &global, &pieces).unwrap()).collect();
+        let received: Vec<&[f64]> = sent.iter().map(|s| s[3].as_slice()).collect();
+        let StepData::Particles { positions, smoothing_length, mass, values, placement } = join(Kind::Particles, &received, &global, &pieces[3]).unwrap() else {
+            unreachable!()
+        };
+        assert_eq!(positions.is_empty(), !reaches, "h {h}: {} particles reach the empty piece", positions.len());
+        let p = Particles { positions: &positions, smoothing_length: &smoothing_length, mass: &mass, values: &values };
+        let prepared = prepare_particles(&p, &placement, &RangeSpec::Fixed(range)).unwrap();
+        assert!(prepared.samples.is_none(), "h {h}: no particle's centre lies in the piece");
+        let piece = pieces[3];
+        let mut reached = 0;
+        for (i, &v) in prepared.reference.values.iter().enumerate() {
+            let [x, y, z] = prepared.reference.coords(i);
+            let g = serial.reference.values[serial.reference.index(x + piece.lo[0], y + piece.lo[1], z + piece.lo[2])];
+            assert!((v - g).abs() <= 1e-5, "h {h}: voxel {:?} of the piece is {v}, the serial deposit {g}", [x, y, z]);
+            reached += (v != 0.0) as usize;
+        }
+        assert_eq!(reached > 0, reaches, "h {h}: {reached} voxels reached");
+    }
+}

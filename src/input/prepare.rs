@@ -37,6 +37,11 @@ impl Placement {
         Placement { dims, bounds, continues: [[false; 2]; 3] }
     }
 
+    /// A piece of a larger lattice (it goes on past a face).
+    pub fn is_piece(&self) -> bool {
+        self.continues != [[false; 2]; 3]
+    }
+
     /// The placement from `dims`, or from `fit_dims` voxels along the longest
     /// axis of `bounds` (those of the data, asked for only then); exactly one
     /// of the two must be given.
@@ -229,14 +234,15 @@ fn scale_weights(splats: &mut [Splat]) {
 
 /// Samples and deposit of SPH particles.
 pub fn prepare_particles(p: &Particles, placement: &Placement, range: &RangeSpec) -> Result<Prepared> {
-    p.validate()?;
+    // A piece of a larger lattice may receive none (see `prepare_items`).
+    if placement.is_piece() { p.validate_each(false)? } else { p.validate()? }
     let bounds = placement.bounds.unwrap_or_else(|| p.bounds());
     prepare_items(Form::Particles, p, p.values, placement, bounds, range)
 }
 
 /// Samples and volume-weighted deposit of hexahedral cells.
 pub fn prepare_cells(c: &Cells, placement: &Placement, range: &RangeSpec) -> Result<Prepared> {
-    c.validate()?;
+    if placement.is_piece() { c.validate_each(false)? } else { c.validate()? }
     let bounds = placement.bounds.unwrap_or_else(|| c.bounds());
     prepare_items(Form::Cells, c, c.values, placement, bounds, range)
 }
@@ -287,7 +293,12 @@ fn prepare_items(form: Form, items: &dyn Conversion, values: &[f32], placement: 
     }
     drop(converted);
     scale_weights(&mut splats);
-    if samples.is_empty() {
+    // A piece of a decomposed field may hold no item's centre (its rank's
+    // particles moved away, or it had none since the first step) and only
+    // the reach of its neighbours' items, or nothing at all: its deposit
+    // is what reaches it, and its voxels seed it as a grid's do. A lattice
+    // that is its whole domain holding none is a mistake of its bounds.
+    if samples.is_empty() && !placement.is_piece() {
         return Err(Error::data(format!(
             "none of the {} items lies inside the bounds {:?} .. {:?}",
             stats.items, bounds.min, bounds.max
@@ -307,7 +318,7 @@ fn prepare_items(form: Form, items: &dyn Conversion, values: &[f32], placement: 
         frame,
         range,
         reference,
-        samples: Some(samples),
+        samples: (!samples.is_empty()).then_some(samples),
         bounds: Some(bounds),
         clamped_values: norm.clamped,
         deposit: Some(deposit_stats),

@@ -164,11 +164,18 @@ int main(int argc, char **argv) {
     /* A rank with no particles: refused at a field's first step (a rank's
      * piece is where its data are), on every rank together; taken at later
      * steps, NULL arrays and all (an empty C++ vector's data()), the rank's
-     * piece encoded from what its neighbours' particles reach of it. Both
-     * were refused on every rank before (count 0), failing the whole step. */
+     * piece encoded from what its neighbours' particles reach of it, or
+     * from nothing. Both were refused on every rank before (count 0),
+     * failing the whole step; a piece that held no particle's centre
+     * failed its rank's encode ("none of the items lies inside"). */
     if (size > 1) {
         int last = rank == size - 1;
-        EXPECT(gsenc_encoder_create_mpi(&cfg, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
+        /* No halo: the last rank's piece is its own region alone, which at
+         * step 2 holds no particle's centre, only its neighbours' reach, and
+         * at step 4 (the others' particles tiny) not even that. */
+        gsenc_config sparse = cfg;
+        sparse.halo = 0;
+        EXPECT(gsenc_encoder_create_mpi(&sparse, MPI_Comm_c2f(comm), &enc), GSENC_STATUS_OK);
         gsenc_particles p = lattice_particles(16, size, 0.0, 1, pos, hh, val), none = p;
         none.count = 0, none.positions = NULL, none.smoothing_length = NULL, none.values = NULL;
         gsenc_status s = gsenc_push_particles(enc, "sparse", 1, 0.1, last ? &none : &p);
@@ -188,18 +195,23 @@ int main(int argc, char **argv) {
             CHECK(s == GSENC_STATUS_INVALID_DATA && strstr(last_error(), "particle 2 has smoothing length -0.25") != NULL, "negative smoothing length got %s: %s", gsenc_status_string(s), last_error());
         else
             CHECK(s == GSENC_STATUS_MPI && strstr(last_error(), "rank 0 refused") != NULL, "other rank got %s: %s", gsenc_status_string(s), last_error());
+        p = lattice_particles(16, size, 0.0, 4, pos, hh, val);
+        for (uint64_t i = 0; i < p.count; i++) hh[i] = 1e-3;
+        EXPECT(gsenc_push_particles(enc, "sparse", 4, 0.4, last ? &none : &p), GSENC_STATUS_OK);
         EXPECT(gsenc_wait(enc, NULL), GSENC_STATUS_OK);
         gsenc_encoder_destroy(enc);
-        /* The empty rank's model of step 2: its piece, of the budget. */
-        char path[600];
-        snprintf(path, sizeof path, "%s/sparse_000002%s%.0d.gsm", argv[1], rank ? "_r" : "", rank);
-        gsenc_model *m = NULL;
-        EXPECT(gsenc_model_read(path, &m), GSENC_STATUS_OK);
-        gsenc_model_info info;
-        info.struct_size = sizeof info;
-        EXPECT(gsenc_model_info_get(m, &info), GSENC_STATUS_OK);
-        CHECK(info.step == 2 && info.rank == (uint32_t)rank && info.count == cfg.budget, "%s: step %llu rank %u, %llu primitives", path, (unsigned long long)info.step, info.rank, (unsigned long long)info.count);
-        gsenc_model_destroy(m);
+        /* Every rank's model of steps 2 and 4: its piece, of the budget. */
+        for (int step = 2; step <= 4; step += 2) {
+            char path[600];
+            snprintf(path, sizeof path, "%s/sparse_%06d%s%.0d.gsm", argv[1], step, rank ? "_r" : "", rank);
+            gsenc_model *m = NULL;
+            EXPECT(gsenc_model_read(path, &m), GSENC_STATUS_OK);
+            gsenc_model_info info;
+            info.struct_size = sizeof info;
+            EXPECT(gsenc_model_info_get(m, &info), GSENC_STATUS_OK);
+            CHECK(info.step == (uint64_t)step && info.rank == (uint32_t)rank && info.count == cfg.budget, "%s: step %llu rank %u, %llu primitives", path, (unsigned long long)info.step, info.rank, (unsigned long long)info.count);
+            gsenc_model_destroy(m);
+        }
     }
 
     /* A rank whose arguments are refused (a zero budget; no handle slot)
