@@ -474,7 +474,11 @@ impl Store {
         for p in &index.pieces {
             let key = EntryKey { field: field.clone(), step, rank: p.rank };
             if sg.as_ref().is_none_or(|sg| !sg.link_exists(&format!("rank_{}", p.rank))) {
-                return Err(Error::data(format!("the step index of /{field}/{step} names rank {}, whose model {} the store does not hold", p.rank, key.path())));
+                return Err(Error::data(format!(
+                    "the step index of /{field}/{step} names rank {}, whose model {} the store does not hold (an MPI run writes a step's index at its push: the step was cancelled, failed on that rank, or the run stopped before it was stored)",
+                    p.rank,
+                    key.path()
+                )));
             }
             pieces.push(self.read(&key)?);
         }
