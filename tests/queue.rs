@@ -430,6 +430,31 @@ fn bad_pushes_are_refused_at_once() {
     let bad = Job { field: "rho".into(), step: 0, time: None, data: StepData::Grid { grid: g, frame: frame() }, range: None };
     assert!(matches!(q.push(bad), Err(Error::InvalidData(_))));
     assert!(matches!(q.push(job("a/b", 0)), Err(Error::InvalidArgument(_))));
+    // A particle or cell the encode would refuse is refused at the push
+    // (it was the step's failure, at the wait); none at all is the encode's
+    // to refuse (a rank of a decomposed field may hold none).
+    let particles = |h: f64, mass: f32| StepData::Particles {
+        positions: vec![[0.5; 3], [0.25; 3]],
+        smoothing_length: vec![0.1, h],
+        mass: vec![1.0, mass],
+        values: vec![1.0, 2.0],
+        placement: gsenc::input::Placement::new([8; 3], None),
+    };
+    let cells = |edge: f64| StepData::Cells {
+        centres: vec![[0.5; 3]],
+        edges: vec![[0.1, edge, 0.1]],
+        volumes: vec![],
+        values: vec![1.0],
+        placement: gsenc::input::Placement::new([8; 3], None),
+    };
+    for (data, says) in [
+        (particles(-0.5, 1.0), "particle 1 has smoothing length -0.5"),
+        (particles(0.1, -2.0), "particle 1 has mass -2"),
+        (cells(0.0), "cell 0 has edges [0.1, 0.0, 0.1]"),
+    ] {
+        let e = q.push(Job { field: "rho".into(), step: 0, time: None, data, range: None }).err().expect("refused");
+        assert!(matches!(&e, Error::InvalidData(m) if m.contains(says)), "{e}");
+    }
     assert!(q.poll("rho", 0).is_none());
     let mut cfg = queue_config(8, WhenFull::Block);
     cfg.threads = 100_000;

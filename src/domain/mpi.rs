@@ -260,7 +260,7 @@ impl Decomposition {
         let kind = Kind::of(&job.data);
         let (what, pushed, key) = labels(&job.field, job.step, kind);
         // A resumed field's first push rebuilds its layout from the pieces.
-        let local = queue.check(&job).and_then(|()| job.data.check_each()).and_then(|()| self.resumed_layout(&job.field, kind)).and_then(|resumed| {
+        let local = queue.check(&job).and_then(|()| self.resumed_layout(&job.field, kind)).and_then(|resumed| {
             let stats = self.check_local(&job, kind, resumed.as_ref())?;
             Ok((stats, resumed))
         });

@@ -57,10 +57,11 @@ impl StepData {
     /// [`Self::check_finite`], and every particle or cell as the encode
     /// will check it ([`Particles::validate_each`],
     /// [`Cells::validate_each`]: positive smoothing lengths and sizes,
-    /// masses not negative), on the calling thread alone: for a rank of a
-    /// decomposed field, whose items go to the pieces they reach, so that a
-    /// bad one fails the push on every rank (naming this one) instead of an
-    /// encode elsewhere, or going nowhere. None at all is no fault here.
+    /// masses not negative), on the calling thread alone: a push refuses a
+    /// bad item at once rather than its encode later, and a rank of a
+    /// decomposed field, whose items go to the pieces they reach, before a
+    /// bad one fails an encode elsewhere or goes nowhere. None at all is no
+    /// fault here (a rank of a decomposed field may hold none).
     pub fn check_each(&self) -> Result<()> {
         self.check_finite()?;
         self.with_input(|input| match input {

@@ -387,7 +387,9 @@ impl BackgroundEncoder {
 
     /// Queues `job` (its data already copied), or applies the full-queue
     /// policy. Refuses at once what cannot be encoded: non-finite values,
-    /// a step that does not follow the field's last pushed one.
+    /// a particle or cell the encode would refuse (a smoothing length or
+    /// size not positive, a negative mass), a step that does not follow
+    /// the field's last pushed one.
     pub fn push(&self, job: Job) -> Result<Pushed> {
         self.check(&job)?;
         self.push_checked(job, true)
@@ -407,10 +409,12 @@ impl BackgroundEncoder {
     }
 
     /// What `push` refuses before it queues anything: a bad field name,
-    /// non-finite values, a step that does not follow the field's last.
+    /// non-finite values or items the encode would refuse
+    /// ([`StepData::check_each`]), a step that does not follow the field's
+    /// last.
     pub fn check(&self, job: &Job) -> Result<()> {
         check_field_name(&job.field)?;
-        job.data.check_finite()?;
+        job.data.check_each()?;
         self.check_order(job)
     }
 
