@@ -452,7 +452,7 @@ fn bad_pushes_are_refused_at_once() {
         (particles(0.1, -2.0), "particle 1 has mass -2"),
         (cells(0.0), "cell 0 has edges [0.1, 0.0, 0.1]"),
     ] {
-        let e = q.push(Job { field: "rho".into(), step: 0, time: None, data, range: None }).err().expect("refused");
+        let e = q.push(Job { field: "rho".into(), step: 0, time: None, data, range: None }).expect_err("refused");
         assert!(matches!(&e, Error::InvalidData(m) if m.contains(says)), "{e}");
     }
     assert!(q.poll("rho", 0).is_none());
