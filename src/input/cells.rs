@@ -79,7 +79,7 @@ impl Cells<'_> {
 
     /// What [`Self::validate`] asks of each cell alone: a rank's part of a
     /// decomposed field, which may hold none. `serial`: on the calling
-    /// thread alone ([`first_bad`]).
+    /// thread alone (no rayon pool woken).
     pub fn validate_each(&self, serial: bool) -> Result<()> {
         let n = self.len();
         let what = match self.size {

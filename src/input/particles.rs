@@ -59,7 +59,7 @@ impl Particles<'_> {
 
     /// What [`Self::validate`] asks of each particle alone: a rank's part of
     /// a decomposed field, which may hold none or only massless ones.
-    /// `serial`: on the calling thread alone ([`first_bad`]).
+    /// `serial`: on the calling thread alone (no rayon pool woken).
     pub fn validate_each(&self, serial: bool) -> Result<()> {
         let n = self.len();
         for (name, len) in [
