@@ -28,8 +28,9 @@
  *   each step index and verifies each store with the tool).
  *
  * Usage: capi_mpi_walk OUTPUT_DIR [WALKS [FIRST_SEED]] (default 12 walks
- * from seed 1); GSENC_MPI_WALK_TRACE=1 prints rank 0's calls. */
-#define _POSIX_C_SOURCE 200809L /* setenv, strdup */
+ * from seed 1); GSENC_MPI_WALK_TRACE=1 prints every rank's calls and the
+ * faults it drew. */
+#define _POSIX_C_SOURCE 200809L /* setenv, alarm */
 #include "gsenc.h"
 #include <math.h>
 #include <mpi.h>
@@ -69,23 +70,27 @@ static const char *last_error(void) {
 }
 
 static void fail(const char *what) {
-    fprintf(stderr, "capi_mpi_walk: rank %d, walk seed %llu, at \"%s\": %s\n", rank, (unsigned long long)walk_seed, last_call, what);
+    fprintf(stderr, "capi_mpi_walk: at %s: %s\n", last_call, what);
     MPI_Abort(MPI_COMM_WORLD, 1);
 }
 
 static void on_alarm(int sig) {
     (void)sig;
-    static const char msg[] = "capi_mpi_walk: a call has not returned in two minutes (a rank waiting in a collective?); the last call and seed follow\n";
+    static const char msg[] = "capi_mpi_walk: a call has not returned in two minutes (a rank waiting in a collective?): ";
     ssize_t w = write(2, msg, sizeof msg - 1);
     w = write(2, last_call, strlen(last_call));
+    w = write(2, "\n", 1);
     (void)w;
     _exit(3);
 }
 
-/* Starts a call: its name for failures and the trace, and the watchdog. */
+/* Starts a call: its name, rank and walk seed for failures and the trace
+ * (kept whole for the watchdog, which may only write it), and the
+ * watchdog. */
 static void call(const char *fmt, const char *a, long long b) {
-    snprintf(last_call, sizeof last_call, fmt, a, b);
-    if (trace) fprintf(stderr, "  rank %d, seed %llu: %s\n", rank, (unsigned long long)walk_seed, last_call);
+    int n = snprintf(last_call, sizeof last_call, "rank %d, walk seed %llu: ", rank, (unsigned long long)walk_seed);
+    snprintf(last_call + n, sizeof last_call - (size_t)n, fmt, a, b);
+    if (trace) fprintf(stderr, "  %s\n", last_call);
     alarm(WATCHDOG_S);
 }
 
@@ -129,7 +134,7 @@ static double value_at(double x, double y, double z, uint64_t step) {
 typedef struct {
     char name[16];
     int form;        /* 0 grid, 1 particles, 2 cells */
-    int n;           /* a grid's cells along each axis of the unit box */
+    int n;           /* cells of a grid, or of the lattice particles and cells sit on, along each axis */
     int hexahedra;   /* cells: as hexahedra, not boxes (a layout is part of the form) */
     uint64_t step;   /* the last step pushed, */
     int started;     /* if any */
@@ -197,7 +202,6 @@ static gsenc_status push_grid(walk_t *w, field_t *f, uint64_t step, int fault) {
     }
     if (fault == 1 && nx == 0) fbuf[0] = NAN, g.extents[0] = 1; /* a slab of none has no value to spoil */
     sure = (fault >= 1 && fault <= 3 && (nx > 0 || fault == 1)) || (fault >= 4 && fault <= 5 && f->started) || (fault >= 6 && fault <= 8);
-    if (fault == 10) sure = 0;
     empty = nx == 0;
     return gsenc_push_grid(w->enc, name, step, 0.01 * (double)step, &g);
 }
@@ -372,7 +376,7 @@ static void push(walk_t *w) {
     call(form == 0 ? "push grid %s step %lld" : form == 1 ? "push particles %s step %lld" : "push cells %s step %lld", f->name, (long long)step);
     gsenc_status s = form == 0 ? push_grid(w, f, step, fault) : form == 1 ? push_particles(w, f, step, fault) : push_cells(w, f, step, fault);
     if (fault == 10) unsetenv("GSENC_MEMORY_LIMIT");
-    if (trace && (fault || empty)) fprintf(stderr, "  rank %d: fault %d%s: %s\n", rank, fault, empty ? ", no items" : "", gsenc_status_string(s));
+    if (trace && (fault || empty)) fprintf(stderr, "  %s: fault %d%s: %s\n", last_call, fault, empty ? ", no items" : "", gsenc_status_string(s));
     int anyone_spoiled = 0, refusable = empty && (form == 0 || !f->started);
     int ok = together(s, sure, fault != 0 || refusable, &anyone_spoiled);
     int moved = fault == 9, some_moved = 0, all_moved = 0;
