@@ -14,10 +14,8 @@ use std::ffi::CString;
 #[test]
 fn the_c_api_appends_every_step_to_an_hdf5_store() {
     let _hdf5 = common::hdf5_serial();
-    let dir = std::env::temp_dir().join(format!("gsenc-capi-h5-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::tmpdir("capi-h5");
     let path = dir.join("run.h5");
-    let _ = std::fs::remove_file(&path);
     let c_path = CString::new(path.to_str().unwrap()).unwrap();
     let field = CString::new("rho").unwrap();
     unsafe {
@@ -61,7 +59,6 @@ fn the_c_api_appends_every_step_to_an_hdf5_store() {
         }
         gsenc_encoder_destroy(enc);
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 /// A restarted encoder resumes from the store it writes: a step the
@@ -171,8 +168,7 @@ fn probe(path: &std::path::Path) -> (std::process::Child, String) {
 #[test]
 fn an_hdf5_store_is_held_from_create_to_destroy() {
     let _hdf5 = common::hdf5_serial();
-    let dir = std::env::temp_dir().join(format!("gsenc-capi-h5-lock-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = common::tmpdir("capi-h5-lock");
     let path = dir.join("run.h5");
     let c_path = CString::new(path.to_str().unwrap()).unwrap();
     let done = |mut child: std::process::Child| {
@@ -199,5 +195,4 @@ fn an_hdf5_store_is_held_from_create_to_destroy() {
         assert_eq!(gsenc_encoder_create(&cfg, &mut other), gsenc_status::Ok);
         gsenc_encoder_destroy(other);
     }
-    std::fs::remove_dir_all(&dir).unwrap();
 }
