@@ -1,6 +1,6 @@
 //! Owned input: a step's arrays copied out of the caller's memory.
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::field::{check_finite_serial as check_finite, Grid, IndexFrame};
 use crate::input::cells::{CellSize, Cells};
 use crate::input::particles::Particles;
@@ -30,45 +30,28 @@ impl StepData {
         }
     }
 
-    /// Refuses non-finite values now, so the failing push is the one that
-    /// passed them rather than a later encode. Runs on the calling thread
-    /// only (no rayon pool).
-    pub fn check_finite(&self) -> Result<()> {
+    /// What a push refuses at once, so that the failing push is the one
+    /// that passed it rather than a later encode: non-finite values, and
+    /// every particle or cell as the encode will check it
+    /// ([`Particles::validate_each`], [`Cells::validate_each`]: finite
+    /// positions, positive finite smoothing lengths and sizes, masses
+    /// finite and not negative). On the calling thread alone (no rayon
+    /// pool). A rank of a decomposed field sends its items to the pieces
+    /// they reach: a bad one would fail an encode elsewhere or go nowhere.
+    /// None at all is no fault here (a rank of a decomposed field may hold
+    /// none).
+    pub fn check_each(&self) -> Result<()> {
         match self {
             StepData::Grid { grid, .. } => check_finite(&grid.values),
-            StepData::Particles { positions, smoothing_length, mass, values, .. } => {
+            StepData::Particles { values, .. } | StepData::Cells { values, .. } => {
                 check_finite(values)?;
-                check_finite(mass)?;
-                if positions.iter().flatten().chain(smoothing_length).any(|v| !v.is_finite()) {
-                    return Err(Error::data("a particle position or smoothing length is not finite"));
-                }
-                Ok(())
-            }
-            StepData::Cells { centres, edges, volumes, values, .. } => {
-                check_finite(values)?;
-                if centres.iter().chain(edges).flatten().chain(volumes).any(|v| !v.is_finite()) {
-                    return Err(Error::data("a cell centre, edge length or volume is not finite"));
-                }
-                Ok(())
+                self.with_input(|input| match input {
+                    Input::Particles { particles, .. } => particles.validate_each(true),
+                    Input::Cells { cells, .. } => cells.validate_each(true),
+                    _ => Ok(()),
+                })
             }
         }
-    }
-
-    /// [`Self::check_finite`], and every particle or cell as the encode
-    /// will check it ([`Particles::validate_each`],
-    /// [`Cells::validate_each`]: positive smoothing lengths and sizes,
-    /// masses not negative), on the calling thread alone: a push refuses a
-    /// bad item at once rather than its encode later, and a rank of a
-    /// decomposed field, whose items go to the pieces they reach, before a
-    /// bad one fails an encode elsewhere or goes nowhere. None at all is no
-    /// fault here (a rank of a decomposed field may hold none).
-    pub fn check_each(&self) -> Result<()> {
-        self.check_finite()?;
-        self.with_input(|input| match input {
-            Input::Particles { particles, .. } => particles.validate_each(true),
-            Input::Cells { cells, .. } => cells.validate_each(true),
-            _ => Ok(()),
-        })
     }
 
     /// Runs `f` on this data as an [`Input`].
